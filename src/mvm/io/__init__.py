@@ -1,0 +1,1 @@
+"""Readers and writers, one module per format. Math modules never import from here."""

@@ -1,0 +1,177 @@
+"""COCO keypoint files (the *dataset* format, as OpenPifPaf and the scene contract use it)."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
+
+
+@dataclass(frozen=True)
+class CocoKeypoints:
+    """The content of a COCO keypoints file.
+
+    Attributes:
+        image_ids: ``(I,)``; file_names: ``I`` names; sizes: ``(I, 2)`` width, height (0 if absent).
+        ann_ids: ``(N,)``; ann_image: ``(N,)`` index into the images (not the id);
+        keypoints: ``(N, 17, 3)`` x, y, v with v in [0, 1] (COCO visibility flags 1 and 2 read as 1);
+        score: ``(N,)``; appearance: ``(N, D)`` or None.
+    """
+
+    image_ids: np.ndarray
+    file_names: tuple[str, ...]
+    sizes: np.ndarray
+    ann_ids: np.ndarray
+    ann_image: np.ndarray
+    keypoints: np.ndarray
+    score: np.ndarray
+    appearance: np.ndarray | None
+
+
+def _number(value, path, field) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(path, field, f"expected a number, got {type(value).__name__}")
+    if not math.isfinite(value):
+        raise InputError(path, field, f"not a finite number ({value})")
+    return float(value)
+
+
+def _int(value, path, field) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(path, field, f"expected an integer, got {value!r}")
+    return value
+
+
+def parse_keypoints(values, path, field) -> np.ndarray:
+    """A flat list of 51 numbers -> ``(17, 3)`` with v in [0, 1]; coordinates of missing joints zeroed."""
+    if not isinstance(values, list):
+        raise InputError(path, field, f"expected a list of {3 * NUM_JOINTS} numbers, got {type(values).__name__}")
+    if len(values) != 3 * NUM_JOINTS:
+        raise InputError(path, field, f"expected {3 * NUM_JOINTS} numbers (17 keypoints × x, y, v), got {len(values)}")
+    kp = np.array([_number(v, path, f"{field}[{i}]") for i, v in enumerate(values)]).reshape(NUM_JOINTS, 3)
+    if np.any(kp[:, 2] < 0):
+        raise InputError(path, field, "negative keypoint confidence")
+    kp[:, 2] = np.minimum(kp[:, 2], 1.0)  # COCO ground truth flags 1, 2 -> 1
+    kp[kp[:, 2] == 0, :2] = 0.0
+    return kp
+
+
+def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
+    """Read and validate a COCO keypoints file; any problem raises one ``InputError`` line."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"not valid JSON: {e}") from None
+    if not isinstance(data, dict):
+        raise InputError(path, None, "expected a JSON object with 'images' and 'annotations'")
+    for key in ("images", "annotations"):
+        if not isinstance(data.get(key), list):
+            raise InputError(path, key, "missing, or not a list")
+
+    image_ids, names, sizes, index = [], [], [], {}
+    for i, image in enumerate(data["images"]):
+        field = f"images[{i}]"
+        if not isinstance(image, dict):
+            raise InputError(path, field, "expected an object")
+        image_id = _int(image.get("id"), path, f"{field}.id")
+        name = image.get("file_name")
+        if not isinstance(name, str) or not name:
+            raise InputError(path, f"{field}.file_name", "missing, or not a string")
+        if image_id in index:
+            raise InputError(path, f"{field}.id", f"duplicate image id {image_id}")
+        index[image_id] = i
+        image_ids.append(image_id)
+        names.append(name)
+        sizes.append((_number(image.get("width", 0), path, f"{field}.width"),
+                      _number(image.get("height", 0), path, f"{field}.height")))
+    if len(set(names)) != len(names):
+        raise InputError(path, "images", "duplicate file_name")
+
+    ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
+    seen = set()
+    for i, ann in enumerate(data["annotations"]):
+        field = f"annotations[{i}]"
+        if not isinstance(ann, dict):
+            raise InputError(path, field, "expected an object")
+        ann_id = _int(ann.get("id"), path, f"{field}.id")
+        if ann_id in seen:
+            raise InputError(path, f"{field}.id", f"duplicate annotation id {ann_id}")
+        seen.add(ann_id)
+        image_id = _int(ann.get("image_id"), path, f"{field}.image_id")
+        if image_id not in index:
+            raise InputError(path, f"{field}.image_id", f"no image with id {image_id}")
+        if ann.get("category_id", 1) != 1:
+            continue  # not a person
+        kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
+        present = kp[:, 2] > 0
+        default_score = float(kp[present, 2].mean()) if present.any() else 0.0
+        score = _number(ann.get("score", default_score), path, f"{field}.score")
+        if score < 0:
+            raise InputError(path, f"{field}.score", f"negative score {score}")
+        app = ann.get("appearance")
+        if app is not None:
+            if not isinstance(app, list) or not app:
+                raise InputError(path, f"{field}.appearance", "expected a non-empty list of numbers")
+            app = [_number(v, path, f"{field}.appearance[{k}]") for k, v in enumerate(app)]
+        ann_ids.append(ann_id)
+        ann_image.append(index[image_id])
+        kps.append(kp)
+        scores.append(min(score, 1.0))
+        apps.append(app)
+
+    appearance = None
+    with_app = [a for a in apps if a is not None]
+    if with_app:
+        lengths = {len(a) for a in with_app}
+        if len(with_app) != len(apps) or len(lengths) != 1:
+            first_bad = next(i for i, a in enumerate(apps) if a is None or len(a) != len(with_app[0]))
+            raise InputError(path, f"annotations[{first_bad}].appearance",
+                             "every annotation needs an appearance descriptor of the same length, or none")
+        appearance = np.array(apps, dtype=float)
+    N = len(ann_ids)
+    return CocoKeypoints(
+        image_ids=np.array(image_ids, dtype=np.int64),
+        file_names=tuple(names),
+        sizes=np.array(sizes, dtype=float).reshape(-1, 2),
+        ann_ids=np.array(ann_ids, dtype=np.int64),
+        ann_image=np.array(ann_image, dtype=np.int64),
+        keypoints=np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3),
+        score=np.array(scores, dtype=float),
+        appearance=appearance,
+    )
+
+
+def coco_keypoints_document(file_names, sizes, ann_image, keypoints, score, ann_ids=None,
+                            appearance=None) -> dict:
+    """Build a COCO keypoints dataset dict. ``keypoints: (N, 17, 3)``, ``ann_image: (N,)`` index
+    into ``file_names``; image ids are 1-based positions."""
+    N = len(keypoints)
+    ann_ids = np.arange(1, N + 1) if ann_ids is None else ann_ids
+    images = [{"id": i + 1, "file_name": name, "width": int(w), "height": int(h)}
+              for i, (name, (w, h)) in enumerate(zip(file_names, sizes))]
+    annotations = []
+    for n in range(N):
+        kp = np.asarray(keypoints[n], dtype=float)
+        ann = {"id": int(ann_ids[n]), "image_id": int(ann_image[n]) + 1, "category_id": 1,
+               "keypoints": [round(float(v), 3) for v in kp.reshape(-1)],
+               "score": round(float(score[n]), 4)}
+        present = kp[:, 2] > 0
+        if present.any():
+            x0, y0 = kp[present, :2].min(axis=0)
+            x1, y1 = kp[present, :2].max(axis=0)
+            ann["bbox"] = [round(float(x0), 2), round(float(y0), 2), round(float(x1 - x0), 2), round(float(y1 - y0), 2)]
+        ann["num_keypoints"] = int(present.sum())
+        if appearance is not None:
+            ann["appearance"] = [round(float(v), 5) for v in appearance[n]]
+        annotations.append(ann)
+    return {"images": images, "annotations": annotations, "categories": [COCO_PERSON_CATEGORY]}

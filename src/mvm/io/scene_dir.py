@@ -1,0 +1,151 @@
+"""The scene directory (DESIGN.md): ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out."""
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..keypoints import COCO_KEYPOINTS, NUM_JOINTS
+from ..scene import Cameras, Persons3D, Poses2D, Scene
+from .coco import coco_keypoints_document, read_coco_keypoints
+from .colmap import read_colmap, undistort_keypoints, write_colmap
+from .files import atomic_replace_dir, atomic_write_json
+
+log = logging.getLogger(__name__)
+
+POSES2D = "poses2d.json"
+SPARSE = "sparse"
+POSES3D_FORMAT = "mvm.poses3d/1"
+
+
+def read_scene(path: str | Path) -> Scene:
+    """Read a scene directory into a :class:`Scene` (keypoints undistorted, unregistered
+    images' poses dropped with a warning)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(path, None, "not a scene directory (expected sparse/ and poses2d.json)")
+    model = read_colmap(path / SPARSE)
+    coco_path = path / POSES2D
+    coco = read_coco_keypoints(coco_path)
+    view_of_name = model.index()
+    unregistered = set(model.unregistered)
+    image_view = np.full(len(coco.file_names), -1)
+    for i, name in enumerate(coco.file_names):
+        if name in view_of_name:
+            image_view[i] = view_of_name[name]
+        elif name not in unregistered:
+            raise InputError(coco_path, f"images[{i}].file_name",
+                             f"image {name!r} is not in the COLMAP model {path / SPARSE}")
+    view = image_view[coco.ann_image]
+    kept = view >= 0
+    if (~kept).any():
+        log.warning("%s: %d 2D poses are in images without a camera pose and are ignored",
+                    coco_path, int((~kept).sum()))
+    if not kept.any():
+        raise InputError(coco_path, "annotations", "no 2D poses in registered images: nothing to reconstruct")
+    keypoints = coco.keypoints[kept].copy()
+    keypoints[:, :, :2] = undistort_keypoints(model, view[kept], keypoints[:, :, :2])
+    keypoints[keypoints[:, :, 2] == 0, :2] = 0.0
+    appearance = None if coco.appearance is None else coco.appearance[kept]
+    poses = Poses2D(keypoints, view[kept], coco.ann_ids[kept], coco.score[kept], appearance)
+    return Scene(path.name, model.cameras, poses, model.points3d)
+
+
+def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool = True,
+                points3d: np.ndarray | None = None) -> None:
+    """Write a scene directory: a COLMAP model of ``cameras`` and ``poses2d.json`` (keypoints in
+    the pinhole cameras' pixels). Each part is written atomically."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras, binary=binary, points3d=points3d),
+                       path / SPARSE)
+    document = coco_keypoints_document(cameras.names, cameras.size, poses.view, poses.keypoints,
+                                       poses.score, poses.ids, poses.appearance)
+    atomic_write_json(path / POSES2D, document)
+
+
+def _finite_or_none(value: float, digits: int = 5):
+    return round(float(value), digits) if math.isfinite(value) else None
+
+
+def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: dict | None = None) -> dict:
+    """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``."""
+    out = []
+    for p in range(len(persons)):
+        kp = []
+        for j in range(NUM_JOINTS):
+            x = persons.keypoints3d[p, j]
+            if np.all(np.isfinite(x)):
+                kp.append([round(float(v), 6) for v in x] + [round(float(persons.scores[p, j]), 4)])
+            else:
+                kp.append([None, None, None, 0.0])
+        out.append({
+            "id": p,
+            "keypoints3d": kp,
+            "members": [int(poses.ids[m]) for m in persons.members[p]],
+            "views_per_joint": [int(v) for v in persons.views_per_joint[p]],
+            "outliers_per_joint": [int(v) for v in persons.outliers_per_joint[p]],
+            "reprojection_error_px": _finite_or_none(persons.reprojection_error_px[p], 4),
+        })
+    document = {"format": POSES3D_FORMAT, "keypoints": list(COCO_KEYPOINTS), "persons": out,
+                "metrics": {k: (_finite_or_none(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}}
+    if extra:
+        document.update(extra)
+    return document
+
+
+def write_poses3d(path: str | Path, document: dict) -> None:
+    atomic_write_json(path, document, indent=1)
+
+
+def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
+    """Read ``poses3d.json``. With ``poses``, members are mapped back to indices into it;
+    otherwise ``members`` hold the annotation ids."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read: {e}") from None
+    if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
+        raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
+    persons = data.get("persons")
+    if not isinstance(persons, list):
+        raise InputError(path, "persons", "missing, or not a list")
+    P = len(persons)
+    X = np.full((P, NUM_JOINTS, 3), np.nan)
+    scores = np.zeros((P, NUM_JOINTS))
+    views = np.zeros((P, NUM_JOINTS), dtype=int)
+    outliers = np.zeros((P, NUM_JOINTS), dtype=int)
+    err = np.full(P, np.nan)
+    members = []
+    index = None if poses is None else {int(a): i for i, a in enumerate(poses.ids)}
+    for p, person in enumerate(persons):
+        field = f"persons[{p}]"
+        try:
+            kp = person["keypoints3d"]
+            if len(kp) != NUM_JOINTS:
+                raise ValueError(f"keypoints3d: expected {NUM_JOINTS} entries")
+            for j, entry in enumerate(kp):
+                if entry[0] is not None:
+                    X[p, j] = [float(v) for v in entry[:3]]
+                scores[p, j] = float(entry[3])
+            views[p] = person.get("views_per_joint", [0] * NUM_JOINTS)
+            outliers[p] = person.get("outliers_per_joint", [0] * NUM_JOINTS)
+            if person.get("reprojection_error_px") is not None:
+                err[p] = float(person["reprojection_error_px"])
+            ids = [int(a) for a in person.get("members", [])]
+        except (KeyError, TypeError, ValueError, IndexError) as e:
+            raise InputError(path, field, f"malformed person: {e}") from None
+        if index is not None:
+            missing = [a for a in ids if a not in index]
+            if missing:
+                raise InputError(path, f"{field}.members", f"annotation id {missing[0]} not in poses2d.json")
+            ids = [index[a] for a in ids]
+        members.append(np.array(ids, dtype=np.int64))
+    return Persons3D(X, scores, members, views, outliers, err)

@@ -1,0 +1,82 @@
+"""The 17 COCO keypoints: names, skeleton, left/right symmetry and body proportions.
+
+Every array in mvm that has a joint axis uses this order (``J = 17``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+COCO_KEYPOINTS: tuple[str, ...] = (
+    "nose",
+    "left_eye",
+    "right_eye",
+    "left_ear",
+    "right_ear",
+    "left_shoulder",
+    "right_shoulder",
+    "left_elbow",
+    "right_elbow",
+    "left_wrist",
+    "right_wrist",
+    "left_hip",
+    "right_hip",
+    "left_knee",
+    "right_knee",
+    "left_ankle",
+    "right_ankle",
+)
+NUM_JOINTS = len(COCO_KEYPOINTS)
+INDEX = {name: i for i, name in enumerate(COCO_KEYPOINTS)}
+
+#: The COCO person skeleton, 0-based joint index pairs (the COCO file lists them 1-based).
+COCO_SKELETON: tuple[tuple[int, int], ...] = (
+    (15, 13), (13, 11), (16, 14), (14, 12), (11, 12), (5, 11), (6, 12), (5, 6), (5, 7),
+    (6, 8), (7, 9), (8, 10), (1, 2), (0, 1), (0, 2), (1, 3), (2, 4), (3, 5), (4, 6),
+)
+
+#: Bones of the body (no face connections), used for lengths and scale.
+BONES: tuple[tuple[int, int], ...] = (
+    (5, 7), (7, 9), (6, 8), (8, 10),          # arms
+    (11, 13), (13, 15), (12, 14), (14, 16),   # legs
+    (5, 6), (11, 12), (5, 11), (6, 12),       # torso
+)
+
+#: Average adult bone lengths in metres for ``BONES`` (anthropometric means, both sexes).
+MEAN_BONE_LENGTHS_M = np.array(
+    [0.29, 0.25, 0.29, 0.25,
+     0.42, 0.41, 0.42, 0.41,
+     0.35, 0.20, 0.50, 0.50]
+)
+
+#: Index permutation that swaps left and right joints (for horizontal flips).
+FLIP_PERMUTATION = np.array([0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15])
+
+#: Per-keypoint OKS sigmas of the COCO evaluation.
+COCO_SIGMAS = np.array(
+    [0.026, 0.025, 0.025, 0.035, 0.035, 0.079, 0.079, 0.072, 0.072, 0.062, 0.062,
+     0.107, 0.107, 0.087, 0.087, 0.089, 0.089]
+)
+
+#: The COCO person category as written into keypoint files.
+COCO_PERSON_CATEGORY = {
+    "id": 1,
+    "name": "person",
+    "supercategory": "person",
+    "keypoints": list(COCO_KEYPOINTS),
+    "skeleton": [[a + 1, b + 1] for a, b in COCO_SKELETON],
+}
+
+LEFT_HIP, RIGHT_HIP = INDEX["left_hip"], INDEX["right_hip"]
+LEFT_SHOULDER, RIGHT_SHOULDER = INDEX["left_shoulder"], INDEX["right_shoulder"]
+
+
+def pelvis(points: np.ndarray) -> np.ndarray:
+    """Mid-point of the hips. ``points: (..., 17, D)`` -> ``(..., D)``."""
+    return 0.5 * (points[..., LEFT_HIP, :] + points[..., RIGHT_HIP, :])
+
+
+def bone_lengths(points: np.ndarray) -> np.ndarray:
+    """Lengths of ``BONES``. ``points: (..., 17, D)`` -> ``(..., 12)`` (NaN where a joint is NaN)."""
+    a = points[..., [b[0] for b in BONES], :]
+    b = points[..., [b[1] for b in BONES], :]
+    return np.linalg.norm(a - b, axis=-1)
