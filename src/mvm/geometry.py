@@ -53,7 +53,8 @@ def fundamental_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndar
 def point_line_distance(points: np.ndarray, lines: np.ndarray) -> np.ndarray:
     """Euclidean distance of pixels to lines. ``points: (..., 2)``, ``lines: (..., 3)`` -> ``(...)``."""
     numerator = np.abs(lines[..., 0] * points[..., 0] + lines[..., 1] * points[..., 1] + lines[..., 2])
-    return numerator / np.hypot(lines[..., 0], lines[..., 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return numerator / np.hypot(lines[..., 0], lines[..., 1])
 
 
 def triangulate_dlt(points: np.ndarray, P: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Create .venv with mvm and its extras. torch is installed first and pinned by
+# constraints.txt, so that no later step pulls a different (CUDA) build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python3 -m venv .venv
+. .venv/bin/activate
+python -m pip install -q --upgrade pip
+python -m pip install -q torch==2.13.0
+python -m pip install -q -c constraints.txt -e ".[net,video,eval,dev]"
