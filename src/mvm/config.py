@@ -43,6 +43,11 @@ class Config:
     ransac_threshold_px: float = 15.0
     #: Number of RANSAC hypotheses (two-view triangulations) per joint. [1]
     ransac_hypotheses: int = 48
+    #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
+    ransac: bool = True
+    #: Two persons whose joints are on average closer than this fraction of the torso length
+    #: are one person split into two groups, and are merged; 0 disables. [torso lengths]
+    merge_distance: float = 0.3
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = 2
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]
@@ -123,7 +128,7 @@ def _validate(config: Config, source: str) -> None:
     for name in positive:
         if getattr(config, name) <= 0:
             raise InputError(source, name, f"must be > 0, got {getattr(config, name)}")
-    for name in ("prior_weight", "tau", "keypoint_threshold", "min_pose_score", "min_parallax_deg"):
+    for name in ("prior_weight", "tau", "merge_distance", "keypoint_threshold", "min_pose_score", "min_parallax_deg"):
         if getattr(config, name) < 0:
             raise InputError(source, name, f"must be >= 0, got {getattr(config, name)}")
     if config.min_views < 2:

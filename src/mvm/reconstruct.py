@@ -3,10 +3,12 @@ from __future__ import annotations
 
 import logging
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .affinity import affinity, appearance_similarity, epipolar_distance
 from .config import Config
@@ -53,6 +55,53 @@ def match(scene: Scene, config: Config) -> list[np.ndarray]:
                          config.min_group_size)
 
 
+def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
+                     max_relative_distance: float) -> list[np.ndarray] | None:
+    """Merge groups whose triangulated poses coincide (a person split into two groups).
+
+    Two persons are duplicates when their mean joint distance, over the joints both have, is
+    below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
+    keeps the test free of the model's unknown scale; also when one is the mirror of the other
+    (left and right exchanged: a group of left-right swapped detections). The smaller group's
+    poses join the larger one, except those from views the larger group already has;
+    triangulation then treats a swapped keypoint as any other outlier.
+
+    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
+    when nothing merges.
+    """
+    from .keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+
+    P = len(X)
+    if P < 2:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
+                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                      # all-NaN rows
+        diff = np.linalg.norm(X[:, None] - X[None], axis=-1)                 # (P, P, J)
+        mirrored = np.linalg.norm(X[:, None] - X[None][:, :, FLIP_PERMUTATION], axis=-1)
+        mean = np.fmin(np.nanmean(diff, axis=-1), np.nanmean(mirrored, axis=-1))
+        scale = np.fmax(torso[:, None], torso[None])
+        close = (mean < max_relative_distance * scale) & ~np.eye(P, dtype=bool)
+    if not close.any():
+        return None
+    order = np.argsort([-len(g) for g in groups], kind="stable")
+    absorbed = np.zeros(P, dtype=bool)
+    merged = {int(p): list(groups[p]) for p in range(P)}
+    for p in order:
+        if absorbed[p]:
+            continue
+        for q in order:
+            if q == p or absorbed[q] or not close[p, q] or len(groups[q]) > len(merged[p]):
+                continue
+            views = set(view[merged[p]].tolist())
+            merged[p] += [m for m in groups[q] if view[m] not in views]
+            absorbed[q] = True
+    return [np.array(merged[p]) for p in range(P) if not absorbed[p]]
+
+
 def reconstruct(scene: Scene, config: Config | None = None, prior=None,
                 groups: list[np.ndarray] | None = None) -> Result:
     """Reconstruct the persons of ``scene``.
@@ -64,6 +113,12 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
         groups: precomputed groups of pose indices (skips matching), e.g. from a baseline.
     """
     config = config or Config()
+    # The hot paths are many small products: BLAS threads only contend with each other.
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _reconstruct(scene, config, prior, groups)
+
+
+def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
     timings = {}
     t = time.perf_counter()
     if groups is None:
@@ -71,10 +126,21 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
     timings["matching_s"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    rng = np.random.default_rng(config.seed)
-    obs = gather_groups(scene.cameras, scene.poses, groups, config.keypoint_threshold)
-    tri = ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
-                             config.min_views, config.min_parallax_deg, rng)
+
+    def triangulate(groups):
+        obs = gather_groups(scene.cameras, scene.poses, groups, config.keypoint_threshold)
+        rng = np.random.default_rng(config.seed)
+        return obs, ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
+                                       config.min_views, config.min_parallax_deg, rng,
+                                       use_ransac=config.ransac)
+
+    obs, tri = triangulate(groups)
+    if config.merge_distance > 0:
+        merged = merge_duplicates(tri.X, groups, scene.poses.view, config.merge_distance)
+        if merged is not None:
+            log.info("%s: merged %d duplicate group(s)", scene.name, len(groups) - len(merged))
+            groups = merged
+            obs, tri = triangulate(groups)
     timings["triangulation_s"] = time.perf_counter() - t
 
     t = time.perf_counter()

@@ -115,80 +115,73 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     rows_reproj = np.repeat(np.arange(2 * K), 3)
     cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
 
+    # Parameter columns of each person's present joints (joint-major x, y, z).
+    person_cols = [3 * np.repeat(param_of[p][present[p]], 3) + np.tile(np.arange(3), present[p].sum())
+                   for p in range(Pn)]
+    use_prior = prior is not None and prior_weight > 0
+
     def unpack(x):
         X = np.full((Pn, J, 3), np.nan)
         X[present] = x.reshape(-1, 3)
         return X
 
     def reprojection(x):
-        pts = x.reshape(-1, 3)[obs_param]
-        uv, depth = project(pts, obs_P)
+        """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints."""
+        uv, depth = project(x.reshape(-1, 3)[obs_param], obs_P)
         return uv - obs_xy, depth
 
-    def objective(x, weights, blocks):
-        e, _ = reprojection(x)
-        sq = (e**2).sum(-1)
-        f2 = robust_scale_px**2
-        total = (obs_c * 2 * f2 * (np.sqrt(1 + sq / f2) - 1)).sum()
-        for p, block in blocks.items():
+    def prior_terms(X):
+        """Linearized prior of every person: ``[(cols, G, h)]`` with residual ``G x[cols] − h``
+        (already scaled by sqrt(λ))."""
+        if not use_prior:
+            return []
+        terms = []
+        for p in range(Pn):
+            block = _prior_block(X[p], present[p], prior)
             if block is not None:
                 G, h = block
-                r = G @ x[3 * param_of[p][present[p]].repeat(3) + np.tile(np.arange(3), present[p].sum())] - h
-                total += prior_weight * 0.5 * (r @ r)
-        return float(total)
+                terms.append((person_cols[p], np.sqrt(prior_weight) * G, np.sqrt(prior_weight) * h))
+        return terms
+
+    def objective(x, terms):
+        """Σ c ρ(e²) + λ E_P (up to the mixture's constants)."""
+        e, _ = reprojection(x)
+        f2 = robust_scale_px**2
+        total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+        return float(total + sum(0.5 * np.sum((G @ x[cols] - h) ** 2) for cols, G, h in terms))
 
     x = X0[present].reshape(-1).copy()
-    blocks: dict[int, tuple | None] = {}
-    if prior is not None and prior_weight > 0:
-        blocks = {p: _prior_block(X0[p], present[p], prior) for p in range(Pn)}
-    cost_before = objective(x, None, blocks)
+    cost_before = objective(x, prior_terms(X0))
 
     for _ in range(outer_iterations):
         e, _ = reprojection(x)
-        sq = (e**2).sum(-1)
-        robust_w = 1.0 / np.sqrt(1.0 + sq / robust_scale_px**2)           # ρ'(e²) of soft-L1
-        sqrt_w = np.repeat(np.sqrt(2.0 * robust_w * obs_c), 2)             # (2K,)
-        Xc = unpack(x)
-        if prior is not None and prior_weight > 0:
-            blocks = {p: _prior_block(Xc[p], present[p], prior) for p in range(Pn)}
-        prior_rows, prior_cols, prior_vals, prior_h = [], [], [], []
-        offset = 2 * K
-        for p, block in blocks.items():
-            if block is None:
-                continue
-            G, h = block
-            cols = 3 * np.repeat(param_of[p][present[p]], 3) + np.tile(np.arange(3), present[p].sum())
-            r_idx = offset + np.arange(G.shape[0])
-            prior_rows.append(np.repeat(r_idx, len(cols)))
-            prior_cols.append(np.tile(cols, G.shape[0]))
-            prior_vals.append(np.sqrt(prior_weight) * G.reshape(-1))
-            prior_h.append((cols, np.sqrt(prior_weight) * G, np.sqrt(prior_weight) * h))
-            offset += G.shape[0]
-        rows = np.concatenate([rows_reproj] + prior_rows)
-        cols = np.concatenate([cols_reproj] + prior_cols)
-        prior_vals_all = np.concatenate(prior_vals) if prior_vals else np.zeros(0)
-        n_rows = offset
+        robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)   # ρ'(e²) of soft-L1
+        sqrt_w = np.repeat(np.sqrt(2.0 * robust_w * obs_c), 2)                 # (2K,)
+        terms = prior_terms(unpack(x))
+        # The Jacobian's sparsity pattern: 3 entries per reprojection row, a dense block per
+        # person's prior rows.
+        starts = 2 * K + np.cumsum([0] + [len(G) for _, G, _ in terms])
+        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + len(G)), len(cols))
+                                               for a, (cols, G, _) in zip(starts, terms)])
+        cols_all = np.concatenate([cols_reproj] + [np.tile(cols, len(G)) for cols, G, _ in terms])
+        prior_values = np.concatenate([np.zeros(0)] + [G.reshape(-1) for _, G, _ in terms])
+        shape = (int(starts[-1]), n_params)
 
         def residuals(x):
             e, _ = reprojection(x)
-            parts = [sqrt_w * e.reshape(-1)]
-            parts += [G @ x[cols_p] - h for cols_p, G, h in prior_h]
-            return np.concatenate(parts)
+            return np.concatenate([sqrt_w * e.reshape(-1)] + [G @ x[cols] - h for cols, G, h in terms])
 
         def jacobian(x):
-            pts = x.reshape(-1, 3)[obs_param]
-            homogeneous = np.concatenate([pts, np.ones((K, 1))], axis=1)
+            homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
             proj = np.einsum("kab,kb->ka", obs_P, homogeneous)
             z = proj[:, 2:3]
             uv = proj[:, :2] / z
             d = (obs_P[:, :2, :3] - uv[:, :, None] * obs_P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
-            vals = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-            return sp.csr_matrix((np.concatenate([vals, prior_vals_all]), (rows, cols)),
-                                 shape=(n_rows, n_params))
+            values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
+            return sp.csr_matrix((np.concatenate([values, prior_values]), (rows, cols_all)), shape=shape)
 
-        solution = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
-                                 x_scale="jac", max_nfev=max_iterations)
-        x = solution.x
+        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
+                          x_scale="jac", max_nfev=max_iterations).x
 
     X = unpack(x)
     fallback = np.zeros(Pn, dtype=bool)
@@ -209,4 +202,4 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     x_final = X[present].reshape(-1)
-    return RefineResult(X, fallback, cost_before, objective(x_final, None, blocks))
+    return RefineResult(X, fallback, cost_before, objective(x_final, prior_terms(X)))
