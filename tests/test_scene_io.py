@@ -130,3 +130,23 @@ def test_colmap_mapper_layout_sparse_0(tmp_path, scene):
     write_colmap(tmp_path / "sparse" / "0", scene.cameras, binary=True)
     model = read_colmap(tmp_path / "sparse")
     assert model.cameras.names == scene.cameras.names
+
+
+def test_reads_legacy_colmap_text_layout(tmp_path):
+    """cameras.txt / images.txt / points3D.txt as COLMAP < 3.12 writes them (no rigs, frames)."""
+    sparse = tmp_path / "sparse"
+    sparse.mkdir()
+    (sparse / "cameras.txt").write_text("# Camera list with one line of data per camera:\n"
+                                        "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
+                                        "1 SIMPLE_RADIAL 640 480 500 320 240 0.01\n")
+    (sparse / "images.txt").write_text("# Image list with two lines of data per image:\n"
+                                       "1 1 0 0 0 0 0 0 1 a.jpg\n\n"
+                                       "2 0.7071068 0 0.7071068 0 0.5 0 2 1 b.jpg\n\n")
+    (sparse / "points3D.txt").write_text("# 3D point list\n1 0.5 0.2 3.0 255 0 0 0.5\n")
+    model = read_colmap(sparse)
+    assert model.cameras.names == ("a.jpg", "b.jpg")
+    assert np.allclose(model.cameras.K[0], [[500, 0, 320], [0, 500, 240], [0, 0, 1]])
+    # Quaternion (w, x, y, z) = 90° about y; centre C = -R^T t.
+    assert np.allclose(model.cameras.R[1], [[0, 0, 1], [0, 1, 0], [-1, 0, 0]], atol=1e-6)
+    assert np.allclose(model.cameras.centers[1], [2.0, 0.0, -0.5], atol=1e-6)
+    assert np.allclose(model.points3d, [[0.5, 0.2, 3.0]])
