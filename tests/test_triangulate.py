@@ -40,13 +40,18 @@ def test_ransac_ignores_planted_outliers():
 
 def test_small_parallax_is_left_unreconstructed():
     rng = np.random.default_rng(1)
-    cams = random_cameras(rng, 10, arc_deg=1.0)                               # 1° of parallax
+    cams = random_cameras(rng, 10, arc_deg=1.0)                               # about 1-3° of parallax
     poses, groups, _ = _observe(cams, STANDING[None], rng, noise=0.5)
     obs = gather_groups(cams, poses, groups, 0.1)
-    tri = ransac_triangulate(obs, 10.0, 32, 2, 3.0, rng)
-    assert np.isnan(tri.X).all()
-    assert tri.parallax_deg.max() < 1.5
-    wide = ransac_triangulate(obs, 10.0, 32, 2, 0.5, rng)
+    # The true parallax of every joint: the largest angle between its rays from the cameras.
+    rays = STANDING[None] - cams.centers[:, None]                             # (V, 17, 3)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    truth = np.degrees(np.arccos(np.clip(np.einsum("ajc,bjc->jab", rays, rays), -1, 1))).max(axis=(1, 2))
+    assert truth.max() < 5.0
+    narrow = ransac_triangulate(obs, 10.0, 32, 2, truth.max() + 0.5, rng)
+    assert np.isnan(narrow.X).all()
+    assert np.allclose(narrow.parallax_deg[0], truth, atol=0.1)
+    wide = ransac_triangulate(obs, 10.0, 32, 2, truth.min() - 0.5, rng)
     assert np.isfinite(wide.X).all()
 
 
@@ -63,18 +68,22 @@ def test_refinement_lowers_error_and_stays_near_triangulation(noise):
     obs = gather_groups(cams, poses, groups, 0.1)
     tri = ransac_triangulate(obs, 15.0, 48, 2, 1.0, rng)
     refined = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, PosePrior.load(), 10.0, 5.0)
+    plain = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, None, 0.0, 5.0)
     before = reprojection_errors(tri.X, obs.xy, obs.P)[tri.inliers]
+    # Reprojection alone: the error can only go down. With the prior it trades a little of it.
+    assert (reprojection_errors(plain.X, obs.xy, obs.P)[tri.inliers] ** 2).mean() <= (before**2).mean() + 1e-9
     after = reprojection_errors(refined.X, obs.xy, obs.P)[tri.inliers]
-    assert (after**2).mean() <= (before**2).mean() + 1e-9
+    assert (after**2).mean() <= 1.01 * (before**2).mean()
     assert refined.cost_after <= refined.cost_before
     # Well-observed joints (40 views) move by less than a centimetre.
     assert np.linalg.norm(refined.X - tri.X, axis=-1).max() < 0.01
     assert not refined.fallback.any()
 
 
-def test_prior_pulls_a_two_view_joint_toward_plausible_pose():
-    """With only two nearby views, depth is poorly constrained: the prior must not make the
-    pose less plausible, and the reprojection must stay within the noise."""
+def test_prior_pulls_a_narrow_baseline_pose_toward_the_truth():
+    """With three views over 8°, depth is poorly constrained: at the default weight the prior
+    makes the pose more plausible and closer to the truth; without it nothing improves much."""
+    from mvm.config import Config
     from mvm.prior import PosePrior, canonicalize
     from mvm.refine import refine_poses
 
@@ -84,8 +93,14 @@ def test_prior_pulls_a_two_view_joint_toward_plausible_pose():
     obs = gather_groups(cams, poses, groups, 0.1)
     tri = ransac_triangulate(obs, 15.0, 16, 2, 0.5, rng)
     prior = PosePrior.load()
-    refined = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, prior, 1000.0, 5.0)
-    assert prior.nll(canonicalize(refined.X))[0] <= prior.nll(canonicalize(tri.X))[0] + 1e-6
-    err = np.linalg.norm(STANDING - refined.X[0], axis=-1).mean()
-    err0 = np.linalg.norm(STANDING - tri.X[0], axis=-1).mean()
-    assert err <= err0 * 1.05
+    config = Config()
+
+    def error(X):
+        return np.linalg.norm(STANDING - X[0], axis=-1).mean()
+
+    with_prior = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, prior,
+                              config.prior_weight, config.robust_scale_px)
+    without = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, None, 0.0, config.robust_scale_px)
+    assert prior.nll(canonicalize(with_prior.X))[0] < prior.nll(canonicalize(tri.X))[0] - 10
+    assert error(with_prior.X) < 0.85 * error(tri.X)
+    assert error(with_prior.X) < 0.85 * error(without.X)

@@ -62,10 +62,6 @@ class Config:
     robust_scale_px: float = 5.0
     #: Iterations of the solver (function evaluations ≈ 50 × this). [1]
     refine_max_iterations: int = 30
-    # --- metrics -------------------------------------------------------------------------
-    #: 2D keypoints farther than this from their 3D joint's reprojection count as outliers
-    #: in the refined metrics. [px]
-    outlier_threshold_px: float = 15.0
     # --- random numbers ------------------------------------------------------------------
     #: Seed of RANSAC's sampling: a scene gives the same result every run. [1]
     seed: int = 0
@@ -123,8 +119,7 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
 
 
 def _validate(config: Config, source: str) -> None:
-    positive = ("gamma", "distance_scale", "ransac_threshold_px", "robust_scale_px",
-                "outlier_threshold_px")
+    positive = ("gamma", "distance_scale", "ransac_threshold_px", "robust_scale_px")
     for name in positive:
         if getattr(config, name) <= 0:
             raise InputError(source, name, f"must be > 0, got {getattr(config, name)}")

@@ -27,6 +27,7 @@ from scipy.optimize import least_squares
 
 from .geometry import project
 from .keypoints import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from .prior import body_frame
 
 log = logging.getLogger(__name__)
 
@@ -42,38 +43,23 @@ class RefineResult:
     cost_after: float
 
 
-def body_frame(X: np.ndarray) -> tuple[np.ndarray, float]:
-    """Body frame of one pose. ``X: (J, 3)`` -> rotation ``(3, 3)`` whose columns are the
-    body's x (right hip -> left hip), y and z (pelvis -> mid-shoulders) axes in the world,
-    and the torso scale (mean hip-to-shoulder distance)."""
-    pelvis = 0.5 * (X[LEFT_HIP] + X[RIGHT_HIP])
-    neck = 0.5 * (X[LEFT_SHOULDER] + X[RIGHT_SHOULDER])
-    x = X[LEFT_HIP] - X[RIGHT_HIP]
-    z = neck - pelvis
-    z = z / np.linalg.norm(z)
-    x = x - (x @ z) * z
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    scale = 0.5 * (np.linalg.norm(X[LEFT_SHOULDER] - X[LEFT_HIP]) + np.linalg.norm(X[RIGHT_SHOULDER] - X[RIGHT_HIP]))
-    return np.stack([x, y, z], axis=1), float(scale)
-
-
 def _prior_block(X: np.ndarray, present: np.ndarray, prior) -> tuple[np.ndarray, np.ndarray] | None:
     """Linearized prior of one person: ``(G (K, 3n), h (K,))`` with residual ``G x - h`` for the
     ``n`` present joints' world coordinates ``x`` (joint-major), or None without hips/shoulders."""
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     if not present[needed].all():
         return None
-    rotation, scale = body_frame(X)
+    rotation, _, scale = body_frame(X)                # rows: the body axes in the world
     if not np.isfinite(rotation).all() or not scale > 0:
         return None
     joints = np.flatnonzero(present)
     n = len(joints)
-    # y_j = R^T (X_j - (X_lh + X_rh) / 2) / s  ->  y = B x with B = C ⊗ (R^T / s)
+    # y_j = R (X_j - (X_lh + X_rh) / 2) / s  ->  y = B x with B = C ⊗ (R / s), the prior's
+    # canonicalization with its frame held fixed for this outer iteration.
     C = np.eye(n)
     C[:, np.searchsorted(joints, LEFT_HIP)] -= 0.5
     C[:, np.searchsorted(joints, RIGHT_HIP)] -= 0.5
-    B = np.kron(C, rotation.T / scale)
+    B = np.kron(C, rotation / scale)
     canonical = np.full((1, X.shape[0], 3), np.nan)
     canonical[0, joints] = (B @ X[joints].reshape(-1)).reshape(n, 3)
     component = int(prior.best_component(canonical)[0])
