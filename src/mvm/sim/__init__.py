@@ -1,0 +1,1 @@
+"""Helpers of the simulator and its benchmark."""
