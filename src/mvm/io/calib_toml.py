@@ -1,0 +1,195 @@
+"""Rig calibrations in the ``Calib.toml`` layout shared by anipose, Pose2Sim and FreeMocap.
+
+One table per camera and an optional ``[metadata]`` table::
+
+    [cam_01]
+    name = "cam_01"
+    size = [ 1920.0, 1080.0,]
+    matrix = [ [ 1500.0, 0.0, 960.0,], [ 0.0, 1500.0, 540.0,], [ 0.0, 0.0, 1.0,],]
+    distortions = [ -0.1, 0.01, 0.0, 0.0,]
+    rotation = [ 0.1, -0.2, 0.0,]          # Rodrigues vector, world -> camera
+    translation = [ 0.5, 1.0, 4.0,]       # world -> camera, world units (Pose2Sim: metres)
+    fisheye = false
+
+    [metadata]
+    adjusted = false
+    error = 0.0
+
+``distortions`` are OpenCV coefficients: ``[k1, k2, p1, p2]`` (Pose2Sim), ``[k1, k2, p1, p2, k3]``
+(anipose) or longer; with ``fisheye = true``, OpenCV fisheye ``[k1, k2, k3, k4]``. Cameras are
+returned in file order and addressed by ``name`` (the table's key when ``name`` is absent).
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..scene import Cameras
+from .files import atomic_write_text
+
+
+@dataclass(frozen=True)
+class RigCalibration:
+    """The calibrated cameras of a rig.
+
+    Attributes:
+        cameras: ``V`` pinhole cameras (``K``, world -> camera ``R``, ``t``, image sizes, names).
+        distortions: ``V`` arrays of OpenCV distortion coefficients (may be empty).
+        fisheye: ``(V,)`` bool, OpenCV fisheye model.
+        metadata: the ``[metadata]`` table (empty when absent).
+    """
+
+    cameras: Cameras
+    distortions: tuple[np.ndarray, ...]
+    fisheye: np.ndarray
+    metadata: dict = field(default_factory=dict)
+
+    def index(self, name: str) -> int:
+        return self.cameras.names.index(name)
+
+
+def _array(table: dict, key: str, shape: tuple, path, section: str) -> np.ndarray:
+    if key not in table:
+        raise InputError(path, f"[{section}].{key}", "missing")
+    try:
+        value = np.asarray(table[key], dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(path, f"[{section}].{key}", f"expected numbers, got {table[key]!r}") from None
+    if shape and value.shape != shape:
+        raise InputError(path, f"[{section}].{key}", f"expected shape {shape}, got {value.shape}")
+    if not np.isfinite(value).all():
+        raise InputError(path, f"[{section}].{key}", "not finite")
+    return value
+
+
+def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
+    """Build a :class:`RigCalibration` from a parsed Calib.toml document (``path`` names it in errors)."""
+    K, R, t, size, names, dist, fisheye = [], [], [], [], [], [], []
+    metadata = {}
+    for section, table in data.items():
+        if section == "metadata":
+            metadata = dict(table) if isinstance(table, dict) else {}
+            continue
+        if not isinstance(table, dict) or "matrix" not in table:
+            continue
+        name = table.get("name", section)
+        if not isinstance(name, str) or not name:
+            raise InputError(path, f"[{section}].name", f"expected a string, got {name!r}")
+        K.append(_array(table, "matrix", (3, 3), path, section))
+        rvec = _array(table, "rotation", (3,), path, section)
+        R.append(cv2.Rodrigues(rvec)[0])
+        t.append(_array(table, "translation", (3,), path, section))
+        size.append(_array(table, "size", (2,), path, section))
+        d = _array(table, "distortions", (), path, section).reshape(-1) if "distortions" in table else np.zeros(0)
+        fish = bool(table.get("fisheye", False))
+        if fish and len(d) not in (0, 4):
+            raise InputError(path, f"[{section}].distortions", f"fisheye expects 4 coefficients, got {len(d)}")
+        if not fish and len(d) not in (0, 4, 5, 8, 12, 14):
+            raise InputError(path, f"[{section}].distortions",
+                             f"expected 4, 5, 8, 12 or 14 OpenCV coefficients, got {len(d)}")
+        dist.append(d)
+        fisheye.append(fish)
+        names.append(name)
+    if not names:
+        raise InputError(path, None, "no camera table (a table with 'matrix', 'rotation', 'translation', 'size')")
+    if len(set(names)) != len(names):
+        raise InputError(path, "name", f"duplicate camera names: {sorted(n for n in set(names) if names.count(n) > 1)}")
+    V = len(names)
+    cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names))
+    return RigCalibration(cameras, tuple(dist), np.array(fisheye, dtype=bool).reshape(V), metadata)
+
+
+def read_calib_toml(path: str | Path) -> RigCalibration:
+    """Read a Calib.toml file; any problem raises one :class:`InputError` naming the table and key."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(path, None, f"not valid TOML: {e}") from None
+    return parse_calib(data, path)
+
+
+def _fmt(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        value = float(value)
+        if not math.isfinite(value):
+            raise ValueError(f"cannot write a non-finite number to TOML: {value}")
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[ " + " ".join(_fmt(v) + "," for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def calib_toml_text(calibration: RigCalibration) -> str:
+    """The Calib.toml text of ``calibration`` (Pose2Sim's layout: one table per camera, then
+    ``[metadata]``)."""
+    cams = calibration.cameras
+    lines = []
+    for v, name in enumerate(cams.names):
+        rvec = cv2.Rodrigues(cams.R[v])[0].reshape(3)
+        lines += [f"[{_fmt(name) if not name.replace('_', '').replace('-', '').isalnum() else name}]",
+                  f"name = {_fmt(name)}",
+                  f"size = {_fmt(cams.size[v])}",
+                  f"matrix = {_fmt([list(row) for row in cams.K[v]])}",
+                  f"distortions = {_fmt(calibration.distortions[v])}",
+                  f"rotation = {_fmt(rvec)}",
+                  f"translation = {_fmt(cams.t[v])}",
+                  f"fisheye = {_fmt(bool(calibration.fisheye[v]))}",
+                  ""]
+    metadata = calibration.metadata or {"adjusted": False, "error": 0.0}
+    lines.append("[metadata]")
+    lines += [f"{key} = {_fmt(value)}" for key, value in metadata.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write_calib_toml(path: str | Path, calibration: RigCalibration) -> None:
+    """Write ``calibration`` as Calib.toml, atomically."""
+    atomic_write_text(path, calib_toml_text(calibration))
+
+
+def undistort_points(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray, fisheye: bool = False) -> np.ndarray:
+    """Undo lens distortion of pixels of one camera. ``xy: (..., 2)`` -> ``(..., 2)`` pixels of the
+    pinhole camera ``K`` (NaN stays NaN)."""
+    xy = np.asarray(xy, dtype=float)
+    distortion = np.asarray(distortion, dtype=float).reshape(-1)
+    if not len(distortion) or not np.any(distortion):
+        return xy.copy()
+    flat = xy.reshape(-1, 1, 2)
+    if fisheye:
+        out = cv2.fisheye.undistortPoints(flat, K, distortion, P=K)
+    else:
+        out = cv2.undistortPoints(flat, K, distortion, R=None, P=K,
+                                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-8))
+    return out.reshape(xy.shape)
+
+
+def distort_points(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray, fisheye: bool = False) -> np.ndarray:
+    """Apply lens distortion to pinhole pixels (the inverse of :func:`undistort_points`).
+    ``xy: (..., 2)`` -> ``(..., 2)``."""
+    xy = np.asarray(xy, dtype=float)
+    distortion = np.asarray(distortion, dtype=float).reshape(-1)
+    if not len(distortion) or not np.any(distortion):
+        return xy.copy()
+    h = np.concatenate([xy.reshape(-1, 2), np.ones((xy[..., 0].size, 1))], axis=1) @ np.linalg.inv(K).T
+    zero = np.zeros(3)
+    if fisheye:
+        out, _ = cv2.fisheye.projectPoints(h.reshape(-1, 1, 3), zero, zero, K, distortion)
+    else:
+        out, _ = cv2.projectPoints(h.reshape(-1, 1, 3), zero, zero, K, distortion)
+    return out.reshape(xy.shape)

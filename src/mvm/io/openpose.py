@@ -1,0 +1,99 @@
+"""OpenPose JSON (``--write_json``): one file per frame, ``people[].pose_keypoints_2d``.
+
+BODY_25 (75 numbers), COCO-18 (54 numbers) and COCO-17 (51 numbers) layouts are converted to
+the 17 COCO keypoints. OpenPose marks a missing joint with ``0, 0, 0``.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..keypoints import NUM_JOINTS
+
+#: Index of each COCO-17 keypoint in OpenPose's BODY_25 and COCO-18 layouts.
+BODY25_TO_COCO17 = np.array([0, 16, 15, 18, 17, 5, 2, 6, 3, 7, 4, 12, 9, 13, 10, 14, 11])
+COCO18_TO_COCO17 = np.array([0, 15, 14, 17, 16, 5, 2, 6, 3, 7, 4, 11, 8, 12, 9, 13, 10])
+_LAYOUTS = {75: BODY25_TO_COCO17, 54: COCO18_TO_COCO17, 51: np.arange(NUM_JOINTS)}
+
+_NUMBER = re.compile(r"(\d+)")
+
+
+def frame_number(path: str | Path) -> int:
+    """The frame number in a per-frame file name: the last run of digits of the name without
+    its ``_keypoints.json`` / ``.predictions.json`` / ``.json`` ending (``cam1_000012_keypoints.json``
+    -> 12). Raises :class:`InputError` when there is none."""
+    name = Path(path).name
+    for suffix in ("_keypoints.json", ".predictions.json", ".json"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+            break
+    digits = _NUMBER.findall(name)
+    if not digits:
+        raise InputError(path, None, "no frame number in the file name")
+    return int(digits[-1])
+
+
+def to_coco17(values, path, field) -> np.ndarray:
+    """A flat OpenPose keypoint list (75, 54 or 51 numbers) -> ``(17, 3)`` x, y, confidence."""
+    try:
+        flat = np.asarray(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(path, field, "expected a list of numbers") from None
+    if len(flat) not in _LAYOUTS:
+        raise InputError(path, field, f"expected 75 (BODY_25), 54 (COCO-18) or 51 (COCO-17) numbers, "
+                                      f"got {len(flat)}")
+    if not np.isfinite(flat).all():
+        raise InputError(path, field, "not finite")
+    kp = flat.reshape(-1, 3)[_LAYOUTS[len(flat)]].copy()
+    kp[kp[:, 2] <= 0] = 0.0
+    return kp
+
+
+def _load_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"not valid JSON: {e}") from None
+
+
+def read_openpose_frame(path: str | Path) -> np.ndarray:
+    """Read one OpenPose JSON file -> ``(K, 17, 3)`` keypoints of its ``K`` people (pixels,
+    confidence in [0, 1]; a missing joint is 0, 0, 0)."""
+    path = Path(path)
+    data = _load_json(path)
+    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
+        raise InputError(path, "people", "missing, or not a list")
+    people = []
+    for k, person in enumerate(data["people"]):
+        if not isinstance(person, dict) or "pose_keypoints_2d" not in person:
+            raise InputError(path, f"people[{k}].pose_keypoints_2d", "missing")
+        people.append(to_coco17(person["pose_keypoints_2d"], path, f"people[{k}].pose_keypoints_2d"))
+    return np.array(people, dtype=float).reshape(len(people), NUM_JOINTS, 3)
+
+
+def frame_files(directory: str | Path, pattern: str = "*.json") -> list[tuple[int, Path]]:
+    """Per-frame files of ``directory`` as ``[(frame number, path)]`` sorted by frame *number*
+    (never by string). Two files with the same number raise :class:`InputError`."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(directory, None, "not a directory")
+    files = sorted(((frame_number(p), p) for p in directory.glob(pattern) if p.is_file()),
+                   key=lambda item: item[0])
+    numbers = [n for n, _ in files]
+    for a, b in zip(numbers, numbers[1:]):
+        if a == b:
+            raise InputError(directory, None, f"two files for frame {a}")
+    return files
+
+
+def read_openpose_dir(directory: str | Path) -> dict[int, np.ndarray]:
+    """Read every OpenPose JSON file of ``directory``: ``{frame number: (K, 17, 3)}``."""
+    return {n: read_openpose_frame(p) for n, p in frame_files(directory, "*.json")}

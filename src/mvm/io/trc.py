@@ -1,0 +1,127 @@
+"""Marker trajectories in the ``.trc`` text layout of OpenSim, as Pose2Sim writes them::
+
+    PathFileType	4	(X/Y/Z)	person_0.trc
+    DataRate	CameraRate	NumFrames	NumMarkers	Units	OrigDataRate	OrigDataStartFrame	OrigNumFrames
+    30.0	30.0	100	17	m	30.0	1	100
+    Frame#	Time	nose			left_eye			…
+    		X1	Y1	Z1	X2	Y2	Z2	…
+    <blank line>
+    1	0.000000	x	y	z	…
+
+Tab separated, one row per frame; a missing marker is written as empty fields (read back as NaN).
+Coordinates are written as given: convert them (units, up axis) with :func:`to_opensim` first.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .files import atomic_write_text
+
+#: Rotations taking a world whose up axis is the key to OpenSim's Y-up frame (right-handed).
+#: "+z" is Pose2Sim's conversion (X, Y, Z) -> (Y, Z, X); "-y" suits OpenCV/COLMAP/Panoptic worlds.
+UP_ROTATIONS = {
+    "+y": np.eye(3),
+    "+z": np.array([[0.0, 1, 0], [0, 0, 1], [1, 0, 0]]),
+    "-y": np.array([[1.0, 0, 0], [0, -1, 0], [0, 0, -1]]),
+    "-z": np.array([[0.0, 1, 0], [0, 0, -1], [-1, 0, 0]]),
+}
+
+
+@dataclass
+class Trc:
+    """The content of a ``.trc`` file: ``points: (T, L, 3)`` (NaN: missing), ``markers``: L names,
+    ``frames: (T,)`` frame numbers, ``times: (T,)`` seconds, ``rate`` Hz, ``units``."""
+
+    points: np.ndarray
+    markers: tuple[str, ...]
+    frames: np.ndarray
+    times: np.ndarray
+    rate: float
+    units: str
+
+
+def to_opensim(points: np.ndarray, up: str = "+z", metres_per_unit: float = 1.0) -> np.ndarray:
+    """World points to OpenSim's frame: Y up, metres. ``points: (..., 3)`` -> ``(..., 3)``.
+
+    ``up``: the world's up axis, one of ``+y``, ``+z``, ``-y``, ``-z``.
+    """
+    if up not in UP_ROTATIONS:
+        raise ValueError(f"up: expected one of {sorted(UP_ROTATIONS)}, got {up!r}")
+    return metres_per_unit * np.asarray(points, dtype=float) @ UP_ROTATIONS[up].T
+
+
+def trc_text(points: np.ndarray, markers, rate: float, frames: np.ndarray | None = None,
+             name: str = "markers.trc", units: str = "m", decimals: int = 6) -> str:
+    """The ``.trc`` text of ``points: (T, L, 3)`` for ``L`` marker names at ``rate`` Hz."""
+    points = np.asarray(points, dtype=float)
+    markers = list(markers)
+    if points.ndim != 3 or points.shape[2] != 3 or points.shape[1] != len(markers):
+        raise ValueError(f"trc: expected points (T, {len(markers)}, 3), got {points.shape}")
+    if not rate > 0:
+        raise ValueError(f"trc: rate must be > 0, got {rate}")
+    T, L, _ = points.shape
+    frames = np.arange(1, T + 1) if frames is None else np.asarray(frames, dtype=int)
+    first = int(frames[0]) if T else 1
+    header = [
+        f"PathFileType\t4\t(X/Y/Z)\t{name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+        f"{rate:g}\t{rate:g}\t{T}\t{L}\t{units}\t{rate:g}\t{first}\t{T}",
+        "Frame#\tTime\t" + "\t\t\t".join(markers) + "\t\t",
+        "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(L)),
+        "",
+    ]
+    text = np.char.mod(f"%.{decimals}f", np.nan_to_num(points, nan=0.0)).reshape(T, 3 * L)
+    text[~np.isfinite(points).reshape(T, 3 * L)] = ""
+    times = (frames - first) / rate
+    rows = [f"{f}\t{t:.6f}\t" + "\t".join(r) for f, t, r in zip(frames, times, text)]
+    return "\n".join(header + rows) + "\n"
+
+
+def write_trc(path: str | Path, points: np.ndarray, markers, rate: float,
+              frames: np.ndarray | None = None, units: str = "m") -> None:
+    """Write ``points: (T, L, 3)`` as a ``.trc`` file, atomically."""
+    path = Path(path)
+    atomic_write_text(path, trc_text(points, markers, rate, frames, path.name, units))
+
+
+def read_trc(path: str | Path) -> Trc:
+    """Read a ``.trc`` file (OpenSim / Pose2Sim layout); problems raise :class:`InputError`."""
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read: {e}") from None
+    if len(lines) < 5 or not lines[0].startswith("PathFileType"):
+        raise InputError(path, "line 1", "expected a 'PathFileType' header")
+    keys = lines[1].split("\t")
+    values = lines[2].split("\t")
+    meta = dict(zip([k.strip() for k in keys], [v.strip() for v in values]))
+    try:
+        rate = float(meta["DataRate"])
+        n_markers = int(meta["NumMarkers"])
+        units = meta.get("Units", "m")
+    except (KeyError, ValueError):
+        raise InputError(path, "line 3", "expected DataRate, NumMarkers and Units values") from None
+    markers = tuple(m.strip() for m in lines[3].split("\t")[2:] if m.strip())
+    if len(markers) != n_markers:
+        raise InputError(path, "line 4", f"NumMarkers is {n_markers} but {len(markers)} marker names follow")
+    frames, times, rows = [], [], []
+    for number, line in enumerate(lines[5:], start=6):
+        if not line.strip():
+            continue
+        fields = line.rstrip("\n").split("\t")
+        fields += [""] * (2 + 3 * n_markers - len(fields))
+        try:
+            frames.append(int(float(fields[0])))
+            times.append(float(fields[1]))
+            rows.append([float(v) if v.strip() else np.nan for v in fields[2:2 + 3 * n_markers]])
+        except ValueError as e:
+            raise InputError(path, f"line {number}", f"not a number: {e}") from None
+    points = np.array(rows, dtype=float).reshape(len(rows), n_markers, 3)
+    return Trc(points, markers, np.array(frames, dtype=int), np.array(times), rate, units)

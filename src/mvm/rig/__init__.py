@@ -1,0 +1,11 @@
+"""Synchronized camera rigs: every instant is a static scene whose views are the cameras.
+
+- :mod:`mvm.rig.rigdir`: reading a rig directory (calibration + 2D poses per camera);
+- :mod:`mvm.rig.instants`: the core pipeline batched over instants;
+- :mod:`mvm.rig.tracking`: identities over time and optional smoothing;
+- :mod:`mvm.rig.recap`: reprojection error per keypoint, camera exclusions;
+- :mod:`mvm.rig.pipeline`: ``RIG_DIR`` in, JSON Lines + ``.trc`` + recap out.
+"""
+from .options import RigOptions
+
+__all__ = ["RigOptions"]

@@ -1,0 +1,278 @@
+"""Reading a rig directory: a calibration and one source of 2D poses per camera.
+
+::
+
+    RIG_DIR/
+      Calib.toml | calibration/*.toml | sparse/ (COLMAP)   the cameras (or --calib PATH)
+      pose/ (or RIG_DIR itself)
+        <camera>/          OpenPose or OpenPifPaf JSON, one file per frame (frame number in the name)
+        <camera>.json      or one COCO keypoints file per camera (frame number in file_name)
+
+Cameras are matched to folders by *name*, never by sort order: an exact name, then the name
+without case and known suffixes (``_json``, ``_keypoints``, ``_img``, ``.json``), then the same
+camera number (``cam_01`` and ``cam1_json``) when that number is unique on both sides.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.calib_toml import RigCalibration, read_calib_toml, undistort_points
+from ..io.openpifpaf import read_openpifpaf_frame
+from ..io.openpose import frame_files, frame_number, read_openpose_frame
+from .instants import Detections
+
+log = logging.getLogger(__name__)
+
+_SUFFIXES = ("_json", "-json", "_keypoints", "_img", "_images", "_pose", "_poses", ".json")
+_IGNORED_DIRS = {"calibration", "sparse", "mvm", "videos", "video", "images"}
+
+
+@dataclass
+class RigData:
+    """A rig's cameras and 2D poses.
+
+    Attributes:
+        calibration: the cameras (only those with poses, in calibration order).
+        frames: ``(T,)`` frame numbers of the instants, increasing.
+        detections: the 2D poses, undistorted; ``instant`` indexes ``frames``.
+        sources: camera name -> the folder or file its poses came from.
+        pose_format: "openpose", "openpifpaf" or "coco".
+    """
+
+    calibration: RigCalibration
+    frames: np.ndarray
+    detections: Detections
+    sources: dict
+    pose_format: str
+
+
+def _normalize(name: str) -> str:
+    name = name.lower()
+    changed = True
+    while changed:
+        changed = False
+        for suffix in _SUFFIXES:
+            if name.endswith(suffix) and len(name) > len(suffix):
+                name = name[: -len(suffix)]
+                changed = True
+    return re.sub(r"[^a-z0-9]", "", name)
+
+
+def _number(name: str) -> int | None:
+    digits = re.findall(r"\d+", _normalize(name))
+    return int(digits[-1]) if digits else None
+
+
+def match_cameras(camera_names, entry_names) -> dict[int, int]:
+    """Match cameras to pose folders by name. Returns ``{camera index: entry index}``.
+
+    Exact names first, then normalized names, then unique camera numbers. Ambiguity (two entries
+    fitting one camera at the same rule) raises ``ValueError``.
+    """
+    cameras, entries = list(camera_names), list(entry_names)
+    matched: dict[int, int] = {}
+    for key in (lambda s: s, _normalize, _number):
+        cam_keys = {c: key(cameras[c]) for c in range(len(cameras)) if c not in matched}
+        used = set(matched.values())
+        entry_keys = {e: key(entries[e]) for e in range(len(entries)) if e not in used}
+        for c, k in cam_keys.items():
+            if k is None:
+                continue
+            hits = [e for e, ke in entry_keys.items() if ke == k]
+            same = [c2 for c2, k2 in cam_keys.items() if k2 == k]
+            if len(hits) == 1 and len(same) == 1:
+                matched[c] = hits[0]
+            elif len(hits) > 1 and key is not _number:
+                raise ValueError(f"camera {cameras[c]!r} matches several pose sources: "
+                                 f"{sorted(entries[e] for e in hits)}")
+    return matched
+
+
+def find_calibration(rig_dir: Path) -> Path:
+    """The calibration of ``rig_dir``: one ``*.toml`` at its top or in ``calibration/``, or a
+    COLMAP model in ``sparse/``. Several candidates raise :class:`InputError` (use ``--calib``)."""
+    candidates = sorted(p for p in [*rig_dir.glob("*.toml"), *(rig_dir / "calibration").glob("*.toml")]
+                        if p.name.lower() not in ("config.toml", "mvm.toml"))
+    if (rig_dir / "sparse").is_dir():
+        candidates.append(rig_dir / "sparse")
+    if len(candidates) == 1:
+        return candidates[0]
+    if not candidates:
+        raise InputError(rig_dir, None, "no calibration: expected Calib.toml, calibration/*.toml or sparse/ "
+                                        "(or pass --calib)")
+    raise InputError(rig_dir, None, "several calibrations: " + ", ".join(str(c.relative_to(rig_dir))
+                                                                      for c in candidates) + " (pass --calib)")
+
+
+def read_calibration(path: Path) -> tuple[RigCalibration, object]:
+    """A calibration file or COLMAP model -> ``(calibration, colmap model or None)``."""
+    if path.is_dir():
+        from ..io.colmap import read_colmap
+        from ..scene import Cameras
+
+        model = read_colmap(path)
+        c = model.cameras
+        names = tuple(Path(n).stem if "/" not in n else Path(n).parent.name for n in c.names)
+        cameras = Cameras(c.K, c.R, c.t, c.size, names)
+        return RigCalibration(cameras, tuple(np.zeros(0) for _ in names), np.zeros(len(names), bool),
+                              {"source": str(path)}), model
+    if path.suffix.lower() == ".json":
+        from ..io.panoptic_calib import read_panoptic_calibration
+
+        return read_panoptic_calibration(path), None
+    return read_calib_toml(path), None
+
+
+def _pose_root(rig_dir: Path) -> Path:
+    return rig_dir / "pose" if (rig_dir / "pose").is_dir() else rig_dir
+
+
+def pose_sources(rig_dir: Path) -> dict[str, Path]:
+    """Candidate pose sources: sub-folders holding ``*.json`` files and ``*.json`` COCO files."""
+    root = _pose_root(rig_dir)
+    sources = {}
+    for p in sorted(root.iterdir()):
+        if p.name.startswith(".") or p.name.lower() in _IGNORED_DIRS:
+            continue
+        if p.is_dir() and any(p.glob("*.json")):
+            sources[p.name] = p
+        elif p.is_file() and p.suffix.lower() == ".json" and not p.name.startswith("calibration"):
+            sources[p.name] = p
+    return sources
+
+
+def _source_format(path: Path) -> str:
+    if path.is_file():
+        return "coco"
+    first = next(iter(sorted(path.glob("*.json"))))
+    try:
+        data = json.loads(first.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(first, None, f"not valid JSON: {e}") from None
+    if isinstance(data, dict) and "people" in data:
+        return "openpose"
+    if isinstance(data, list):
+        return "openpifpaf"
+    raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
+
+
+def _read_source(path: Path, fmt: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """``[(frame, keypoints (K, 17, 3), scores (K,))]`` of one camera."""
+    if fmt == "coco":
+        from ..io.coco import read_coco_keypoints
+
+        coco = read_coco_keypoints(path)
+        frame_of_image = np.array([frame_number(Path(n)) for n in coco.file_names], dtype=int)
+        frames = frame_of_image[coco.ann_image]
+        return [(int(f), coco.keypoints[frames == f], coco.score[frames == f]) for f in np.unique(frames)]
+    out = []
+    for f, file in frame_files(path, "*.json"):
+        if fmt == "openpose":
+            kp = read_openpose_frame(file)
+            present = kp[..., 2] > 0
+            score = np.where(present, kp[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
+        else:
+            kp, score = read_openpifpaf_frame(file)
+        out.append((f, kp, score))
+    return out
+
+
+def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
+    """``"a:b"`` (b excluded; either may be empty) or ``"a"`` -> ``(start, stop)``."""
+    if not spec:
+        return None, None
+    try:
+        if ":" not in spec:
+            return int(spec), int(spec) + 1
+        a, b = spec.split(":", 1)
+        return (int(a) if a.strip() else None), (int(b) if b.strip() else None)
+    except ValueError:
+        raise InputError("--frames", spec, "expected START:STOP frame numbers, e.g. 0:1000") from None
+
+
+def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str | None = None) -> RigData:
+    """Read ``rig_dir``: its calibration, the 2D poses of its cameras (undistorted), the frames."""
+    rig_dir = Path(rig_dir)
+    if not rig_dir.is_dir():
+        raise InputError(rig_dir, None, "not a directory")
+    calib_path = Path(calib) if calib else find_calibration(rig_dir)
+    calibration, colmap_model = read_calibration(calib_path)
+    sources = pose_sources(rig_dir)
+    names = calibration.cameras.names
+    try:
+        matched = match_cameras(names, list(sources))
+    except ValueError as e:
+        raise InputError(_pose_root(rig_dir), None, str(e)) from None
+    if not matched:
+        raise InputError(_pose_root(rig_dir), None, f"no pose folder matches a camera of {calib_path} "
+                                                    f"(cameras: {', '.join(names)}; found: {', '.join(sources) or 'nothing'})")
+    for c in range(len(names)):
+        if c not in matched:
+            log.warning("camera %s: no pose folder; it is not used", names[c])
+    for e, name in enumerate(sources):
+        if e not in matched.values():
+            log.warning("%s: matches no camera of the calibration; ignored", sources[name])
+    start, stop = parse_frames(frames)
+    used = sorted(matched)                                                # calibration order
+    entries = list(sources)
+    formats = {_source_format(sources[entries[matched[c]]]) for c in used}
+    if len(formats) > 1:
+        raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(formats)}")
+    fmt = formats.pop()
+    kps, frame_of, cam_of, scores = [], [], [], []
+    for new_index, c in enumerate(used):
+        for f, kp, score in _read_source(sources[entries[matched[c]]], fmt):
+            if (start is not None and f < start) or (stop is not None and f >= stop) or not len(kp):
+                continue
+            kps.append(kp)
+            scores.append(score)
+            frame_of.append(np.full(len(kp), f))
+            cam_of.append(np.full(len(kp), new_index))
+    keypoints = np.concatenate(kps) if kps else np.zeros((0, 17, 3))
+    frame_of = np.concatenate(frame_of) if kps else np.zeros(0, int)
+    cam_of = np.concatenate(cam_of) if kps else np.zeros(0, int)
+    score = np.concatenate(scores) if kps else np.zeros(0)
+    all_frames, instant = np.unique(frame_of, return_inverse=True)
+    calibration = subset_calibration(calibration, np.array(used))
+    model = None
+    if colmap_model is not None:
+        from ..io.colmap import ColmapModel
+
+        model = ColmapModel(colmap_model.cameras.subset(np.array(used)),
+                            tuple(colmap_model.colmap_cameras[c] for c in used), colmap_model.points3d, ())
+    keypoints = undistort(calibration, keypoints, cam_of, model)
+    detections = Detections(keypoints, instant, cam_of, score)
+    log.info("%s: %d cameras, %d instants, %d 2D poses (%s)", rig_dir, len(used), len(all_frames),
+             len(detections), fmt)
+    return RigData(calibration, all_frames, detections,
+                   {names[c]: sources[entries[matched[c]]] for c in used}, fmt)
+
+
+def subset_calibration(calibration: RigCalibration, index: np.ndarray) -> RigCalibration:
+    return RigCalibration(calibration.cameras.subset(index), tuple(calibration.distortions[i] for i in index),
+                          calibration.fisheye[index], calibration.metadata)
+
+
+def undistort(calibration: RigCalibration, keypoints: np.ndarray, camera: np.ndarray, colmap_model=None) -> np.ndarray:
+    """Undo each camera's lens distortion on ``keypoints: (N, 17, 3)`` (missing joints stay 0)."""
+    out = np.array(keypoints, dtype=float)
+    present = out[..., 2] > 0
+    if colmap_model is not None:
+        from ..io.colmap import undistort_keypoints
+
+        xy = undistort_keypoints(colmap_model, camera, out[..., :2])
+        out[..., :2] = np.where(present[..., None], xy, 0.0)
+        return out
+    K = calibration.cameras.K
+    for v in np.unique(camera):
+        rows = camera == v
+        xy = undistort_points(out[rows, :, :2], K[v], calibration.distortions[v], bool(calibration.fisheye[v]))
+        out[rows, :, :2] = np.where(present[rows][..., None], xy, 0.0)
+    return out
