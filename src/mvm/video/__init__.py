@@ -1,0 +1,6 @@
+"""From a raw video to a scene directory: frames, SfM cameras, 2D poses and appearance.
+
+Stages (each resumable): :func:`frames.extract_frames`, :func:`sfm.run_sfm` (or
+:func:`sfm.import_colmap` / :func:`sfm.import_trajectory`), :func:`detect.detect_scene`,
+:func:`pipeline.reconstruct_scene`; :func:`pipeline.run_video` runs them all.
+"""

@@ -1,0 +1,211 @@
+"""Frames from a video: sample at a rate or up to a count, resize, skip blurred frames, and
+keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.json``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from ..errors import InputError
+from ..io.files import atomic_write_bytes, atomic_write_json
+
+log = logging.getLogger(__name__)
+
+FRAMES_DIR = "frames"
+FRAMES_INDEX = "frames.json"
+FRAMES_FORMAT = "mvm.frames/1"
+
+
+@dataclass(frozen=True)
+class FrameOptions:
+    """How frames are taken from a video.
+
+    Attributes:
+        rate: frames per second to keep (None: every frame). [1/s]
+        max_frames: keep at most this many, evenly spread (None: no limit). [frames]
+        width: resize to this width, keeping the aspect ratio (None: original size). [px]
+        blur_ratio: a frame whose sharpness (variance of the Laplacian) is below this fraction
+            of the median sharpness of the sampled frames is skipped; 0 keeps all. Raising it
+            drops more motion-blurred frames. [1]
+        jpeg_quality: quality of the written frames. [0-100]
+    """
+
+    rate: float | None = None
+    max_frames: int | None = None
+    width: int | None = None
+    blur_ratio: float = 0.35
+    jpeg_quality: int = 95
+
+
+@dataclass
+class FrameIndex:
+    """The frames of a scene: ``names`` (files in ``frames/``), ``numbers: (F,)`` frame numbers
+    in the video, ``timestamps: (F,)`` seconds, ``sharpness: (F,)``, the image ``size`` (w, h),
+    the video's ``fps`` and the numbers of frames ``skipped`` as blurred."""
+
+    video: str
+    fps: float
+    size: tuple[int, int]
+    names: tuple[str, ...]
+    numbers: np.ndarray
+    timestamps: np.ndarray
+    sharpness: np.ndarray
+    skipped: tuple[int, ...] = ()
+
+    def to_json(self) -> dict:
+        return {"format": FRAMES_FORMAT, "video": self.video, "fps": self.fps,
+                "width": self.size[0], "height": self.size[1],
+                "frames": [{"file_name": n, "frame": int(k), "timestamp_s": round(float(t), 6),
+                            "sharpness": round(float(s), 3)}
+                           for n, k, t, s in zip(self.names, self.numbers, self.timestamps, self.sharpness)],
+                "skipped_blurred": [int(k) for k in self.skipped]}
+
+
+def sample_indices(n_frames: int, fps: float, rate: float | None, max_frames: int | None) -> np.ndarray:
+    """Frame numbers to decode: every ``fps / rate``-th frame, then at most ``max_frames``
+    evenly spread. ``-> (F,)`` sorted, unique."""
+    if n_frames <= 0:
+        return np.zeros(0, dtype=np.int64)
+    if rate is not None and rate <= 0:
+        raise ValueError(f"rate must be > 0 frames per second, got {rate}")
+    step = 1.0 if rate is None or fps <= 0 else max(fps / rate, 1.0)
+    index = np.unique(np.round(np.arange(0, n_frames, step)).astype(np.int64))
+    index = index[index < n_frames]
+    if max_frames is not None and len(index) > max_frames:
+        index = index[np.round(np.linspace(0, len(index) - 1, max_frames)).astype(np.int64)]
+    return index
+
+
+def sharpness(image: np.ndarray) -> float:
+    """Variance of the Laplacian of the grey image (higher: sharper). ``image: (H, W[, 3])``."""
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    return float(cv2.Laplacian(grey, cv2.CV_64F).var())
+
+
+def sharp_mask(values: np.ndarray, ratio: float) -> np.ndarray:
+    """Frames to keep: sharpness at least ``ratio`` × the median. ``values: (F,)`` -> ``(F,)`` bool."""
+    values = np.asarray(values, dtype=float)
+    if ratio <= 0 or len(values) == 0:
+        return np.ones(len(values), dtype=bool)
+    return values >= ratio * np.median(values)
+
+
+def _resize(image: np.ndarray, width: int | None) -> np.ndarray:
+    if width is None or width == image.shape[1]:
+        return image
+    height = int(round(image.shape[0] * width / image.shape[1]))
+    interpolation = cv2.INTER_AREA if width < image.shape[1] else cv2.INTER_LINEAR
+    return cv2.resize(image, (width, height), interpolation=interpolation)
+
+
+def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
+                   force: bool = False, progress: Callable[[int, int], None] | None = None) -> FrameIndex:
+    """Decode ``video`` into ``scene/frames/frame_NNNNN.jpg`` (NNNNN: the frame number) and
+    write ``scene/frames.json``. Skipped when ``frames.json`` exists, unless ``force``.
+
+    ``progress(done, total)`` is called after each decoded candidate frame.
+    """
+    video, scene = Path(video), Path(scene)
+    index_path = scene / FRAMES_INDEX
+    if index_path.is_file() and not force:
+        log.info("%s exists: frames already extracted (use force to redo)", index_path)
+        return read_frame_index(scene)
+    if not video.is_file():
+        raise InputError(video, None, "video file not found")
+    capture = cv2.VideoCapture(str(video))
+    if not capture.isOpened():
+        raise InputError(video, None, "OpenCV cannot open this video")
+    try:
+        n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
+        wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
+        wanted_set = set(wanted.tolist())
+        images: dict[int, np.ndarray] = {}
+        number = 0
+        while number <= (wanted[-1] if len(wanted) else -1):
+            if number in wanted_set:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                images[number] = _resize(image, options.width)
+                if progress:
+                    progress(len(images), len(wanted))
+            elif not capture.grab():
+                break
+            number += 1
+    finally:
+        capture.release()
+    if not images:
+        raise InputError(video, None, "no frame could be decoded")
+    numbers = np.array(sorted(images), dtype=np.int64)
+    sharp = np.array([sharpness(images[k]) for k in numbers])
+    keep = sharp_mask(sharp, options.blur_ratio)
+    skipped = tuple(int(k) for k in numbers[~keep])
+    if skipped:
+        log.warning("%s: %d of %d sampled frames are blurred (sharpness below %.2f × median) and "
+                    "skipped: %s", video, len(skipped), len(numbers), options.blur_ratio, list(skipped)[:20])
+    frames_dir = scene / FRAMES_DIR
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    names = []
+    for k in numbers[keep]:
+        name = f"frame_{k:05d}.jpg"
+        ok, data = cv2.imencode(".jpg", images[k], [cv2.IMWRITE_JPEG_QUALITY, options.jpeg_quality])
+        if not ok:
+            raise RuntimeError(f"cannot encode frame {k} as JPEG")
+        atomic_write_bytes(frames_dir / name, data.tobytes())
+        names.append(name)
+    h, w = images[numbers[0]].shape[:2]
+    kept = numbers[keep]
+    index = FrameIndex(str(video), fps, (w, h), tuple(names), kept,
+                       kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped)
+    document = index.to_json()
+    document["options"] = asdict(options)
+    atomic_write_json(index_path, document, indent=1)
+    return index
+
+
+def read_frame_index(scene: str | Path) -> FrameIndex:
+    """Read ``scene/frames.json``."""
+    path = Path(scene) / FRAMES_INDEX
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found (run `mvm frames` first)") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read: {e}") from None
+    if not isinstance(data, dict) or data.get("format") != FRAMES_FORMAT:
+        raise InputError(path, "format", f"expected {FRAMES_FORMAT!r}")
+    try:
+        frames = data["frames"]
+        return FrameIndex(
+            data.get("video", ""), float(data.get("fps", 0.0)), (int(data["width"]), int(data["height"])),
+            tuple(str(f["file_name"]) for f in frames), np.array([int(f["frame"]) for f in frames], dtype=np.int64),
+            np.array([float(f["timestamp_s"]) for f in frames]), np.array([float(f.get("sharpness", 0)) for f in frames]),
+            tuple(int(k) for k in data.get("skipped_blurred", [])))
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, "frames", f"malformed entry: {e}") from None
+
+
+def list_frames(scene: str | Path) -> list[str]:
+    """Image names of a scene: from ``frames.json`` when present, else the files of ``frames/``
+    sorted by the number in their name."""
+    scene = Path(scene)
+    if (scene / FRAMES_INDEX).is_file():
+        return list(read_frame_index(scene).names)
+    folder = scene / FRAMES_DIR
+    if not folder.is_dir():
+        raise InputError(folder, None, "no frames (run `mvm frames` first)")
+    names = [p.name for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
+    return sorted(names, key=_natural_key)
+
+
+def _natural_key(name: str):
+    import re
+
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]

@@ -1,0 +1,192 @@
+"""From a video file to 3D poses: frames -> cameras -> 2D poses + appearance -> reconstruction
+-> metric scale. Every stage writes its outputs atomically into the scene directory and is
+skipped when they exist, unless forced (``force`` names the stages to redo, or ``"all"``).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..config import Config
+from ..io.files import atomic_replace_dir, atomic_write_json
+from .detect import DetectOptions, Detections, detect_scene
+from .frames import FrameIndex, FrameOptions, extract_frames
+from .scale import people_scale
+from .sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
+
+log = logging.getLogger(__name__)
+
+STAGES = ("frames", "sfm", "detect", "reconstruct")
+SCALE_FILE = "scale.json"
+
+
+@dataclass
+class ScaleRecord:
+    """The scale of a scene's world. ``metres_per_unit``: metres per unit of the coordinates
+    now in ``sparse/`` and ``poses3d.json``; ``sfm_metres_per_unit``: metres per unit of the
+    cameras as SfM (or the import) produced them; ``bones``: bone types measured."""
+
+    source: str
+    metres_per_unit: float | None
+    sfm_metres_per_unit: float | None
+    applied_to_model: bool
+    bones: int = 0
+
+    def to_json(self) -> dict:
+        def r(v):
+            return None if v is None or not np.isfinite(v) else round(float(v), 6)
+        return {"source": self.source, "metres_per_unit": r(self.metres_per_unit),
+                "sfm_metres_per_unit": r(self.sfm_metres_per_unit),
+                "applied_to_model": self.applied_to_model, "bones": self.bones}
+
+
+@dataclass
+class ReconstructReport:
+    persons: int
+    metrics: dict
+    scale: ScaleRecord
+    path: Path
+    skipped: bool = False
+
+
+def _read_scale(scene: Path) -> float:
+    """Metres per unit of ``sparse/`` relative to SfM's units so far (1 when never scaled)."""
+    path = scene / SFM_DIR / SCALE_FILE
+    if not path.is_file():
+        return 1.0
+    try:
+        return float(json.loads(path.read_text())["sfm_units_per_model_unit"])
+    except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError):
+        log.warning("%s: unreadable, assuming the model is in SfM units", path)
+        return 1.0
+
+
+def scale_model(scene: str | Path, s: float) -> None:
+    """Multiply the world of ``scene/sparse`` by ``s`` (camera centres and points)."""
+    import pycolmap
+
+    from ..io.colmap import find_model_dir
+
+    scene = Path(scene)
+    rec = pycolmap.Reconstruction(str(find_model_dir(scene / "sparse")))
+    rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+
+
+def reconstruct_scene(scene: str | Path, config: Config | None = None, output: str = "mvm",
+                      metric_scale: bool = True, force: bool = False) -> ReconstructReport:
+    """Reconstruct ``scene`` (``mvm.reconstruct.reconstruct_dir``) and give it a metric scale
+    from the people's bone lengths, recorded under ``"scale"`` in ``poses3d.json``.
+
+    With ``metric_scale`` the model in ``sparse/`` and the 3D poses are multiplied by s*, so
+    that the world is in metres; otherwise s* is only recorded.
+    """
+    from ..io.scene_dir import poses3d_document, write_poses3d
+    from ..reconstruct import reconstruct_dir
+
+    scene = Path(scene)
+    out = scene / output / "poses3d.json"
+    if out.is_file() and not force:
+        log.info("%s exists: already reconstructed (use force to redo)", out)
+        doc = json.loads(out.read_text())
+        record = ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict) else ScaleRecord("none", None, None, False)
+        return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
+    config = config or Config()
+    result = reconstruct_dir(scene, config, output)
+    s, bones = people_scale(result.persons.keypoints3d) if len(result.persons) else (float("nan"), 0)
+    before = _read_scale(scene)
+    if not np.isfinite(s) or s <= 0:
+        log.warning("%s: no measurable bones; the world keeps the SfM's units", scene)
+        record = ScaleRecord("none", None, None, False)
+    elif metric_scale:
+        scale_model(scene, s)
+        result.persons.keypoints3d = result.persons.keypoints3d * s
+        record = ScaleRecord("people", 1.0, before * s, True, bones)
+        atomic_write_json(scene / SFM_DIR / SCALE_FILE, {"source": "people", "sfm_units_per_model_unit": before * s})
+    else:
+        record = ScaleRecord("people", s, before * s, False, bones)
+    document = poses3d_document(result.persons, result.scene.poses, result.metrics,
+                                {"timings_s": {k: round(v, 4) for k, v in result.timings.items()},
+                                 "config": asdict(config), "scale": record.to_json()})
+    write_poses3d(out, document)
+    return ReconstructReport(len(result.persons), result.metrics, record, out)
+
+
+@dataclass
+class RunReport:
+    """What :func:`run_video` did: each stage's result and seconds (0 when skipped)."""
+
+    frames: FrameIndex | None = None
+    sfm: SfmReport | None = None
+    detections: Detections | None = None
+    reconstruction: ReconstructReport | None = None
+    seconds: dict = field(default_factory=dict)
+
+
+def _forced(force, stage: str) -> bool:
+    if force is True or force == "all":
+        return True
+    return bool(force) and stage in force
+
+
+def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | None = None,
+              checkpoint: str | Path | None = None, detections_format: str | None = None,
+              cameras: str | Path | None = None, frame_options: FrameOptions = FrameOptions(),
+              sfm_options: SfmOptions = SfmOptions(), detect_options: DetectOptions = DetectOptions(),
+              config: Config | None = None, metric_scale: bool = True, output: str = "mvm",
+              force: bool | str | tuple[str, ...] = (),
+              progress: Callable[[str, int, int], None] | None = None) -> RunReport:
+    """The whole pipeline on one video.
+
+    Args:
+        video: the video file; scene: the scene directory to fill.
+        detections / checkpoint: imported 2D poses, or the network's checkpoint (one of them).
+        cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
+            camera file to use instead of SfM.
+        force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;
+            a redone stage also redoes the stages after it.
+        progress: ``progress(stage, done, total)``.
+    """
+    scene = Path(scene)
+    report = RunReport()
+    redo = False
+
+    def step(name):
+        nonlocal redo
+        redo = redo or _forced(force, name)
+        return redo
+
+    def tick(stage):
+        return (lambda done, total: progress(stage, done, total)) if progress else None
+
+    t = time.perf_counter()
+    report.frames = extract_frames(video, scene, frame_options, force=step("frames"), progress=tick("frames"))
+    report.seconds["frames"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    again = step("sfm")
+    if cameras is None:
+        report.sfm = run_sfm(scene, sfm_options, force=again)
+    elif Path(cameras).is_dir():
+        report.sfm = import_colmap(cameras, scene) if again or not (scene / "sparse").is_dir() else run_sfm(scene, sfm_options)
+    else:
+        report.sfm = import_trajectory(cameras, scene) if again or not (scene / "sparse").is_dir() else run_sfm(scene, sfm_options)
+    if again:
+        (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+    report.seconds["sfm"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report.detections = detect_scene(scene, detections, checkpoint, detections_format, detect_options,
+                                     force=step("detect"), progress=tick("detect"))
+    report.seconds["detect"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    report.reconstruction = reconstruct_scene(scene, config, output, metric_scale, force=step("reconstruct"))
+    report.seconds["reconstruct"] = time.perf_counter() - t
+    return report

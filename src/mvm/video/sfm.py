@@ -1,0 +1,293 @@
+"""Cameras of every frame (paper Sec. 4.1) with pycolmap: SIFT features, sequential (or
+exhaustive) matching, incremental mapping. Also imports of existing camera models.
+
+Layout: ``SCENE/sfm/database.db`` (features and matches), ``SCENE/sfm/report.json`` (what was
+registered, the reprojection error and the trajectory) and the model in ``SCENE/sparse``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.files import atomic_replace_dir, atomic_write_json
+from .frames import FRAMES_DIR, list_frames
+
+log = logging.getLogger(__name__)
+
+SFM_DIR = "sfm"
+SFM_REPORT = "report.json"
+
+
+@dataclass(frozen=True)
+class SfmOptions:
+    """Structure from motion.
+
+    Attributes:
+        camera_model: COLMAP camera model shared by all frames (``SIMPLE_RADIAL`` for real
+            video, ``SIMPLE_PINHOLE`` / ``PINHOLE`` for undistorted frames).
+        focal_px: known focal length in pixels (the dataset's intrinsics); None lets COLMAP
+            start from 1.2 × the image's larger side. [px]
+        refine_focal: refine the focal length in bundle adjustment; with ``focal_px`` given and
+            this False the intrinsics stay fixed. [bool]
+        max_features: SIFT features per frame; fewer is faster, more registers hard frames. [1]
+        max_image_size: frames are downscaled to this larger side for SIFT. [px]
+        exhaustive_max_frames: up to this many frames every pair is matched; above it,
+            sequential matching of ``overlap`` neighbours. [frames]
+        overlap: each frame is matched with this many following frames. [frames]
+        vocab_tree: a COLMAP vocabulary tree file enabling loop detection in sequential
+            matching (None: no loop detection).
+        threads: CPU threads (-1: all). [1]
+        seed: random seed of the mapper. [1]
+    """
+
+    camera_model: str = "SIMPLE_RADIAL"
+    focal_px: float | None = None
+    refine_focal: bool = True
+    max_features: int = 4096
+    max_image_size: int = 1600
+    exhaustive_max_frames: int = 40
+    overlap: int = 10
+    vocab_tree: str | None = None
+    threads: int = -1
+    seed: int = 0
+
+
+@dataclass
+class SfmReport:
+    """What SfM produced: ``registered`` / ``unregistered`` frame names, the mean
+    ``reprojection_error_px``, the ``focal_px`` of the shared camera, ``points`` in the
+    model and ``centers: (V, 3)`` the trajectory (camera centres, in ``registered`` order)."""
+
+    source: str
+    registered: list[str]
+    unregistered: list[str]
+    reprojection_error_px: float
+    focal_px: float
+    points: int
+    centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    seconds: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        d = asdict(self)
+        d["centers"] = np.round(self.centers, 6).tolist()
+        d["reprojection_error_px"] = round(float(self.reprojection_error_px), 4) if np.isfinite(self.reprojection_error_px) else None
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict) -> "SfmReport":
+        d = dict(d)
+        d["centers"] = np.array(d.get("centers", []), dtype=float).reshape(-1, 3)
+        if d.get("reprojection_error_px") is None:
+            d["reprojection_error_px"] = float("nan")
+        return cls(**d)
+
+
+def _camera_params(model: str, focal: float, width: int, height: int) -> str:
+    cx, cy = width / 2, height / 2
+    params = {"SIMPLE_PINHOLE": [focal, cx, cy], "PINHOLE": [focal, focal, cx, cy],
+              "SIMPLE_RADIAL": [focal, cx, cy, 0.0], "RADIAL": [focal, cx, cy, 0.0, 0.0],
+              "OPENCV": [focal, focal, cx, cy, 0, 0, 0, 0]}
+    if model not in params:
+        raise ValueError(f"camera_model {model!r} with focal_px: expected one of {sorted(params)}")
+    return ",".join(f"{p:g}" for p in params[model])
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise InputError(path, None, "cannot read image")
+    return image.shape[1], image.shape[0]
+
+
+def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool = False) -> SfmReport:
+    """Estimate the camera of every frame of ``scene/frames`` and write ``scene/sparse``.
+
+    Skipped when ``scene/sfm/report.json`` and ``scene/sparse`` exist, unless ``force``.
+    Frames that do not register are listed in the report and logged as a warning.
+    """
+    import time
+
+    import pycolmap
+
+    # COLMAP's own log follows this module's level: its INFO lines only with debug output
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
+    scene = Path(scene)
+    report_path = scene / SFM_DIR / SFM_REPORT
+    if report_path.is_file() and (scene / "sparse").is_dir() and not force:
+        log.info("%s exists: cameras already estimated (use force to redo)", report_path)
+        return read_sfm_report(scene)
+    names = list_frames(scene)
+    frames_dir = scene / FRAMES_DIR
+    if len(names) < 2:
+        raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
+    work = scene / SFM_DIR
+    work.mkdir(parents=True, exist_ok=True)
+    database = work / "database.db"
+    database.unlink(missing_ok=True)
+    seconds = {}
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = options.camera_model
+    if options.focal_px is not None:
+        w, h = _image_size(frames_dir / names[0])
+        reader.camera_params = _camera_params(options.camera_model, options.focal_px, w, h)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    extraction.num_threads = options.threads
+    extraction.max_image_size = options.max_image_size
+    extraction.sift.max_num_features = options.max_features
+    t = time.perf_counter()
+    pycolmap.extract_features(database, frames_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    seconds["features"] = time.perf_counter() - t
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    matching.num_threads = options.threads
+    t = time.perf_counter()
+    if len(names) <= options.exhaustive_max_frames:
+        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = options.overlap
+        if options.vocab_tree:
+            pairing.loop_detection = True
+            pairing.vocab_tree_path = str(options.vocab_tree)
+        pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
+                                  device=pycolmap.Device.cpu)
+    seconds["matching"] = time.perf_counter() - t
+
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = options.threads
+    mapping.random_seed = options.seed
+    mapping.ba_refine_focal_length = options.refine_focal or options.focal_px is None
+    mapping.ba_refine_extra_params = options.camera_model not in ("SIMPLE_PINHOLE", "PINHOLE")
+    mapping.multiple_models = False
+    t = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=work) as tmp:
+        models = pycolmap.incremental_mapping(database, frames_dir, tmp, mapping)
+    seconds["mapping"] = time.perf_counter() - t
+    if not models:
+        raise InputError(frames_dir, None, "SfM found no model: too few matched features "
+                                           "(more texture, more frames or a higher max_features)")
+    rec = max(models.values(), key=lambda r: r.num_reg_images())
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+    report = _report(rec, names, "colmap")
+    report.seconds = {k: round(v, 3) for k, v in seconds.items()}
+    _warn_unregistered(report, scene)
+    document = report.to_json()
+    document["options"] = asdict(options)
+    atomic_write_json(report_path, document, indent=1)
+    return report
+
+
+def _report(rec, names: list[str], source: str) -> SfmReport:
+    """Summarize a pycolmap reconstruction against the frame ``names`` it was built from."""
+    registered = {}
+    for image in rec.images.values():
+        if image.has_pose:
+            registered[image.name] = -image.cam_from_world().rotation.matrix().T @ image.cam_from_world().translation
+    order = [n for n in names if n in registered] + sorted(set(registered) - set(names))
+    unregistered = [n for n in names if n not in registered]
+    centers = np.array([registered[n] for n in order], dtype=float).reshape(-1, 3)
+    focal = float(np.mean([c.mean_focal_length() for c in rec.cameras.values()])) if rec.cameras else float("nan")
+    error = float(rec.compute_mean_reprojection_error()) if rec.num_points3D() else float("nan")
+    return SfmReport(source, order, unregistered, error, focal, int(rec.num_points3D()), centers)
+
+
+def _warn_unregistered(report: SfmReport, scene: Path) -> None:
+    if report.unregistered:
+        log.warning("%s: %d of %d frames did not register and are excluded: %s", scene,
+                    len(report.unregistered), len(report.unregistered) + len(report.registered),
+                    ", ".join(report.unregistered[:10]) + (" …" if len(report.unregistered) > 10 else ""))
+
+
+def read_sfm_report(scene: str | Path) -> SfmReport:
+    path = Path(scene) / SFM_DIR / SFM_REPORT
+    try:
+        data = json.loads(path.read_text())
+        data.pop("options", None)
+        return SfmReport.from_json(data)
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found (run `mvm sfm` first)") from None
+    except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
+        raise InputError(path, None, f"cannot read: {e}") from None
+
+
+def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
+    """Copy an existing COLMAP model (text or binary, ``model`` or ``model/0``) into
+    ``scene/sparse`` and write the report."""
+    import pycolmap
+
+    from ..io.colmap import find_model_dir
+
+    scene = Path(scene)
+    model_dir = find_model_dir(Path(model))
+    try:
+        rec = pycolmap.Reconstruction(str(model_dir))
+    except Exception as e:  # pycolmap raises several types with C++ context
+        raise InputError(model_dir, None, f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
+    if Path(model).resolve() != (scene / "sparse").resolve():
+        atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+    names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))
+    report = _report(rec, names, f"colmap:{model_dir}")
+    _warn_unregistered(report, scene)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), indent=1)
+    return report
+
+
+def trajectory_frames(timestamps_s: np.ndarray, trajectory_us: np.ndarray, tolerance_s: float) -> np.ndarray:
+    """Nearest trajectory line of every frame: ``timestamps_s: (F,)``, ``trajectory_us: (T,)``
+    increasing -> ``(F,)`` indices, -1 where none lies within ``tolerance_s``."""
+    t = np.asarray(trajectory_us, dtype=float) / 1e6
+    j = np.clip(np.searchsorted(t, timestamps_s), 1, len(t) - 1)
+    nearest = np.where(np.abs(t[j - 1] - timestamps_s) <= np.abs(t[j] - timestamps_s), j - 1, j)
+    return np.where(np.abs(t[nearest] - timestamps_s) <= tolerance_s, nearest, -1)
+
+
+def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
+    """Cameras from a RealEstate10K / MannequinChallenge camera file (``mvm.io.trajectory``),
+    matched to the frames of ``scene`` by timestamp (within half a frame), written to
+    ``scene/sparse``. Frames without a line are excluded with a warning."""
+    from ..io.colmap import write_colmap
+    from ..io.trajectory import read_trajectory
+    from ..scene import Cameras
+    from .frames import read_frame_index
+
+    scene = Path(scene)
+    traj = read_trajectory(path)
+    index = read_frame_index(scene)
+    tolerance = 0.5 / index.fps if index.fps > 0 else 0.02
+    line = trajectory_frames(index.timestamps, traj.timestamps_us, tolerance)
+    ok = line >= 0
+    if not ok.any():
+        raise InputError(path, None, f"no timestamp matches a frame of {scene} (within {tolerance * 1e3:.0f} ms)")
+    w, h = index.size
+    fx, fy, cx, cy = (traj.intrinsics[line[ok]] * [w, h, w, h]).T
+    V = int(ok.sum())
+    K = np.zeros((V, 3, 3))
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = fx, fy, cx, cy, 1.0
+    cameras = Cameras(K, traj.R[line[ok]], traj.t[line[ok]], np.broadcast_to([float(w), float(h)], (V, 2)).copy(),
+                      tuple(n for n, k in zip(index.names, ok) if k))
+    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras), scene / "sparse")
+    report = SfmReport(f"trajectory:{path}", list(cameras.names),
+                       [n for n, k in zip(index.names, ok) if not k], float("nan"),
+                       float(np.mean(cameras.focal)), 0, cameras.centers)
+    _warn_unregistered(report, scene)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), indent=1)
+    return report
+
+
+def _frame_names_or(scene: Path, default: list[str]) -> list[str]:
+    try:
+        return list_frames(scene)
+    except InputError:
+        return default
