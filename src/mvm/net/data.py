@@ -1,0 +1,205 @@
+"""COCO keypoint data sets (2D-only or with per-keypoint depth) and the training augmentations.
+
+An annotation may carry ``keypoint_depths`` (17 relative depths, 0 where missing) and
+``has_3d`` (17 flags), as written by :func:`mvm.supervision.export_supervision`. Without them
+the PDF gets no target (the paper's 2D-only pretraining).
+
+Augmentations (Section 5 of the paper): a square crop whose side is ``crop_min``–``crop_max``
+of the image's short edge at a random position, a horizontal flip that swaps left and right
+keypoints (``FLIP_PERMUTATION``), and a resize to ``input_size``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ..keypoints import FLIP_PERMUTATION, NUM_JOINTS
+from .encoder import EncoderConfig, encode
+from .model import IMAGE_MEAN, IMAGE_STD
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Attributes:
+        input_size: side of the square network input. [px]
+        crop_min, crop_max: side of the random square crop as a fraction of the short edge. [1]
+        flip: probability of a horizontal flip. [0-1]
+    """
+
+    input_size: int = 385
+    crop_min: float = 0.95
+    crop_max: float = 1.0
+    flip: float = 0.5
+
+
+@dataclass(frozen=True)
+class Annotations:
+    """A COCO keypoints file. ``keypoints[i]: (N_i, 17, 3)``, ``depths[i]: (N_i, 17)`` (NaN: none)."""
+
+    image_ids: np.ndarray
+    paths: tuple[Path, ...]
+    keypoints: tuple[np.ndarray, ...]
+    depths: tuple[np.ndarray, ...]
+    document: dict
+
+
+def read_annotations(path: str | Path, images_dir: str | Path | None = None, min_keypoints: int = 1) -> Annotations:
+    """Read a COCO keypoints file; images are found under ``images_dir`` (default: the file's directory)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    for key in ("images", "annotations"):
+        if not isinstance(doc.get(key), list):
+            raise InputError(path, key, "missing, or not a list")
+    root = Path(images_dir) if images_dir is not None else path.parent
+    index = {}
+    for i, im in enumerate(doc["images"]):
+        if not isinstance(im, dict) or "id" not in im or not isinstance(im.get("file_name"), str):
+            raise InputError(path, f"images[{i}]", "expected an object with 'id' and 'file_name'")
+        index[im["id"]] = i
+    kps = [[] for _ in doc["images"]]
+    deps = [[] for _ in doc["images"]]
+    for i, ann in enumerate(doc["annotations"]):
+        field = f"annotations[{i}]"
+        if ann.get("category_id", 1) != 1 or ann.get("iscrowd", 0):
+            continue
+        if ann.get("image_id") not in index:
+            raise InputError(path, f"{field}.image_id", f"no image with id {ann.get('image_id')!r}")
+        kp = np.asarray(ann.get("keypoints", []), dtype=float)
+        if kp.shape != (3 * NUM_JOINTS,) or not np.isfinite(kp).all():
+            raise InputError(path, f"{field}.keypoints", f"expected {3 * NUM_JOINTS} finite numbers")
+        kp = kp.reshape(NUM_JOINTS, 3)
+        if (kp[:, 2] > 0).sum() < min_keypoints:
+            continue
+        d = np.full(NUM_JOINTS, np.nan)
+        if "keypoint_depths" in ann:
+            d = np.asarray(ann["keypoint_depths"], dtype=float)
+            if d.shape != (NUM_JOINTS,):
+                raise InputError(path, f"{field}.keypoint_depths", f"expected {NUM_JOINTS} numbers, got {d.size}")
+            has = np.asarray(ann.get("has_3d", d > 0), dtype=bool)
+            d = np.where(has & (d > 0) & (kp[:, 2] > 0), d, np.nan)
+        kps[index[ann["image_id"]]].append(kp)
+        deps[index[ann["image_id"]]].append(d)
+    return Annotations(
+        image_ids=np.array([im["id"] for im in doc["images"]]),
+        paths=tuple(root / im["file_name"] for im in doc["images"]),
+        keypoints=tuple(np.array(k, dtype=float).reshape(-1, NUM_JOINTS, 3) for k in kps),
+        depths=tuple(np.array(d, dtype=float).reshape(-1, NUM_JOINTS) for d in deps),
+        document=doc,
+    )
+
+
+def load_image(path: Path) -> np.ndarray:
+    """-> ``(H, W, 3)`` uint8 RGB; a missing or unreadable file raises an InputError."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if image is None:
+        raise InputError(path, None, "image not found or not readable")
+    return image[:, :, ::-1]
+
+
+def random_crop_flip(image: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,
+                     config: AugmentConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Square crop of 95–100 % of the short edge at a random place, resize, random flip.
+
+    ``image: (H, W, 3)``, ``keypoints: (N, 17, 3)``, ``depths: (N, 17)`` -> the same for the
+    ``input_size²`` result; keypoints that leave the crop get ``v = 0`` and no depth.
+    """
+    import cv2
+
+    H, W = image.shape[:2]
+    side = max(1, int(round(rng.uniform(config.crop_min, config.crop_max) * min(H, W))))
+    x0, y0 = int(rng.integers(0, W - side + 1)), int(rng.integers(0, H - side + 1))
+    S = config.input_size
+    crop = cv2.resize(np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side]), (S, S),
+                      interpolation=cv2.INTER_AREA if side > S else cv2.INTER_LINEAR)
+    kp = keypoints.copy()
+    kp[..., 0] = (kp[..., 0] - x0 + 0.5) * S / side - 0.5
+    kp[..., 1] = (kp[..., 1] - y0 + 0.5) * S / side - 0.5
+    d = depths.copy()
+    if rng.uniform() < config.flip:
+        crop = np.ascontiguousarray(crop[:, ::-1])
+        kp[..., 0] = S - 1 - kp[..., 0]
+        kp, d = kp[:, FLIP_PERMUTATION], d[:, FLIP_PERMUTATION]
+    out = (kp[..., 0] < 0) | (kp[..., 0] > S - 1) | (kp[..., 1] < 0) | (kp[..., 1] > S - 1)
+    kp[out, 2] = 0
+    kp[kp[..., 2] <= 0, :2] = 0
+    d[kp[..., 2] <= 0] = np.nan
+    return crop, kp, d
+
+
+def letterbox(image: np.ndarray, size: int, stride: int) -> tuple[np.ndarray, float]:
+    """Resize the long edge to ``size`` and pad right/bottom to a multiple of ``stride``.
+
+    ``image: (H, W, 3)`` -> ``(H', W', 3)`` and the scale (pixels of the result per original pixel).
+    """
+    import cv2
+
+    H, W = image.shape[:2]
+    scale = size / max(H, W)
+    w, h = max(1, int(round(W * scale))), max(1, int(round(H * scale)))
+    resized = cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
+    Hp, Wp = -(-h // stride) * stride, -(-w // stride) * stride
+    out = np.zeros((Hp, Wp, 3), dtype=image.dtype)
+    out[:h, :w] = resized
+    return out, scale
+
+
+def to_tensor(image: np.ndarray) -> torch.Tensor:
+    """``(H, W, 3)`` uint8 RGB -> ``(3, H, W)`` float, ImageNet-normalized."""
+    x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255.0
+    mean = torch.tensor(IMAGE_MEAN).view(3, 1, 1)
+    std = torch.tensor(IMAGE_STD).view(3, 1, 1)
+    return (x - mean) / std
+
+
+class KeypointDataset(torch.utils.data.Dataset):
+    """Training samples: augmented image and field targets.
+
+    ``dataset[i]`` -> ``{"image": (3, S, S), "pif": (17, 5, h, w), "paf": (C, 7, h, w),
+    "pdf": (17, 2, h, w), "pdf_group": (17, h, w)}`` with ``h = w = ceil(S / stride)``.
+    The random augmentation of item ``i`` depends on ``(seed, epoch, i)`` only.
+    """
+
+    def __init__(self, annotations: Annotations, stride: int, augment: AugmentConfig = AugmentConfig(),
+                 encoder: EncoderConfig = EncoderConfig(), seed: int = 0, use_depth: bool = True):
+        self.ann, self.stride, self.augment, self.encoder = annotations, stride, augment, encoder
+        self.seed, self.epoch, self.use_depth = seed, 0, use_depth
+
+    def __len__(self) -> int:
+        return len(self.ann.paths)
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        return self.sample(i, self.epoch)
+
+    def sample(self, i: int, draw: int) -> dict[str, torch.Tensor]:
+        """Item ``i`` under the augmentation numbered ``draw``."""
+        rng = np.random.default_rng([self.seed, draw, i])
+        image = load_image(self.ann.paths[i])
+        depths = self.ann.depths[i] if self.use_depth else np.full(self.ann.depths[i].shape, np.nan)
+        crop, kp, d = random_crop_flip(image, self.ann.keypoints[i], depths, self.augment, rng)
+        S = self.augment.input_size
+        targets = encode(kp, (S, S), self.stride, d, self.encoder)
+        out = {k: torch.from_numpy(v) for k, v in targets.items()}
+        out["image"] = to_tensor(crop)
+        return out
+
+
+def collate(batch: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    return {k: torch.stack([b[k] for b in batch]) for k in batch[0]}

@@ -1,0 +1,79 @@
+"""The network: a ResNet backbone and the PIF, PAF and PDF heads, built from a name."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from .backbone import ARCHITECTURES, ResNet
+from .headmeta import HeadMetas
+from .heads import FieldHead, activate
+
+#: ImageNet normalization expected by torchvision weights (RGB, images in [0, 1]).
+IMAGE_MEAN = (0.485, 0.456, 0.406)
+IMAGE_STD = (0.229, 0.224, 0.225)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything needed to rebuild a network (stored in checkpoint metadata).
+
+    Attributes:
+        backbone: a name of ``ARCHITECTURES`` (``resnet18`` … ``resnet152``).
+        stride: 8 or 16, pixels per field cell.
+        width: stem channels of the backbone (64 for ImageNet weights; smaller for CPU demos).
+    """
+
+    backbone: str = "resnet50"
+    stride: int = 16
+    width: int = 64
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelSpec":
+        unknown = set(d) - {"backbone", "stride", "width"}
+        if unknown:
+            raise ValueError(f"model spec: unknown keys {sorted(unknown)}")
+        return cls(**d)
+
+
+class PoseNet(nn.Module):
+    """``images: (B, 3, H, W)`` normalized -> ``{"pif": (B, 17, 5, h, w), "paf": (B, 27, 7, h, w),
+    "pdf": (B, 17, 2, h, w)}`` raw fields, ``h = ceil(H / stride)``.
+    """
+
+    def __init__(self, spec: ModelSpec):
+        super().__init__()
+        if spec.backbone not in ARCHITECTURES:
+            raise ValueError(f"backbone {spec.backbone!r}: expected one of {', '.join(ARCHITECTURES)}")
+        self.spec = spec
+        self.metas = HeadMetas.at_stride(spec.stride)
+        self.backbone = ResNet(spec.backbone, spec.stride, spec.width)
+        c = self.backbone.out_channels
+        self.pif = FieldHead(self.metas.pif, c)
+        self.paf = FieldHead(self.metas.paf, c)
+        self.pdf = FieldHead(self.metas.pdf, c)
+
+    def forward(self, images: torch.Tensor) -> dict[str, torch.Tensor]:
+        features = self.backbone(images)
+        return {"pif": self.pif(features), "paf": self.paf(features), "pdf": self.pdf(features)}
+
+
+def build_model(backbone: str = "resnet50", stride: int = 16, width: int = 64) -> PoseNet:
+    """Build the network by name; e.g. ``build_model("resnet152", stride=8)``."""
+    return PoseNet(ModelSpec(backbone, stride, width))
+
+
+def fields_from_raw(raw: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """Activate every head's raw output (see :func:`mvm.net.heads.activate`)."""
+    return {name: activate(name, value) for name, value in raw.items()}
+
+
+def normalize_images(images: torch.Tensor) -> torch.Tensor:
+    """``images: (B, 3, H, W)`` RGB in [0, 1] -> ImageNet-normalized."""
+    mean = torch.tensor(IMAGE_MEAN, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
+    std = torch.tensor(IMAGE_STD, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
+    return (images - mean) / std

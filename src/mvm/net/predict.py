@@ -1,0 +1,141 @@
+"""Prediction: multi-person 2D poses, relative depths and calibrated 3D from single images.
+
+For every detected person: the 2D keypoints, each keypoint's depth relative to the person's
+median depth, and metric camera coordinates ``X = s* · d · K⁻¹ [u, v, 1]`` where ``s*`` is
+the length-scale calibration (bones of average adult length); the person's median depth is
+then ``s*`` metres. ``K`` is a pinhole camera with the given focal length (default: the
+image's long edge, about a 53° field of view) and the principal point at the centre.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ..io.files import atomic_write_bytes, atomic_write_json
+from ..keypoints import COCO_KEYPOINTS
+from .data import load_image
+from .decoder import DecoderConfig, normalize_depth
+from .evaluate import run_model
+from .headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
+from .model import ModelSpec, PoseNet
+from .scale import calibrate, lift
+from .train import read_checkpoint
+
+LOG = logging.getLogger(__name__)
+PREDICTIONS_FORMAT = "mvm.net.predictions/1"
+
+
+def load_model(checkpoint: str | Path, use_ema: bool = True, device: str = "cpu") -> tuple[PoseNet, dict]:
+    """Rebuild the network of a checkpoint; the EMA weights by default. -> (model in eval mode, metadata)."""
+    state, meta = read_checkpoint(checkpoint)
+    try:
+        spec = ModelSpec.from_dict(meta["model"])
+        model = PoseNet(spec)
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(Path(checkpoint).with_suffix(".json"), "model", f"not a valid model spec: {e}") from None
+    weights = state.get("ema") if use_ema and "ema" in state else state["model"]
+    try:
+        model.load_state_dict(weights)
+    except RuntimeError as e:
+        raise InputError(checkpoint, None, f"weights do not fit {spec}: {str(e).splitlines()[0]}") from None
+    return model.to(device).eval(), meta
+
+
+def intrinsics(width: int, height: int, focal_px: float | None = None) -> np.ndarray:
+    """Pinhole ``K (3, 3)`` with the principal point at the image centre."""
+    f = float(focal_px) if focal_px else float(max(width, height))
+    return np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+
+
+def _none(a: np.ndarray, digits: int) -> list:
+    return [None if not np.isfinite(v) else round(float(v), digits) for v in np.asarray(a).reshape(-1)]
+
+
+def predict_image(model: PoseNet, image: np.ndarray, input_size: int, focal_px: float | None = None,
+                  decoder: DecoderConfig = DecoderConfig()) -> dict:
+    """People of one ``(H, W, 3)`` RGB image -> a JSON-ready dict (see :func:`predict`)."""
+    H, W = image.shape[:2]
+    poses, _, _ = run_model(model, image, input_size, decoder)
+    K = intrinsics(W, H, focal_px)
+    rel = normalize_depth(poses.depth)
+    metric, s = calibrate(lift(poses.keypoints, rel, K)) if len(poses) else (np.zeros((0, 17, 3)), np.zeros(0))
+    persons = []
+    for p in range(len(poses)):
+        persons.append({
+            "score": round(float(poses.score[p]), 4),
+            "keypoints": [[round(float(x), 2), round(float(y), 2), round(float(c), 4)] for x, y, c in poses.keypoints[p]],
+            "depth_relative": _none(rel[p], 4),
+            "scale_m": None if not np.isfinite(s[p]) else round(float(s[p]), 4),
+            "keypoints3d_m": [None if not np.isfinite(X).all() else [round(float(v), 4) for v in X] for X in metric[p]],
+        })
+    return {"width": W, "height": H, "focal_px": float(K[0, 0]), "persons": persons}
+
+
+def overlay(image: np.ndarray, result: dict) -> np.ndarray:
+    """Draw the skeletons of ``result`` on ``image (H, W, 3)`` RGB; joints coloured near (red) to far (blue)."""
+    import cv2
+
+    canvas = np.ascontiguousarray(image[:, :, ::-1]).copy()
+    thickness = max(1, int(round(max(image.shape[:2]) / 300)))
+    for person in result["persons"]:
+        kp = np.array(person["keypoints"], dtype=float)
+        d = np.array([np.nan if v is None else v for v in person["depth_relative"]])
+        for (a, b), virtual in zip(PAF_CONNECTIONS, VIRTUAL_CONNECTIONS):
+            if virtual or kp[a, 2] <= 0 or kp[b, 2] <= 0:
+                continue
+            cv2.line(canvas, tuple(int(round(v)) for v in kp[a, :2]), tuple(int(round(v)) for v in kp[b, :2]),
+                     (255, 255, 255), thickness, cv2.LINE_AA)
+        for j in np.nonzero(kp[:, 2] > 0)[0]:
+            t = 0.5 if not np.isfinite(d[j]) else float(np.clip((d[j] - 0.8) / 0.4, 0, 1))
+            color = (int(255 * t), 0, int(255 * (1 - t)))  # BGR: near red, far blue
+            cv2.circle(canvas, tuple(int(round(v)) for v in kp[j, :2]), thickness + 1, color, -1, cv2.LINE_AA)
+        if person["scale_m"] is not None and (kp[:, 2] > 0).any():
+            top = kp[kp[:, 2] > 0, :2].min(0).astype(int)
+            cv2.putText(canvas, f"{person['scale_m']:.1f} m", (int(top[0]), max(10, int(top[1]) - 4)),
+                        cv2.FONT_HERSHEY_SIMPLEX, 0.4 * thickness, (255, 255, 255), 1, cv2.LINE_AA)
+    return canvas
+
+
+def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Path | None = None,
+            input_size: int | None = None, focal_px: float | None = None,
+            decoder: DecoderConfig = DecoderConfig(), device: str = "cpu") -> list[dict]:
+    """Detect people in images with a trained checkpoint.
+
+    Args:
+        images: image files.
+        checkpoint: a ``.pt`` written by :func:`mvm.net.train.train` (its ``.json`` beside it).
+        out_dir: when given, writes ``predictions.json`` and ``<image stem>.overlay.jpg`` there.
+        input_size: long edge of the network input (default: the training ``input_size``).
+        focal_px: focal length of the images for the 3D output (default: the long edge).
+    Returns:
+        one dict per image: ``{"image", "width", "height", "focal_px", "persons": [{"score",
+        "keypoints" (17 × [x, y, score]), "depth_relative" (17), "scale_m",
+        "keypoints3d_m" (17 × [x, y, z] camera coordinates in metres, or null)}]}``.
+    """
+    if not images:
+        raise InputError(None, "images", "no image given")
+    model, meta = load_model(checkpoint, device=device)
+    size = int(input_size or meta.get("config", {}).get("input_size", 385))
+    results = []
+    out = Path(out_dir) if out_dir is not None else None
+    for path in images:
+        path = Path(path)
+        image = load_image(path)
+        with torch.no_grad():
+            result = {"image": str(path), **predict_image(model, image, size, focal_px, decoder)}
+        results.append(result)
+        LOG.info("%s: %d people", path, len(result["persons"]))
+        if out is not None:
+            import cv2
+
+            ok, buf = cv2.imencode(".jpg", overlay(image, result))
+            if ok:
+                atomic_write_bytes(out / f"{path.stem}.overlay.jpg", buf.tobytes())
+    if out is not None:
+        atomic_write_json(out / "predictions.json", {"format": PREDICTIONS_FORMAT, "checkpoint": str(checkpoint),
+                                                     "keypoints": list(COCO_KEYPOINTS), "images": results}, indent=1)
+    return results
