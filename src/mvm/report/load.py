@@ -1,0 +1,92 @@
+"""Read what a report needs from a scene directory: the scene, its reconstruction
+(``<output>/poses3d.json``), the ground truth of a simulated scene and the frames."""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.scene_dir import read_poses3d, read_scene
+from ..scene import Persons3D, Scene
+from ..simulate import GroundTruth
+
+log = logging.getLogger(__name__)
+
+FRAMES = "frames"
+
+
+@dataclass
+class SceneResult:
+    """A scene with its reconstruction.
+
+    Attributes:
+        path: the scene directory; output: its output folder name (``mvm``).
+        scene, persons: as read (``persons.members`` index ``scene.poses``).
+        metrics, timings: ``metrics`` and ``timings_s`` of ``poses3d.json`` (may be empty).
+        truth: the ground truth of a simulated scene, or None.
+        true_person: ``(N,)`` the true person of every 2D pose (-1: false), or None.
+    """
+
+    path: Path
+    output: str
+    scene: Scene
+    persons: Persons3D
+    metrics: dict
+    timings: dict
+    truth: GroundTruth | None = None
+    true_person: np.ndarray | None = None
+
+    @property
+    def out_dir(self) -> Path:
+        return self.path / self.output
+
+    @property
+    def frames_dir(self) -> Path | None:
+        frames = self.path / FRAMES
+        return frames if frames.is_dir() else None
+
+
+def truth_path(scene_dir: Path) -> Path:
+    """Where a simulation writes the ground truth of ``scene_dir``: beside it."""
+    return scene_dir.parent / f"{scene_dir.name}.groundtruth.json"
+
+
+def read_truth(path: Path, annotation_ids: np.ndarray) -> tuple[GroundTruth, np.ndarray]:
+    """Read ``<scene>.groundtruth.json``: the truth and the true person ``(N,)`` of the
+    annotations ``annotation_ids: (N,)`` (the truth lists annotations by id 1, 2, …)."""
+    try:
+        truth = GroundTruth.from_json(json.loads(path.read_text()))
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read: {e}") from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, None, f"not a ground truth document: {e}") from None
+    if truth.poses3d.ndim != 3 or truth.poses3d.shape[1:] != (17, 3):
+        raise InputError(path, "poses3d", f"expected shape (G, 17, 3), got {truth.poses3d.shape}")
+    ids = np.asarray(annotation_ids, dtype=np.int64)
+    if len(ids) and (ids.min() < 1 or ids.max() > len(truth.person)):
+        raise InputError(path, "person_of_annotation",
+                         f"has {len(truth.person)} entries, annotation ids go up to {ids.max()}")
+    return truth, truth.person[ids - 1].astype(np.int64)
+
+
+def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
+    """Read a reconstructed scene directory (and its ground truth when one lies beside it)."""
+    path = Path(scene_dir)
+    scene = read_scene(path)
+    poses3d = path / output / "poses3d.json"
+    if not poses3d.is_file():
+        raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
+    persons = read_poses3d(poses3d, scene.poses)
+    document = json.loads(poses3d.read_text())
+    metrics = document.get("metrics") or {}
+    timings = document.get("timings_s") or {}
+    truth = true_person = None
+    gt = truth_path(path)
+    if gt.is_file():
+        truth, true_person = read_truth(gt, scene.poses.ids)
+        log.info("%s: ground truth of %d persons", gt, len(truth.poses3d))
+    return SceneResult(path, output, scene, persons, dict(metrics), dict(timings), truth, true_person)

@@ -1,0 +1,242 @@
+"""Overlays: the 2D poses of a frame in the colour of their person (unmatched in grey) and the
+reprojected 3D poses over them, on the frame or on a neutral background of the image size.
+
+``draw_overlay`` only draws (arrays in, image out); ``render_view`` and ``write_overlays``
+read frames and write images or an MP4.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.files import atomic_write_bytes
+from ..keypoints import COCO_SKELETON
+from .analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
+from .load import SceneResult, load_result
+
+log = logging.getLogger(__name__)
+
+#: Background of views without a frame image (BGR): a dark neutral grey.
+NEUTRAL_BGR = (48, 48, 48)
+#: Image suffixes ``write_overlays`` writes one file per frame for.
+IMAGE_SUFFIXES = (".png", ".jpg")
+_SKELETON = np.array(COCO_SKELETON)
+
+
+def _cv2():
+    try:
+        import cv2
+    except ImportError:  # pragma: no cover - opencv is installed with the 'video' extra
+        raise InputError(None, None, "overlays need OpenCV: pip install 'mvm[video]'") from None
+    return cv2
+
+
+def _bgr(rgb) -> tuple[int, int, int]:
+    return int(rgb[2]), int(rgb[1]), int(rgb[0])
+
+
+def _lighten(rgb, amount: float = 0.55) -> np.ndarray:
+    return np.asarray(rgb, dtype=float) * (1 - amount) + 255 * amount
+
+
+def draw_overlay(image: np.ndarray, keypoints: np.ndarray, labels: np.ndarray, colors: np.ndarray,
+                 reprojected: np.ndarray | None = None, reprojected_ok: np.ndarray | None = None,
+                 scale: float = 1.0) -> np.ndarray:
+    """Draw one view's poses on a copy of ``image``.
+
+    Args:
+        image: ``(H, W, 3)`` uint8 BGR.
+        keypoints: ``(n, 17, 3)`` the view's 2D poses (x, y in pixels of the full image, v).
+        labels: ``(n,)`` person of each pose (-1: unmatched, drawn grey).
+        colors: ``(P, 3)`` uint8 RGB of the persons.
+        reprojected: ``(P, 17, 2)`` the 3D poses projected into the view (pixels), or None;
+            reprojected_ok: ``(P, 17)`` which of them to draw.
+        scale: factor from full-image pixels to ``image`` pixels.
+    Returns:
+        ``(H, W, 3)`` uint8 BGR: thick lines and dots for the 2D poses, thin light lines and
+        rings for the reprojected 3D poses.
+    """
+    cv2 = _cv2()
+    image = np.ascontiguousarray(image, dtype=np.uint8).copy()
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image: expected shape (H, W, 3), got {image.shape}")
+    keypoints = np.asarray(keypoints, dtype=float).reshape(-1, 17, 3)
+    labels = np.asarray(labels).reshape(-1)
+    if len(labels) != len(keypoints):
+        raise ValueError(f"labels: expected {len(keypoints)} entries, got {len(labels)}")
+    H, W = image.shape[:2]
+    thick = max(2, int(round(max(H, W) / 400)))
+    shift = 4                                     # sub-pixel precision of cv2 drawing
+    fixed = lambda xy: tuple(int(round(c * scale * (1 << shift))) for c in xy)  # noqa: E731
+    # unmatched first, so that persons are drawn over them
+    for i in np.argsort(labels >= 0, kind="stable"):
+        color = _bgr(UNMATCHED_RGB if labels[i] < 0 else colors[labels[i]])
+        kp, ok = keypoints[i, :, :2], keypoints[i, :, 2] > 0
+        for a, b in _SKELETON:
+            if ok[a] and ok[b]:
+                cv2.line(image, fixed(kp[a]), fixed(kp[b]), color, thick, cv2.LINE_AA, shift)
+        for j in np.flatnonzero(ok):
+            cv2.circle(image, fixed(kp[j]), (thick + 1) << shift, color, -1, cv2.LINE_AA, shift)
+    if reprojected is not None:
+        reprojected = np.asarray(reprojected, dtype=float)
+        ok_all = np.isfinite(reprojected).all(-1) if reprojected_ok is None else reprojected_ok
+        limit = 4 * max(H, W) / max(scale, 1e-9)
+        for p in range(len(reprojected)):
+            color = _bgr(_lighten(colors[p]))
+            uv = reprojected[p]
+            ok = ok_all[p] & (np.abs(uv) < limit).all(-1)
+            for a, b in _SKELETON:
+                if ok[a] and ok[b]:
+                    cv2.line(image, fixed(uv[a]), fixed(uv[b]), color, 1, cv2.LINE_AA, shift)
+            for j in np.flatnonzero(ok):
+                cv2.circle(image, fixed(uv[j]), (thick + 1) << shift, color, 1, cv2.LINE_AA, shift)
+    return image
+
+
+def _distort(camera, K: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Pinhole pixels ``(..., 2)`` of ``K`` -> pixels of the (distorted) COLMAP ``camera``."""
+    flat = xy.reshape(-1, 2)
+    finite = np.isfinite(flat).all(-1)
+    out = np.full_like(flat, np.nan)
+    if finite.any():
+        normalized = (flat[finite] - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
+        cam = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
+        out[finite] = np.asarray(camera.img_from_cam(cam, check_cheirality=False), dtype=float)
+    return out.reshape(xy.shape)
+
+
+class ViewRenderer:
+    """Draws the overlay of any view of a reconstructed scene (reads the frame image when the
+    scene has ``frames/``, else draws on a neutral background of the image size)."""
+
+    def __init__(self, result: SceneResult):
+        self.result = result
+        scene = result.scene
+        self.labels = pose_labels(len(scene.poses), result.persons.members)
+        self.colors = person_colors(len(result.persons))
+        self.reprojected, self.reprojected_ok = reproject(result.persons.keypoints3d, scene.cameras.P)
+        self.frames_dir = result.frames_dir
+        self._colmap = None
+        if self.frames_dir is not None:
+            from ..io.colmap import read_colmap
+
+            model = read_colmap(result.path / "sparse")
+            index = model.index()
+            self._colmap = [model.colmap_cameras[index[n]] for n in scene.cameras.names]
+        self.missing_frames = 0
+
+    @property
+    def has_frames(self) -> bool:
+        return self.frames_dir is not None
+
+    def _background(self, v: int) -> tuple[np.ndarray, bool]:
+        cv2 = _cv2()
+        W, H = (int(round(s)) for s in self.result.scene.cameras.size[v])
+        if self.frames_dir is not None:
+            path = self.frames_dir / self.result.scene.cameras.names[v]
+            image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+            if image is not None:
+                if image.shape[:2] != (H, W):
+                    image = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA)
+                return image, True
+            self.missing_frames += 1
+            log.warning("%s: cannot read the frame; drawing on a neutral background", path)
+        return np.full((H, W, 3), NEUTRAL_BGR, dtype=np.uint8), False
+
+    def render(self, v: int, max_width: int | None = None) -> np.ndarray:
+        """The overlay of view ``v``: ``(H, W, 3)`` uint8 BGR, at most ``max_width`` wide."""
+        cv2 = _cv2()
+        image, real = self._background(v)
+        H, W = image.shape[:2]
+        scale = 1.0
+        if max_width and W > max_width:
+            scale = max_width / W
+            image = cv2.resize(image, (max_width, max(1, int(round(H * scale)))), interpolation=cv2.INTER_AREA)
+        poses = self.result.scene.poses
+        rows = np.flatnonzero(poses.view == v)
+        keypoints = poses.keypoints[rows].copy()
+        uv = self.reprojected[v]
+        if real and self._colmap is not None and self._colmap[v].model.name not in ("SIMPLE_PINHOLE", "PINHOLE"):
+            K = self.result.scene.cameras.K[v]
+            keypoints[:, :, :2] = _distort(self._colmap[v], K, keypoints[:, :, :2])
+            uv = _distort(self._colmap[v], K, uv)
+        return draw_overlay(image, keypoints, self.labels[rows], self.colors, uv,
+                            self.reprojected_ok[v] & np.isfinite(uv).all(-1), scale)
+
+
+@dataclass
+class OverlaySummary:
+    """What ``write_overlays`` wrote: ``path`` (a folder or a video), ``frames`` written,
+    ``on_frames`` whether the scene's images were the background."""
+
+    path: Path
+    frames: int
+    on_frames: bool
+
+
+def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output: str = "mvm",
+                   step: int = 1, max_width: int | None = None, fps: float = 10.0,
+                   image_format: str = ".jpg") -> OverlaySummary:
+    """Draw the overlay of every ``step``-th view of a reconstructed scene.
+
+    Args:
+        scene_dir: the scene directory (with ``<output>/poses3d.json``).
+        out: a ``.mp4`` path (a video) or a folder (one image per view, named as the view);
+            default ``<scene_dir>/<output>/overlay/``.
+        step: draw every ``step``-th view; max_width: downscale wider views to this width.
+        fps: frame rate of a video; image_format: ``.jpg`` or ``.png`` for a folder.
+    """
+    if step < 1:
+        raise InputError(None, "--every", f"expected a positive step, got {step}")
+    if image_format not in IMAGE_SUFFIXES:
+        raise InputError(None, "image format", f"expected one of {IMAGE_SUFFIXES}, got {image_format!r}")
+    result = load_result(scene_dir, output)
+    renderer = ViewRenderer(result)
+    out = Path(out) if out is not None else result.out_dir / "overlay"
+    views = range(0, len(result.scene.cameras), step)
+    if out.suffix.lower() == ".mp4":
+        _write_video(out, (renderer.render(v, max_width) for v in views), fps)
+    else:
+        cv2 = _cv2()
+        for v in views:
+            ok, data = cv2.imencode(image_format, renderer.render(v, max_width))
+            if not ok:
+                raise InputError(out, None, f"cannot encode view {v} as {image_format}")
+            name = Path(result.scene.cameras.names[v]).with_suffix(image_format)
+            atomic_write_bytes(out / name, data.tobytes())
+    log.info("%s: %d overlays written", out, len(views))
+    return OverlaySummary(out, len(views), renderer.has_frames)
+
+
+def _write_video(path: Path, images, fps: float) -> None:
+    """Write BGR images (resized to the first one's size) as an MP4, atomically."""
+    cv2 = _cv2()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
+    os.close(fd)
+    writer = None
+    try:
+        for image in images:
+            if writer is None:
+                size = (image.shape[1], image.shape[0])
+                writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+                if not writer.isOpened():
+                    raise InputError(path, None, "OpenCV cannot write MP4 video here (no mp4v encoder)")
+            if (image.shape[1], image.shape[0]) != size:
+                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+            writer.write(image)
+        if writer is None:
+            raise InputError(path, None, "no views to write")
+        writer.release()
+        writer = None
+        os.replace(tmp, path)
+    finally:
+        if writer is not None:
+            writer.release()
+        Path(tmp).unlink(missing_ok=True)

@@ -1,0 +1,74 @@
+"""The summary page of a data set: one row per scene with its metrics and a link to its
+report (when both exist)."""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from html import escape
+from pathlib import Path
+from urllib.parse import quote
+
+from ..io.files import atomic_write_text
+from .page import REPORT_NAME
+
+log = logging.getLogger(__name__)
+
+SUMMARY_NAME = "summary.html"
+_COLUMNS = (("persons", "persons", 0), ("matched_poses", "matched", 0), ("unmatched_poses", "unmatched", 0),
+            ("E_R_px", "E<sub>R</sub> px", 2), ("outliers", "outliers", 1), ("G_k", "|G<sub>k</sub>|", 1))
+
+
+def _metrics(poses3d: Path) -> dict | None:
+    try:
+        document = json.loads(poses3d.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    return document.get("metrics") if isinstance(document, dict) else None
+
+
+def _cell(value, digits: int) -> str:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return "–"
+    return f"{value:.{digits}f}" if digits else str(int(value))
+
+
+def summary_html(root: Path, scene_dirs: list[Path], output: str = "mvm") -> tuple[str, int]:
+    """The summary page as a string (links relative to ``root``) and the number of reports linked."""
+    rows, linked = [], 0
+    for scene in scene_dirs:
+        report = scene / output / REPORT_NAME
+        metrics = _metrics(scene / output / "poses3d.json")
+        name = escape(scene.name)
+        if report.is_file():
+            href = quote(Path(os.path.relpath(report, root)).as_posix())
+            first = f'<a href="{href}">{name}</a>'
+            linked += 1
+        else:
+            first = f'{name} <span class="note">(no report)</span>'
+        cells = "".join(f"<td>{_cell((metrics or {}).get(key), d)}</td>" for key, _, d in _COLUMNS)
+        state = "reconstructed" if metrics is not None else "not reconstructed"
+        rows.append(f"<tr><td>{first}</td>{cells}<td>{state}</td></tr>")
+    head = "".join(f"<th>{label}</th>" for _, label, _ in _COLUMNS)
+    html = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>mvm summary: {escape(root.name)}</title><style>
+body{{font:14px/1.45 system-ui,sans-serif;margin:24px;color:#222}}table{{border-collapse:collapse}}
+td,th{{border-bottom:1px solid #eee;padding:4px 12px;text-align:right}}td:first-child,th:first-child{{text-align:left}}
+.note{{color:#888;font-size:12px}}</style></head><body><h1>mvm summary: {escape(root.name)}</h1>
+<p>{len(scene_dirs)} scenes, {linked} reports.</p><table><thead><tr><th>scene</th>{head}<th>state</th></tr></thead>
+<tbody>{"".join(rows)}</tbody></table></body></html>
+"""
+    return html, linked
+
+
+def write_summary(root: str | Path, scene_dirs, output: str = "mvm") -> Path:
+    """Write ``<root>/summary.html`` linking the report of every scene in ``scene_dirs`` that has
+    one (scenes without a report are listed, unlinked). Returns the page's path."""
+    root = Path(root)
+    scenes = [Path(s) for s in scene_dirs]
+    html, linked = summary_html(root, scenes, output)
+    path = root / SUMMARY_NAME
+    atomic_write_text(path, html)
+    log.info("%s: %d scenes, %d reports linked", path, len(scenes), linked)
+    return path
