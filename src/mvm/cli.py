@@ -174,7 +174,13 @@ def _register_optional_commands() -> None:
     """Subcommands of optional parts (they import their heavy dependencies lazily)."""
     import importlib
 
-    for module, names in (("mvm.cli_net", ("export_cmd", "train_cmd", "predict_cmd")),):
+    for module, names in (
+        ("mvm.cli_sim", ("simulate_cmd", "bench_cmd")),
+        ("mvm.cli_video", ("run_cmd", "frames_cmd", "sfm_cmd", "detect_cmd")),
+        ("mvm.cli_rig", ("rig",)),
+        ("mvm.cli_net", ("export_cmd", "train_cmd", "predict_cmd")),
+        ("mvm.cli_report", ("report_cmd", "overlay_cmd")),
+    ):
         try:
             mod = importlib.import_module(module)
         except ImportError:
