@@ -27,7 +27,7 @@ from scipy.optimize import least_squares
 
 from .geometry import project
 from .keypoints import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
-from .prior import body_frame
+from .prior import body_frame, canonicalize
 
 log = logging.getLogger(__name__)
 
@@ -43,28 +43,74 @@ class RefineResult:
     cost_after: float
 
 
-def _prior_block(X: np.ndarray, present: np.ndarray, prior) -> tuple[np.ndarray, np.ndarray] | None:
-    """Linearized prior of one person: ``(G (K, 3n), h (K,))`` with residual ``G x - h`` for the
-    ``n`` present joints' world coordinates ``x`` (joint-major), or None without hips/shoulders."""
+def _median_by(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """Median of ``values: (K,)`` within each of ``n`` groups (``group: (K,)`` int) -> ``(n,)``,
+    NaN for empty groups (the mean of the two middle values for even counts, as np.median)."""
+    order = np.lexsort((values, group))
+    counts = np.bincount(group, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    low = starts + (counts - 1) // 2
+    high = starts + counts // 2
+    ok = counts > 0
+    out = np.full(n, np.nan)
+    sorted_values = values[order]
+    out[ok] = 0.5 * (sorted_values[low[ok]] + sorted_values[high[ok]])
+    return out
+
+
+@dataclass
+class PriorBlock:
+    """The linearized prior of persons sharing the same present joints and mixture component:
+    residuals ``G[p] @ x[cols[p]] - h[p]``.
+
+    ``cols: (Pg, 3n)`` parameter columns of the persons' present joints (joint-major x, y, z);
+    ``G: (Pg, K, 3n)``; ``h: (Pg, K)`` with ``K = 3n``."""
+
+    cols: np.ndarray
+    G: np.ndarray
+    h: np.ndarray
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """``(Pg, K)``."""
+        return np.einsum("pkc,pc->pk", self.G, x[self.cols]) - self.h
+
+
+def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior,
+                 weight: float) -> list[PriorBlock]:
+    """Linearize ``weight · E_P`` at ``X: (P, J, 3)`` for every person that has both hips and
+    shoulders: the prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame
+    ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
+    negative log-likelihood is ``½ |W (y − μ)|²``. Persons are batched by (present joints,
+    component): ``param_of: (P, J)`` parameter index of each present joint."""
+    rotation, _, scale = body_frame(np.where(present[..., None], X, np.nan))      # (P, 3, 3), (P,)
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
-    if not present[needed].all():
-        return None
-    rotation, _, scale = body_frame(X)                # rows: the body axes in the world
-    if not np.isfinite(rotation).all() or not scale > 0:
-        return None
-    joints = np.flatnonzero(present)
-    n = len(joints)
-    # y_j = R (X_j - (X_lh + X_rh) / 2) / s  ->  y = B x with B = C ⊗ (R / s), the prior's
-    # canonicalization with its frame held fixed for this outer iteration.
-    C = np.eye(n)
-    C[:, np.searchsorted(joints, LEFT_HIP)] -= 0.5
-    C[:, np.searchsorted(joints, RIGHT_HIP)] -= 0.5
-    B = np.kron(C, rotation / scale)
-    canonical = np.full((1, X.shape[0], 3), np.nan)
-    canonical[0, joints] = (B @ X[joints].reshape(-1)).reshape(n, 3)
-    component = int(prior.best_component(canonical)[0])
-    mean, W, _ = prior.whitening(present, component)
-    return W @ B, W @ mean
+    usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
+    if not usable.any():
+        return []
+    canonical = canonicalize(np.where(present[..., None], X, np.nan))
+    component = np.full(len(X), -1)
+    component[usable] = prior.best_component(canonical[usable])
+    usable &= component >= 0
+    keys = np.concatenate([present, component[:, None]], axis=1)[usable]
+    persons = np.flatnonzero(usable)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    blocks = []
+    for g in range(group.max() + 1):
+        ps = persons[group.ravel() == g]
+        joints = np.flatnonzero(present[ps[0]])
+        n = len(joints)
+        mean, W, _ = prior.whitening(present[ps[0]], int(component[ps[0]]))
+        # W @ (C ⊗ R/s) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction.
+        Wr = W.reshape(len(W), n, 3)
+        WC = Wr.copy()
+        total = Wr.sum(axis=1)
+        WC[:, np.searchsorted(joints, LEFT_HIP)] -= 0.5 * total
+        WC[:, np.searchsorted(joints, RIGHT_HIP)] -= 0.5 * total
+        G = np.einsum("kja,pab->pkjb", WC, rotation[ps] / scale[ps, None, None]).reshape(len(ps), len(W), 3 * n)
+        cols = (3 * param_of[np.ix_(ps, joints)][..., None] + np.arange(3)).reshape(len(ps), 3 * n)
+        root = np.sqrt(weight)
+        blocks.append(PriorBlock(cols, root * G, root * np.broadcast_to(W @ mean, (len(ps), len(W))).copy()))
+    return blocks
 
 
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
@@ -101,9 +147,6 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     rows_reproj = np.repeat(np.arange(2 * K), 3)
     cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
 
-    # Parameter columns of each person's present joints (joint-major x, y, z).
-    person_cols = [3 * np.repeat(param_of[p][present[p]], 3) + np.tile(np.arange(3), present[p].sum())
-                   for p in range(Pn)]
     use_prior = prior is not None and prior_weight > 0
 
     def unpack(x):
@@ -117,24 +160,15 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         return uv - obs_xy, depth
 
     def prior_terms(X):
-        """Linearized prior of every person: ``[(cols, G, h)]`` with residual ``G x[cols] − h``
-        (already scaled by sqrt(λ))."""
-        if not use_prior:
-            return []
-        terms = []
-        for p in range(Pn):
-            block = _prior_block(X[p], present[p], prior)
-            if block is not None:
-                G, h = block
-                terms.append((person_cols[p], np.sqrt(prior_weight) * G, np.sqrt(prior_weight) * h))
-        return terms
+        """Linearized prior of every person (already scaled by sqrt(λ))."""
+        return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
 
     def objective(x, terms):
         """Σ c ρ(e²) + λ E_P (up to the mixture's constants)."""
         e, _ = reprojection(x)
         f2 = robust_scale_px**2
         total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-        return float(total + sum(0.5 * np.sum((G @ x[cols] - h) ** 2) for cols, G, h in terms))
+        return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
 
     x = X0[present].reshape(-1).copy()
     cost_before = objective(x, prior_terms(X0))
@@ -146,16 +180,18 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         terms = prior_terms(unpack(x))
         # The Jacobian's sparsity pattern: 3 entries per reprojection row, a dense block per
         # person's prior rows.
-        starts = 2 * K + np.cumsum([0] + [len(G) for _, G, _ in terms])
-        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + len(G)), len(cols))
-                                               for a, (cols, G, _) in zip(starts, terms)])
-        cols_all = np.concatenate([cols_reproj] + [np.tile(cols, len(G)) for cols, G, _ in terms])
-        prior_values = np.concatenate([np.zeros(0)] + [G.reshape(-1) for _, G, _ in terms])
+        sizes = [b.G.shape[0] * b.G.shape[1] for b in terms]
+        starts = 2 * K + np.cumsum([0] + sizes)
+        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
+                                               for a, n, b in zip(starts, sizes, terms)])
+        cols_all = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
+                                                   for b in terms])
+        prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in terms])
         shape = (int(starts[-1]), n_params)
 
         def residuals(x):
             e, _ = reprojection(x)
-            return np.concatenate([sqrt_w * e.reshape(-1)] + [G @ x[cols] - h for cols, G, h in terms])
+            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms])
 
         def jacobian(x):
             homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
@@ -170,21 +206,15 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
                           x_scale="jac", max_nfev=max_iterations).x
 
     X = unpack(x)
-    fallback = np.zeros(Pn, dtype=bool)
     e0, _ = reprojection(X0[present].reshape(-1))
     e1, depth1 = reprojection(x)
-    err0 = np.linalg.norm(e0, axis=-1)
-    err1 = np.linalg.norm(e1, axis=-1)
-    for p in range(Pn):
-        rows_p = p_idx == p
-        if not rows_p.any():
-            continue
-        finite = np.isfinite(X[p][present[p]]).all()
-        worse = np.median(err1[rows_p]) > 2.0 * np.median(err0[rows_p]) + robust_scale_px
-        behind = (depth1[rows_p] <= 0).any()
-        if not finite or worse or behind:
-            fallback[p] = True
-            X[p] = X0[p]
+    observed = np.bincount(p_idx, minlength=Pn) > 0
+    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
+    worse = (_median_by(np.linalg.norm(e1, axis=-1), p_idx, Pn)
+             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), p_idx, Pn) + robust_scale_px)
+    behind = np.bincount(p_idx, weights=depth1 <= 0, minlength=Pn) > 0
+    fallback = observed & (~finite | worse | behind)
+    X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     x_final = X[present].reshape(-1)
