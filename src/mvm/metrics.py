@@ -108,3 +108,12 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, 
     return {"mpjpe": float(np.mean(mpjpe)) if mpjpe else float("nan"),
             "pa_mpjpe": float(np.mean(pa)) if pa else float("nan"),
             "evaluated_persons": len(mpjpe)}
+
+
+# The motion-capture field's metrics (PCP as on Shelf/Campus, AP at 25-150 mm as on Panoptic),
+# kept in their own module and offered here with the others.
+from .metrics_mocap import COCO_PCP_LIMBS, SHELF_PCP_LIMBS, average_precision, limbs_correct, pcp  # noqa: E402
+
+__all__ = ["reprojection_errors", "scene_quality", "matching_precision_recall", "procrustes_align",
+           "match_persons", "pose_errors", "pcp", "limbs_correct", "average_precision",
+           "COCO_PCP_LIMBS", "SHELF_PCP_LIMBS"]
