@@ -65,6 +65,13 @@ class Config:
     # --- random numbers ------------------------------------------------------------------
     #: Seed of RANSAC's sampling: a scene gives the same result every run. [1]
     seed: int = 0
+    # --- resources -----------------------------------------------------------------------
+    #: Largest memory the affinity of a scene may take: ``4 N²`` bytes for N 2D poses
+    #: (``8 N²`` with appearance descriptors). A larger scene is refused before any work,
+    #: with a message giving the amount needed. [bytes]
+    max_affinity_bytes: int = 4 * 2**30
+    #: How long a run waits for another run writing the same scene's output. [s]
+    lock_timeout_s: float = 600.0
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
@@ -123,11 +130,13 @@ def _validate(config: Config, source: str) -> None:
     for name in positive:
         if getattr(config, name) <= 0:
             raise InputError(source, name, f"must be > 0, got {getattr(config, name)}")
-    for name in ("prior_weight", "tau", "merge_distance", "keypoint_threshold", "min_pose_score", "min_parallax_deg"):
+    for name in ("prior_weight", "tau", "merge_distance", "keypoint_threshold", "min_pose_score", "min_parallax_deg",
+                 "lock_timeout_s"):
         if getattr(config, name) < 0:
             raise InputError(source, name, f"must be >= 0, got {getattr(config, name)}")
     if config.min_views < 2:
         raise InputError(source, "min_views", f"must be >= 2, got {config.min_views}")
-    for name in ("ransac_hypotheses", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations"):
+    for name in ("ransac_hypotheses", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
+                 "max_affinity_bytes"):
         if getattr(config, name) < 1:
             raise InputError(source, name, f"must be >= 1, got {getattr(config, name)}")

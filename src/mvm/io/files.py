@@ -1,11 +1,40 @@
-"""Atomic writes: a reader never sees a half-written output file."""
+"""Atomic writes: a reader never sees a half-written output file.
+
+Every file is written to a temporary file in the same directory (``.NAME.XXXX.tmp``),
+flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic on POSIX
+and Windows), and the directory is fsynced so that the rename survives a power loss. A
+process killed at any point leaves the previous file (or none) and at most a stale
+temporary file, which :func:`remove_stale_temporaries` deletes on the next run.
+"""
 from __future__ import annotations
 
+import contextlib
 import json
+import math
 import os
 import shutil
 import tempfile
+import time
 from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:                                    # not POSIX: no advisory locks
+    fcntl = None
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (POSIX; a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -22,15 +51,84 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+    _fsync_dir(path.parent)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def first_non_finite(obj, where: str = "") -> str | None:
+    """The JSON path (e.g. ``persons[2].keypoints3d[5][0]``) of the first NaN or infinite
+    number in ``obj`` (dicts, lists, tuples, numbers), or None when every number is finite."""
+    if isinstance(obj, float):
+        return None if math.isfinite(obj) else (where or "(root)")
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            found = first_non_finite(value, f"{where}.{key}" if where else str(key))
+            if found:
+                return found
+    elif isinstance(obj, (list, tuple)):
+        for i, value in enumerate(obj):
+            found = first_non_finite(value, f"{where}[{i}]")
+            if found:
+                return found
+    return None
+
+
 def atomic_write_json(path: str | Path, obj, indent: int | None = None) -> None:
-    """Serialize ``obj`` (NaN refused: outputs carry ``null`` instead) and write it atomically."""
-    atomic_write_text(path, json.dumps(obj, indent=indent, allow_nan=False))
+    """Serialize ``obj`` and write it atomically. NaN and infinity are refused (outputs carry
+    ``null`` instead): a ``ValueError`` names the file and the first offending field, and
+    nothing is written."""
+    try:
+        text = json.dumps(obj, indent=indent, allow_nan=False)
+    except ValueError:
+        where = first_non_finite(obj) or "(unknown field)"
+        raise ValueError(f"{path}: {where}: refusing to write a non-finite number") from None
+    atomic_write_text(path, text)
+
+
+def remove_stale_temporaries(directory: str | Path, name: str) -> int:
+    """Delete the temporary files that a killed writer of ``directory/name`` left behind
+    (``.NAME.*.tmp``). Call it while holding :func:`exclusive_lock` on ``directory``, so that
+    no live writer's temporary file is removed. Returns how many were deleted."""
+    removed = 0
+    for tmp in Path(directory).glob(f".{name}.*.tmp"):
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+            removed += 1
+    return removed
+
+
+class LockTimeout(TimeoutError):
+    """Another process held the lock longer than the timeout."""
+
+
+@contextlib.contextmanager
+def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: float = 0.05):
+    """Hold an exclusive advisory lock (``flock``) on ``directory`` itself (created if
+    needed; no lock file is left behind). Waits up to ``timeout_s`` for another holder, then
+    raises :class:`LockTimeout`. The lock is released when the block ends or the process dies.
+    Without ``fcntl`` (not POSIX) it does not lock."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    if fcntl is None:
+        yield
+        return
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    raise LockTimeout(f"{directory}: locked by another process for more than {timeout_s:g} s") from None
+                time.sleep(poll_s)
+        yield
+    finally:
+        os.close(fd)                                   # releases the lock
 
 
 def atomic_replace_dir(build, path: str | Path) -> None:
@@ -53,3 +151,4 @@ def atomic_replace_dir(build, path: str | Path) -> None:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    _fsync_dir(path.parent)

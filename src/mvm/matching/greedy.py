@@ -34,16 +34,24 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
         min_group_size: smaller groups are dropped (their poses count as visited).
     Returns:
         groups: arrays of pose indices, in the order they were built (seeds first).
+
+    Memory: ``A`` is only read, one row per pose (``O(N)`` extra); time ``O(N²)``.
     """
     N = len(score)
     if A.shape != (N, N) or view.shape != (N,):
         raise ValueError(f"greedy_groups: expected A (N, N) and view (N,) with N = {N}, "
                          f"got {A.shape} and {view.shape}")
     w = np.asarray(score, dtype=float)
-    defined = ~np.isnan(A)
-    A = np.where(defined, A, 0.0).astype(np.float32)
-    defined = defined.astype(np.float32)
+    w = np.where(np.isfinite(w), w, 0.0)
     available = w >= min_score
+
+    def row(x: int, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Affinities of pose ``x`` to ``columns`` (undefined -> 0) and where they are defined.
+        Each pose's row is read once (as seed or as member): no ``N × N`` temporary."""
+        a = np.asarray(A[x, columns], dtype=np.float32)
+        defined = ~np.isnan(a)
+        return np.where(defined, a, np.float32(0)), defined.astype(np.float32)
+
     groups: list[np.ndarray] = []
     for seed in np.argsort(-w, kind="stable"):
         if not available[seed]:
@@ -51,8 +59,9 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
         available[seed] = False
         # Candidates of this group: still available, from another view than the seed's.
         candidates = np.flatnonzero(available & (view != view[seed]))
-        weighted_sum = w[seed] * A[seed, candidates]                    # Σ_p w_p A(x, p)
-        total_weight = w[seed] * defined[seed, candidates]               # Σ_p w_p [A defined]
+        a, defined = row(seed, candidates)
+        weighted_sum = w[seed] * a                                       # Σ_p w_p A(x, p)
+        total_weight = w[seed] * defined                                 # Σ_p w_p [A defined]
         members = [seed]
         open_ = np.ones(len(candidates), dtype=bool)
         cand_w = w[candidates]
@@ -65,8 +74,9 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
             x = candidates[best]
             members.append(x)
             open_ &= cand_view != cand_view[best]
-            weighted_sum += w[x] * A[x, candidates]
-            total_weight += w[x] * defined[x, candidates]
+            a, defined = row(x, candidates)
+            weighted_sum += w[x] * a
+            total_weight += w[x] * defined
         members = np.array(members)
         available[members] = False
         if len(members) >= min_group_size:
