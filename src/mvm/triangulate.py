@@ -83,7 +83,9 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) 
     """Random pairs of distinct valid views. ``valid: (P, M, J)`` -> two ``(P, J, H)`` view indices."""
     order = np.argsort(~valid, axis=1, kind="stable").transpose(0, 2, 1)    # (P, J, M) valid first
     count = valid.sum(axis=1)                                                # (P, J)
-    n = np.maximum(count, 2)[..., None]
+    # Groups of one view (min_group_size = 1) have no pair: both draws are that view, the
+    # hypothesis is degenerate and the joint stays unreconstructed.
+    n = np.minimum(np.maximum(count, 2), valid.shape[1])[..., None]
     shape = count.shape + (hypotheses,)
     a = np.floor(rng.random(shape) * n).astype(int)
     b = np.floor(rng.random(shape) * (n - 1)).astype(int)
