@@ -180,6 +180,7 @@ def _register_optional_commands() -> None:
         ("mvm.cli_rig", ("rig",)),
         ("mvm.cli_net", ("export_cmd", "train_cmd", "predict_cmd")),
         ("mvm.cli_report", ("report_cmd", "overlay_cmd")),
+        ("mvm.cli_batch", ("batch_cmd", "status_cmd")),
     ):
         try:
             mod = importlib.import_module(module)

@@ -1,0 +1,168 @@
+"""Where the stages run: a local process pool, or Ray (a local instance or a cluster).
+
+An engine takes ``(clip, stage)`` tasks and gives back :class:`StageResult` s. A worker that
+dies (killed, out of memory, a lost node) gives a transient failure for the tasks it held;
+the runner decides whether to retry them.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+
+from ..errors import InputError
+from .clips import Clip
+from .stages import GPU_STAGES, BatchOptions, StageResult, run_stage
+
+log = logging.getLogger(__name__)
+
+ENGINES = ("local", "ray")
+_SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+
+def _lost(clip: Clip, stage: str, why: str) -> StageResult:
+    return StageResult(clip.id, stage, ok=False, error=f"worker lost: {why}", transient=True)
+
+
+def _watch_parent(parent: int) -> None:
+    """End this worker when the driver is gone, so that no orphan keeps working."""
+    while True:
+        if os.getppid() != parent:
+            os._exit(1)
+        time.sleep(0.5)
+
+
+def _init_worker(parent: int) -> None:
+    for name in _SINGLE_THREAD_ENV:
+        os.environ[name] = "1"
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+
+
+class LocalEngine:
+    """``workers`` processes of this machine (spawned, single-threaded BLAS each)."""
+
+    name = "local"
+
+    def __init__(self, workers: int, options: BatchOptions):
+        import multiprocessing
+
+        self.capacity = max(1, int(workers))
+        self.options = options
+        self._context = multiprocessing.get_context("spawn")
+        self._pool = self._new_pool()
+        self._running: dict[Future, tuple[Clip, str]] = {}
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(self.capacity, mp_context=self._context, initializer=_init_worker,
+                                   initargs=(os.getpid(),))
+
+    def worker_pids(self) -> list[int]:
+        return [p.pid for p in (self._pool._processes or {}).values()]
+
+    def submit(self, clip: Clip, stage: str) -> None:
+        self._running[self._pool.submit(run_stage, clip, stage, self.options)] = (clip, stage)
+
+    def poll(self, timeout: float) -> list[StageResult]:
+        if not self._running:
+            return []
+        done, _ = wait(list(self._running), timeout=timeout, return_when=FIRST_COMPLETED)
+        results, broken = [], False
+        for future in done:
+            clip, stage = self._running.pop(future)
+            try:
+                results.append(future.result())
+            except BrokenProcessPool:
+                broken = True
+                results.append(_lost(clip, stage, "a worker process ended abruptly"))
+        if broken:
+            log.warning("a worker process ended abruptly; restarting the pool")
+            for future, (clip, stage) in list(self._running.items()):
+                results.append(_lost(clip, stage, "a worker process ended abruptly"))
+            self._running.clear()
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = self._new_pool()
+        return results
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+class RayEngine:
+    """One Ray task per (clip, stage) on a local Ray instance (``address`` None, ``workers``
+    CPUs) or an existing cluster (``address``, e.g. ``ray://head:10001`` or ``auto``). ``detect``
+    asks for a GPU when the cluster has one and the network runs; the other stages one CPU.
+    The clips' directories must be on a file system every node sees."""
+
+    name = "ray"
+
+    def __init__(self, workers: int | None, options: BatchOptions, address: str | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise InputError(None, "--engine", "ray is not installed (pip install 'mvm[ray]')") from None
+        self.ray = ray
+        self.options = options
+        self._started = not ray.is_initialized()
+        if self._started:
+            kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+            try:
+                if address:
+                    ray.init(address=address, **kwargs)
+                else:
+                    ray.init(num_cpus=workers, **kwargs)
+            except Exception as e:  # noqa: BLE001 - Ray raises many types; the user needs one line
+                raise InputError(None, "--engine ray", f"cannot start or reach Ray: {str(e).splitlines()[0]}") from None
+        resources = ray.cluster_resources()
+        cpus = int(resources.get("CPU", 1))
+        self.gpus = float(resources.get("GPU", 0))
+        self.capacity = max(1, int(workers) if workers else cpus)
+        self._task = ray.remote(run_stage)
+        self._running: dict = {}
+
+    def submit(self, clip: Clip, stage: str) -> None:
+        gpu = 1 if (stage in GPU_STAGES and self.gpus >= 1 and self.options.checkpoint) else 0
+        options = self.options if not gpu else _with_device(self.options, "cuda")
+        ref = self._task.options(num_cpus=1, num_gpus=gpu, max_retries=0).remote(clip, stage, options)
+        self._running[ref] = (clip, stage)
+
+    def poll(self, timeout: float) -> list[StageResult]:
+        if not self._running:
+            return []
+        ready, rest = self.ray.wait(list(self._running), num_returns=1, timeout=timeout)
+        if ready and rest:
+            ready += self.ray.wait(rest, num_returns=len(rest), timeout=0)[0]
+        results = []
+        for ref in ready:
+            clip, stage = self._running.pop(ref)
+            try:
+                results.append(self.ray.get(ref))
+            except self.ray.exceptions.RayError as e:
+                results.append(_lost(clip, stage, type(e).__name__))
+        return results
+
+    def close(self) -> None:
+        for ref in list(self._running):
+            self.ray.cancel(ref, force=True)
+        self._running.clear()
+        if self._started:
+            self.ray.shutdown()
+
+
+def _with_device(options: BatchOptions, device: str) -> BatchOptions:
+    from dataclasses import replace
+
+    return replace(options, device=device)
+
+
+def make_engine(name: str, workers: int | None, options: BatchOptions, address: str | None = None):
+    """The engine ``name`` (one of :data:`ENGINES`)."""
+    if name == "local":
+        if address:
+            raise InputError(None, "--address", "only with --engine ray")
+        return LocalEngine(workers or os.cpu_count() or 1, options)
+    if name == "ray":
+        return RayEngine(workers, options, address)
+    raise InputError(None, "--engine", f"unknown engine {name!r}: expected one of {', '.join(ENGINES)}")

@@ -1,0 +1,228 @@
+"""One stage of one clip, as a worker runs it: the call of the stage's library function, the
+files it commits, their checksum and the clip's statistics.
+
+Everything here runs in a worker process (a pool child or a Ray task) and returns a picklable
+:class:`StageResult`; it never touches the manifest. An error becomes a failed result (the
+error's one line), so a bad clip never stops the others.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from threadpoolctl import threadpool_limits
+
+from ..config import Config
+from ..errors import InputError
+from .clips import Clip
+
+#: The stages in pipeline order.
+STAGES = ("frames", "sfm", "detect", "reconstruct", "export")
+#: Stages that use an accelerator when one is available (the network's detection).
+GPU_STAGES = ("detect",)
+SUPERVISION_DIR = "supervision"
+#: Exceptions worth another attempt: the machine, not the clip, is at fault.
+TRANSIENT = (OSError, MemoryError, TimeoutError, ConnectionError)
+
+
+@dataclass(frozen=True)
+class BatchOptions:
+    """Settings of every clip's stages.
+
+    Attributes:
+        config: the reconstruction's settings.
+        output: folder of each scene directory receiving ``poses3d.json`` and the supervision.
+        checkpoint: the pose network's checkpoint for ``detect`` (None: imported detections).
+        max_frames / rate / width: frame sampling of ``frames`` (see ``mvm frames``).
+        focal_px / max_features: ``sfm`` settings (see ``mvm sfm``); SfM runs on one thread.
+        device: torch device of the network in ``detect`` (``cpu``, ``cuda``).
+        min_keypoints: ``export``: persons with fewer labelled joints in a frame get no annotation.
+    """
+
+    config: Config = field(default_factory=Config)
+    output: str = "mvm"
+    checkpoint: str | None = None
+    max_frames: int | None = None
+    rate: float | None = None
+    width: int | None = None
+    focal_px: float | None = None
+    max_features: int = 4096
+    device: str = "cpu"
+    min_keypoints: int = 3
+
+
+@dataclass
+class StageResult:
+    """What a worker reports for one (clip, stage): ``ok``; ``error`` (one line) and whether
+    it is ``transient``; ``seconds``; ``checksum`` (sha256 of the committed files) and
+    ``files`` (their count); ``stats`` of the clip (after ``reconstruct`` and ``export``)."""
+
+    clip: str
+    stage: str
+    ok: bool
+    seconds: float = 0.0
+    error: str | None = None
+    transient: bool = False
+    checksum: str | None = None
+    files: int = 0
+    stats: dict | None = None
+    pid: int = 0
+    host: str = ""
+
+
+def output_files(scene: str | Path, stage: str, output: str = "mvm") -> list[Path]:
+    """The files ``stage`` commits in ``scene``, sorted (an empty list when absent)."""
+    scene = Path(scene)
+    if stage == "frames":
+        index = scene / "frames.json"
+        if not index.is_file():
+            return []
+        try:
+            names = [f["file_name"] for f in json.loads(index.read_text())["frames"]]
+        except (OSError, ValueError, KeyError, TypeError):
+            return [index]
+        return [index] + [scene / "frames" / n for n in sorted(names)]
+    if stage == "sfm":
+        files = sorted(p for p in (scene / "sparse").rglob("*") if p.is_file()) if (scene / "sparse").is_dir() else []
+        report = scene / "sfm" / "report.json"
+        return ([report] if report.is_file() else []) + files
+    path = {"detect": scene / "poses2d.json", "reconstruct": scene / output / "poses3d.json",
+            "export": scene / output / SUPERVISION_DIR / "annotations.json"}[stage]
+    return [path] if path.is_file() else []
+
+
+def is_present(clip: Clip, stage: str, output: str = "mvm") -> bool:
+    """Whether ``stage``'s outputs are already complete in the clip's scene directory. Every
+    stage writes its last file (the index: ``frames.json``, ``sfm/report.json``, …) only after
+    the others, so its presence means the stage finished."""
+    scene = Path(clip.scene)
+    if stage == "sfm":
+        return (scene / "sparse").is_dir() and (clip.video is None or (scene / "sfm" / "report.json").is_file())
+    if stage == "frames":
+        return (scene / "frames.json").is_file()
+    return bool(output_files(scene, stage, output))
+
+
+def not_applicable(clip: Clip, stage: str) -> str | None:
+    """Why ``stage`` has nothing to do for ``clip`` (None when it applies)."""
+    if stage == "frames" and clip.video is None:
+        return "no video: a scene directory"
+    return None
+
+
+def checksum(scene: str | Path, files: list[Path]) -> str:
+    """sha256 over the files' paths (relative to ``scene``) and contents."""
+    h = hashlib.sha256()
+    scene = Path(scene)
+    for path in files:
+        h.update(path.relative_to(scene).as_posix().encode() + b"\0")
+        with open(path, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        h.update(b"\0")
+    return h.hexdigest()
+
+
+def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
+    """The clip's row of the data set statistics, from ``poses2d.json`` and ``poses3d.json``:
+    frames, 2D poses, matched and unmatched 2D poses, 3D poses (persons), G_k (2D joints per
+    triangulated joint), reconstructed joints, E_R."""
+    scene = Path(scene)
+    stats: dict = {}
+    poses2d = scene / "poses2d.json"
+    if poses2d.is_file():
+        data = json.loads(poses2d.read_text())
+        stats["frames"] = len(data.get("images", []))
+        stats["poses2d"] = len(data.get("annotations", []))
+    poses3d = scene / output / "poses3d.json"
+    if poses3d.is_file():
+        metrics = json.loads(poses3d.read_text()).get("metrics", {})
+        stats.update(matched=metrics.get("matched_poses"), unmatched=metrics.get("unmatched_poses"),
+                     persons=metrics.get("persons"), G_k=metrics.get("G_k"),
+                     joints=metrics.get("reconstructed_joints"), E_R_px=metrics.get("E_R_px"))
+    return stats
+
+
+def _frames(clip: Clip, options: BatchOptions) -> None:
+    from ..video.frames import FrameOptions, extract_frames
+
+    extract_frames(clip.video, clip.scene, FrameOptions(rate=options.rate, max_frames=options.max_frames,
+                                                        width=options.width))
+
+
+def _sfm(clip: Clip, options: BatchOptions) -> None:
+    from ..video.sfm import SfmOptions, run_sfm
+
+    run_sfm(clip.scene, SfmOptions(focal_px=options.focal_px, max_features=options.max_features, threads=1))
+
+
+def _detect(clip: Clip, options: BatchOptions) -> None:
+    from ..video.detect import DetectOptions, detect_scene
+
+    if options.checkpoint is None and clip.detections is None:
+        raise InputError(clip.scene, "detect", "no 2D poses: give --checkpoint, or put detections.json or "
+                                               "detections/ in the scene directory")
+    if options.checkpoint is not None and "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
+    source = None if options.checkpoint is not None else clip.detections
+    detect_scene(clip.scene, source, options.checkpoint, None, DetectOptions(device=options.device))
+
+
+def _reconstruct(clip: Clip, options: BatchOptions) -> None:
+    from ..reconstruct import reconstruct_dir
+
+    reconstruct_dir(clip.scene, options.config, options.output)
+
+
+def _export(clip: Clip, options: BatchOptions) -> None:
+    from ..io.scene_dir import read_poses3d, read_scene
+    from ..supervision import export_supervision
+
+    scene = Path(clip.scene)
+    poses3d = scene / options.output / "poses3d.json"
+    if not poses3d.is_file():
+        raise InputError(poses3d, None, "not found: the clip is not reconstructed")
+    frames = scene / "frames"
+    item = (read_scene(scene), read_poses3d(poses3d), frames if frames.is_dir() else None)
+    export_supervision([item], scene / options.output / SUPERVISION_DIR, link="none",
+                       min_keypoints=options.min_keypoints)
+
+
+_RUN = {"frames": _frames, "sfm": _sfm, "detect": _detect, "reconstruct": _reconstruct, "export": _export}
+
+
+def _one_line(error: BaseException) -> str:
+    if isinstance(error, InputError):
+        return str(error)
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0][:300]}" if text else type(error).__name__
+
+
+def run_stage(clip: Clip, stage: str, options: BatchOptions) -> StageResult:
+    """Run ``stage`` on ``clip`` with single-threaded BLAS; never raises for a bad clip."""
+    if stage not in _RUN:
+        raise ValueError(f"unknown stage {stage!r}: expected one of {', '.join(STAGES)}")
+    result = StageResult(clip.id, stage, ok=False, pid=os.getpid(), host=socket.gethostname())
+    t = time.perf_counter()
+    try:
+        with threadpool_limits(limits=1):
+            _RUN[stage](clip, options)
+            files = output_files(clip.scene, stage, options.output)
+            if not files:
+                raise InputError(clip.scene, stage, "the stage wrote no output")
+            result.checksum = checksum(clip.scene, files)
+            result.files = len(files)
+            if stage in ("reconstruct", "export"):
+                result.stats = clip_stats(clip.scene, options.output)
+        result.ok = True
+    except Exception as e:  # noqa: BLE001 - every failure is recorded with its clip, the others go on
+        result.error = _one_line(e)
+        result.transient = isinstance(e, TRANSIENT) and not isinstance(e, InputError)
+    result.seconds = time.perf_counter() - t
+    return result
