@@ -69,7 +69,12 @@ def test_ray_command_starts_its_own_instance(tmp_path):
     if run.returncode != 0 and "cannot start or reach Ray" in run.stderr:
         pytest.skip(run.stderr.strip().splitlines()[-1])
     assert run.returncode == 0, run.stderr
-    assert "ray, 1 workers" in run.stdout
+    from mvm.batch import Manifest
+
+    manifest = Manifest(tmp_path, create=False)
+    runs = manifest.runs()
+    manifest.close()
+    assert [(r["engine"], r["workers"], r["outcome"]) for r in runs] == [("ray", 1, "finished")]
     rows = states(tmp_path)
     assert all(r["state"] == "done" for r in rows.values()) and len(rows) == 3
     assert len({r["worker"] for r in rows.values()}) == 1                # one Ray worker process did all three
