@@ -246,9 +246,10 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
     def triangulate(groups):
         obs = gather_groups(scene.cameras, scene.poses, groups, config.keypoint_threshold)
         rng = np.random.default_rng(config.seed)
-        return obs, ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
-                                       config.min_views, config.min_parallax_deg, rng,
-                                       use_ransac=config.ransac)
+        with np.errstate(all="ignore"):                  # degenerate rays give NaN, left null
+            return obs, ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
+                                           config.min_views, config.min_parallax_deg, rng,
+                                           use_ransac=config.ransac)
 
     obs, tri = triangulate(groups)
     if config.merge_distance > 0:

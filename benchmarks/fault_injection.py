@@ -1,0 +1,78 @@
+"""SIGKILL fault injection on ``mvm reconstruct``: kill runs at random moments and at chosen
+points of writing ``poses3d.json`` (before the rename, half-way through the write, after the
+rename), on fresh scenes and on scenes with a previous output; then rerun.
+
+Prints faults injected, outcomes after the kill (absent / complete / partial), outputs lost (a
+previous complete output gone or damaged: must be 0), partial outputs (must be 0), reruns
+that failed, and stale temporary files left after the rerun.
+
+    python benchmarks/fault_injection.py                       # 60 random + 10 per write point
+    python benchmarks/fault_injection.py --random 200 --per-point 30
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import tempfile
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from test_faults import (FAULTS, copy_scene, output_of, persons_of, stale_temporaries, start,  # noqa: E402
+                         state, write_test_scene)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--random", type=int, default=60, help="kills at random delays")
+    parser.add_argument("--per-point", type=int, default=10, help="kills at each write point")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    counts: Counter = Counter()
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        scene0 = write_test_scene(tmp / "ref" / "scene", people=4, frames=60)
+        t = time.perf_counter()
+        assert start(scene0).wait(300) == 0
+        run_s = time.perf_counter() - t
+        reference = persons_of(output_of(scene0))
+        plan = [("random", None)] * args.random + [(p, None) for p in FAULTS for _ in range(args.per_point)]
+        for i, (kind, _) in enumerate(plan):
+            with_output = bool(rng.integers(2))
+            scene = copy_scene(scene0, tmp / f"s{i}", with_output)
+            if kind == "random":
+                process = start(scene)
+                time.sleep(rng.uniform(0.0, 1.2 * run_s))
+                process.send_signal(signal.SIGKILL)
+                code = process.wait(300)
+            else:
+                code = start(scene, kind).wait(300)
+            killed = code == -signal.SIGKILL
+            counts["faults injected"] += killed
+            counts["runs finished before the kill"] += not killed
+            outcome = state(scene, reference)
+            counts[f"after kill: {outcome}"] += 1
+            counts["outputs lost"] += with_output and outcome != "complete"
+            counts["partial outputs"] += outcome == "partial"
+            counts["stale temporaries after kill"] += bool(stale_temporaries(scene))
+            if start(scene).wait(300) != 0 or state(scene, reference) != "complete":
+                counts["reruns failed"] += 1
+            counts["stale temporaries after rerun"] += bool(stale_temporaries(scene))
+    print(f"fault_injection: {len(plan)} runs of mvm reconstruct (one undisturbed run: {run_s:.2f} s), "
+          f"{time.perf_counter() - t0:.0f} s in all")
+    for key in ("faults injected", "runs finished before the kill", "after kill: absent", "after kill: complete",
+                "after kill: partial", "stale temporaries after kill", "outputs lost", "partial outputs",
+                "reruns failed", "stale temporaries after rerun"):
+        print(f"  {key}: {counts[key]}")
+    sys.exit(1 if counts["outputs lost"] or counts["partial outputs"] or counts["reruns failed"] else 0)
+
+
+if __name__ == "__main__":
+    main()
