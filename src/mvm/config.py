@@ -7,7 +7,6 @@ command line with ``--set key=value``.
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -97,12 +96,15 @@ def _coerce(name: str, value, source: str) -> object:
             if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
                 raise ValueError
             return int(value)
+        if isinstance(value, bool):
+            raise ValueError
         number = float(value)
         if number != number or number in (float("inf"), float("-inf")):
             raise ValueError
         return number
-    except (TypeError, ValueError):
-        raise InputError(source, name, f"expected {kind}, got {value!r}") from None
+    except (TypeError, ValueError, OverflowError):
+        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:39] + "…"
+        raise InputError(source, name, f"expected {kind}, got {shown}") from None
 
 
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
@@ -110,13 +112,12 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
     values: dict = {}
     if path is not None:
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except OSError as e:
-            raise InputError(path, None, f"cannot read: {e.strerror}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise InputError(path, None, f"not valid TOML: {e}") from None
+        from .io.checks import load_toml
+
+        data = load_toml(path)
         data = data.get("reconstruct", data)
+        if not isinstance(data, dict):
+            raise InputError(path, "reconstruct", "expected a table of settings")
         values.update({k: _coerce(k, v, str(path)) for k, v in data.items()})
     for k, v in (overrides or {}).items():
         values[k] = _coerce(k, v, "--set")

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..scene import Cameras
+from .checks import load_toml, matrix, numbers
 from .files import atomic_write_text
 
 
@@ -55,17 +56,25 @@ class RigCalibration:
 
 
 def _array(table: dict, key: str, shape: tuple, path, section: str) -> np.ndarray:
+    """``table[key]`` as a finite float array of ``shape`` (``()``: a flat list of any length)."""
+    field = f"[{section}].{key}"
     if key not in table:
-        raise InputError(path, f"[{section}].{key}", "missing")
-    try:
-        value = np.asarray(table[key], dtype=float)
-    except (TypeError, ValueError):
-        raise InputError(path, f"[{section}].{key}", f"expected numbers, got {table[key]!r}") from None
-    if shape and value.shape != shape:
-        raise InputError(path, f"[{section}].{key}", f"expected shape {shape}, got {value.shape}")
-    if not np.isfinite(value).all():
-        raise InputError(path, f"[{section}].{key}", "not finite")
-    return value
+        raise InputError(path, field, "missing")
+    if shape:
+        return matrix(table[key], shape, path, field)
+    return numbers(table[key], path, field)
+
+
+def _check_camera(K: np.ndarray, R: np.ndarray, size: np.ndarray, path, section: str) -> None:
+    """Focal lengths > 0, last row of ``K`` (0, 0, 1), a finite rotation, image size > 0."""
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise InputError(path, f"[{section}].matrix", f"focal lengths must be > 0, got {K[0, 0]:g}, {K[1, 1]:g}")
+    if not np.allclose(K[2], [0.0, 0.0, 1.0]) or K[1, 0] != 0:
+        raise InputError(path, f"[{section}].matrix", "expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    if not np.isfinite(R).all():
+        raise InputError(path, f"[{section}].rotation", "not a valid Rodrigues vector")
+    if (size <= 0).any():
+        raise InputError(path, f"[{section}].size", f"width and height must be > 0, got {size[0]:g}, {size[1]:g}")
 
 
 def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
@@ -86,8 +95,11 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
         R.append(cv2.Rodrigues(rvec)[0])
         t.append(_array(table, "translation", (3,), path, section))
         size.append(_array(table, "size", (2,), path, section))
+        _check_camera(K[-1], R[-1], size[-1], path, section)
         d = _array(table, "distortions", (), path, section).reshape(-1) if "distortions" in table else np.zeros(0)
-        fish = bool(table.get("fisheye", False))
+        fish = table.get("fisheye", False)
+        if not isinstance(fish, bool):
+            raise InputError(path, f"[{section}].fisheye", f"expected true or false, got {fish!r}")
         if fish and len(d) not in (0, 4):
             raise InputError(path, f"[{section}].distortions", f"fisheye expects 4 coefficients, got {len(d)}")
         if not fish and len(d) not in (0, 4, 5, 8, 12, 14):
@@ -108,15 +120,7 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
 def read_calib_toml(path: str | Path) -> RigCalibration:
     """Read a Calib.toml file; any problem raises one :class:`InputError` naming the table and key."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(path, None, f"not valid TOML: {e}") from None
-    return parse_calib(data, path)
+    return parse_calib(load_toml(path), path)
 
 
 def _fmt(value) -> str:

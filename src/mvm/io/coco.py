@@ -1,8 +1,6 @@
 """COCO keypoint files (the *dataset* format, as OpenPifPaf and the scene contract use it)."""
 from __future__ import annotations
 
-import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,6 +8,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
+from .checks import integer, load_json, number, numbers
+from .paths import check_name
 
 
 @dataclass(frozen=True)
@@ -34,26 +34,19 @@ class CocoKeypoints:
 
 
 def _number(value, path, field) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InputError(path, field, f"expected a number, got {type(value).__name__}")
-    if not math.isfinite(value):
-        raise InputError(path, field, f"not a finite number ({value})")
-    return float(value)
+    return number(value, path, field)
 
 
 def _int(value, path, field) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise InputError(path, field, f"expected an integer, got {value!r}")
-    return value
+    return integer(value, path, field)
 
 
 def parse_keypoints(values, path, field) -> np.ndarray:
     """A flat list of 51 numbers -> ``(17, 3)`` with v in [0, 1]; coordinates of missing joints zeroed."""
     if not isinstance(values, list):
         raise InputError(path, field, f"expected a list of {3 * NUM_JOINTS} numbers, got {type(values).__name__}")
-    if len(values) != 3 * NUM_JOINTS:
-        raise InputError(path, field, f"expected {3 * NUM_JOINTS} numbers (17 keypoints × x, y, v), got {len(values)}")
-    kp = np.array([_number(v, path, f"{field}[{i}]") for i, v in enumerate(values)]).reshape(NUM_JOINTS, 3)
+    kp = numbers(values, path, field, (3 * NUM_JOINTS,),
+                 f"{3 * NUM_JOINTS} numbers (17 keypoints × x, y, v)").reshape(NUM_JOINTS, 3)
     if np.any(kp[:, 2] < 0):
         raise InputError(path, field, "negative keypoint confidence")
     kp[:, 2] = np.minimum(kp[:, 2], 1.0)  # COCO ground truth flags 1, 2 -> 1
@@ -61,17 +54,24 @@ def parse_keypoints(values, path, field) -> np.ndarray:
     return kp
 
 
+def _size(image: dict, key: str, path, field) -> float:
+    """``width`` / ``height`` of an image: absent reads as 0 (unknown), present must be > 0."""
+    if key not in image:
+        return 0.0
+    value = number(image[key], path, f"{field}.{key}")
+    if value <= 0:
+        raise InputError(path, f"{field}.{key}", f"must be > 0, got {image[key]!r}")
+    return value
+
+
 def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
-    """Read and validate a COCO keypoints file; any problem raises one ``InputError`` line."""
+    """Read and validate a COCO keypoints file; any problem raises one ``InputError`` line.
+
+    ``file_name`` must be a relative name that stays below its folder (no absolute path, no
+    ``..`` leading out): see :mod:`mvm.io.paths`.
+    """
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, dict):
         raise InputError(path, None, "expected a JSON object with 'images' and 'annotations'")
     for key in ("images", "annotations"):
@@ -83,19 +83,20 @@ def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
         field = f"images[{i}]"
         if not isinstance(image, dict):
             raise InputError(path, field, "expected an object")
-        image_id = _int(image.get("id"), path, f"{field}.id")
+        image_id = integer(image.get("id"), path, f"{field}.id")
         name = image.get("file_name")
         if not isinstance(name, str) or not name:
             raise InputError(path, f"{field}.file_name", "missing, or not a string")
+        check_name(name, path, f"{field}.file_name")
         if image_id in index:
             raise InputError(path, f"{field}.id", f"duplicate image id {image_id}")
         index[image_id] = i
         image_ids.append(image_id)
         names.append(name)
-        sizes.append((_number(image.get("width", 0), path, f"{field}.width"),
-                      _number(image.get("height", 0), path, f"{field}.height")))
+        sizes.append((_size(image, "width", path, field), _size(image, "height", path, field)))
     if len(set(names)) != len(names):
-        raise InputError(path, "images", "duplicate file_name")
+        first = next(i for i, n in enumerate(names) if names.index(n) != i)
+        raise InputError(path, f"images[{first}].file_name", f"duplicate file_name {names[first]!r}")
 
     ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
     seen = set()
@@ -103,26 +104,29 @@ def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
         field = f"annotations[{i}]"
         if not isinstance(ann, dict):
             raise InputError(path, field, "expected an object")
-        ann_id = _int(ann.get("id"), path, f"{field}.id")
+        ann_id = integer(ann.get("id"), path, f"{field}.id")
         if ann_id in seen:
             raise InputError(path, f"{field}.id", f"duplicate annotation id {ann_id}")
         seen.add(ann_id)
-        image_id = _int(ann.get("image_id"), path, f"{field}.image_id")
+        image_id = integer(ann.get("image_id"), path, f"{field}.image_id")
         if image_id not in index:
             raise InputError(path, f"{field}.image_id", f"no image with id {image_id}")
-        if ann.get("category_id", 1) != 1:
+        category = ann.get("category_id", 1)
+        if isinstance(category, bool) or not isinstance(category, int):
+            raise InputError(path, f"{field}.category_id", f"expected an integer, got {type(category).__name__}")
+        if category != 1:
             continue  # not a person
         kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
         present = kp[:, 2] > 0
         default_score = float(kp[present, 2].mean()) if present.any() else 0.0
-        score = _number(ann.get("score", default_score), path, f"{field}.score")
+        score = number(ann.get("score", default_score), path, f"{field}.score")
         if score < 0:
             raise InputError(path, f"{field}.score", f"negative score {score}")
         app = ann.get("appearance")
         if app is not None:
             if not isinstance(app, list) or not app:
                 raise InputError(path, f"{field}.appearance", "expected a non-empty list of numbers")
-            app = [_number(v, path, f"{field}.appearance[{k}]") for k, v in enumerate(app)]
+            app = numbers(app, path, f"{field}.appearance")
         ann_ids.append(ann_id)
         ann_image.append(index[image_id])
         kps.append(kp)

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..scene import Cameras
+from .colmap_check import check_model
 
 log = logging.getLogger(__name__)
 
@@ -47,10 +48,15 @@ def find_model_dir(sparse: Path) -> Path:
 
 
 def read_colmap(sparse: str | Path) -> ColmapModel:
-    """Read a COLMAP model (text or binary) from ``sparse`` (or ``sparse/0``)."""
+    """Read a COLMAP model (text or binary) from ``sparse`` (or ``sparse/0``).
+
+    The files are checked first (:func:`mvm.io.colmap_check.check_model`): a malformed model
+    raises one :class:`InputError` instead of reaching pycolmap.
+    """
     import pycolmap
 
     model_dir = find_model_dir(Path(sparse))
+    check_model(model_dir)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises ValueError/RuntimeError with C++ context
@@ -65,8 +71,8 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
             continue
         camera = rec.cameras[image.camera_id]
         pose = image.cam_from_world().matrix()
-        if not np.all(np.isfinite(pose)):
-            raise InputError(model_dir, f"images[{image.name}]", "pose is not finite")
+        if not np.all(np.isfinite(pose)) or np.abs(pose[:, :3] @ pose[:, :3].T - np.eye(3)).max() > 1e-6:
+            raise InputError(model_dir, f"image {image_id}", "pose is not a finite rotation and translation")
         K.append(camera.calibration_matrix())
         R.append(pose[:, :3])
         t.append(pose[:, 3])

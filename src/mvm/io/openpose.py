@@ -5,7 +5,6 @@ the 17 COCO keypoints. OpenPose marks a missing joint with ``0, 0, 0``.
 """
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
@@ -13,6 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..keypoints import NUM_JOINTS
+from .checks import load_json, numbers
 
 #: Index of each COCO-17 keypoint in OpenPose's BODY_25 and COCO-18 layouts.
 BODY25_TO_COCO17 = np.array([0, 16, 15, 18, 17, 5, 2, 6, 3, 7, 4, 12, 9, 13, 10, 14, 11])
@@ -39,29 +39,14 @@ def frame_number(path: str | Path) -> int:
 
 def to_coco17(values, path, field) -> np.ndarray:
     """A flat OpenPose keypoint list (75, 54 or 51 numbers) -> ``(17, 3)`` x, y, confidence."""
-    try:
-        flat = np.asarray(values, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise InputError(path, field, "expected a list of numbers") from None
-    if len(flat) not in _LAYOUTS:
-        raise InputError(path, field, f"expected 75 (BODY_25), 54 (COCO-18) or 51 (COCO-17) numbers, "
-                                      f"got {len(flat)}")
-    if not np.isfinite(flat).all():
-        raise InputError(path, field, "not finite")
+    flat = numbers(values, path, field, tuple(_LAYOUTS),
+                   "75 (BODY_25), 54 (COCO-18) or 51 (COCO-17) numbers")
     kp = flat.reshape(-1, 3)[_LAYOUTS[len(flat)]].copy()
     kp[kp[:, 2] <= 0] = 0.0
     return kp
 
 
-def _load_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+_load_json = load_json
 
 
 def read_openpose_frame(path: str | Path) -> np.ndarray:

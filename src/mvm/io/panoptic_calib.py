@@ -5,7 +5,6 @@
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -13,36 +12,50 @@ import numpy as np
 from ..errors import InputError
 from ..scene import Cameras
 from .calib_toml import RigCalibration
+from .checks import load_json, matrix, numbers
+
+
+def _vector(value, n: int, path, field) -> np.ndarray:
+    """``n`` numbers, flat (``[1, 2, 3]``) or as a column (``[[1], [2], [3]]``, Panoptic's ``t``)."""
+    if isinstance(value, list) and len(value) == n and all(isinstance(v, list) for v in value):
+        return matrix(value, (n, 1), path, field).reshape(n)
+    return matrix(value, (n,), path, field)
 
 
 def read_panoptic_calibration(path: str | Path, types: tuple[str, ...] = ("hd",)) -> RigCalibration:
     """Read the cameras of the given ``types`` (world units: centimetres, as in the file)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("cameras"), list):
         raise InputError(path, "cameras", "missing, or not a list")
     K, R, t, size, names, dist = [], [], [], [], [], []
     for i, cam in enumerate(data["cameras"]):
+        field = f"cameras[{i}]"
+        if not isinstance(cam, dict):
+            raise InputError(path, field, "expected an object")
         if cam.get("type") not in types:
             continue
-        try:
-            K.append(np.asarray(cam["K"], dtype=float).reshape(3, 3))
-            R.append(np.asarray(cam["R"], dtype=float).reshape(3, 3))
-            t.append(np.asarray(cam["t"], dtype=float).reshape(3))
-            size.append(np.asarray(cam["resolution"], dtype=float).reshape(2))
-            dist.append(np.asarray(cam.get("distCoef", []), dtype=float).reshape(-1))
-            names.append(str(cam["name"]))
-        except KeyError as e:
-            raise InputError(path, f"cameras[{i}].{e.args[0]}", "missing") from None
-        except (TypeError, ValueError) as e:
-            raise InputError(path, f"cameras[{i}]", f"bad value: {e}") from None
+        for key in ("name", "K", "R", "t", "resolution"):
+            if key not in cam:
+                raise InputError(path, f"{field}.{key}", "missing")
+        if not isinstance(cam["name"], (str, int)) or isinstance(cam["name"], bool):
+            raise InputError(path, f"{field}.name", f"expected a string, got {type(cam['name']).__name__}")
+        K.append(matrix(cam["K"], (3, 3), path, f"{field}.K"))
+        R.append(matrix(cam["R"], (3, 3), path, f"{field}.R"))
+        t.append(_vector(cam["t"], 3, path, f"{field}.t"))
+        size.append(matrix(cam["resolution"], (2,), path, f"{field}.resolution"))
+        dist.append(numbers(cam.get("distCoef", []), path, f"{field}.distCoef"))
+        if K[-1][0, 0] <= 0 or K[-1][1, 1] <= 0:
+            raise InputError(path, f"{field}.K", "focal lengths must be > 0")
+        if (size[-1] <= 0).any():
+            raise InputError(path, f"{field}.resolution", "width and height must be > 0")
+        if np.abs(R[-1] @ R[-1].T - np.eye(3)).max() > 1e-3 or np.linalg.det(R[-1]) < 0:
+            raise InputError(path, f"{field}.R", "not a rotation matrix")
+        names.append(str(cam["name"]))
     if not names:
         raise InputError(path, "cameras", f"no camera of type {', '.join(types)}")
+    if len(set(names)) != len(names):
+        raise InputError(path, "cameras", "duplicate camera names")
     cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names))
     return RigCalibration(cameras, tuple(dist), np.zeros(len(names), dtype=bool),
                           {"source": str(path), "units": "cm"})

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .checks import read_text
 
 #: Numbers on a frame line: timestamp, 4 intrinsics, 2 distortion zeros, 12 pose entries.
 FIELDS_PER_LINE = 19
@@ -66,7 +67,7 @@ def parse_trajectory(text: str, source: str | Path = "<trajectory>") -> Trajecto
         if not np.isfinite(values).all():
             raise InputError(source, f"line {number}", "non-finite number")
         R = values[7:].reshape(3, 4)[:, :3]
-        if abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
+        if np.abs(R).max() > 1.01 or abs(np.linalg.det(R) - 1.0) > 1e-2 or np.abs(R @ R.T - np.eye(3)).max() > 1e-2:
             raise InputError(source, f"line {number}", "the 3×3 part of the pose is not a rotation")
         if (values[1:3] <= 0).any():
             raise InputError(source, f"line {number}", "focal lengths must be > 0")
@@ -84,10 +85,4 @@ def parse_trajectory(text: str, source: str | Path = "<trajectory>") -> Trajecto
 def read_trajectory(path: str | Path) -> Trajectory:
     """Read a RealEstate10K / MannequinChallenge camera file."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except UnicodeDecodeError:
-        raise InputError(path, None, "not a text file") from None
-    return parse_trajectory(text, path)
+    return parse_trajectory(read_text(path), path)

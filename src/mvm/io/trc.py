@@ -13,12 +13,14 @@ Coordinates are written as given: convert them (units, up axis) with :func:`to_o
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from .checks import read_text
 from .files import atomic_write_text
 
 #: Rotations taking a world whose up axis is the key to OpenSim's Y-up frame (right-handed).
@@ -91,12 +93,7 @@ def write_trc(path: str | Path, points: np.ndarray, markers, rate: float,
 def read_trc(path: str | Path) -> Trc:
     """Read a ``.trc`` file (OpenSim / Pose2Sim layout); problems raise :class:`InputError`."""
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    lines = read_text(path).splitlines()
     if len(lines) < 5 or not lines[0].startswith("PathFileType"):
         raise InputError(path, "line 1", "expected a 'PathFileType' header")
     keys = lines[1].split("\t")
@@ -108,20 +105,36 @@ def read_trc(path: str | Path) -> Trc:
         units = meta.get("Units", "m")
     except (KeyError, ValueError):
         raise InputError(path, "line 3", "expected DataRate, NumMarkers and Units values") from None
+    if not (math.isfinite(rate) and rate > 0):
+        raise InputError(path, "line 3", f"DataRate must be a number > 0, got {meta['DataRate']!r}")
+    if n_markers < 0:
+        raise InputError(path, "line 3", f"NumMarkers must be >= 0, got {n_markers}")
     markers = tuple(m.strip() for m in lines[3].split("\t")[2:] if m.strip())
     if len(markers) != n_markers:
         raise InputError(path, "line 4", f"NumMarkers is {n_markers} but {len(markers)} marker names follow")
     frames, times, rows = [], [], []
+    width = 2 + 3 * n_markers
     for number, line in enumerate(lines[5:], start=6):
         if not line.strip():
             continue
         fields = line.rstrip("\n").split("\t")
-        fields += [""] * (2 + 3 * n_markers - len(fields))
+        if len(fields) > width and any(f.strip() for f in fields[width:]):
+            raise InputError(path, f"line {number}", f"expected at most {width} columns "
+                                                     f"(frame, time, {n_markers} × X, Y, Z), got {len(fields)}")
+        fields += [""] * (width - len(fields))
         try:
-            frames.append(int(float(fields[0])))
-            times.append(float(fields[1]))
-            rows.append([float(v) if v.strip() else np.nan for v in fields[2:2 + 3 * n_markers]])
+            frame = float(fields[0])
+            time = float(fields[1])
+            row = [float(v) if v.strip() else np.nan for v in fields[2:width]]
         except ValueError as e:
             raise InputError(path, f"line {number}", f"not a number: {e}") from None
+        if not (math.isfinite(frame) and frame == int(frame)) or not math.isfinite(time):
+            raise InputError(path, f"line {number}", "frame number and time must be finite, "
+                                                     "the frame number an integer")
+        if np.isinf(row).any():
+            raise InputError(path, f"line {number}", "infinite coordinate")
+        frames.append(int(frame))
+        times.append(time)
+        rows.append(row)
     points = np.array(rows, dtype=float).reshape(len(rows), n_markers, 3)
-    return Trc(points, markers, np.array(frames, dtype=int), np.array(times), rate, units)
+    return Trc(points, markers, np.array(frames, dtype=np.int64), np.array(times), rate, units)

@@ -1,0 +1,69 @@
+"""File names that come from inside input files, kept inside the scene directory.
+
+A COCO ``file_name`` or a COLMAP image name names a file of the scene (``SCENE/frames/NAME``).
+Such a name is never followed outside the scene: an absolute name (``/etc/passwd``,
+``C:\\x``), a name whose ``..`` components climb above its folder (``../../x``), and a name
+that resolves, through symbolic links, to a place outside the scene directory are refused
+with an :class:`~mvm.errors.InputError` naming the input file and the field.
+"""
+from __future__ import annotations
+
+import posixpath
+import re
+from pathlib import Path
+
+from ..errors import InputError
+
+_DRIVE = re.compile(r"^[A-Za-z]:")
+
+
+def name_problem(name: str) -> str | None:
+    """Why ``name`` cannot name a file below a folder, or None when it can.
+
+    Both ``/`` and ``\\`` count as separators, so a Windows name is judged the same way.
+    """
+    if not isinstance(name, str) or not name:
+        return "empty file name"
+    if "\x00" in name:
+        return "file name contains a NUL character"
+    posix = name.replace("\\", "/")
+    if posix.startswith("/") or _DRIVE.match(posix):
+        return f"absolute path {name!r} is not allowed (names are relative to the scene)"
+    normal = posixpath.normpath(posix)
+    if normal == ".." or normal.startswith("../"):
+        return f"path {name!r} leads outside the scene directory"
+    if normal == ".":
+        return f"{name!r} does not name a file"
+    return None
+
+
+def check_name(name: str, source: str | Path, field: str) -> str:
+    """Return ``name`` when it is a safe relative file name; raise :class:`InputError` naming
+    ``source`` and ``field`` otherwise."""
+    problem = name_problem(name)
+    if problem:
+        raise InputError(source, field, problem)
+    return name
+
+
+def is_within(path: str | Path, root: str | Path) -> bool:
+    """Whether ``path``, with every symbolic link resolved, lies inside ``root`` (resolved too)."""
+    resolved = Path(path).resolve()
+    base = Path(root).resolve()
+    return resolved == base or base in resolved.parents
+
+
+def resolve_in(root: str | Path, name: str, source: str | Path, field: str,
+               scene: str | Path | None = None) -> Path:
+    """The path of file ``name`` below folder ``root``, refusing names and links that lead out.
+
+    ``scene`` (default ``root``) is the directory nothing may leave: a name is checked with
+    :func:`check_name`, then the joined path, symbolic links resolved, must stay inside
+    ``scene``. The file need not exist. Raises :class:`InputError` (``source``, ``field``).
+    """
+    check_name(name, source, field)
+    path = Path(root) / name.replace("\\", "/")
+    if not is_within(path, root if scene is None else scene):
+        raise InputError(source, field, f"{name!r} leads outside the scene directory "
+                                        "through a symbolic link")
+    return path
