@@ -62,8 +62,12 @@ def main() -> None:
             counts["outputs lost"] += with_output and outcome != "complete"
             counts["partial outputs"] += outcome == "partial"
             counts["stale temporaries after kill"] += bool(stale_temporaries(scene))
-            if start(scene).wait(300) != 0 or state(scene, reference) != "complete":
+            rerun = start(scene)
+            code = rerun.wait(300)
+            if code != 0 or state(scene, reference) != "complete":
                 counts["reruns failed"] += 1
+                print(f"rerun failed after {kind} kill (exit {code}, output {state(scene, reference)}): "
+                      f"{rerun.stderr.read().decode()[-400:]}")
             counts["stale temporaries after rerun"] += bool(stale_temporaries(scene))
     print(f"fault_injection: {len(plan)} runs of mvm reconstruct (one undisturbed run: {run_s:.2f} s), "
           f"{time.perf_counter() - t0:.0f} s in all")
