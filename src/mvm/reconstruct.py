@@ -282,10 +282,11 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
     persons = Persons3D(
         keypoints3d=X[keep], scores=scores, members=members,
         views_per_joint=inliers.sum(1), outliers_per_joint=(valid & ~inliers).sum(1),
-        reprojection_error_px=np.where(inliers.any((1, 2)), per_person_err, np.nan),
+        reprojection_error_px=np.where(inliers.any((1, 2)) & np.isfinite(per_person_err), per_person_err, np.nan),
     )
     n_matched = int(sum(len(m) for m in members))
     metrics = scene_quality(X[keep], errors[keep], inliers, valid, len(scene.poses), n_matched)
+    metrics = {k: (v if not isinstance(v, float) or np.isfinite(v) else float("nan")) for k, v in metrics.items()}
     metrics["refine_fallbacks"] = fallbacks
     timings["total_s"] = sum(timings.values())
     if len(scene.poses) and not len(groups) and not warnings_:
