@@ -49,7 +49,8 @@ def read_panoptic_calibration(path: str | Path, types: tuple[str, ...] = ("hd",)
             raise InputError(path, f"{field}.K", "focal lengths must be > 0")
         if (size[-1] <= 0).any():
             raise InputError(path, f"{field}.resolution", "width and height must be > 0")
-        if np.abs(R[-1] @ R[-1].T - np.eye(3)).max() > 1e-3 or np.linalg.det(R[-1]) < 0:
+        if (np.abs(R[-1]).max() > 1.01 or np.abs(R[-1] @ R[-1].T - np.eye(3)).max() > 1e-3
+                or np.linalg.det(R[-1]) < 0):
             raise InputError(path, f"{field}.R", "not a rotation matrix")
         names.append(str(cam["name"]))
     if not names:

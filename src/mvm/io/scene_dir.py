@@ -14,17 +14,24 @@ from ..scene import Cameras, Persons3D, Poses2D, Scene
 from .coco import coco_keypoints_document, read_coco_keypoints
 from .colmap import read_colmap, undistort_keypoints, write_colmap
 from .files import atomic_replace_dir, atomic_write_json
+from .paths import resolve_in
 
 log = logging.getLogger(__name__)
 
 POSES2D = "poses2d.json"
+FRAMES = "frames"
 SPARSE = "sparse"
 POSES3D_FORMAT = "mvm.poses3d/1"
 
 
 def read_scene(path: str | Path) -> Scene:
     """Read a scene directory into a :class:`Scene` (keypoints undistorted, unregistered
-    images' poses dropped with a warning)."""
+    images' poses dropped with a warning).
+
+    Image names (COCO ``file_name``, COLMAP ``NAME``) name files of ``frames/``: a name that is
+    absolute, climbs out with ``..``, or resolves through a symbolic link to a place outside
+    the scene directory is refused (:func:`mvm.io.paths.resolve_in`).
+    """
     path = Path(path)
     if not path.is_dir():
         raise InputError(path, None, "not a scene directory (expected sparse/ and poses2d.json)")
@@ -35,6 +42,7 @@ def read_scene(path: str | Path) -> Scene:
     unregistered = set(model.unregistered)
     image_view = np.full(len(coco.file_names), -1)
     for i, name in enumerate(coco.file_names):
+        resolve_in(path / FRAMES, name, coco_path, f"images[{i}].file_name", scene=path)
         if name in view_of_name:
             image_view[i] = view_of_name[name]
         elif name not in unregistered:
@@ -50,6 +58,11 @@ def read_scene(path: str | Path) -> Scene:
     keypoints = coco.keypoints[kept].copy()
     keypoints[:, :, :2] = undistort_keypoints(model, view[kept], keypoints[:, :, :2])
     keypoints[keypoints[:, :, 2] == 0, :2] = 0.0
+    bad = ~np.isfinite(keypoints).all(axis=(1, 2))
+    if bad.any():
+        ann_id = int(coco.ann_ids[kept][np.flatnonzero(bad)[0]])
+        raise InputError(coco_path, f"annotation id {ann_id}.keypoints",
+                         "lens distortion cannot be undone (a keypoint lies far outside the image)")
     appearance = None if coco.appearance is None else coco.appearance[kept]
     poses = Poses2D(keypoints, view[kept], coco.ann_ids[kept], coco.score[kept], appearance)
     return Scene(path.name, model.cameras, poses, model.points3d)
