@@ -3,13 +3,11 @@ manifest's claims and recovery, and resume. Helpers here are shared by the other
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 

@@ -85,6 +85,9 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_f
             summary = run_batch(root, chosen, engine, workers, address, retries, options, update)
     except InputError as e:
         _fail(e)
+    except KeyboardInterrupt:
+        console.print(f"interrupted: finished stages are recorded; `mvm batch {root}` continues", style="yellow")
+        sys.exit(130)
     table = Table(title=f"mvm batch: {root} (run {summary.run}, {summary.engine}, {summary.workers} workers)")
     table.add_column("measure")
     table.add_column("value", justify="right")

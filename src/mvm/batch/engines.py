@@ -86,8 +86,13 @@ class LocalEngine:
             self._pool = self._new_pool()
         return results
 
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+    def close(self, wait: bool = True) -> None:
+        """Stop the pool; without ``wait`` (an interrupted run) its workers are ended at once."""
+        processes = list((self._pool._processes or {}).values())
+        self._pool.shutdown(wait=wait, cancel_futures=True)
+        if not wait:
+            for process in processes:
+                process.kill()
 
 
 class RayEngine:
@@ -143,7 +148,7 @@ class RayEngine:
                 results.append(_lost(clip, stage, type(e).__name__))
         return results
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
         for ref in list(self._running):
             self.ray.cancel(ref, force=True)
         self._running.clear()

@@ -231,7 +231,7 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
         driver.loop(started)
         outcome = "finished"
     finally:
-        eng.close()
+        eng.close(wait=outcome == "finished")
         manifest.end_run(run, outcome)
     training = merge_training_set(root, manifest, options.output) if "export" in stages else None
     manifest.close()
