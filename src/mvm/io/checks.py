@@ -36,8 +36,8 @@ def load_json(path: str | Path):
         raise InputError(path, None, f"not valid JSON: {e}") from None
     except RecursionError:
         raise InputError(path, None, "not valid JSON: nested too deeply") from None
-    except ValueError as e:  # e.g. an integer literal of more than 4300 digits
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    except ValueError:  # an integer literal of more than 4300 digits
+        raise InputError(path, None, "not valid JSON: a number has too many digits") from None
 
 
 def load_toml(path: str | Path) -> dict:
