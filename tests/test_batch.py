@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -254,3 +255,35 @@ def test_claims_are_exclusive_and_dead_claims_recovered(tmp_path):
     assert two.recover_stale(run_b) == []                             # a live run keeps its claims
     for m in (one, two, live):
         m.close()
+
+
+def test_video_clip_runs_frames_and_detect(tmp_path):
+    """A rendered video with imported detections (the true joints projected into each frame):
+    ``frames`` and ``detect`` run on it, and the 2D poses are the projections."""
+    pytest.importorskip("cv2", reason="the video stages need OpenCV (the 'video' extra)")
+    from mvm.video.render import RenderConfig, render_video
+
+    truth = render_video(tmp_path / "street" / "walk.mp4", RenderConfig(frames=8, width=320, height=180))
+    cams = truth.cameras
+    results = []
+    for v in range(len(cams)):
+        uvw = np.einsum("ij,gkj->gki", cams.P[v], np.concatenate([truth.poses3d, np.ones((3, 17, 1))], -1))
+        uv = uvw[..., :2] / uvw[..., 2:]
+        for g in range(len(uv)):
+            kp = np.concatenate([uv[g], np.ones((17, 1))], -1)
+            results.append({"image_id": v + 1, "category_id": 1, "keypoints": kp.round(2).ravel().tolist(), "score": 0.9})
+    (tmp_path / "street" / "walk.detections.json").write_text(json.dumps(results))
+    summary = run_batch(tmp_path, stages=("frames", "detect"), workers=1)
+    assert summary.done == 1 and not summary.failed, summary.failed
+    rows = states(tmp_path)
+    index = json.loads((tmp_path / "street" / "walk" / "frames.json").read_text())
+    assert rows["street/walk", "frames"]["state"] == "done"
+    assert rows["street/walk", "frames"]["files"] == 1 + len(index["frames"])
+    poses = json.loads((tmp_path / "street" / "walk" / "poses2d.json").read_text())
+    kept = [int(f["frame"]) for f in index["frames"]]
+    assert len(poses["images"]) == len(kept) >= 6
+    got = np.array([a["keypoints"] for a in poses["annotations"]]).reshape(len(kept), 3, 17, 3)
+    want = np.array([r["keypoints"] for r in results]).reshape(len(cams), 3, 17, 3)[kept]
+    assert np.allclose(got[..., :2], want[..., :2], atol=0.01)
+    assert all(len(a["appearance"]) > 0 for a in poses["annotations"])      # colour descriptors of the frames
+    assert run_batch(tmp_path, stages=("frames", "detect"), workers=1).committed == 0
