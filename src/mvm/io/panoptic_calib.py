@@ -52,6 +52,8 @@ def read_panoptic_calibration(path: str | Path, types: tuple[str, ...] = ("hd",)
         if (np.abs(R[-1]).max() > 1.01 or np.abs(R[-1] @ R[-1].T - np.eye(3)).max() > 1e-3
                 or np.linalg.det(R[-1]) < 0):
             raise InputError(path, f"{field}.R", "not a rotation matrix")
+        U, _, Vt = np.linalg.svd(R[-1])           # the nearest rotation: the file rounds entries
+        R[-1] = U @ Vt
         names.append(str(cam["name"]))
     if not names:
         raise InputError(path, "cameras", f"no camera of type {', '.join(types)}")

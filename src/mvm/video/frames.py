@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.files import atomic_write_bytes, atomic_write_json
+from ..io.paths import check_name
 
 log = logging.getLogger(__name__)
 
@@ -183,13 +184,16 @@ def read_frame_index(scene: str | Path) -> FrameIndex:
         raise InputError(path, "format", f"expected {FRAMES_FORMAT!r}")
     try:
         frames = data["frames"]
-        return FrameIndex(
+        index = FrameIndex(
             data.get("video", ""), float(data.get("fps", 0.0)), (int(data["width"]), int(data["height"])),
             tuple(str(f["file_name"]) for f in frames), np.array([int(f["frame"]) for f in frames], dtype=np.int64),
             np.array([float(f["timestamp_s"]) for f in frames]), np.array([float(f.get("sharpness", 0)) for f in frames]),
             tuple(int(k) for k in data.get("skipped_blurred", [])))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(path, "frames", f"malformed entry: {e}") from None
+    for i, name in enumerate(index.names):
+        check_name(name, path, f"frames[{i}].file_name")
+    return index
 
 
 def list_frames(scene: str | Path) -> list[str]:
