@@ -9,8 +9,9 @@ Clips are simulated scenes the size of the paper's (85.9 frames and about 4 peop
 fresh copy of the clips, so every stage really runs. The estimate scales the measured
 core-seconds per clip to ``--sequences`` × ``--clips-per-sequence`` clips on ``--nodes`` ×
 ``--cores-per-node`` workers at the parallel efficiency measured here; ``--sfm-core-seconds``
-adds the SfM stage's cost per clip (the README's figure: 158 s on 2 cores for 100 frames), which
-a simulated clip does not have.
+adds the SfM stage's cost per clip (the README's figure: 158 s on 2 cores for 100 frames) and
+``--detect-core-seconds`` the network's detection on CPU (8 s per frame), which a simulated
+clip does not have.
 """
 from __future__ import annotations
 
@@ -57,6 +58,9 @@ def main() -> None:
     parser.add_argument("--cores-per-node", type=int, default=32)
     parser.add_argument("--sfm-core-seconds", type=float, default=158 * 2 * 86 / 100,
                         help="Core-seconds of SfM per clip (default: the README's 158 s × 2 cores, scaled to 86 frames).")
+    parser.add_argument("--detect-core-seconds", type=float, default=8.0 * 86,
+                        help="Core-seconds of the network's detection per clip on CPU (default: the README's "
+                             "8 s per frame × 86 frames; on a GPU node it is a small fraction).")
     args = parser.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -85,7 +89,9 @@ def main() -> None:
           f"{overhead:.3f} core-s around them ({many['workers']} workers)")
     for label, cost in (("reconstruct + export", one["core_s_per_clip"] + overhead),
                         (f"+ SfM ({args.sfm_core_seconds:.0f} core-s per clip)",
-                         one["core_s_per_clip"] + overhead + args.sfm_core_seconds)):
+                         one["core_s_per_clip"] + overhead + args.sfm_core_seconds),
+                        (f"+ SfM + detection on CPU ({args.detect_core_seconds:.0f} core-s per clip)",
+                         one["core_s_per_clip"] + overhead + args.sfm_core_seconds + args.detect_core_seconds)):
         seconds = n * cost / cores
         print(f"estimate, {label}: {n} clips × {cost:.2f} core-s / ({args.nodes} nodes × {args.cores_per_node} "
               f"cores) = {seconds:.0f} s ({seconds / 3600:.2f} h)")
