@@ -126,3 +126,21 @@ def test_killed_driver_then_rerun(root):
     for cid in good:                                                   # no partial file under any name
         for path in (root / cid / "mvm").rglob("*.json"):
             json.loads(path.read_text())
+
+
+def test_two_drivers_share_one_root(root):
+    """Two runs started together on the same root split the clips: each (clip, stage) is
+    committed once, by one of them."""
+    root, good = root
+    procs = [_start(root) for _ in range(2)]
+    for proc in procs:
+        out, err = proc.communicate(timeout=120)
+        assert proc.returncode == 0, err
+    _check_all_done(root, good)
+    manifest = Manifest(root, create=False)
+    by_run = {}
+    for h in manifest.history("commit"):
+        by_run[h["run"]] = by_run.get(h["run"], 0) + 1
+    manifest.close()
+    assert sum(by_run.values()) == 2 * len(good)
+    assert len(by_run) == 2, by_run                                     # both did some of the work
