@@ -50,6 +50,28 @@ def test_scale_invariant_depth_loss_by_hand():
     assert value.item() == pytest.approx((var0 + var1) / 2, rel=1e-6)
 
 
+def test_depth_log_scale_divides_the_residuals_by_hand():
+    """With ``log_scale`` s: Var[r / s] = Var[r] / s², r = log(d_pred / d_true), per person."""
+    pred = torch.tensor([1.0, 1.1, 0.9, 2.0, 2.0])
+    true = torch.tensor([1.0, 1.0, 1.0, 1.0, 1.2])
+    groups = torch.tensor([0, 0, 0, 1, 1])
+    r0 = [0.0, math.log(1.1) / 0.1, math.log(0.9) / 0.1]
+    r1 = [math.log(2.0) / 0.1, math.log(2.0 / 1.2) / 0.1]
+    var = [sum(x * x for x in r) / len(r) - (sum(r) / len(r)) ** 2 for r in (r0, r1)]
+    value = losses.scale_invariant_depth_loss(torch.log(pred).view(1, 1, 1, 5), true.view(1, 1, 1, 5),
+                                              groups.view(1, 1, 1, 5), log_scale=0.1)
+    assert value.item() == pytest.approx((var[0] + var[1]) / 2, rel=1e-5)
+    # the same through total_loss: pdf_depth of LossWeights(depth_log_scale=0.1)
+    raw = {"pif": torch.zeros(1, 17, 5, 1, 5), "paf": torch.zeros(1, 27, 7, 1, 5), "pdf": torch.zeros(1, 17, 2, 1, 5)}
+    targets = {"pif": _nan(1, 17, 5, 1, 5), "paf": _nan(1, 27, 7, 1, 5), "pdf": _nan(1, 17, 2, 1, 5),
+               "pdf_group": torch.full((1, 17, 1, 5), -1)}
+    raw["pdf"][0, 3, 0, 0] = torch.log(pred)
+    targets["pdf"][0, 3, 0, 0] = true
+    targets["pdf_group"][0, 3, 0] = groups
+    _, parts = losses.total_loss(raw, targets, losses.LossWeights(depth_log_scale=0.1))
+    assert parts["pdf_depth"] == pytest.approx((var[0] + var[1]) / 2, rel=1e-5)
+
+
 def test_depth_loss_is_scale_invariant_per_person_and_batch():
     torch.manual_seed(0)
     raw = torch.randn(2, 17, 4, 4)

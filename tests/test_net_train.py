@@ -1,5 +1,6 @@
 """Training mechanics: config, data augmentation, checkpoints (state_dict + JSON), resume, predict."""
 import json
+import time
 
 import numpy as np
 import pytest
@@ -10,7 +11,8 @@ from mvm.keypoints import FLIP_PERMUTATION
 from mvm.net import render
 from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.predict import load_model, predict
-from mvm.net.train import EMA, MixtureSampler, config_from_dict, load_config, read_checkpoint, train
+from mvm.net.train import (EMA, MixtureSampler, config_from_dict, learning_rate, load_config, read_checkpoint,
+                           train)
 
 
 @pytest.fixture(scope="module")
@@ -126,3 +128,29 @@ def test_dataset_items_have_the_field_shapes(tiny_data):
     assert item["pif"].shape == (17, 5, 8, 8) and item["pdf"].shape == (17, 2, 8, 8)
     assert torch.isfinite(item["pdf"][:, 0]).any()       # the synthetic data carry depth
     assert torch.equal(ds.sample(0, 7)["image"], ds.sample(0, 7)["image"])  # deterministic per draw
+
+
+def test_learning_rate_warmup_and_cosine_by_hand():
+    cfg = config_from_dict({"optim": {"lr": 0.5, "lr_warmup": 4, "lr_decay": "cosine", "steps": 100}})
+    floor = 0.005
+    assert learning_rate(cfg, 0, 0.0) == pytest.approx(floor)
+    assert learning_rate(cfg, 2, 0.02) == pytest.approx(floor + (0.5 - floor) / 2)     # half-way up
+    assert learning_rate(cfg, 40, 0.4) == pytest.approx(floor + (0.5 - floor) * 0.5 * (1 + np.cos(0.4 * np.pi)))
+    assert learning_rate(cfg, 100, 1.0) == pytest.approx(floor)
+    assert learning_rate(cfg.replace(lr_decay="none"), 90, 0.9) == 0.5
+    with pytest.raises(InputError, match="lr_decay"):
+        config_from_dict({"optim": {"lr_decay": "step"}})
+    with pytest.raises(InputError, match="optimizer"):
+        config_from_dict({"optim": {"optimizer": "rmsprop"}})
+
+
+def test_time_limit_stops_training_and_adamw_trains(tiny_data, tmp_path):
+    cfg = _config(tiny_data, tmp_path / "run", steps=100_000, checkpoint_every=100_000, optimizer="adamw",
+                  lr_decay="cosine", max_seconds=1.0)
+    t = time.perf_counter()
+    path = train(cfg)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert 1.0 <= meta["train_seconds"] < 60 and time.perf_counter() - t < 90
+    assert 0 < meta["step"] < 100_000 and path.name == f"checkpoint-{meta['step']:07d}.pt"
+    state, _ = read_checkpoint(path)
+    assert "exp_avg" in state["optimizer"]["state"][0]                      # AdamW moments were kept

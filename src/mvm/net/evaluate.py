@@ -54,13 +54,17 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
 
     Returns ``AP``, ``AP50`` (pycocotools), ``depth_error`` (mean absolute error of
     median-normalized depths of the detections matched to ground truth at OKS ≥ 0.5),
-    ``depth_error_gt2d`` (the PDF read at the ground-truth keypoints) and ``depth_error_flat``
-    (the error of predicting the same depth for every joint, a baseline).
+    ``depth_error_gt2d`` (the PDF read at the ground-truth keypoints), ``depth_error_flat``
+    (the error of predicting the same depth for every joint, a baseline, over the same persons
+    as ``depth_error_gt2d``), ``depth_error_flat_matched`` (the flat baseline over the matched
+    persons and joints of ``depth_error``), ``matched`` (how many persons were matched) and
+    ``persons`` (the ground-truth persons with depth).
     """
     ann = read_annotations(annotations, images)
     was_training = model.training
     model.eval()
-    detections, matched_err, oracle_err, flat_err = [], [], [], []
+    detections, matched_err, matched_flat, oracle_err, flat_err = [], [], [], [], []
+    n_persons = 0
     n = len(ann.paths) if max_images is None else min(max_images, len(ann.paths))
     for i in range(n):
         image = load_image(ann.paths[i])
@@ -70,6 +74,7 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
             detections.append({"image_id": image_id, "keypoints": kp.reshape(-1).tolist(), "score": float(score)})
         gt_kp, gt_d = ann.keypoints[i], ann.depths[i]
         has_d = np.isfinite(gt_d).sum(1) >= 2
+        n_persons += int(has_d.sum())
         if not has_d.any():
             continue
         boxed = gt_kp.copy()
@@ -85,6 +90,8 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
                 k = int(np.argmax(scores))
                 taken.add(k)
                 matched_err.extend(relative_depth_error(poses.depth[k][None], gt_d[g][None]))
+                flat = np.where(np.isfinite(poses.depth[k]), 1.0, np.nan)
+                matched_flat.extend(relative_depth_error(flat[None], gt_d[g][None]))
     gt_doc = dict(ann.document)
     gt_doc["images"] = [im for im in ann.document["images"] if im["id"] in set(ann.image_ids[:n].tolist())]
     ap = oks_ap(gt_doc, detections)
@@ -96,4 +103,5 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
 
     return {"AP": ap["AP"], "AP50": ap["AP50"], "depth_error": mean(matched_err),
             "depth_error_gt2d": mean(oracle_err), "depth_error_flat": mean(flat_err),
-            "matched": float(len(matched_err))}
+            "depth_error_flat_matched": mean(matched_flat),
+            "matched": float(len(matched_err)), "persons": float(n_persons)}

@@ -9,7 +9,10 @@ carry zero weight, so 2D-only data leave the PDF untouched and missing joints ar
 - ``L_PDF`` = the scale-invariant depth loss of the paper, the variance of the log depth ratios
   ``Var[log d_pred − log d_true] = 1/N Σ r² − 1/N² (Σ r)²`` over the cells of one person
   (relative depths carry no scale, so the variance ignores a common factor), averaged over the
-  persons of the batch; plus L1 on ``log γ``.
+  persons of the batch; plus L1 on ``log γ``. The log-depth residuals may be divided by a
+  ``depth_log_scale`` first: relative depths within a person vary by a few per cent, so the
+  raw variance is of order 1e-3 and its gradient is tiny beside the other terms; dividing by
+  the typical spread of relative log depths (e.g. 0.1) brings it to order 1.
 """
 from __future__ import annotations
 
@@ -24,12 +27,14 @@ LOG_SPREAD_RANGE = (-5.0, 5.0)
 
 @dataclass(frozen=True)
 class LossWeights:
-    """λ1, λ2, λ3 of the paper's loss and the weight of background cells in the confidence loss."""
+    """λ1, λ2, λ3 of the paper's loss, the weight of background cells in the confidence loss and
+    the unit of log-depth residuals in the depth loss (1: the paper's unnormalized variance)."""
 
     pif: float = 1.0
     paf: float = 1.0
     pdf: float = 1.0
     background: float = 1.0
+    depth_log_scale: float = 1.0
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -72,13 +77,15 @@ def log_l1_loss(raw_log: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return masked_mean((raw_log - t).abs(), mask)
 
 
-def scale_invariant_depth_loss(raw_log_d: torch.Tensor, target: torch.Tensor, groups: torch.Tensor) -> torch.Tensor:
-    """The paper's ``L_PDF``: mean over groups of ``Var[log d_pred − log d_true]``.
+def scale_invariant_depth_loss(raw_log_d: torch.Tensor, target: torch.Tensor, groups: torch.Tensor,
+                               log_scale: float = 1.0) -> torch.Tensor:
+    """The paper's ``L_PDF``: mean over groups of ``Var[(log d_pred − log d_true) / log_scale]``.
 
     Args:
         raw_log_d: ``(B, K, H, W)`` predicted log depth.
         target: ``(B, K, H, W)`` relative depth, NaN (or ≤ 0) where unknown.
         groups: ``(B, K, H, W)`` integer group of each cell within its image (the person), -1: none.
+        log_scale: unit of the log-depth residuals (1: the paper's loss as written).
     Returns:
         scalar; 0 when no cell has a depth.
     """
@@ -90,7 +97,7 @@ def scale_invariant_depth_loss(raw_log_d: torch.Tensor, target: torch.Tensor, gr
     n_groups = int(groups.max().item()) + 1
     key = (batch * n_groups + groups)[mask]
     _, inverse = torch.unique(key, return_inverse=True)
-    r = raw_log_d[mask] - torch.log(target[mask])
+    r = (raw_log_d[mask] - torch.log(target[mask])) / log_scale
     G = int(inverse.max().item()) + 1
     count = torch.zeros(G, dtype=r.dtype, device=r.device).index_add_(0, inverse, torch.ones_like(r))
     s1 = torch.zeros(G, dtype=r.dtype, device=r.device).index_add_(0, inverse, r)
@@ -113,9 +120,10 @@ def paf_loss(raw: torch.Tensor, target: torch.Tensor, background_weight: float =
             + laplace_loss(raw[:, :, 3:5], target[:, :, 3:5], raw[:, :, 6])}
 
 
-def pdf_loss(raw: torch.Tensor, target: torch.Tensor, groups: torch.Tensor) -> dict[str, torch.Tensor]:
+def pdf_loss(raw: torch.Tensor, target: torch.Tensor, groups: torch.Tensor,
+             depth_log_scale: float = 1.0) -> dict[str, torch.Tensor]:
     """``raw, target: (B, 17, 2, H, W)``, ``groups: (B, 17, H, W)`` -> ``{"pdf_depth", "pdf_gamma"}``."""
-    return {"pdf_depth": scale_invariant_depth_loss(raw[:, :, 0], target[:, :, 0], groups),
+    return {"pdf_depth": scale_invariant_depth_loss(raw[:, :, 0], target[:, :, 0], groups, depth_log_scale),
             "pdf_gamma": log_l1_loss(raw[:, :, 1], target[:, :, 1])}
 
 
@@ -124,7 +132,7 @@ def total_loss(raw: dict[str, torch.Tensor], targets: dict[str, torch.Tensor],
     """``L = λ1·L_PIF + λ2·L_PAF + λ3·L_PDF``; returns the total and every component (floats)."""
     parts = {**pif_loss(raw["pif"], targets["pif"], weights.background),
              **paf_loss(raw["paf"], targets["paf"], weights.background),
-             **pdf_loss(raw["pdf"], targets["pdf"], targets["pdf_group"])}
+             **pdf_loss(raw["pdf"], targets["pdf"], targets["pdf_group"], weights.depth_log_scale)}
     l_pif = parts["pif_c"] + parts["pif_reg"] + parts["pif_scale"]
     l_paf = parts["paf_c"] + parts["paf_reg"]
     l_pdf = parts["pdf_depth"] + parts["pdf_gamma"]

@@ -2,9 +2,12 @@
 
 Used by the learning test and the CPU demonstration. The people are random standing poses
 (arms and legs at random angles) placed on a floor in front of a pinhole camera; every body
-part is a capsule (a sphere for the head) shaded by its surface normal and dimmed with
-distance, and a per-pixel depth buffer resolves occlusions, so that images carry the cues a
-network can learn depth from. Left limbs are tinted differently from right limbs.
+part is a capsule (a sphere for the head) lit by a flash at the camera (Lambertian, falling
+off with the squared distance, over some ambient light), and a per-pixel depth buffer resolves
+occlusions, so that images carry the cues a network can learn depth from: occlusion,
+foreshortening and brightness along the limbs. Left limbs are tinted differently from right limbs, and the
+head shows a face in front and darker hair behind, so the way a person faces (and so which
+joints are nearer) can be seen.
 
 ``synthetic_dataset`` writes images and a COCO file with the supervision fields of
 :mod:`mvm.supervision` (relative depths), exactly as ``mvm export`` does for real scenes.
@@ -48,6 +51,14 @@ CAPSULES = (
     (_I["right_hip"], _I["right_knee"], 0.075, 5), (_I["right_knee"], _I["right_ankle"], 0.055, 5),
 )
 HEAD_RADIUS = 0.11
+#: Hair colour relative to the face, and the cosine between the surface normal of the head
+#: and the facing direction (nose − head centre) below which the head shows hair.
+HAIR_SHADE = 0.3
+#: Lighting: the share of ambient light, and the distance at which the flash at the camera
+#: lights a surface facing it fully (brightness ∝ (FLASH_DISTANCE / z)², at most 1.6). [1], [m]
+AMBIENT = 0.3
+FLASH_DISTANCE = 2.2
+HAIR_BELOW = -0.2
 
 
 def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
@@ -79,8 +90,9 @@ def random_poses(rng: np.random.Generator, n: int) -> np.ndarray:
 
 
 def random_scene(rng: np.random.Generator, n_persons: int, size: tuple[int, int], fov_deg: float = 60.0,
-                 distance: tuple[float, float] = (2.5, 6.0)) -> tuple[np.ndarray, np.ndarray]:
-    """People on a floor in front of a level camera 1.3–1.7 m high.
+                 distance: tuple[float, float] = (2.5, 6.0),
+                 camera_height: tuple[float, float] = (1.3, 1.7)) -> tuple[np.ndarray, np.ndarray]:
+    """People on a floor at ``distance`` metres in front of a level camera ``camera_height`` metres high.
 
     Returns the joints in camera coordinates ``(P, 17, 3)`` (x right, y down, z forward) and
     the intrinsics ``K (3, 3)`` of a ``size = (width, height)`` image.
@@ -92,7 +104,7 @@ def random_scene(rng: np.random.Generator, n_persons: int, size: tuple[int, int]
     z = rng.uniform(*distance, n_persons)
     half = np.tan(np.radians(fov_deg) / 2) * z * 0.8
     x = rng.uniform(-half, half)
-    cam_h = rng.uniform(1.3, 1.7)
+    cam_h = rng.uniform(*camera_height)
     cam = np.empty_like(people)
     cam[..., 0] = people[..., 0] + x[:, None]
     cam[..., 1] = cam_h - people[..., 1]
@@ -149,8 +161,14 @@ def render(people: np.ndarray, K: np.ndarray, size: tuple[int, int], rng: np.ran
     B = np.concatenate([people[:, b], head[:, None]], 1).reshape(-1, 3)
     R = np.tile(np.append(radius, HEAD_RADIUS), P)
     col = np.concatenate([colors[:, part], colors[:, 0:1]], 1).reshape(-1, 3)
+    n_seg = len(CAPSULES) + 1
+    is_head = np.tile(np.arange(n_seg) == n_seg - 1, P)
+    facing = people[:, INDEX["nose"]] - head                                           # (P, 3)
+    facing = np.repeat(facing / np.maximum(np.linalg.norm(facing, axis=-1, keepdims=True), 1e-9), n_seg, 0)
+    hair = np.repeat(colors[:, 0] * HAIR_SHADE, n_seg, 0)
     front = (A[:, 2] > 0.1) & (B[:, 2] > 0.1)
     A, B, R, col = A[front], B[front], R[front], col[front]
+    is_head, facing, hair = is_head[front], facing[front], hair[front]
     f = 0.5 * (K[0, 0] + K[1, 1])
     ua = A @ K.T
     ua = ua[:, :2] / ua[:, 2:]
@@ -171,16 +189,24 @@ def render(people: np.ndarray, K: np.ndarray, size: tuple[int, int], rng: np.ran
     best = np.argmin(z, axis=0)                                                       # (HW,)
     hit = np.isfinite(z[best, np.arange(len(q))])
     zb = z[best, np.arange(len(q))]
-    shade = 0.35 + 0.65 * cosn[best, np.arange(len(q))]
-    fog = np.exp(-0.12 * (np.where(hit, zb, 0) - 2.0))
-    person = (col[best] * (shade * np.clip(fog, 0.3, 1.3))[:, None]).reshape(h, w, 3)
+    falloff = np.minimum((FLASH_DISTANCE / np.where(hit, zb, FLASH_DISTANCE)) ** 2, 1.6)
+    shade = AMBIENT + (1 - AMBIENT) * cosn[best, np.arange(len(q))] * falloff
+    # the head: hair where the sphere's surface normal turns away from the face
+    pix = np.arange(len(q))
+    on_head = hit & is_head[best]
+    normal = np.concatenate([(q - ua[best]) / np.maximum(r[best, pix], 1e-9)[:, None],
+                             -cosn[best, pix][:, None]], -1)                     # (HW, 3) camera frame
+    is_hair = on_head & ((normal * facing[best]).sum(-1) < HAIR_BELOW)
+    base = np.where(is_hair[:, None], hair[best], col[best])
+    person = (base * shade[:, None]).reshape(h, w, 3)
     img = np.where(hit.reshape(h, w, 1), np.clip(person, 0, 1), img)
     return (img * 255).round().astype(np.uint8)
 
 
 def synthetic_dataset(out_dir: str | Path, n_images: int, size: tuple[int, int] = (128, 128),
                       persons: tuple[int, int] = (1, 3), seed: int = 0, min_keypoints: int = 5,
-                      distance: tuple[float, float] = (2.5, 6.0)) -> Path:
+                      distance: tuple[float, float] = (2.5, 6.0),
+                      camera_height: tuple[float, float] = (1.3, 1.7)) -> Path:
     """Render ``n_images`` images with 3D supervision into ``out_dir``; returns the COCO file.
 
     Writes ``out_dir/images/NNNNNN.png`` and ``out_dir/annotations.json`` (the format of
@@ -195,7 +221,7 @@ def synthetic_dataset(out_dir: str | Path, n_images: int, size: tuple[int, int] 
     ann_id = 0
     for i in range(n_images):
         n = int(rng.integers(persons[0], persons[1] + 1))
-        people, K = random_scene(rng, n, size, distance=distance)
+        people, K = random_scene(rng, n, size, distance=distance, camera_height=camera_height)
         image = render(people, K, size, rng)
         name = f"images/{i:06d}.png"
         cv2.imwrite(str(out_dir / name), image[:, :, ::-1])
@@ -208,3 +234,19 @@ def synthetic_dataset(out_dir: str | Path, n_images: int, size: tuple[int, int] 
     atomic_write_json(path, data)
     LOG.info("rendered %d images with %d people into %s", n_images, ann_id, out_dir)
     return path
+
+
+#: The scenes of the CPU demonstration (``configs/train_cpu_tiny.toml``, the learning test and
+#: ``benchmarks/train_synthetic.py``): one or two people 1.7–2.8 m from a camera at hip to
+#: chest height, so that at 96 px a person is 45–85 px tall (6–10 cells at stride 8).
+DEMO_SCENES = {"persons": (1, 2), "distance": (1.7, 2.8), "camera_height": (0.85, 1.15)}
+
+
+def demo_datasets(root: str | Path, train_images: int, val_images: int, size: int = 96,
+                  seed: int = 0) -> tuple[Path, Path]:
+    """Render the training and held-out sets of the CPU demonstration into ``root/train`` and
+    ``root/val`` (independent random streams); returns their COCO files."""
+    root = Path(root)
+    train = synthetic_dataset(root / "train", train_images, (size, size), seed=seed, **DEMO_SCENES)
+    val = synthetic_dataset(root / "val", val_images, (size, size), seed=seed + 1_000_003, **DEMO_SCENES)
+    return train, val

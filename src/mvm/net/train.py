@@ -65,12 +65,21 @@ class TrainConfig:
         init_checkpoint: start from this checkpoint's (EMA) weights ('' for none).
         train: the data sets of the mixture; val: an optional validation set.
         input_size, crop_min, crop_max, flip: augmentation (see :class:`AugmentConfig`).
-        lr, momentum, batch_size, weight_decay: SGD.
+        optimizer: 'sgd' (the paper's) or 'adamw' (faster from scratch on small networks).
+        lr, momentum, batch_size, weight_decay: the optimizer (momentum: SGD only).
+        lr_warmup: steps of linear warm-up of the learning rate from lr / 100. [steps]
+        lr_decay: 'none' (constant) or 'cosine' (to lr / 100 at the end of the run; the end is
+            ``steps`` or ``max_seconds``, whichever is reached first).
+        clip_grad_norm: rescale the gradient to at most this norm before each step (0: never).
+        max_seconds: stop training after this many seconds even before ``steps`` (0: no limit). [s]
         ema_decay: weight of the current parameters in the moving average per step.
         steps: optimization steps of the run.
         lambda_pif, lambda_paf, lambda_pdf: λ1, λ2, λ3 of the loss.
         background_weight: weight of background cells in the confidence losses (lower: the
             few positive cells count more; faster to learn, confidences less calibrated).
+        depth_log_scale: unit of the log-depth residuals in the depth loss (1: the paper's
+            variance as written; about 0.1, the spread of relative log depths, balances it
+            against the other terms).
         out_dir: where checkpoints go; checkpoint_every: steps between checkpoints.
         log_every: steps between log lines; workers: data-loading processes;
         device: 'auto', 'cpu' or 'cuda'; seed: random seed; threads: CPU threads of torch during
@@ -88,7 +97,12 @@ class TrainConfig:
     crop_min: float = 0.95
     crop_max: float = 1.0
     flip: float = 0.5
+    optimizer: str = "sgd"
     lr: float = 1e-3
+    lr_warmup: int = 0
+    lr_decay: str = "none"
+    max_seconds: float = 0.0
+    clip_grad_norm: float = 0.0
     momentum: float = 0.95
     batch_size: int = 8
     weight_decay: float = 0.0
@@ -98,6 +112,7 @@ class TrainConfig:
     lambda_paf: float = 1.0
     lambda_pdf: float = 1.0
     background_weight: float = 1.0
+    depth_log_scale: float = 1.0
     out_dir: str = "runs/mvm-net"
     checkpoint_every: int = 5000
     log_every: int = 50
@@ -174,6 +189,14 @@ def _check(cfg: TrainConfig, source: str) -> None:
         raise InputError(source, "ema_decay", f"expected a value in (0, 1], got {cfg.ema_decay}")
     if cfg.batch_size < 1 or cfg.steps < 1:
         raise InputError(source, "batch_size", "batch_size and steps must be positive")
+    if cfg.optimizer not in ("sgd", "adamw"):
+        raise InputError(source, "optimizer", f"expected sgd or adamw, got {cfg.optimizer!r}")
+    if cfg.lr_decay not in ("none", "cosine"):
+        raise InputError(source, "lr_decay", f"expected none or cosine, got {cfg.lr_decay!r}")
+    if cfg.depth_log_scale <= 0:
+        raise InputError(source, "depth_log_scale", f"expected a positive number, got {cfg.depth_log_scale}")
+    if cfg.lr <= 0 or cfg.lr_warmup < 0 or cfg.max_seconds < 0 or cfg.clip_grad_norm < 0:
+        raise InputError(source, "lr", "lr must be positive; lr_warmup, max_seconds, clip_grad_norm not negative")
     if cfg.device not in ("auto", "cpu", "cuda"):
         raise InputError(source, "device", f"expected auto, cpu or cuda, got {cfg.device!r}")
 
@@ -355,7 +378,7 @@ def _train(cfg: TrainConfig, resume, progress) -> Path:
             raise InputError(cfg.init_checkpoint, "model", f"checkpoint is {meta['model']}, config asks for {cfg.model_spec}")
         model.load_state_dict(state.get("ema", state["model"]))
     model.to(device)
-    optimizer = torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+    optimizer = make_optimizer(model, cfg)
     ema = EMA(model, cfg.ema_decay)
     step = 0
     if resume == "auto":
@@ -379,10 +402,17 @@ def _train(cfg: TrainConfig, resume, progress) -> Path:
                              [s.start_step for s in cfg.train], cfg.batch_size, cfg.seed, start=step * cfg.batch_size)
     loader = torch.utils.data.DataLoader(data, batch_size=cfg.batch_size, sampler=sampler, collate_fn=collate,
                                          num_workers=cfg.workers, persistent_workers=cfg.workers > 0)
-    weights = LossWeights(cfg.lambda_pif, cfg.lambda_paf, cfg.lambda_pdf, cfg.background_weight)
+    weights = LossWeights(cfg.lambda_pif, cfg.lambda_paf, cfg.lambda_pdf, cfg.background_weight, cfg.depth_log_scale)
     model.train()
     history, t0, seen, last = [], time.perf_counter(), 0, None
+    start_step = step
     for batch in loader:
+        elapsed = time.perf_counter() - t0
+        progress_fraction = step / cfg.steps
+        if cfg.max_seconds:
+            progress_fraction = max(progress_fraction, elapsed / cfg.max_seconds)
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(cfg, step, progress_fraction)
         batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
         raw = model(batch["image"])
         loss, parts = total_loss(raw, batch, weights)
@@ -390,12 +420,18 @@ def _train(cfg: TrainConfig, resume, progress) -> Path:
             raise FloatingPointError(f"loss is {parts['total']} at step {step}: lower lr ({cfg.lr})")
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        if cfg.clip_grad_norm > 0:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip_grad_norm)
         optimizer.step()
         ema.update(model)
         step += 1
         seen += len(batch["image"])
         history.append(parts)
-        if step % cfg.log_every == 0 or step == cfg.steps:
+        out_of_time = cfg.max_seconds > 0 and time.perf_counter() - t0 >= cfg.max_seconds
+        if out_of_time:
+            LOG.info("time limit of %.0f s reached at step %d (%d steps this run)", cfg.max_seconds, step,
+                     step - start_step)
+        if step % cfg.log_every == 0 or step == cfg.steps or out_of_time:
             rate = seen / (time.perf_counter() - t0)
             mean = {k: float(np.mean([h[k] for h in history])) for k in history[0]}
             LOG.info("step %d/%d  loss %.4f  (PIF %.3f  PAF %.3f  PDF %.4f)  %.1f images/s", step, cfg.steps,
@@ -403,16 +439,42 @@ def _train(cfg: TrainConfig, resume, progress) -> Path:
             if progress is not None:
                 progress(step, mean)
             last, history = mean, []
-        if step % cfg.checkpoint_every == 0 or step == cfg.steps:
-            meta = {"config": cfg.to_dict(), "losses": last,
-                    "images_per_second": seen / (time.perf_counter() - t0), "device": str(device)}
-            if cfg.val is not None and step == cfg.steps:
+        if step % cfg.checkpoint_every == 0 or step == cfg.steps or out_of_time:
+            meta = {"config": cfg.to_dict(), "losses": last, "images_per_second": seen / (time.perf_counter() - t0),
+                    "train_seconds": time.perf_counter() - t0, "device": str(device)}
+            if cfg.val is not None and (step == cfg.steps or out_of_time):
                 meta["validation"] = validate(ema.state, cfg, device)
             path = save_checkpoint(out_dir, step, model, ema, optimizer, meta)
             LOG.info("checkpoint %s", path)
-        if step >= cfg.steps:
+        if step >= cfg.steps or out_of_time:
             break
     return checkpoint_paths(out_dir, step)[0]
+
+
+def make_optimizer(model: torch.nn.Module, cfg: TrainConfig) -> torch.optim.Optimizer:
+    """SGD with momentum (the paper) or AdamW, from the configuration."""
+    if cfg.optimizer == "adamw":
+        return torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    return torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum, weight_decay=cfg.weight_decay)
+
+
+def learning_rate(cfg: TrainConfig, step: int, progress: float) -> float:
+    """The learning rate at ``step``, ``progress`` in [0, 1] being how far the run is.
+
+    A linear warm-up from ``lr / 100`` over ``lr_warmup`` steps, then constant (``lr_decay =
+    'none'``) or a cosine from ``lr`` down to ``lr / 100`` at ``progress = 1``.
+
+    >>> cfg = TrainConfig(lr=1.0, lr_warmup=10, lr_decay="cosine", steps=100)
+    >>> learning_rate(cfg, 0, 0.0), learning_rate(cfg, 50, 0.5), round(learning_rate(cfg, 100, 1.0), 6)
+    (0.01, 0.505, 0.01)
+    """
+    floor = 0.01 * cfg.lr
+    if step < cfg.lr_warmup:
+        return floor + (cfg.lr - floor) * step / cfg.lr_warmup
+    if cfg.lr_decay == "cosine":
+        p = min(max(progress, 0.0), 1.0)
+        return floor + (cfg.lr - floor) * 0.5 * (1.0 + math.cos(math.pi * p))
+    return cfg.lr
 
 
 def validate(ema_state: dict, cfg: TrainConfig, device: torch.device) -> dict:
