@@ -27,14 +27,15 @@ def _readers():
     from mvm.io.openpifpaf import read_openpifpaf_frame
     from mvm.io.openpose import read_openpose_frame
     from mvm.io.panoptic_calib import read_panoptic_calibration
-    from mvm.io.scene_dir import read_scene
+    from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.io.trajectory import read_trajectory
     from mvm.io.trc import read_trc
 
     return {"coco": read_coco_keypoints, "colmap_bin": read_colmap, "colmap_txt": read_colmap,
             "scene": read_scene, "openpose": read_openpose_frame, "openpifpaf": read_openpifpaf_frame,
             "calib_toml": read_calib_toml, "trajectory": read_trajectory,
-            "panoptic_calib": read_panoptic_calibration, "trc": read_trc, "config": load_config}
+            "panoptic_calib": read_panoptic_calibration, "trc": read_trc, "config": load_config,
+            "poses3d": read_poses3d}
 
 
 CASES = [(reader, case, line) for reader, table in sorted(EXPECTED.items()) for case, line in sorted(table.items())]

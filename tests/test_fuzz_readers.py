@@ -116,6 +116,14 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
     points = standing_poses(4)[:, :5]
     points[1, 2] = np.nan
     seeds["trc"] = {"person.trc": trc_text(points, [f"m{i}" for i in range(5)], 30.0).encode()}
+    from mvm.io.scene_dir import poses3d_document
+    from mvm.scene import Persons3D
+
+    X = standing_poses(2)
+    X[0, 3] = np.nan
+    persons = Persons3D(X, np.full((2, 17), 0.8), [np.array([0, 1]), np.array([2])], np.full((2, 17), 3),
+                        np.zeros((2, 17), int), np.array([1.5, np.nan]))
+    seeds["poses3d"] = {"poses3d.json": json.dumps(poses3d_document(persons, poses, {"persons": 2})).encode()}
     seeds["config"] = {"config.toml": b"[reconstruct]\ntau = 0.25\nrefine = false\nmin_views = 3\n"
                                       b"ransac_threshold_px = 12.5\nseed = 4\n"}
     return seeds
@@ -213,6 +221,15 @@ def _trc(root: Path):
     assert trc.points.shape == (len(trc.frames), len(trc.markers), 3)
 
 
+def _poses3d(root: Path):
+    from mvm.io.scene_dir import read_poses3d
+
+    persons = read_poses3d(root / "poses3d.json")
+    assert not np.isinf(persons.keypoints3d).any()
+    _finite(persons.scores)
+    assert (np.isnan(persons.keypoints3d).all(axis=2) | np.isfinite(persons.keypoints3d).all(axis=2)).all()
+
+
 def _config(root: Path):
     from mvm.config import Config, load_config
 
@@ -223,7 +240,8 @@ def _config(root: Path):
 
 READERS = {"coco": _coco, "colmap_bin": _colmap, "colmap_txt": _colmap, "scene": _scene,
            "openpose": _openpose, "openpifpaf": _openpifpaf, "calib_toml": _calib,
-           "trajectory": _trajectory, "panoptic_calib": _panoptic, "trc": _trc, "config": _config}
+           "trajectory": _trajectory, "panoptic_calib": _panoptic, "trc": _trc, "config": _config,
+           "poses3d": _poses3d}
 
 
 # --- mutations ----------------------------------------------------------------------------------
@@ -479,7 +497,7 @@ def test_fuzz_reader(reader, tmp_path_factory):
     root = tmp_path_factory.mktemp(f"fuzz_{reader}") / "case"
     tally = Tally()
 
-    @settings(max_examples=40, derandomize=True, deadline=None, database=None,
+    @settings(max_examples=150, derandomize=True, deadline=None, database=None,
               phases=[Phase.explicit, Phase.generate, Phase.shrink],
               suppress_health_check=list(HealthCheck))
     @given(st.data())

@@ -1,7 +1,6 @@
 """The scene directory (DESIGN.md): ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out."""
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
@@ -14,6 +13,7 @@ from ..scene import Cameras, Persons3D, Poses2D, Scene
 from .coco import coco_keypoints_document, read_coco_keypoints
 from .colmap import read_colmap, undistort_keypoints, write_colmap
 from .files import atomic_replace_dir, atomic_write_json
+from .checks import integer, load_json, number, numbers
 from .paths import resolve_in
 
 log = logging.getLogger(__name__)
@@ -119,12 +119,7 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
     """Read ``poses3d.json``. With ``poses``, members are mapped back to indices into it;
     otherwise ``members`` hold the annotation ids."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    data = load_json(path)
     if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
         raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
     persons = data.get("persons")
@@ -140,21 +135,31 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
     index = None if poses is None else {int(a): i for i, a in enumerate(poses.ids)}
     for p, person in enumerate(persons):
         field = f"persons[{p}]"
-        try:
-            kp = person["keypoints3d"]
-            if len(kp) != NUM_JOINTS:
-                raise ValueError(f"keypoints3d: expected {NUM_JOINTS} entries")
-            for j, entry in enumerate(kp):
-                if entry[0] is not None:
-                    X[p, j] = [float(v) for v in entry[:3]]
-                scores[p, j] = float(entry[3])
-            views[p] = person.get("views_per_joint", [0] * NUM_JOINTS)
-            outliers[p] = person.get("outliers_per_joint", [0] * NUM_JOINTS)
-            if person.get("reprojection_error_px") is not None:
-                err[p] = float(person["reprojection_error_px"])
-            ids = [int(a) for a in person.get("members", [])]
-        except (KeyError, TypeError, ValueError, IndexError) as e:
-            raise InputError(path, field, f"malformed person: {e}") from None
+        if not isinstance(person, dict):
+            raise InputError(path, field, "expected an object")
+        kp = person.get("keypoints3d")
+        if not isinstance(kp, list) or len(kp) != NUM_JOINTS:
+            raise InputError(path, f"{field}.keypoints3d", f"expected a list of {NUM_JOINTS} [x, y, z, score]")
+        for j, entry in enumerate(kp):
+            where = f"{field}.keypoints3d[{j}]"
+            if not isinstance(entry, list) or len(entry) != 4:
+                raise InputError(path, where, "expected [x, y, z, score]")
+            if entry[0] is not None:
+                X[p, j] = numbers(entry[:3], path, where)
+            elif entry[1] is not None or entry[2] is not None:
+                raise InputError(path, where, "x, y and z must all be numbers or all null")
+            scores[p, j] = number(entry[3], path, f"{where}[3]")
+        for key, target in (("views_per_joint", views), ("outliers_per_joint", outliers)):
+            values = person.get(key, [0] * NUM_JOINTS)
+            if not isinstance(values, list) or len(values) != NUM_JOINTS:
+                raise InputError(path, f"{field}.{key}", f"expected {NUM_JOINTS} integers")
+            target[p] = [integer(v, path, f"{field}.{key}[{j}]") for j, v in enumerate(values)]
+        if person.get("reprojection_error_px") is not None:
+            err[p] = number(person["reprojection_error_px"], path, f"{field}.reprojection_error_px")
+        ids = person.get("members", [])
+        if not isinstance(ids, list):
+            raise InputError(path, f"{field}.members", "expected a list of annotation ids")
+        ids = [integer(a, path, f"{field}.members[{k}]") for k, a in enumerate(ids)]
         if index is not None:
             missing = [a for a in ids if a not in index]
             if missing:

@@ -128,9 +128,9 @@ def read_trc(path: str | Path) -> Trc:
             row = [float(v) if v.strip() else np.nan for v in fields[2:width]]
         except ValueError as e:
             raise InputError(path, f"line {number}", f"not a number: {e}") from None
-        if not (math.isfinite(frame) and frame == int(frame)) or not math.isfinite(time):
+        if not (math.isfinite(frame) and frame == int(frame) and abs(frame) < 2 ** 53) or not math.isfinite(time):
             raise InputError(path, f"line {number}", "frame number and time must be finite, "
-                                                     "the frame number an integer")
+                                                     "the frame number an integer below 2^53")
         if np.isinf(row).any():
             raise InputError(path, f"line {number}", "infinite coordinate")
         frames.append(int(frame))

@@ -273,8 +273,29 @@ def scene() -> None:
     case("not_in_model", "frame_9.jpg")
 
 
+def poses3d() -> None:
+    from mvm.io.scene_dir import poses3d_document
+    from mvm.scene import Persons3D, Poses2D
+
+    X = standing_poses(2)
+    persons = Persons3D(X, np.full((2, 17), 0.8), [np.array([0, 1]), np.array([2])], np.full((2, 17), 3),
+                        np.zeros((2, 17), int), np.array([1.5, 2.0]))
+    poses = Poses2D(np.zeros((3, 17, 3)), np.arange(3), np.arange(1, 4), np.ones(3), None)
+
+    def case(name, mutate):
+        doc = poses3d_document(persons, poses, {"persons": 2})
+        mutate(doc)
+        _write(f"poses3d/{name}.json", json.dumps(doc))
+
+    case("person_not_object", lambda d: d["persons"].__setitem__(1, [1, 2, 3]))
+    case("coordinate_infinite", lambda d: d["persons"][0]["keypoints3d"][5].__setitem__(1, float("inf")))
+    case("views_short", lambda d: d["persons"][1].update(views_per_joint=[3] * 16))
+    case("member_string", lambda d: d["persons"][0]["members"].__setitem__(0, "1"))
+    case("wrong_format", lambda d: d.update(format="mvm.poses3d/0"))
+
+
 def main() -> None:
-    for build in (coco, openpose, openpifpaf, calib_toml, trajectory, panoptic_calib, trc, config,
+    for build in (poses3d, coco, openpose, openpifpaf, calib_toml, trajectory, panoptic_calib, trc, config,
                   colmap_bin, colmap_txt, scene):
         build()
 
