@@ -28,6 +28,7 @@ from ..io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoi
 from ..io.files import atomic_write_json
 from ..keypoints import NUM_JOINTS
 from .appearance import colour_descriptor, pool_features
+from ..io.paths import resolve_in
 from .frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
 
 log = logging.getLogger(__name__)
@@ -306,7 +307,8 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     sizes = np.zeros((len(names), 2))
     colour = [] if want_colour and source is not None else None
     for i, name in enumerate(names):
-        frame = cv2.imread(str(frames_dir / name)) if (frames_dir / name).is_file() else None
+        file = resolve_in(frames_dir, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
+        frame = cv2.imread(str(file)) if file.is_file() else None
         if frame is None:
             if detector is not None or colour is not None:
                 raise InputError(frames_dir / name, None, "cannot read frame image")
