@@ -32,6 +32,7 @@ import numpy as np
 from ..errors import InputError
 from ..scene import Cameras
 from .checks import load_toml, matrix, numbers
+from .paths import check_name
 from .files import atomic_write_text
 
 
@@ -90,6 +91,7 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
         name = table.get("name", section)
         if not isinstance(name, str) or not name:
             raise InputError(path, f"[{section}].name", f"expected a string, got {name!r}")
+        check_name(name, path, f"[{section}].name")
         K.append(_array(table, "matrix", (3, 3), path, section))
         rvec = _array(table, "rotation", (3,), path, section)
         R.append(cv2.Rodrigues(rvec)[0])

@@ -107,8 +107,11 @@ def _pose(path, where, values) -> None:
     """``values``: qw, qx, qy, qz, tx, ty, tz."""
     if not all(math.isfinite(v) for v in values):
         raise InputError(path, where, "pose is not finite")
-    if math.sqrt(sum(q * q for q in values[:4])) < 1e-8:
+    norm = math.hypot(*values[:4])
+    if norm < 1e-8:
         raise InputError(path, where, "zero-norm quaternion")
+    if not 1e-8 < norm < 1e150:
+        raise InputError(path, where, f"quaternion norm {norm:g} is out of range")
 
 
 def _image(model: _Model, path, where, image_id, pose, camera_id, name) -> None:

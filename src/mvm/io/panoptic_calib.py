@@ -13,6 +13,7 @@ from ..errors import InputError
 from ..scene import Cameras
 from .calib_toml import RigCalibration
 from .checks import load_json, matrix, numbers
+from .paths import check_name
 
 
 def _vector(value, n: int, path, field) -> np.ndarray:
@@ -54,7 +55,7 @@ def read_panoptic_calibration(path: str | Path, types: tuple[str, ...] = ("hd",)
             raise InputError(path, f"{field}.R", "not a rotation matrix")
         U, _, Vt = np.linalg.svd(R[-1])           # the nearest rotation: the file rounds entries
         R[-1] = U @ Vt
-        names.append(str(cam["name"]))
+        names.append(check_name(str(cam["name"]), path, f"{field}.name"))
     if not names:
         raise InputError(path, "cameras", f"no camera of type {', '.join(types)}")
     if len(set(names)) != len(names):
