@@ -46,7 +46,6 @@ def test_config_files_parse(tmp_path):
 
 
 def test_crop_and_flip_move_keypoints_with_the_image():
-    rng = np.random.default_rng(0)
     image = np.zeros((80, 100, 3), np.uint8)
     kp = np.zeros((1, 17, 3))
     kp[0, :, 0] = np.linspace(30, 70, 17)
