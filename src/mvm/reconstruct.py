@@ -204,13 +204,11 @@ def _triangulation_warnings(tri, config: Config) -> list[str]:
         return []
     observed = tri.valid.sum(axis=1) >= config.min_views                      # (P, J)
     missing = observed & ~np.isfinite(tri.X).all(-1)
-    low_parallax = missing & (tri.inliers.sum(axis=1) == 0) & (tri.parallax_deg < config.min_parallax_deg)
     out = []
     if missing.any():
         out.append(f"{int(missing.sum())} of {int(observed.sum())} observed joints left unreconstructed "
                    f"(too few consistent views in front of the cameras, or rays spanning less than "
                    f"min_parallax_deg = {config.min_parallax_deg:g}°)")
-    del low_parallax
     return out
 
 
