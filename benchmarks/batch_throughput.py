@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from mvm.batch import run_batch
-from mvm.simulate import SimConfig, simulate, write_simulation
+from mvm.sim.simulate import SimConfig, simulate, write_simulation
 
 
 def make_clips(root: Path, clips: int, people: int, frames: int) -> None:

@@ -23,8 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_faults import (FAULTS, copy_scene, output_of, persons_of, stale_temporaries, start,  # noqa: E402
-                         state, write_test_scene)
+from test_faults import FAULTS, copy_scene, output_of, persons_of, stale_temporaries, start, state, write_test_scene  # noqa: E402
 
 
 def main() -> None:

@@ -25,7 +25,6 @@ from hypothesis import strategies as st  # noqa: E402
 from rich.console import Console  # noqa: E402
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: E402
 from rich.table import Table  # noqa: E402
-
 from test_fuzz_readers import READERS, Tally, cases, make_seeds, run_case  # noqa: E402
 
 

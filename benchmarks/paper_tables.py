@@ -13,9 +13,9 @@ import logging
 import time
 from pathlib import Path
 
-from mvm.bench import run_bench
-from mvm.config import Config
-from mvm.sim.report import write_bench_report
+from mvm.core.config import Config
+from mvm.eval.bench import run_bench
+from mvm.eval.bench_files import write_bench_report
 
 SHARED_TRAJECTORIES = Path(__file__).resolve().parents[2] / "shared" / "data" / "camera_trajectories"
 

@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 
-from mvm.config import Config
-from mvm.demo import evaluate
-from mvm.reconstruct import reconstruct
-from mvm.simulate import SimConfig, simulate
+from mvm.core.config import Config
+from mvm.core.reconstruct import reconstruct
+from mvm.eval.demo import evaluate
+from mvm.sim.simulate import SimConfig, simulate
 
 
 def main() -> None:

@@ -13,8 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from mvm.config import Config
-from mvm.rig.panoptic_eval import evaluate, load_sample
+from mvm.core.config import Config
+from mvm.eval.panoptic import evaluate, load_sample
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "panoptic" / "160906_band1"
 

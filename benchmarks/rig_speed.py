@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from mvm.config import Config
-from mvm.metrics import match_persons, pose_errors
+from mvm.core.config import Config
+from mvm.eval.metrics import match_persons, pose_errors
 from mvm.rig.instants import Detections, reconstruct_instants
-from mvm.rig.synthetic import detect_views, pose_scores, ring_cameras, walking_people
+from mvm.sim.rig import detect_views, pose_scores, ring_cameras, walking_people
 
 
 def main() -> None:

@@ -4,7 +4,7 @@
                                          [--seed 0] [--threads 1] [--work DIR] [--save CKPT.pt]
 
 Renders a training set and a held-out set of capsule people with 3D supervision
-(``mvm.net.render.demo_datasets``), trains the small network of ``configs/train_cpu_tiny.toml``
+(``mvm.sim.images.demo_datasets``), trains the small network of ``configs/train_cpu_tiny.toml``
 for ``--minutes`` of wall time (the cosine learning-rate schedule follows the time budget),
 and prints, on the held-out renders, OKS AP / AP50 and the relative depth errors of:
 
@@ -28,8 +28,8 @@ import torch
 
 from mvm.net.evaluate import evaluate
 from mvm.net.model import PoseNet
-from mvm.net.render import demo_datasets
 from mvm.net.train import DataSource, load_config, read_checkpoint, train
+from mvm.sim.images import demo_datasets
 
 ROOT = Path(__file__).resolve().parents[1]
 

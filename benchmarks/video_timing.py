@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.sim.video import RenderConfig, default_people, render_video
 from mvm.video.detect import detect_scene
 from mvm.video.frames import FrameOptions, extract_frames
 from mvm.video.pipeline import reconstruct_scene
-from mvm.video.render import RenderConfig, default_people, render_video
 from mvm.video.sfm import SfmOptions, run_sfm
 
 

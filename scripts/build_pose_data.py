@@ -3,8 +3,8 @@
 Sources (see ``../shared/data/README.md``): the CMU motion-capture subjects 01-03 (ASF/AMC)
 and the CMU Panoptic ``160906_band1`` bodies. Writes
 
-* ``pose_bank.npz``: diverse poses in the bank frame (``mvm.posebank``), float32;
-* ``pose_prior.npz``: the 8-component Gaussian mixture over canonical poses (``mvm.prior``).
+* ``pose_bank.npz``: diverse poses in the bank frame (``mvm.core.posebank``), float32;
+* ``pose_prior.npz``: the 8-component Gaussian mixture over canonical poses (``mvm.core.prior``).
 
 Usage: ``python scripts/build_pose_data.py [--data PATH] [--out PATH]`` (needs scikit-learn).
 """
@@ -26,13 +26,11 @@ try:
 except ImportError:
     sys.path.insert(0, str(REPO / "src"))
 
+from mvm.core.keypoints import COCO_KEYPOINTS, MEAN_BONE_LENGTHS_M, bone_lengths  # noqa: E402
+from mvm.core.posebank import LABELS, Z_UP_FROM_Y_DOWN, Z_UP_FROM_Y_UP, classify_poses, select_distinct, to_bank_frame  # noqa: E402
+from mvm.core.prior import COMPONENTS, REG_COVAR, canonicalize, fit_pose_prior  # noqa: E402
 from mvm.io.files import atomic_write_bytes  # noqa: E402
-from mvm.io.mocap import (asf_to_coco17, forward_kinematics, read_amc, read_asf,  # noqa: E402
-                          read_panoptic_coco19, read_panoptic_ids)
-from mvm.keypoints import COCO_KEYPOINTS, MEAN_BONE_LENGTHS_M, bone_lengths  # noqa: E402
-from mvm.posebank import (LABELS, Z_UP_FROM_Y_DOWN, Z_UP_FROM_Y_UP, classify_poses,  # noqa: E402
-                          select_distinct, to_bank_frame)
-from mvm.prior import COMPONENTS, REG_COVAR, canonicalize, fit_pose_prior  # noqa: E402
+from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf, read_panoptic_coco19, read_panoptic_ids  # noqa: E402
 
 #: Poses whose bone lengths fall outside these multiples of the adult means are
 #: reconstruction failures (a few Panoptic bodies) and are left out. [1]

@@ -6,13 +6,13 @@ The Python API mirrors the command line::
     import mvm
     result = mvm.reconstruct_dir("scene/")           # mvm reconstruct scene/
     scene = mvm.read_scene("scene/")
-    result = mvm.reconstruct(scene, mvm.Config(tau=0.25))
+    result = mvm.core.reconstruct(scene, mvm.Config(tau=0.25))
 """
-from .config import Config, load_config
-from .errors import InputError
-from .io.scene_dir import read_poses3d, read_scene, write_scene
-from .reconstruct import Result, reconstruct, reconstruct_dir
-from .scene import Cameras, Persons3D, Poses2D, Scene
+from mvm.core.config import Config, load_config
+from mvm.core.reconstruct import Result, reconstruct, reconstruct_dir
+from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
+from mvm.errors import InputError
+from mvm.io.scene_dir import read_poses3d, read_scene, write_scene
 
 __version__ = "0.1.0"
 

@@ -13,9 +13,9 @@ import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
-from ..errors import InputError
-from .clips import Clip
-from .stages import GPU_STAGES, BatchOptions, StageResult, run_stage
+from mvm.batch.clips import Clip
+from mvm.batch.stages import GPU_STAGES, BatchOptions, StageResult, run_stage
+from mvm.errors import InputError
 
 log = logging.getLogger(__name__)
 

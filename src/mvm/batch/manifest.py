@@ -24,9 +24,9 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterable
 
-from ..errors import InputError
-from .clips import Clip
-from .stages import StageResult
+from mvm.batch.clips import Clip
+from mvm.batch.stages import StageResult
+from mvm.errors import InputError
 
 MANIFEST = Path(".mvm") / "manifest.sqlite"
 STATES = ("pending", "running", "done", "failed", "skipped")

@@ -16,12 +16,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..errors import InputError
-from .clips import Clip, discover_clips
-from .engines import make_engine
-from .manifest import Manifest
-from .stages import (STAGES, BatchOptions, StageResult, checksum, clip_stats, is_present, not_applicable,
-                     output_files)
+from mvm.batch.clips import Clip, discover_clips
+from mvm.batch.engines import make_engine
+from mvm.batch.manifest import Manifest
+from mvm.batch.stages import (
+    STAGES,
+    BatchOptions,
+    StageResult,
+    checksum,
+    clip_stats,
+    is_present,
+    not_applicable,
+    output_files,
+)
+from mvm.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -182,7 +190,7 @@ class _Driver:
 
 def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm") -> Path | None:
     """Merge every exported clip's supervision into ``ROOT/.mvm/training/annotations.json``."""
-    from ..supervision import merge_datasets
+    from mvm.net.supervision import merge_datasets
 
     root = Path(root)
     done = {r["clip"] for r in manifest.stages() if r["stage"] == "export" and r["state"] in ("done", "skipped")}

@@ -18,9 +18,9 @@ from pathlib import Path
 
 from threadpoolctl import threadpool_limits
 
-from ..config import Config
-from ..errors import InputError
-from .clips import Clip
+from mvm.batch.clips import Clip
+from mvm.core.config import Config
+from mvm.errors import InputError
 
 #: The stages in pipeline order.
 STAGES = ("frames", "sfm", "detect", "reconstruct", "export")
@@ -150,20 +150,20 @@ def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
 
 
 def _frames(clip: Clip, options: BatchOptions) -> None:
-    from ..video.frames import FrameOptions, extract_frames
+    from mvm.video.frames import FrameOptions, extract_frames
 
     extract_frames(clip.video, clip.scene, FrameOptions(rate=options.rate, max_frames=options.max_frames,
                                                         width=options.width))
 
 
 def _sfm(clip: Clip, options: BatchOptions) -> None:
-    from ..video.sfm import SfmOptions, run_sfm
+    from mvm.video.sfm import SfmOptions, run_sfm
 
     run_sfm(clip.scene, SfmOptions(focal_px=options.focal_px, max_features=options.max_features, threads=1))
 
 
 def _detect(clip: Clip, options: BatchOptions) -> None:
-    from ..video.detect import DetectOptions, detect_scene
+    from mvm.video.detect import DetectOptions, detect_scene
 
     if options.checkpoint is None and clip.detections is None:
         raise InputError(clip.scene, "detect", "no 2D poses: give --checkpoint, or put detections.json or "
@@ -175,14 +175,14 @@ def _detect(clip: Clip, options: BatchOptions) -> None:
 
 
 def _reconstruct(clip: Clip, options: BatchOptions) -> None:
-    from ..reconstruct import reconstruct_dir
+    from mvm.core.reconstruct import reconstruct_dir
 
     reconstruct_dir(clip.scene, options.config, options.output)
 
 
 def _export(clip: Clip, options: BatchOptions) -> None:
-    from ..io.scene_dir import read_poses3d, read_scene
-    from ..supervision import export_supervision
+    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.net.supervision import export_supervision
 
     scene = Path(clip.scene)
     poses3d = scene / options.output / "poses3d.json"

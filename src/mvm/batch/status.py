@@ -6,10 +6,10 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .clips import discover_clips
-from .manifest import STATES, Manifest
-from .runner import TRAINING_SET
-from .stages import STAGES, checksum, output_files
+from mvm.batch.clips import discover_clips
+from mvm.batch.manifest import STATES, Manifest
+from mvm.batch.runner import TRAINING_SET
+from mvm.batch.stages import STAGES, checksum, output_files
 
 
 def dataset_statistics(rows: list[tuple[str, dict]]) -> dict:

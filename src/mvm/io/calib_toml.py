@@ -22,18 +22,17 @@ returned in file order and addressed by ``name`` (the table's key when ``name`` 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from ..errors import InputError
-from ..scene import Cameras
-from .checks import load_toml, matrix, numbers
-from .paths import check_name
-from .files import atomic_write_text
+from mvm.core.scene import Cameras
+from mvm.errors import InputError
+from mvm.io.checks import load_toml, matrix, numbers
+from mvm.io.files import atomic_write_text
+from mvm.io.paths import check_name
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from mvm.errors import InputError
 
 
 def read_text(path: str | Path) -> str:

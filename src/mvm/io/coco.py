@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
-from .checks import integer, load_json, number, numbers
-from .paths import check_name
+from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
+from mvm.errors import InputError
+from mvm.io.checks import integer, load_json, number, numbers
+from mvm.io.paths import check_name
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..scene import Cameras
-from .colmap_check import check_model
+from mvm.core.scene import Cameras
+from mvm.errors import InputError
+from mvm.io.colmap_check import check_model
 
 log = logging.getLogger(__name__)
 

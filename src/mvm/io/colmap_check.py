@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
-from ..errors import InputError
-from .paths import name_problem
+from mvm.errors import InputError
+from mvm.io.paths import name_problem
 
 FILES = ("cameras", "images", "points3D")
 OPTIONAL_FILES = ("rigs", "frames")

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..keypoints import COCO_KEYPOINTS, INDEX, NUM_JOINTS
+from mvm.core.keypoints import COCO_KEYPOINTS, INDEX, NUM_JOINTS
+from mvm.errors import InputError
 
 #: Metres per inch; an ASF length of ``v`` file units is ``v * INCH_M / length_unit`` metres.
 INCH_M = 0.0254

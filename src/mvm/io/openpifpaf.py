@@ -6,10 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..keypoints import NUM_JOINTS
-from .checks import load_json, number, numbers
-from .openpose import frame_files
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.errors import InputError
+from mvm.io.checks import load_json, number, numbers
+from mvm.io.openpose import frame_files
 
 
 def read_openpifpaf_frame(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..keypoints import NUM_JOINTS
-from .checks import load_json, numbers
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.errors import InputError
+from mvm.io.checks import load_json, numbers
 
 #: Index of each COCO-17 keypoint in OpenPose's BODY_25 and COCO-18 layouts.
 BODY25_TO_COCO17 = np.array([0, 16, 15, 18, 17, 5, 2, 6, 3, 7, 4, 12, 9, 13, 10, 14, 11])

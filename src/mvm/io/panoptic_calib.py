@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..scene import Cameras
-from .calib_toml import RigCalibration
-from .checks import load_json, matrix, numbers
-from .paths import check_name
+from mvm.core.scene import Cameras
+from mvm.errors import InputError
+from mvm.io.calib_toml import RigCalibration
+from mvm.io.checks import load_json, matrix, numbers
+from mvm.io.paths import check_name
 
 
 def _vector(value, n: int, path, field) -> np.ndarray:

@@ -12,7 +12,7 @@ import posixpath
 import re
 from pathlib import Path
 
-from ..errors import InputError
+from mvm.errors import InputError
 
 _DRIVE = re.compile(r"^[A-Za-z]:")
 

@@ -7,14 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..keypoints import COCO_KEYPOINTS, NUM_JOINTS
-from ..scene import Cameras, Persons3D, Poses2D, Scene
-from .coco import coco_keypoints_document, read_coco_keypoints
-from .colmap import read_colmap, undistort_keypoints, write_colmap
-from .files import atomic_replace_dir, atomic_write_json
-from .checks import integer, load_json, number, numbers
-from .paths import resolve_in
+from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
+from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
+from mvm.errors import InputError
+from mvm.io.checks import integer, load_json, number, numbers
+from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
+from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
+from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.paths import resolve_in
 
 log = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from .checks import read_text
+from mvm.errors import InputError
+from mvm.io.checks import read_text
 
 #: Numbers on a frame line: timestamp, 4 intrinsics, 2 distortion zeros, 12 pose entries.
 FIELDS_PER_LINE = 19

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from .checks import read_text
-from .files import atomic_write_text
+from mvm.errors import InputError
+from mvm.io.checks import read_text
+from mvm.io.files import atomic_write_text
 
 #: Rotations taking a world whose up axis is the key to OpenSim's Y-up frame (right-handed).
 #: "+z" is Pose2Sim's conversion (X, Y, Z) -> (Y, Z, X); "-y" suits OpenCV/COLMAP/Panoptic worlds.

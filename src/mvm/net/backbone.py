@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ..errors import InputError
+from mvm.errors import InputError
 
 LOG = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """COCO keypoint data sets (2D-only or with per-keypoint depth) and the training augmentations.
 
 An annotation may carry ``keypoint_depths`` (17 relative depths, 0 where missing) and
-``has_3d`` (17 flags), as written by :func:`mvm.supervision.export_supervision`. Without them
+``has_3d`` (17 flags), as written by :func:`mvm.net.supervision.export_supervision`. Without them
 the PDF gets no target (the paper's 2D-only pretraining).
 
 Augmentations (Section 5 of the paper): a square crop whose side is ``crop_min``–``crop_max``
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import InputError
-from ..keypoints import FLIP_PERMUTATION, NUM_JOINTS
-from .encoder import EncoderConfig, encode
-from .model import IMAGE_MEAN, IMAGE_STD
+from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
+from mvm.errors import InputError
+from mvm.net.encoder import EncoderConfig, encode
+from mvm.net.model import IMAGE_MEAN, IMAGE_STD
 
 LOG = logging.getLogger(__name__)
 

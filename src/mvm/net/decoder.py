@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..keypoints import NUM_JOINTS
-from .headmeta import PAF_CONNECTIONS
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.net.headmeta import PAF_CONNECTIONS
 
 
 @dataclass(frozen=True)

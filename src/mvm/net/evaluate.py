@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..keypoints import COCO_SIGMAS
-from .data import letterbox, load_image, read_annotations, to_tensor
-from .decoder import DecoderConfig, Poses, decode, depth_at
-from .metrics import oks_ap, relative_depth_error
-from .model import PoseNet, fields_from_raw
+from mvm.core.keypoints import COCO_SIGMAS
+from mvm.eval.network import oks_ap, relative_depth_error
+from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
+from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at
+from mvm.net.model import PoseNet, fields_from_raw
 
 LOG = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..keypoints import BONES, COCO_KEYPOINTS, COCO_SKELETON, FLIP_PERMUTATION
+from mvm.core.keypoints import BONES, COCO_KEYPOINTS, COCO_SKELETON, FLIP_PERMUTATION
 
 #: Connections beyond the COCO skeleton that skip one joint (nose–shoulder, shoulder–wrist,
 #: hip–ankle, hip–opposite knee): a pose stays connected when one joint is missing.

@@ -12,7 +12,7 @@ import math
 import torch
 from torch import nn
 
-from .headmeta import PafMeta, PdfMeta, PifMeta
+from mvm.net.headmeta import PafMeta, PdfMeta, PifMeta
 
 #: Components that are positive and predicted as logarithms, per head.
 LOG_COMPONENTS = {"pif": (3, 4), "paf": (5, 6), "pdf": (0, 1)}

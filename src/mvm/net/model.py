@@ -6,9 +6,9 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from .backbone import ARCHITECTURES, ResNet
-from .headmeta import HeadMetas
-from .heads import FieldHead, activate
+from mvm.net.backbone import ARCHITECTURES, ResNet
+from mvm.net.headmeta import HeadMetas
+from mvm.net.heads import FieldHead, activate
 
 #: ImageNet normalization expected by torchvision weights (RGB, images in [0, 1]).
 IMAGE_MEAN = (0.485, 0.456, 0.406)

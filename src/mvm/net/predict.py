@@ -14,16 +14,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import InputError
-from ..io.files import atomic_write_bytes, atomic_write_json
-from ..keypoints import COCO_KEYPOINTS
-from .data import load_image
-from .decoder import DecoderConfig, normalize_depth
-from .evaluate import run_model
-from .headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
-from .model import ModelSpec, PoseNet
-from .scale import calibrate, lift
-from .train import read_checkpoint
+from mvm.core.keypoints import COCO_KEYPOINTS
+from mvm.errors import InputError
+from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.net.data import load_image
+from mvm.net.decoder import DecoderConfig, normalize_depth
+from mvm.net.evaluate import run_model
+from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
+from mvm.net.model import ModelSpec, PoseNet
+from mvm.net.scale import calibrate, lift
+from mvm.net.train import read_checkpoint
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..keypoints import MEAN_BONE_LENGTHS_M, bone_lengths
+from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths
 
 
 def optimal_scale(lengths: np.ndarray, mean_lengths: np.ndarray = MEAN_BONE_LENGTHS_M) -> np.ndarray:

@@ -17,20 +17,20 @@ import json
 import logging
 import math
 import time
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+import tomllib
 import torch
 
-from ..errors import InputError
-from ..io.files import atomic_write_bytes, atomic_write_json
-from .data import AugmentConfig, KeypointDataset, collate, read_annotations
-from .encoder import EncoderConfig
-from .losses import LossWeights, total_loss
-from .model import ModelSpec, PoseNet
+from mvm.errors import InputError
+from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.net.data import AugmentConfig, KeypointDataset, collate, read_annotations
+from mvm.net.encoder import EncoderConfig
+from mvm.net.losses import LossWeights, total_loss
+from mvm.net.model import ModelSpec, PoseNet
 
 LOG = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = "mvm.net.checkpoint/1"
@@ -370,7 +370,7 @@ def _train(cfg: TrainConfig, resume, progress) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     model = PoseNet(cfg.model_spec)
     if cfg.pretrained:
-        from .backbone import load_torchvision_state_dict
+        from mvm.net.backbone import load_torchvision_state_dict
         load_torchvision_state_dict(model.backbone, cfg.pretrained)
     if cfg.init_checkpoint:
         state, meta = read_checkpoint(cfg.init_checkpoint)
@@ -479,7 +479,7 @@ def learning_rate(cfg: TrainConfig, step: int, progress: float) -> float:
 
 def validate(ema_state: dict, cfg: TrainConfig, device: torch.device) -> dict:
     """OKS AP and depth errors of the EMA weights on ``cfg.val``."""
-    from .evaluate import evaluate
+    from mvm.net.evaluate import evaluate
 
     model = PoseNet(cfg.model_spec)
     model.load_state_dict(ema_state)

@@ -7,8 +7,8 @@ interactive 3D view, and a summary page over many scenes.
 """
 from __future__ import annotations
 
-from .overlay import write_overlays
-from .page import write_report
-from .summary import write_summary
+from mvm.report.overlay import write_overlays
+from mvm.report.page import write_report
+from mvm.report.summary import write_summary
 
 __all__ = ["write_overlays", "write_report", "write_summary"]

@@ -9,9 +9,9 @@ import colorsys
 
 import numpy as np
 
-from ..geometry import project
-from ..keypoints import NUM_JOINTS
-from ..metrics import match_persons, matching_precision_recall, pose_errors, procrustes_align
+from mvm.core.geometry import project
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.eval.metrics import match_persons, matching_precision_recall, pose_errors, procrustes_align
 
 #: Colour of 2D poses that belong to no person (RGB).
 UNMATCHED_RGB = (150, 150, 150)

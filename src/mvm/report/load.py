@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io.scene_dir import read_poses3d, read_scene
-from ..scene import Persons3D, Scene
-from ..simulate import GroundTruth
+from mvm.core.scene import Persons3D, Scene
+from mvm.errors import InputError
+from mvm.io.scene_dir import read_poses3d, read_scene
+from mvm.sim.simulate import GroundTruth
 
 log = logging.getLogger(__name__)
 

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io.files import atomic_write_bytes
-from ..keypoints import COCO_SKELETON
-from .analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
-from .load import SceneResult, load_result
+from mvm.core.keypoints import COCO_SKELETON
+from mvm.errors import InputError
+from mvm.io.files import atomic_write_bytes
+from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
+from mvm.report.load import SceneResult, load_result
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +124,7 @@ class ViewRenderer:
         self.frames_dir = result.frames_dir
         self._colmap = None
         if self.frames_dir is not None:
-            from ..io.colmap import read_colmap
+            from mvm.io.colmap import read_colmap
 
             model = read_colmap(result.path / "sparse")
             index = model.index()

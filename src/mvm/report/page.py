@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..io.files import atomic_write_text
-from ..keypoints import COCO_KEYPOINTS, COCO_SKELETON
-from . import analysis
-from .load import SceneResult, load_result
-from .plots import bar_chart
+from mvm import __version__
+from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
+from mvm.io.files import atomic_write_text
+from mvm.report import analysis
+from mvm.report.load import SceneResult, load_result
+from mvm.report.plots import bar_chart
 
 log = logging.getLogger(__name__)
 
@@ -148,7 +148,7 @@ def _persons_table(result: SceneResult, colors: np.ndarray, comparison: dict | N
 
 def _strip(result: SceneResult, count: int, width: int) -> tuple[str, bool]:
     """Sampled frames with overlays as inline JPEGs; and whether real frames were used."""
-    from .overlay import ViewRenderer, _cv2
+    from mvm.report.overlay import ViewRenderer, _cv2
 
     cv2 = _cv2()
     renderer = ViewRenderer(result)
@@ -246,7 +246,7 @@ def report_html(result: SceneResult, strip: str, strip_on_frames: bool, max_poin
     colors = analysis.person_colors(len(result.persons))
     comparison = None
     if result.truth is not None and result.true_person is not None:
-        from ..demo import MATCH_DISTANCE_M
+        from mvm.eval.demo import MATCH_DISTANCE_M
 
         comparison = analysis.compare_with_truth(result.persons.keypoints3d, result.persons.members,
                                                  result.truth.poses3d, result.true_person, MATCH_DISTANCE_M)

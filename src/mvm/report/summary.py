@@ -10,8 +10,8 @@ from html import escape
 from pathlib import Path
 from urllib.parse import quote
 
-from ..io.files import atomic_write_text
-from .page import REPORT_NAME
+from mvm.io.files import atomic_write_text
+from mvm.report.page import REPORT_NAME
 
 log = logging.getLogger(__name__)
 

@@ -6,6 +6,6 @@
 - :mod:`mvm.rig.recap`: reprojection error per keypoint, camera exclusions;
 - :mod:`mvm.rig.pipeline`: ``RIG_DIR`` in, JSON Lines + ``.trc`` + recap out.
 """
-from .options import RigOptions
+from mvm.rig.options import RigOptions
 
 __all__ = ["RigOptions"]

@@ -18,16 +18,16 @@ from typing import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..affinity import affinity
-from ..config import Config
-from ..errors import InputError
-from ..geometry import fundamental_matrices
-from ..matching import greedy_groups
-from ..metrics import reprojection_errors
-from ..reconstruct import merge_duplicates
-from ..refine import refine_poses
-from ..scene import Cameras, Poses2D
-from ..triangulate import gather_groups, ransac_triangulate
+from mvm.core.affinity import affinity
+from mvm.core.config import Config
+from mvm.core.geometry import fundamental_matrices
+from mvm.core.matching import greedy_groups
+from mvm.core.reconstruct import merge_duplicates
+from mvm.core.refine import refine_poses
+from mvm.core.scene import Cameras, Poses2D
+from mvm.core.triangulate import gather_groups, ransac_triangulate
+from mvm.errors import InputError
+from mvm.eval.metrics import reprojection_errors
 
 log = logging.getLogger(__name__)
 
@@ -117,7 +117,7 @@ def pad_by_camera(instant: np.ndarray, camera: np.ndarray, T: int, V: int) -> tu
 def batched_epipolar_distance(F: np.ndarray, unit: np.ndarray, keypoints: np.ndarray,
                               keypoint_threshold: float, min_common_keypoints: int = 1,
                               no_baseline: np.ndarray | None = None, dtype=np.float32) -> np.ndarray:
-    """Eq. 2 for every pair of poses of every instant, as :func:`mvm.affinity.epipolar_distance`.
+    """Eq. 2 for every pair of poses of every instant, as :func:`mvm.core.affinity.epipolar_distance`.
 
     Args:
         F: ``(V, V, 3, 3)`` fundamental matrices (``F[u, v] @ x_v`` is a line in view ``u``).
@@ -186,7 +186,7 @@ def group_instants(cameras: Cameras, detections: Detections, config: Config) -> 
 
 def _merge_per_instant(X: np.ndarray, groups: list[np.ndarray], instant_of: np.ndarray,
                        camera: np.ndarray, distance: float) -> list[np.ndarray] | None:
-    """:func:`mvm.reconstruct.merge_duplicates` within each instant. None when nothing merges."""
+    """:func:`mvm.core.reconstruct.merge_duplicates` within each instant. None when nothing merges."""
     changed = False
     out: list[np.ndarray] = []
     bounds = np.flatnonzero(np.diff(instant_of)) + 1
@@ -202,7 +202,7 @@ def _merge_per_instant(X: np.ndarray, groups: list[np.ndarray], instant_of: np.n
 
 def reconstruct_batch(cameras: Cameras, detections: Detections, config: Config, prior=None) -> InstantPersons:
     """Reconstruct every instant of ``detections`` (one batch). ``prior``: a
-    :class:`mvm.prior.PosePrior` or None (refinement on reprojection only)."""
+    :class:`mvm.core.prior.PosePrior` or None (refinement on reprojection only)."""
     V = len(cameras)
     groups = group_instants(cameras, detections, config)
     if not groups:
@@ -259,7 +259,7 @@ def load_prior(config: Config, prior=None):
     if prior is not None or not config.refine or config.prior_weight <= 0:
         return prior
     try:
-        from ..prior import PosePrior
+        from mvm.core.prior import PosePrior
 
         return PosePrior.load()
     except (ImportError, InputError, OSError) as e:

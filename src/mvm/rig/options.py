@@ -1,4 +1,4 @@
-"""Settings of the rig pipeline that the per-scene :class:`mvm.config.Config` does not hold."""
+"""Settings of the rig pipeline that the per-scene :class:`mvm.core.config.Config` does not hold."""
 from __future__ import annotations
 
 import dataclasses

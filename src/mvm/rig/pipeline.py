@@ -11,15 +11,15 @@ from typing import Callable
 
 import numpy as np
 
-from ..config import Config
-from ..io.files import atomic_write_json, atomic_write_text
-from ..io.trc import to_opensim, write_trc
-from ..keypoints import COCO_KEYPOINTS
-from .instants import InstantPersons, reconstruct_instants
-from .options import RigOptions
-from .recap import recap
-from .rigdir import RigData, read_rig
-from .tracking import link_tracks, smooth_tracks, track_series
+from mvm.core.config import Config
+from mvm.core.keypoints import COCO_KEYPOINTS
+from mvm.io.files import atomic_write_json, atomic_write_text
+from mvm.io.trc import to_opensim, write_trc
+from mvm.rig.instants import InstantPersons, reconstruct_instants
+from mvm.rig.options import RigOptions
+from mvm.rig.recap import recap
+from mvm.rig.rigdir import RigData, read_rig
+from mvm.rig.tracking import link_tracks, smooth_tracks, track_series
 
 log = logging.getLogger(__name__)
 

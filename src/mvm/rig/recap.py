@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..keypoints import COCO_KEYPOINTS
-from .instants import InstantPersons
+from mvm.core.keypoints import COCO_KEYPOINTS
+from mvm.rig.instants import InstantPersons
 
 
 def recap(persons: InstantPersons, camera_names, n_instants: int, n_detections: int) -> dict:

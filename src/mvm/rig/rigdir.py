@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io.calib_toml import RigCalibration, read_calib_toml, undistort_points
-from ..io.openpifpaf import read_openpifpaf_frame
-from ..io.openpose import frame_files, frame_number, read_openpose_frame
-from .instants import Detections
+from mvm.errors import InputError
+from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
+from mvm.io.openpifpaf import read_openpifpaf_frame
+from mvm.io.openpose import frame_files, frame_number, read_openpose_frame
+from mvm.rig.instants import Detections
 
 log = logging.getLogger(__name__)
 
@@ -114,8 +114,8 @@ def find_calibration(rig_dir: Path) -> Path:
 def read_calibration(path: Path) -> tuple[RigCalibration, object]:
     """A calibration file or COLMAP model -> ``(calibration, colmap model or None)``."""
     if path.is_dir():
-        from ..io.colmap import read_colmap
-        from ..scene import Cameras
+        from mvm.core.scene import Cameras
+        from mvm.io.colmap import read_colmap
 
         model = read_colmap(path)
         c = model.cameras
@@ -124,7 +124,7 @@ def read_calibration(path: Path) -> tuple[RigCalibration, object]:
         return RigCalibration(cameras, tuple(np.zeros(0) for _ in names), np.zeros(len(names), bool),
                               {"source": str(path)}), model
     if path.suffix.lower() == ".json":
-        from ..io.panoptic_calib import read_panoptic_calibration
+        from mvm.io.panoptic_calib import read_panoptic_calibration
 
         return read_panoptic_calibration(path), None
     return read_calib_toml(path), None
@@ -166,7 +166,7 @@ def _source_format(path: Path) -> str:
 def _read_source(path: Path, fmt: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """``[(frame, keypoints (K, 17, 3), scores (K,))]`` of one camera."""
     if fmt == "coco":
-        from ..io.coco import read_coco_keypoints
+        from mvm.io.coco import read_coco_keypoints
 
         coco = read_coco_keypoints(path)
         frame_of_image = np.array([frame_number(Path(n)) for n in coco.file_names], dtype=int)
@@ -243,7 +243,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     calibration = subset_calibration(calibration, np.array(used))
     model = None
     if colmap_model is not None:
-        from ..io.colmap import ColmapModel
+        from mvm.io.colmap import ColmapModel
 
         model = ColmapModel(colmap_model.cameras.subset(np.array(used)),
                             tuple(colmap_model.colmap_cameras[c] for c in used), colmap_model.points3d, ())
@@ -265,7 +265,7 @@ def undistort(calibration: RigCalibration, keypoints: np.ndarray, camera: np.nda
     out = np.array(keypoints, dtype=float)
     present = out[..., 2] > 0
     if colmap_model is not None:
-        from ..io.colmap import undistort_keypoints
+        from mvm.io.colmap import undistort_keypoints
 
         xy = undistort_keypoints(colmap_model, camera, out[..., :2])
         out[..., :2] = np.where(present[..., None], xy, 0.0)

@@ -118,7 +118,7 @@ def pool_features(features: np.ndarray, keypoints: np.ndarray, stride: float,
     ``features: (C, h, w)`` at ``stride`` pixels per cell, ``keypoints: (N, 17, 3)`` pixels of
     the network input -> ``(N, C)`` unit length (zero when no bone is visible).
     """
-    from ..keypoints import BONES
+    from mvm.core.keypoints import BONES
 
     features = np.asarray(features, dtype=float)
     C, h, w = features.shape

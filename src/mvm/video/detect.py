@@ -23,13 +23,13 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ..errors import InputError
-from ..io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
-from ..io.files import atomic_write_json
-from ..keypoints import NUM_JOINTS
-from .appearance import colour_descriptor, pool_features
-from ..io.paths import resolve_in
-from .frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.errors import InputError
+from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
+from mvm.io.files import atomic_write_json
+from mvm.io.paths import resolve_in
+from mvm.video.appearance import colour_descriptor, pool_features
+from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +108,7 @@ def detect_format(path: str | Path) -> str:
 
 def _frame_numbers(scene: Path, names: list[str]) -> dict[int, int]:
     """Frame number -> index into ``names`` (numbers from frames.json, else from the names)."""
-    from ..io.openpose import frame_number
+    from mvm.io.openpose import frame_number
 
     if (scene / FRAMES_INDEX).is_file():
         index = read_frame_index(scene)
@@ -207,10 +207,10 @@ def import_detections(source: str | Path, scene: str | Path, names: list[str],
         return coco.keypoints[keep], index[keep], coco.score[keep]
     numbers = _frame_numbers(scene, names)
     if fmt == "openpifpaf":
-        from ..io.openpifpaf import read_openpifpaf_dir
+        from mvm.io.openpifpaf import read_openpifpaf_dir
 
         return _from_per_frame(read_openpifpaf_dir(source), numbers, source)
-    from ..io.openpose import read_openpose_dir
+    from mvm.io.openpose import read_openpose_dir
 
     return _from_per_frame(read_openpose_dir(source), numbers, source)
 
@@ -223,8 +223,8 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions):
     network of ``mvm.net`` (imported lazily: torch is an optional dependency). The appearance
     pools the backbone's last feature map (the paper's "last conv layer") along the limbs."""
     try:
-        from ..net.evaluate import run_model
-        from ..net.predict import load_model
+        from mvm.net.evaluate import run_model
+        from mvm.net.predict import load_model
     except ImportError as e:
         raise InputError(checkpoint, None, f"the pose network (mvm.net) is not available: {e}") from None
     model, _ = load_model(checkpoint, device=options.device)
@@ -254,7 +254,7 @@ def _registered_names(scene: Path) -> set[str] | None:
         return None
     import pycolmap
 
-    from ..io.colmap import find_model_dir
+    from mvm.io.colmap import find_model_dir
 
     model_dir = find_model_dir(sparse)
     try:

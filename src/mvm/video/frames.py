@@ -12,9 +12,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from ..errors import InputError
-from ..io.files import atomic_write_bytes, atomic_write_json
-from ..io.paths import check_name
+from mvm.errors import InputError
+from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.paths import check_name
 
 log = logging.getLogger(__name__)
 

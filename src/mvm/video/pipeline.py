@@ -13,12 +13,12 @@ from typing import Callable
 
 import numpy as np
 
-from ..config import Config
-from ..io.files import atomic_replace_dir, atomic_write_json
-from .detect import DetectOptions, Detections, detect_scene
-from .frames import FrameIndex, FrameOptions, extract_frames
-from .scale import people_scale
-from .sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
+from mvm.core.config import Config
+from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.video.detect import Detections, DetectOptions, detect_scene
+from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
+from mvm.video.scale import people_scale
+from mvm.video.sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ def scale_model(scene: str | Path, s: float) -> None:
     """Multiply the world of ``scene/sparse`` by ``s`` (camera centres and points)."""
     import pycolmap
 
-    from ..io.colmap import find_model_dir
+    from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
     rec = pycolmap.Reconstruction(str(find_model_dir(scene / "sparse")))
@@ -81,14 +81,14 @@ def scale_model(scene: str | Path, s: float) -> None:
 
 def reconstruct_scene(scene: str | Path, config: Config | None = None, output: str = "mvm",
                       metric_scale: bool = True, force: bool = False) -> ReconstructReport:
-    """Reconstruct ``scene`` (``mvm.reconstruct.reconstruct_dir``) and give it a metric scale
+    """Reconstruct ``scene`` (``mvm.core.reconstruct.reconstruct_dir``) and give it a metric scale
     from the people's bone lengths, recorded under ``"scale"`` in ``poses3d.json``.
 
     With ``metric_scale`` the model in ``sparse/`` and the 3D poses are multiplied by s*, so
     that the world is in metres; otherwise s* is only recorded.
     """
-    from ..io.scene_dir import poses3d_document, write_poses3d
-    from ..reconstruct import reconstruct_dir
+    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.io.scene_dir import poses3d_document, write_poses3d
 
     scene = Path(scene)
     out = scene / output / "poses3d.json"

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io.files import atomic_replace_dir, atomic_write_json
-from .frames import FRAMES_DIR, list_frames
+from mvm.errors import InputError
+from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
 
@@ -227,7 +227,7 @@ def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
     ``scene/sparse`` and write the report."""
     import pycolmap
 
-    from ..io.colmap import find_model_dir
+    from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
@@ -257,10 +257,10 @@ def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
     """Cameras from a RealEstate10K / MannequinChallenge camera file (``mvm.io.trajectory``),
     matched to the frames of ``scene`` by timestamp (within half a frame), written to
     ``scene/sparse``. Frames without a line are excluded with a warning."""
-    from ..io.colmap import write_colmap
-    from ..io.trajectory import read_trajectory
-    from ..scene import Cameras
-    from .frames import read_frame_index
+    from mvm.core.scene import Cameras
+    from mvm.io.colmap import write_colmap
+    from mvm.io.trajectory import read_trajectory
+    from mvm.video.frames import read_frame_index
 
     scene = Path(scene)
     traj = read_trajectory(path)

@@ -18,7 +18,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
-from conftest import random_cameras, standing_poses  # noqa: E402
+from helpers import random_cameras, standing_poses  # noqa: E402
 
 
 def _cameras(V=3):
@@ -247,8 +247,8 @@ def colmap_txt() -> None:
 
 
 def scene() -> None:
+    from mvm.core.scene import Poses2D
     from mvm.io.scene_dir import write_scene
-    from mvm.scene import Poses2D
 
     cams = _cameras()
     kp = _keypoints(cams)
@@ -274,8 +274,8 @@ def scene() -> None:
 
 
 def poses3d() -> None:
+    from mvm.core.scene import Persons3D, Poses2D
     from mvm.io.scene_dir import poses3d_document
-    from mvm.scene import Persons3D, Poses2D
 
     X = standing_poses(2)
     persons = Persons3D(X, np.full((2, 17), 0.8), [np.array([0, 1]), np.array([2])], np.full((2, 17), 3),

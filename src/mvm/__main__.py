@@ -1,0 +1,4 @@
+"""``python -m mvm``: the command line."""
+from mvm.cli import run
+
+run()

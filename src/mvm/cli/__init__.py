@@ -1,0 +1,4 @@
+"""The `mvm` command line: one subcommand per library function."""
+from mvm.cli.main import main, run
+
+__all__ = ["main", "run"]

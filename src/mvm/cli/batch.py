@@ -1,0 +1,157 @@
+"""``mvm batch`` and ``mvm status``: a whole data set on a local process pool or Ray,
+resumable, with a manifest of every clip and stage (:mod:`mvm.batch`)."""
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from mvm.errors import InputError
+
+console = Console(stderr=True)
+out = Console()
+
+
+def _fail(error: Exception) -> None:
+    click.echo(f"mvm: error: {error}", err=True)
+    sys.exit(2)
+
+
+def _sets(pairs: tuple[str, ...]) -> dict:
+    values = {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise InputError("--set", pair, "expected KEY=VALUE")
+        key, value = pair.split("=", 1)
+        values[key.strip()] = value.strip()
+    return values
+
+
+def _f(value, digits: int = 1) -> str:
+    if value is None or (isinstance(value, float) and value != value):
+        return "–"
+    return f"{value:,.{digits}f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else str(value)
+
+
+@click.command("batch")
+@click.argument("root", type=click.Path(file_okay=False))
+@click.option("--stages", default=None, metavar="LIST",
+              help="Comma-separated stages to run: frames,sfm,detect,reconstruct,export (default: all).")
+@click.option("--engine", type=click.Choice(["local", "ray"]), default="local", show_default=True,
+              help="A local process pool, or Ray (a local instance or the cluster at --address).")
+@click.option("--address", default=None, help="Ray cluster to use, e.g. ray://head:10001 or auto.")
+@click.option("--workers", type=click.IntRange(1), default=None,
+              help="Parallel stages (default: the cores of this machine, or the Ray cluster's CPUs).")
+@click.option("--retries", type=click.IntRange(0), default=2, show_default=True,
+              help="Further attempts of a stage after a transient failure (a lost worker, an OS error).")
+@click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
+              help="The pose network for detect (default: each clip's imported detections).")
+@click.option("--max-frames", type=int, default=None, help="frames: keep at most this many frames per clip.")
+@click.option("--rate", type=float, default=None, help="frames: frames per second to keep.")
+@click.option("--width", type=int, default=None, help="frames: resize to this width (px).")
+@click.option("--focal", "focal_px", type=float, default=None, help="sfm: known focal length (px).")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings of the reconstruction.")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
+def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_frames, rate, width, focal_px,
+              config_path, sets):
+    """Run every clip of ROOT (videos and scene directories) through the pipeline.
+
+    Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
+    not done, a failed clip is recorded with its error while the others go on, and the merged
+    training set of all exported clips is written to ROOT/.mvm/training/annotations.json.
+    Exit status 2 when a clip failed.
+    """
+    from mvm.batch import BatchOptions, parse_stages, run_batch
+    from mvm.core.config import load_config
+
+    try:
+        chosen = parse_stages(stages)
+        options = BatchOptions(config=load_config(config_path, _sets(sets)), checkpoint=checkpoint,
+                               max_frames=max_frames, rate=rate, width=width, focal_px=focal_px)
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
+                      transient=True) as bar:
+            task = bar.add_task("clips", total=None, info="")
+
+            def update(p):
+                bar.update(task, total=p.clips, completed=p.done + p.failed,
+                           info=f"{p.done} done, {p.failed} failed, {p.running} running, {p.per_second:.2f} clips/s")
+
+            summary = run_batch(root, chosen, engine, workers, address, retries, options, update)
+    except InputError as e:
+        _fail(e)
+    except KeyboardInterrupt:
+        console.print(f"interrupted: finished stages are recorded; `mvm batch {root}` continues", style="yellow")
+        sys.exit(130)
+    table = Table(title=f"mvm batch: {root} (run {summary.run}, {summary.engine}, {summary.workers} workers)")
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    rows = [("clips", str(summary.clips)), ("done", str(summary.done)), ("failed", str(len(summary.failed))),
+            ("held by another run", str(summary.elsewhere)),
+            ("stages committed (retried)", f"{summary.committed} ({summary.retried})"),
+            ("stale claims recovered", str(summary.recovered)),
+            ("wall time (s)", f"{summary.seconds:.1f}"), ("clips per second", f"{summary.clips_per_second:.3f}")]
+    rows += [(f"worker seconds: {k}", f"{v:.1f}") for k, v in summary.stage_seconds.items() if v > 0]
+    if summary.training_set:
+        rows.append(("training set", str(summary.training_set)))
+    for row in rows:
+        table.add_row(*row)
+    out.print(table)
+    for clip, stage, error in summary.failed[:20]:
+        console.print(f"failed: {clip}: {stage}: {error}", markup=False, highlight=False, soft_wrap=True)
+    if len(summary.failed) > 20:
+        console.print(f"… and {len(summary.failed) - 20} more (mvm status {root})")
+    if summary.failed:
+        sys.exit(2)
+
+
+@click.command("status")
+@click.argument("root", type=click.Path(file_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the status as one JSON document.")
+@click.option("--verify", is_flag=True, help="Hash every committed stage's files again and compare.")
+def status_cmd(root, as_json, verify):
+    """What is done, failed and pending in ROOT, and the data set's statistics."""
+    from mvm.batch import batch_status
+
+    try:
+        status = batch_status(root, verify=verify)
+    except InputError as e:
+        _fail(e)
+    if as_json:
+        click.echo(json.dumps(status.to_json(), indent=1))
+        return
+    c = status.clips
+    stages = Table(title=f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
+                         f"{c['running']} running, {c['pending']} pending ({status.runs} runs)")
+    stages.add_column("stage")
+    for state in ("done", "skipped", "failed", "running", "pending"):
+        stages.add_column(state, justify="right")
+    stages.add_column("worker s", justify="right")
+    for stage, counts in status.stages.items():
+        stages.add_row(stage, *(str(counts[s]) for s in ("done", "skipped", "failed", "running", "pending")),
+                       _f(status.seconds.get(stage)))
+    out.print(stages)
+    s = status.statistics
+    data = Table(title="data set")
+    data.add_column("statistic")
+    data.add_column("value", justify="right")
+    for label, key in (("sequences", "sequences"), ("clips", "clips"), ("frames", "frames"),
+                       ("unmatched 2D poses", "unmatched_poses2d"), ("matched 2D poses", "matched_poses2d"),
+                       ("generated 3D poses", "poses3d"), ("avg. clips per sequence", "clips_per_sequence"),
+                       ("avg. frames per clip", "frames_per_clip"),
+                       ("avg. 2D joints per triangulation", "joints2d_per_triangulation")):
+        data.add_row(label, _f(s[key]))
+    out.print(data)
+    for clip, stage, error in status.failed[:20]:
+        out.print(f"failed: {clip}: {stage}: {error}", markup=False, highlight=False, soft_wrap=True)
+    if status.training_set:
+        out.print(f"training set: {status.training_set}")
+    for clip, stage in status.mismatched:
+        out.print(f"checksum mismatch: {clip}: {stage}", style="red")
+    if status.mismatched:
+        sys.exit(1)

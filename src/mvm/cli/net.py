@@ -1,0 +1,97 @@
+"""``mvm export | train | predict``: supervision from reconstructed scenes, and the network.
+
+Each command is a thin call of one library function; a bad input raises
+:class:`mvm.errors.InputError`, which the ``mvm`` command prints as one line (exit status 2).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import tomllib
+
+from mvm.errors import InputError
+
+
+def _parse_sets(pairs: tuple[str, ...]) -> dict:
+    """``("lr=0.01", "backbone='resnet18'")`` -> ``{"lr": 0.01, "backbone": "resnet18"}`` (TOML values;
+    a bare word is taken as a string)."""
+    out = {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise InputError("--set", pair, "expected KEY=VALUE")
+        key, value = (s.strip() for s in pair.split("=", 1))
+        try:
+            out[key] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = value
+    return out
+
+
+@click.command("export")
+@click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
+@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Dataset directory to write (annotations.json, images/).")
+@click.option("--link", type=click.Choice(["symlink", "copy", "none"]), default="symlink", show_default=True,
+              help="How the frames get into the dataset.")
+@click.option("--output-name", default="mvm", show_default=True,
+              help="Directory of each scene holding poses3d.json.")
+@click.option("--min-keypoints", default=3, show_default=True, type=int,
+              help="Persons with fewer labelled joints in a frame get no annotation there.")
+def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int) -> None:
+    """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
+    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.net.supervision import export_supervision
+
+    def items():
+        for scene_dir in scenes:
+            poses3d = scene_dir / output_name / "poses3d.json"
+            if not poses3d.is_file():
+                raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+            frames = scene_dir / "frames"
+            yield read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
+
+    path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
+    import json
+
+    data = json.loads(path.read_text())
+    click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
+               f"from {len(scenes)} scene(s)")
+
+
+@click.command("train")
+@click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override a setting, e.g. --set steps=1000 --set backbone=resnet18 (repeatable).")
+@click.option("--resume", default=None, metavar="PATH|auto",
+              help="Continue from a checkpoint .pt, or 'auto' for the latest one in out_dir.")
+def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
+    """Train the monocular 3D pose network with the settings of CONFIG (TOML)."""
+    from mvm.net.train import load_config, train
+
+    cfg = load_config(config, _parse_sets(sets))
+    path = train(cfg, resume=resume)
+    import json
+
+    meta = json.loads(path.with_suffix(".json").read_text())
+    click.echo(f"{path}: step {meta['step']}, {meta.get('images_per_second', float('nan')):.1f} images/s "
+               f"on {meta.get('device', '?')}")
+
+
+@click.command("predict")
+@click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="A checkpoint .pt written by mvm train (its .json beside it).")
+@click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Where predictions.json and the overlays go.")
+@click.option("--focal", "focal_px", default=None, type=float, help="Focal length in pixels (default: the long edge).")
+@click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
+def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal_px: float | None,
+                input_size: int | None) -> None:
+    """Multi-person 2D poses, relative depths and calibrated 3D poses of IMAGES."""
+    from mvm.net.predict import predict
+
+    results = predict(list(images), checkpoint, out_dir, input_size=input_size, focal_px=focal_px)
+    for r in results:
+        click.echo(f"{r['image']}: {len(r['persons'])} people")
+    click.echo(f"{out_dir / 'predictions.json'}")

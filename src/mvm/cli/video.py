@@ -1,0 +1,219 @@
+"""``mvm run | frames | sfm | detect``: from a video file to a scene directory and 3D poses.
+
+Each command is a thin call of one library function in :mod:`mvm.video` and prints a recap.
+"""
+from __future__ import annotations
+
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from mvm.errors import InputError
+
+console = Console(stderr=True)
+out = Console()
+
+
+def _fail(error: Exception) -> None:
+    click.echo(f"mvm: error: {error}", err=True)
+    sys.exit(2)
+
+
+@contextmanager
+def _progress():
+    """A rich progress bar; yields ``update(stage, done, total)``."""
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console, transient=True) as progress:
+        tasks: dict[str, int] = {}
+
+        def update(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(stage, total=total)
+            progress.update(tasks[stage], completed=done, total=total)
+
+        yield update
+
+
+def _table(title: str, rows) -> None:
+    table = Table(title=title)
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    for key, value in rows:
+        table.add_row(key, value)
+    out.print(table)
+
+
+def _f(value, digits: int = 2) -> str:
+    if value is None or (isinstance(value, float) and value != value):
+        return "–"
+    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+frame_options = [
+    click.option("--rate", type=float, default=None, help="Frames per second to keep (default: all)."),
+    click.option("--max-frames", type=int, default=None, help="Keep at most this many frames, evenly spread."),
+    click.option("--width", type=int, default=None, help="Resize frames to this width (px)."),
+    click.option("--blur-ratio", type=float, default=0.35, show_default=True,
+                 help="Skip frames sharper than less than this fraction of the median (0: keep all)."),
+]
+sfm_options = [
+    click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
+                 help="COLMAP camera model shared by all frames."),
+    click.option("--focal", "focal_px", type=float, default=None, help="Known focal length (px)."),
+    click.option("--fix-focal", is_flag=True, help="Keep the known focal length fixed in bundle adjustment."),
+    click.option("--max-features", type=int, default=4096, show_default=True, help="SIFT features per frame."),
+    click.option("--vocab-tree", type=click.Path(dir_okay=False), default=None,
+                 help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
+]
+detect_options = [
+    click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
+                 help="Checkpoint of mvm's pose network (local file)."),
+    click.option("--import", "source", type=click.Path(), default=None,
+                 help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
+    click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
+                 default=None, help="Format of --import (guessed by default)."),
+    click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default="auto",
+                 show_default=True, help="Appearance descriptor stored with each pose."),
+]
+
+
+def _options(options):
+    def wrap(f):
+        for option in reversed(options):
+            f = option(f)
+        return f
+    return wrap
+
+
+def _frame_options(rate, max_frames, width, blur_ratio):
+    from mvm.video.frames import FrameOptions
+
+    return FrameOptions(rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio)
+
+
+def _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree):
+    from mvm.video.sfm import SfmOptions
+
+    return SfmOptions(camera_model=camera_model, focal_px=focal_px, refine_focal=not fix_focal,
+                      max_features=max_features, vocab_tree=vocab_tree)
+
+
+def _sfm_rows(report):
+    total = len(report.registered) + len(report.unregistered)
+    return [("cameras from", report.source), ("registered frames", f"{len(report.registered)} / {total}"),
+            ("reprojection error (px)", _f(report.reprojection_error_px)), ("focal length (px)", _f(report.focal_px, 1)),
+            ("3D points", str(report.points))]
+
+
+@click.command("frames")
+@click.argument("video", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@_options(frame_options)
+@click.option("--force", is_flag=True, help="Redo even if frames.json exists.")
+def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
+    """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
+    from mvm.video.frames import extract_frames
+
+    try:
+        with _progress() as update:
+            index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
+                                   lambda d, t: update("frames", d, t))
+    except (InputError, ValueError) as e:
+        _fail(e)
+    _table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
+                          ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
+
+
+@click.command("sfm")
+@click.argument("scene", type=click.Path(file_okay=False))
+@_options(sfm_options)
+@click.option("--cameras", type=click.Path(), default=None,
+              help="Use these cameras instead of SfM: a COLMAP model directory or a RealEstate10K/"
+                   "MannequinChallenge camera file.")
+@click.option("--force", is_flag=True, help="Redo even if the model exists.")
+def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, cameras, force):
+    """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
+    from mvm.video import sfm
+
+    try:
+        if cameras is None:
+            report = sfm.run_sfm(scene, _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree), force)
+        elif Path(cameras).is_dir():
+            report = sfm.import_colmap(cameras, scene)
+        else:
+            report = sfm.import_trajectory(cameras, scene)
+    except (InputError, ValueError) as e:
+        _fail(e)
+    _table("mvm sfm", _sfm_rows(report))
+    if report.unregistered:
+        console.print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
+
+
+@click.command("detect")
+@click.argument("scene", type=click.Path(file_okay=False))
+@_options(detect_options)
+@click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
+def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
+    """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
+    from mvm.video.detect import DetectOptions, detect_scene
+
+    if (checkpoint is None) == (source is None):
+        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
+    try:
+        with _progress() as update:
+            d = detect_scene(scene, source, checkpoint, fmt, DetectOptions(appearance=appearance), force,
+                             lambda done, total: update("detecting", done, total))
+    except (InputError, ValueError) as e:
+        _fail(e)
+    _table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
+                          ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
+
+
+
+@click.command("run")
+@click.argument("video", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@_options(frame_options + sfm_options + detect_options)
+@click.option("--cameras", type=click.Path(), default=None,
+              help="Use these cameras instead of SfM (COLMAP model directory or camera file).")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings of the reconstruction.")
+@click.option("--metric/--no-metric", default=True, show_default=True,
+              help="Scale the world to metres from the people's bone lengths.")
+@click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
+              help="Redo this stage and the ones after it (repeatable).")
+def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
+            vocab_tree, checkpoint, source, fmt, appearance, cameras, config_path, metric, force):
+    """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
+    from mvm.core.config import load_config
+    from mvm.video.detect import DetectOptions
+    from mvm.video.pipeline import run_video
+
+    if (checkpoint is None) == (source is None):
+        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
+    try:
+        config = load_config(config_path)
+        with _progress() as update:
+            r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
+                          cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
+                          sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
+                          detect_options=DetectOptions(appearance=appearance), config=config,
+                          metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
+    except (InputError, ValueError) as e:
+        _fail(e)
+    rec = r.reconstruction
+    scale = rec.scale.to_json()
+    rows = [("frames", str(len(r.frames.names)))] + _sfm_rows(r.sfm) + [
+        ("2D poses", str(len(r.detections.keypoints))), ("persons", str(rec.persons)),
+        ("E_R (px)", _f(rec.metrics.get("E_R_px"))),
+        ("scale", f"{scale['source']}: {_f(scale['sfm_metres_per_unit'], 4)} m per SfM unit"),
+        ("time: frames / sfm / detect / reconstruct (s)", " / ".join(_f(r.seconds[k], 1) for k in
+                                                                   ("frames", "sfm", "detect", "reconstruct"))),
+    ]
+    _table(f"mvm run: {scene}", rows)
+    out.print(f"result: {rec.path}")

@@ -1,0 +1,182 @@
+"""The affinity of two 2D poses (paper Eq. 1, 2): A = S · 1 / (1 + exp(γ D)).
+
+Units of D. Eq. 2 averages point-to-epipolar-line distances over the joints both poses have.
+The paper measures them in normalized image coordinates; here a distance measured in view
+``u``'s pixels is divided by ``distance_scale · f_u`` (``f_u`` that view's focal length in
+pixels). The unit is therefore a fixed *angle* (``distance_scale`` radians, 0.01 ≈ 0.57° by
+default), the same for 640-px and 1920-px frames of the same lens, and γ is dimensionless.
+
+With γ = 1 and distance_scale = 0.01, D = 0 gives A = 0.5 · S, an error of 1% of the focal
+length gives 0.27 · S and 3% gives 0.05 · S.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mvm.core.geometry import skew
+from mvm.core.scene import Cameras
+
+#: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
+#: of a block of pose pairs, ``17 × rows × columns`` numbers.
+BLOCK_BYTES = 64 * 2**20
+
+
+def affinity_bytes(n_poses: int, appearance: bool, dtype=np.float32) -> int:
+    """Peak memory of the affinity of ``n_poses`` 2D poses (:func:`mvm.core.reconstruct.match`).
+
+    The ``N × N`` distance matrix becomes the affinity matrix in place (``N² · 4`` bytes in
+    float32); with appearance descriptors the ``N × N`` similarity S adds as much again. The
+    rest is per view pair in blocks of at most :data:`BLOCK_BYTES`. So memory grows as
+    ``4 N²`` bytes (``8 N²`` with appearance): 10,000 poses take 400 MB (800 MB).
+    """
+    item = np.dtype(dtype).itemsize
+    return int(n_poses) ** 2 * item * (2 if appearance else 1) + BLOCK_BYTES
+
+
+def _block_rows(columns: int, row_bytes_per_column: int, block_bytes: int) -> int:
+    return max(1, block_bytes // max(1, columns * row_bytes_per_column))
+
+
+def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
+                      keypoint_threshold: float, distance_scale: float,
+                      min_common_keypoints: int = 1, dtype=np.float32,
+                      block_bytes: int = BLOCK_BYTES) -> np.ndarray:
+    """Geometric distance D (Eq. 2) of every pair of 2D poses.
+
+    Args:
+        cameras: the ``V`` views.
+        keypoints: ``(N, 17, 3)`` x, y (pixels), confidence.
+        view: ``(N,)`` view of each pose.
+        keypoint_threshold: keypoints below this confidence are missing.
+        distance_scale: the unit of D as a fraction of the focal length.
+        min_common_keypoints: pairs sharing fewer keypoints get D = inf.
+        block_bytes: working memory of one block (see below).
+    Returns:
+        ``D: (N, N)`` symmetric; ``inf`` for poses of the same view and for pairs whose
+        distance overflows; NaN (undefined) for pairs of views with no baseline (no epipolar
+        geometry) and pairs with too few common keypoints.
+
+    Cost: for each view ``v`` with ``n_v`` poses, ``17 · n_v · (N − n_v)`` point-line
+    distances (pairs within one view are never computed: they cannot match), i.e. at most
+    ``O(17 · N²)`` multiply-adds in ``dtype``. Memory: the ``(N, N)`` result plus blocks of at
+    most ``block_bytes`` (see :func:`affinity_bytes`), whatever the number of poses per view.
+    """
+    keypoints = np.asarray(keypoints, dtype=float)
+    view = np.asarray(view)
+    N, J = keypoints.shape[:2]
+    item = np.dtype(dtype).itemsize
+    sums = np.zeros((N, N), dtype=dtype)
+    if N == 0:
+        return sums
+    visible = keypoints[:, :, 2] >= max(keypoint_threshold, 1e-9)
+    homogeneous = np.concatenate([keypoints[:, :, :2], np.ones((N, J, 1))], axis=2)
+    homogeneous[~visible] = 0.0                                     # missing joints add nothing
+
+    used = np.unique(view)
+    centers = cameras.centers
+    baseline = np.linalg.norm(centers[used][:, None] - centers[used][None], axis=-1)
+    scale = np.median(baseline) if len(used) > 1 else 1.0
+    no_baseline = np.zeros((len(cameras), len(cameras)), dtype=bool)
+    no_baseline[np.ix_(used, used)] = baseline <= 1e-9 * max(scale, 1e-12)
+
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # Every keypoint as a world ray in Plücker coordinates (moment m = C × b, direction b):
+        # the epipolar line of that keypoint in view i is K_i^-T R_i (m − C_i × b) = M_i [m; b].
+        K_inv = np.linalg.inv(cameras.K)
+        b = np.einsum("nba,nbc,njc->nja", cameras.R[view], K_inv[view], homogeneous)   # R^T K^-1 x
+        plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
+        M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
+                      np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
+        unit = distance_scale * cameras.focal
+        plucker = np.ascontiguousarray(plucker.transpose(1, 2, 0), dtype=dtype)         # (J, 6, N)
+        M = M.astype(dtype)
+        points = homogeneous.transpose(1, 0, 2).astype(dtype)                      # (J, N, 3)
+
+        # sums[u, n]: Σ_joints distance of x_u to the epipolar line of x_n, in view(u)'s unit,
+        # for poses of different views, one view against all others, in row blocks.
+        for v in used:
+            rows = np.flatnonzero(view == v)
+            cols = np.flatnonzero(view != v)
+            if len(cols) == 0:
+                continue
+            lines = np.matmul(M[v], plucker[:, :, cols])                            # (J, 3, n_c) in view v
+            # Normalize so that x · l is a distance in view v's unit; l = 0 stays 0.
+            lines *= (1.0 / unit[v]) / (np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2) + 1e-30)[:, None]
+            step = _block_rows(len(cols), J * item, block_bytes)
+            for r0 in range(0, len(rows), step):
+                chunk = rows[r0:r0 + step]
+                d = np.matmul(points[:, chunk], lines)                              # (J, r, n_c)
+                sums[chunk[:, None], cols] = np.abs(d, out=d).sum(axis=0)
+
+        # Symmetrize in place, block pair by block pair: D = (s + sᵀ) / (2 · common).
+        visible_f = visible.astype(dtype)
+        step = max(1, int(np.sqrt(block_bytes / (4 * item))))
+        min_common = max(min_common_keypoints, 1)
+        for i0 in range(0, N, step):
+            i = slice(i0, min(i0 + step, N))
+            for j0 in range(i0, N, step):
+                j = slice(j0, min(j0 + step, N))
+                total = sums[i, j] + sums[j, i].T
+                common = visible_f[i] @ visible_f[j].T
+                D = total / (2 * common)
+                D[~np.isfinite(total)] = np.inf                                       # overflow: no match
+                D[(common < min_common) | no_baseline[view[i][:, None], view[j][None, :]]] = np.nan
+                D[view[i][:, None] == view[j][None, :]] = np.inf
+                sums[i, j] = D
+                sums[j, i] = D.T
+    return sums
+
+
+def appearance_similarity(appearance: np.ndarray | None, n: int, dtype=np.float32) -> np.ndarray | float:
+    """Cosine similarity S of appearance descriptors, clipped to [0, 1].
+
+    ``appearance: (N, D)`` or None -> ``(N, N)``, or the scalar 1.0 when descriptors are absent.
+    Non-finite descriptors count as absent (similarity 0).
+    """
+    if appearance is None:
+        return 1.0
+    a = np.asarray(appearance, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        a = np.where(np.isfinite(a).all(axis=1, keepdims=True), a, 0.0)
+        norm = np.linalg.norm(a, axis=1, keepdims=True)
+        a = np.where(norm > 0, a / np.maximum(norm, 1e-300), 0.0)
+        a = np.where(np.isfinite(a), a, 0.0).astype(dtype)
+    S = a @ a.T
+    return np.clip(S, 0.0, 1.0, out=S)
+
+
+def affinity(D: np.ndarray, gamma: float, S: np.ndarray | float = 1.0,
+             out: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 1: ``A = S / (1 + exp(γ D))``. ``D: (N, N)`` -> ``A: (N, N)`` in [0, 0.5]; D = inf
+    gives 0 and an undefined D (NaN) stays NaN. ``out=D`` computes it in place (no second
+    ``N × N`` matrix)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        A = np.multiply(D, gamma, out=out)
+        np.minimum(A, 80.0, out=A)
+        np.exp(A, out=A)
+        A += 1.0
+        np.reciprocal(A, out=A)
+    if np.isscalar(S):
+        if S != 1.0:
+            A *= S
+        return A
+    A *= S
+    return A
+
+
+def mse_distance(keypoints: np.ndarray, view: np.ndarray, keypoint_threshold: float,
+                 focal: np.ndarray, distance_scale: float, min_common_keypoints: int = 1) -> np.ndarray:
+    """The paper's MSE baseline distance: mean squared 2D distance of common keypoints, in the
+    same unit as :func:`epipolar_distance` (squared, then square-rooted). ``(N, N)``."""
+    visible = keypoints[:, :, 2] >= max(keypoint_threshold, 1e-9)
+    xy = keypoints[:, :, :2] / (distance_scale * focal[view])[:, None, None]
+    xy = np.where(visible[..., None], xy, 0.0)
+    sq = (xy**2).sum(-1)
+    common = visible.astype(float) @ visible.T.astype(float)
+    cross = np.einsum("ujd,vjd->uv", xy, xy)
+    total = sq @ visible.T.astype(float) + visible.astype(float) @ sq.T - 2 * cross
+    with np.errstate(divide="ignore", invalid="ignore"):
+        D = np.sqrt(np.maximum(total, 0) / common)
+    D[common < max(min_common_keypoints, 1)] = np.nan
+    D[view[:, None] == view[None, :]] = np.inf
+    return D

@@ -1,0 +1,221 @@
+"""Refinement of triangulated poses (the paper's Eq. bundle):
+
+    min_X  Σ_u ρ(‖π_u(X) − x_u‖²) · c_u  +  λ · E_P(X),   E_P(X) = −log Σ_l w_l N(X̃ | μ_l, Σ_l)
+
+with ρ the soft-L1 robust loss of scale ``f`` pixels, ``c_u`` the keypoint confidences, X̃
+the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`) and λ the
+prior weight. It is solved with ``scipy.optimize.least_squares`` (trust region, LSMR) on an
+analytic sparse Jacobian whose pattern is built once per outer iteration:
+
+- each 2D keypoint gives two rows that depend on the 3 coordinates of its joint only;
+- each person's prior rows depend on that person's coordinates only (a dense block).
+
+Outer iterations re-linearize what the inner problem holds fixed: the robust weights
+(iteratively reweighted least squares for ρ), the body frame and scale of the
+canonicalization, and the mixture component (the max-mixture approximation of E_P, whose
+negative log-likelihood of one component is a sum of squares). Persons are independent, so
+one solve refines all of them at once.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+
+from mvm.core.geometry import project
+from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.prior import body_frame, canonicalize
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RefineResult:
+    """``X: (P, J, 3)`` refined poses; ``fallback: (P,)`` bool, persons kept at their
+    triangulation because refinement made them worse; ``cost_before/after``: the objective."""
+
+    X: np.ndarray
+    fallback: np.ndarray
+    cost_before: float
+    cost_after: float
+
+
+def _median_by(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
+    """Median of ``values: (K,)`` within each of ``n`` groups (``group: (K,)`` int) -> ``(n,)``,
+    NaN for empty groups (the mean of the two middle values for even counts, as np.median)."""
+    order = np.lexsort((values, group))
+    counts = np.bincount(group, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    low = starts + (counts - 1) // 2
+    high = starts + counts // 2
+    ok = counts > 0
+    out = np.full(n, np.nan)
+    sorted_values = values[order]
+    out[ok] = 0.5 * (sorted_values[low[ok]] + sorted_values[high[ok]])
+    return out
+
+
+@dataclass
+class PriorBlock:
+    """The linearized prior of persons sharing the same present joints and mixture component:
+    residuals ``G[p] @ x[cols[p]] - h[p]``.
+
+    ``cols: (Pg, 3n)`` parameter columns of the persons' present joints (joint-major x, y, z);
+    ``G: (Pg, K, 3n)``; ``h: (Pg, K)`` with ``K = 3n``."""
+
+    cols: np.ndarray
+    G: np.ndarray
+    h: np.ndarray
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """``(Pg, K)``."""
+        return np.einsum("pkc,pc->pk", self.G, x[self.cols]) - self.h
+
+
+def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior,
+                 weight: float) -> list[PriorBlock]:
+    """Linearize ``weight · E_P`` at ``X: (P, J, 3)`` for every person that has both hips and
+    shoulders: the prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame
+    ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
+    negative log-likelihood is ``½ |W (y − μ)|²``. Persons are batched by (present joints,
+    component): ``param_of: (P, J)`` parameter index of each present joint."""
+    rotation, _, scale = body_frame(np.where(present[..., None], X, np.nan))      # (P, 3, 3), (P,)
+    needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
+    usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
+    if not usable.any():
+        return []
+    canonical = canonicalize(np.where(present[..., None], X, np.nan))
+    component = np.full(len(X), -1)
+    component[usable] = prior.best_component(canonical[usable])
+    usable &= component >= 0
+    keys = np.concatenate([present, component[:, None]], axis=1)[usable]
+    persons = np.flatnonzero(usable)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    blocks = []
+    for g in range(group.max() + 1):
+        ps = persons[group.ravel() == g]
+        joints = np.flatnonzero(present[ps[0]])
+        n = len(joints)
+        mean, W, _ = prior.whitening(present[ps[0]], int(component[ps[0]]))
+        # W @ (C ⊗ R/s) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction.
+        Wr = W.reshape(len(W), n, 3)
+        WC = Wr.copy()
+        total = Wr.sum(axis=1)
+        WC[:, np.searchsorted(joints, LEFT_HIP)] -= 0.5 * total
+        WC[:, np.searchsorted(joints, RIGHT_HIP)] -= 0.5 * total
+        G = np.einsum("kja,pab->pkjb", WC, rotation[ps] / scale[ps, None, None]).reshape(len(ps), len(W), 3 * n)
+        cols = (3 * param_of[np.ix_(ps, joints)][..., None] + np.arange(3)).reshape(len(ps), 3 * n)
+        root = np.sqrt(weight)
+        blocks.append(PriorBlock(cols, root * G, root * np.broadcast_to(W @ mean, (len(ps), len(W))).copy()))
+    return blocks
+
+
+def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
+                 prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
+                 max_iterations: int = 30, outer_iterations: int = 3) -> RefineResult:
+    """Refine ``P`` persons' 3D joints.
+
+    Args:
+        X0: ``(P, J, 3)`` triangulated joints (NaN: not reconstructed, stays NaN).
+        xy: ``(P, M, J, 2)`` keypoints; conf: ``(P, M, J)`` confidences.
+        P: ``(P, M, 3, 4)`` projection matrices of the views.
+        inliers: ``(P, M, J)`` bool, the keypoints to fit.
+        prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
+        prior_weight: λ, pixels² per nat.
+        robust_scale_px: scale ``f`` of the soft-L1 loss.
+    Returns:
+        :class:`RefineResult`.
+    """
+    X0 = np.asarray(X0, dtype=float)
+    Pn, J, _ = X0.shape
+    present = np.isfinite(X0).all(-1)                                    # (P, J)
+    param_of = -np.ones((Pn, J), dtype=int)
+    param_of[present] = np.arange(present.sum())
+    n_params = 3 * int(present.sum())
+    use = inliers & present[:, None, :]
+    p_idx, m_idx, j_idx = np.nonzero(use)
+    if n_params == 0 or len(p_idx) == 0:
+        return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
+    obs_param = param_of[p_idx, j_idx]                                   # (K,)
+    obs_P = P[p_idx, m_idx]                                              # (K, 3, 4)
+    obs_xy = xy[p_idx, m_idx, j_idx]                                     # (K, 2)
+    obs_c = conf[p_idx, m_idx, j_idx]
+    K = len(obs_param)
+    rows_reproj = np.repeat(np.arange(2 * K), 3)
+    cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
+
+    use_prior = prior is not None and prior_weight > 0
+
+    def unpack(x):
+        X = np.full((Pn, J, 3), np.nan)
+        X[present] = x.reshape(-1, 3)
+        return X
+
+    def reprojection(x):
+        """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints."""
+        uv, depth = project(x.reshape(-1, 3)[obs_param], obs_P)
+        return uv - obs_xy, depth
+
+    def prior_terms(X):
+        """Linearized prior of every person (already scaled by sqrt(λ))."""
+        return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
+
+    def objective(x, terms):
+        """Σ c ρ(e²) + λ E_P (up to the mixture's constants)."""
+        e, _ = reprojection(x)
+        f2 = robust_scale_px**2
+        total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+        return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
+
+    x = X0[present].reshape(-1).copy()
+    cost_before = objective(x, prior_terms(X0))
+
+    for _ in range(outer_iterations):
+        e, _ = reprojection(x)
+        robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)   # ρ'(e²) of soft-L1
+        sqrt_w = np.repeat(np.sqrt(2.0 * robust_w * obs_c), 2)                 # (2K,)
+        terms = prior_terms(unpack(x))
+        # The Jacobian's sparsity pattern: 3 entries per reprojection row, a dense block per
+        # person's prior rows.
+        sizes = [b.G.shape[0] * b.G.shape[1] for b in terms]
+        starts = 2 * K + np.cumsum([0] + sizes)
+        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
+                                               for a, n, b in zip(starts, sizes, terms)])
+        cols_all = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
+                                                   for b in terms])
+        prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in terms])
+        shape = (int(starts[-1]), n_params)
+
+        def residuals(x):
+            e, _ = reprojection(x)
+            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms])
+
+        def jacobian(x):
+            homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
+            proj = np.einsum("kab,kb->ka", obs_P, homogeneous)
+            z = proj[:, 2:3]
+            uv = proj[:, :2] / z
+            d = (obs_P[:, :2, :3] - uv[:, :, None] * obs_P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
+            values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
+            return sp.csr_matrix((np.concatenate([values, prior_values]), (rows, cols_all)), shape=shape)
+
+        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
+                          x_scale="jac", max_nfev=max_iterations).x
+
+    X = unpack(x)
+    e0, _ = reprojection(X0[present].reshape(-1))
+    e1, depth1 = reprojection(x)
+    observed = np.bincount(p_idx, minlength=Pn) > 0
+    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
+    worse = (_median_by(np.linalg.norm(e1, axis=-1), p_idx, Pn)
+             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), p_idx, Pn) + robust_scale_px)
+    behind = np.bincount(p_idx, weights=depth1 <= 0, minlength=Pn) > 0
+    fallback = observed & (~finite | worse | behind)
+    X[fallback] = X0[fallback]
+    if fallback.any():
+        log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
+    x_final = X[present].reshape(-1)
+    return RefineResult(X, fallback, cost_before, objective(x_final, prior_terms(X)))

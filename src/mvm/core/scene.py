@@ -1,0 +1,153 @@
+"""The data model: cameras of every frame, the 2D poses of every frame, and a scene.
+
+A *scene* is one static multi-person scene seen from ``V`` views (frames of a moving
+camera, or the cameras of a rig at one instant). Arrays use these axes:
+
+- ``V`` views (frames), ``N`` 2D poses (annotations), ``J = 17`` COCO keypoints,
+- ``P`` reconstructed persons.
+
+Keypoint coordinates are *undistorted* pixel coordinates of each view's pinhole camera
+``K``; readers undo lens distortion once, so that every piece of geometry is linear.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mvm.core.keypoints import NUM_JOINTS
+
+
+@dataclass(frozen=True)
+class Cameras:
+    """Pinhole cameras of ``V`` views, world -> camera ``x_cam = R @ X + t``.
+
+    Attributes:
+        K: ``(V, 3, 3)`` intrinsics (pixels).
+        R: ``(V, 3, 3)`` rotations, world -> camera.
+        t: ``(V, 3)`` translations (world units).
+        size: ``(V, 2)`` image width and height in pixels.
+        names: ``V`` image names (COLMAP ``NAME``, COCO ``file_name``).
+    """
+
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    size: np.ndarray
+    names: tuple[str, ...]
+
+    def __post_init__(self):
+        V = len(self.names)
+        for name, shape in (("K", (V, 3, 3)), ("R", (V, 3, 3)), ("t", (V, 3)), ("size", (V, 2))):
+            value = np.asarray(getattr(self, name), dtype=float)
+            if value.shape != shape:
+                raise ValueError(f"Cameras.{name}: expected shape {shape}, got {value.shape}")
+            object.__setattr__(self, name, value)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def P(self) -> np.ndarray:
+        """Projection matrices ``K [R | t]``: ``(V, 3, 4)``."""
+        return self.K @ np.concatenate([self.R, self.t[:, :, None]], axis=2)
+
+    @property
+    def centers(self) -> np.ndarray:
+        """Camera centres in the world ``C = -R^T t``: ``(V, 3)``."""
+        return -np.einsum("vji,vj->vi", self.R, self.t)
+
+    @property
+    def focal(self) -> np.ndarray:
+        """Mean focal length in pixels: ``(V,)``."""
+        return 0.5 * (self.K[:, 0, 0] + self.K[:, 1, 1])
+
+    def subset(self, index: np.ndarray) -> "Cameras":
+        index = np.asarray(index)
+        return Cameras(self.K[index], self.R[index], self.t[index], self.size[index],
+                       tuple(self.names[i] for i in index))
+
+
+@dataclass(frozen=True)
+class Poses2D:
+    """``N`` 2D poses (COCO annotations) over the views of a scene.
+
+    Attributes:
+        keypoints: ``(N, 17, 3)`` x, y (undistorted pixels) and confidence v in [0, 1];
+            a missing joint has v = 0.
+        view: ``(N,)`` index of the view (into ``Cameras``) each pose was detected in.
+        ids: ``(N,)`` annotation ids as in ``poses2d.json``.
+        score: ``(N,)`` pose confidence w in [0, 1].
+        appearance: ``(N, D)`` appearance descriptors, or ``None`` when absent.
+    """
+
+    keypoints: np.ndarray
+    view: np.ndarray
+    ids: np.ndarray
+    score: np.ndarray
+    appearance: np.ndarray | None = None
+
+    def __post_init__(self):
+        kp = np.asarray(self.keypoints, dtype=float).reshape(-1, NUM_JOINTS, 3)
+        N = len(kp)
+        object.__setattr__(self, "keypoints", kp)
+        for name, dtype in (("view", np.int64), ("ids", np.int64), ("score", float)):
+            value = np.asarray(getattr(self, name), dtype=dtype).reshape(-1)
+            if len(value) != N:
+                raise ValueError(f"Poses2D.{name}: expected {N} entries, got {len(value)}")
+            object.__setattr__(self, name, value)
+        if self.appearance is not None:
+            app = np.asarray(self.appearance, dtype=float)
+            if app.ndim != 2 or len(app) != N:
+                raise ValueError(f"Poses2D.appearance: expected shape ({N}, D), got {app.shape}")
+            object.__setattr__(self, "appearance", app)
+
+    def __len__(self) -> int:
+        return len(self.keypoints)
+
+    def subset(self, index: np.ndarray) -> "Poses2D":
+        index = np.asarray(index)
+        app = None if self.appearance is None else self.appearance[index]
+        return Poses2D(self.keypoints[index], self.view[index], self.ids[index],
+                       self.score[index], app)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A static scene: cameras of its views and the 2D poses detected in them.
+
+    Attributes:
+        name: a label (the scene directory's name).
+        cameras: the ``V`` views.
+        poses: the ``N`` 2D poses, ``poses.view`` indexing ``cameras``.
+        points3d: ``(M, 3)`` sparse SfM points (may be empty).
+    """
+
+    name: str
+    cameras: Cameras
+    poses: Poses2D
+    points3d: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+@dataclass
+class Persons3D:
+    """``P`` reconstructed persons.
+
+    Attributes:
+        keypoints3d: ``(P, 17, 3)`` world coordinates; NaN where a joint was not reconstructed.
+        scores: ``(P, 17)`` per-joint confidence (mean confidence of the inlier 2D keypoints).
+        members: ``P`` integer arrays: indices into ``Poses2D`` of each person's 2D poses.
+        views_per_joint: ``(P, 17)`` inlier 2D keypoints used per joint.
+        outliers_per_joint: ``(P, 17)`` 2D keypoints RANSAC rejected per joint.
+        reprojection_error_px: ``(P,)`` mean reprojection error over the inlier keypoints.
+    """
+
+    keypoints3d: np.ndarray
+    scores: np.ndarray
+    members: list[np.ndarray]
+    views_per_joint: np.ndarray
+    outliers_per_joint: np.ndarray
+    reprojection_error_px: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.keypoints3d)

@@ -1,0 +1,167 @@
+"""Per-joint triangulation of grouped 2D poses: confidence-weighted DLT inside RANSAC,
+vectorized over persons, joints and hypotheses.
+
+A group is padded to ``M`` (its largest size) views; arrays have axes ``(P, M, J)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mvm.core.geometry import ray_spread_deg, triangulate_dlt
+from mvm.core.scene import Cameras, Poses2D
+
+
+@dataclass
+class GroupObservations:
+    """The 2D keypoints of ``P`` groups, padded to ``M`` views.
+
+    Attributes:
+        xy: ``(P, M, J, 2)`` pixels; conf: ``(P, M, J)`` (0 where missing or padding).
+        P: ``(P, M, 3, 4)`` projection matrices (zeros for padding).
+        KRt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
+        centers: ``(P, M, 3)`` camera centres (world).
+        members: ``(P, M)`` pose index, -1 for padding.
+        world_scale, world_offset: ``X_world = scale · X_normalized + offset``.
+    """
+
+    xy: np.ndarray
+    conf: np.ndarray
+    P: np.ndarray
+    normalized_xy: np.ndarray
+    Rt: np.ndarray
+    centers: np.ndarray
+    members: np.ndarray
+    world_scale: float
+    world_offset: np.ndarray
+
+
+def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
+                  keypoint_threshold: float) -> GroupObservations:
+    """Pad the groups' keypoints and cameras into ``(P, M, ...)`` arrays."""
+    P_count = len(groups)
+    M = max((len(g) for g in groups), default=0)
+    members = np.full((P_count, M), -1)
+    for p, g in enumerate(groups):
+        members[p, :len(g)] = g
+    pad = members < 0
+    idx = np.where(pad, 0, members)
+    kp = poses.keypoints[idx]                                           # (P, M, J, 3)
+    conf = np.where(pad[..., None] | (kp[..., 2] < keypoint_threshold), 0.0, kp[..., 2])
+    views = poses.view[idx]
+    centers_all = cameras.centers
+    offset = centers_all.mean(axis=0)
+    scale = float(np.sqrt(((centers_all - offset) ** 2).sum(1).mean())) or 1.0
+    Rt = np.concatenate([cameras.R, ((cameras.t + cameras.R @ offset) / scale)[:, :, None]], axis=2)
+    K_inv = np.linalg.inv(cameras.K)
+    homogeneous = np.concatenate([kp[..., :2], np.ones(kp.shape[:-1] + (1,))], axis=-1)
+    normalized = np.einsum("pmab,pmjb->pmja", K_inv[views], homogeneous)[..., :2]
+    Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
+    return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
+                             members, scale, offset)
+
+
+@dataclass
+class Triangulation:
+    """Per-joint triangulation of ``P`` groups.
+
+    Attributes:
+        X: ``(P, J, 3)`` world points, NaN where not reconstructed.
+        inliers: ``(P, M, J)`` bool, the 2D keypoints used.
+        valid: ``(P, M, J)`` bool, the 2D keypoints available (inliers + outliers).
+        parallax_deg: ``(P, J)`` largest angle between inlier rays.
+    """
+
+    X: np.ndarray
+    inliers: np.ndarray
+    valid: np.ndarray
+    parallax_deg: np.ndarray
+
+
+def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Random pairs of distinct valid views. ``valid: (P, M, J)`` -> two ``(P, J, H)`` view indices."""
+    order = np.argsort(~valid, axis=1, kind="stable").transpose(0, 2, 1)    # (P, J, M) valid first
+    count = valid.sum(axis=1)                                                # (P, J)
+    # Groups of one view (min_group_size = 1) have no pair: both draws are that view, the
+    # hypothesis is degenerate and the joint stays unreconstructed.
+    n = np.minimum(np.maximum(count, 2), valid.shape[1])[..., None]
+    shape = count.shape + (hypotheses,)
+    a = np.floor(rng.random(shape) * n).astype(int)
+    b = np.floor(rng.random(shape) * (n - 1)).astype(int)
+    b = b + (b >= a)
+    a = np.minimum(a, n - 1)
+    b = np.minimum(b, n - 1)
+    return np.take_along_axis(order, a, axis=2), np.take_along_axis(order, b, axis=2)
+
+
+def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndarray, np.ndarray]:
+    """``X: (P, J, H, 3)`` world points -> reprojection errors ``(P, M, J, H)`` px and depths."""
+    Pn, J, H, _ = X.shape
+    M = obs.P.shape[1]
+    homogeneous = np.concatenate([X, np.ones((Pn, J, H, 1))], axis=-1).reshape(Pn, J * H, 4)
+    x = np.matmul(obs.P.reshape(Pn, M * 3, 4), homogeneous.transpose(0, 2, 1)).reshape(Pn, M, 3, J, H)
+    depth = x[:, :, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        du = x[:, :, 0] / depth - obs.xy[..., 0, None]
+        dv = x[:, :, 1] / depth - obs.xy[..., 1, None]
+    return np.sqrt(du * du + dv * dv), depth
+
+
+def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: int,
+                       min_views: int, min_parallax_deg: float,
+                       rng: np.random.Generator | None = None, use_ransac: bool = True) -> Triangulation:
+    """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
+
+    Each hypothesis is scored by MSAC, ``Σ min(e², thr²)`` over the available keypoints; the
+    best one's inliers (``e < thr``, in front of the camera) are re-triangulated with
+    confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
+    rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
+    available keypoint is an inlier (the paper's "w/o RANSAC" columns).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    valid = obs.conf > 0                                                    # (P, M, J)
+    Pn, M, J = valid.shape
+    if Pn == 0 or M == 0:
+        empty = np.zeros((Pn, J, 3)) * np.nan
+        return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)))
+    xy_n = obs.normalized_xy.transpose(0, 2, 1, 3)                          # (P, J, M, 2)
+    Rt = obs.Rt                                                             # (P, M, 3, 4)
+
+    if use_ransac:
+        a, b = _sample_pairs(valid, hypotheses, rng)                        # (P, J, H)
+        pj = np.indices((Pn, J))
+        pts = np.stack([xy_n[pj[0][..., None], pj[1][..., None], a],
+                        xy_n[pj[0][..., None], pj[1][..., None], b]], axis=-2)   # (P, J, H, 2, 2)
+        cams = np.stack([Rt[pj[0][..., None], a], Rt[pj[0][..., None], b]], axis=-3)  # (P, J, H, 2, 3, 4)
+        X_h = triangulate_dlt(pts, cams)                                     # (P, J, H, 3)
+        err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
+        ok = valid[..., None] & (depth > 0) & np.isfinite(err)
+        cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,
+                                                   threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
+        cost[~np.isfinite(X_h).all(-1)] = np.inf
+        best = np.argmin(cost, axis=-1)                                       # (P, J)
+        inliers = np.take_along_axis(ok & (err < threshold_px), best[:, None, :, None], axis=3)[..., 0]
+    else:
+        inliers = valid.copy()
+
+    weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
+    Rt_b = np.broadcast_to(Rt[:, None], (Pn, J, M, 3, 4))
+    for _ in range(2 if use_ransac else 1):
+        X = triangulate_dlt(xy_n, Rt_b, weights)                              # (P, J, 3)
+        if not use_ransac:
+            break
+        err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
+        refreshed = valid & (err[..., 0] < threshold_px) & (depth[..., 0] > 0)
+        keep = refreshed.sum(axis=1) >= min_views
+        inliers = np.where(keep[:, None, :], refreshed, inliers)
+        weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)
+    X = triangulate_dlt(xy_n, Rt_b, weights) * obs.world_scale + obs.world_offset
+
+    directions = X[:, None] - obs.centers[:, :, None]                          # (P, M, J, 3)
+    directions /= np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)
+    parallax = ray_spread_deg(directions.transpose(0, 2, 1, 3), inliers.transpose(0, 2, 1))
+    good = (inliers.sum(axis=1) >= min_views) & (parallax >= min_parallax_deg) & np.isfinite(X).all(-1)
+    X[~good] = np.nan
+    inliers &= good[:, None, :]
+    return Triangulation(X, inliers, valid, parallax)

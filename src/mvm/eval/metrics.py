@@ -1,0 +1,119 @@
+"""Metrics: the paper's proxies (E_R, outliers, |G_k|) and ground-truth ones (matching
+precision/recall, persons found, MPJPE, PA-MPJPE). Pure numpy/scipy, no I/O."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mvm.core.geometry import project
+
+
+def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px."""
+    uv, _ = project(X[:, None], P[:, :, None])
+    return np.linalg.norm(uv - xy, axis=-1)
+
+
+def scene_quality(X: np.ndarray, errors: np.ndarray, inliers: np.ndarray, valid: np.ndarray,
+                  n_poses: int, n_matched: int) -> dict:
+    """The paper's Table-1 metrics of one scene.
+
+    Args:
+        X: ``(P, J, 3)`` (NaN: not reconstructed); errors: ``(P, M, J)`` reprojection errors;
+        inliers, valid: ``(P, M, J)`` keypoints used / available; n_poses: 2D poses in the
+        scene; n_matched: 2D poses in a reconstructed person.
+    Returns:
+        ``E_R_px`` mean error over the inlier keypoints; ``G_k`` mean inliers per reconstructed
+        joint; ``outliers`` mean rejected keypoints per 3D pose; counts.
+    """
+    reconstructed = np.isfinite(X).all(-1)                               # (P, J)
+    used = inliers & reconstructed[:, None, :]
+    rejected = valid & ~inliers & reconstructed[:, None, :]
+    P = len(X)
+    return {
+        "E_R_px": float(errors[used].mean()) if used.any() else float("nan"),
+        "outliers": float(rejected.sum() / P) if P else float("nan"),
+        "G_k": float(used.sum() / reconstructed.sum()) if reconstructed.any() else float("nan"),
+        "persons": int(P),
+        "matched_poses": int(n_matched),
+        "unmatched_poses": int(n_poses - n_matched),
+        "reconstructed_joints": int(reconstructed.sum()),
+    }
+
+
+def matching_precision_recall(groups: list[np.ndarray], true_person: np.ndarray) -> tuple[float, float]:
+    """Pairwise matching precision and recall.
+
+    ``groups``: pose indices per predicted person; ``true_person: (N,)`` the true person of
+    every pose, -1 for false positives. A predicted pair is two poses in one group; it is
+    correct when both belong to the same true person. Recall counts all true pairs.
+    """
+    true_person = np.asarray(true_person)
+    label = np.full(len(true_person), -1)
+    for g, members in enumerate(groups):
+        label[members] = g
+    K = true_person.max() + 1 if len(true_person) and true_person.max() >= 0 else 0
+    G = len(groups)
+    pairs = lambda n: n * (n - 1) / 2  # noqa: E731
+    in_group = label >= 0
+    table = np.zeros((G, K + 1))
+    np.add.at(table, (label[in_group], true_person[in_group] + 1), 1)   # column 0: false poses
+    predicted = pairs(table.sum(1)).sum()
+    correct = pairs(table[:, 1:]).sum()
+    true_pairs = pairs(np.bincount(true_person[true_person >= 0], minlength=K)).sum()
+    precision = correct / predicted if predicted else 1.0
+    recall = correct / true_pairs if true_pairs else 1.0
+    return float(precision), float(recall)
+
+
+def procrustes_align(source: np.ndarray, target: np.ndarray, scale: bool = True) -> np.ndarray:
+    """Similarity-align ``source: (J, 3)`` to ``target: (J, 3)`` over joints finite in both;
+    returns the aligned source ``(J, 3)``."""
+    ok = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
+    A, B = source[ok], target[ok]
+    mu_a, mu_b = A.mean(0), B.mean(0)
+    A0, B0 = A - mu_a, B - mu_b
+    U, S, Vt = np.linalg.svd(A0.T @ B0)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.diag([1.0, 1.0, d])
+    R = U @ D @ Vt
+    s = (S * np.diag(D)).sum() / (A0**2).sum() if scale else 1.0
+    return s * (source - mu_a) @ R + mu_b
+
+
+def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float = np.inf) -> list[tuple[int, int]]:
+    """Hungarian assignment of estimated to true persons by MPJPE over common joints.
+    ``estimate: (P, J, 3)``, ``truth: (G, J, 3)`` -> ``[(p, g), …]`` with MPJPE <= max_distance."""
+    if len(estimate) == 0 or len(truth) == 0:
+        return []
+    diff = np.linalg.norm(estimate[:, None] - truth[None], axis=-1)            # (P, G, J)
+    with np.errstate(invalid="ignore"):
+        cost = np.nanmean(np.where(np.isfinite(diff), diff, np.nan), axis=-1)
+    cost = np.where(np.isfinite(cost), cost, 1e12)
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] <= max_distance]
+
+
+def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:
+    """MPJPE and PA-MPJPE (in the units of the inputs) over matched pairs, averaged per person."""
+    mpjpe, pa = [], []
+    for p, g in pairs:
+        e, t = estimate[p], truth[g]
+        ok = np.isfinite(e).all(-1) & np.isfinite(t).all(-1)
+        if ok.sum() < 3:
+            continue
+        mpjpe.append(np.linalg.norm(e[ok] - t[ok], axis=-1).mean())
+        aligned = procrustes_align(e, t)
+        pa.append(np.linalg.norm(aligned[ok] - t[ok], axis=-1).mean())
+    return {"mpjpe": float(np.mean(mpjpe)) if mpjpe else float("nan"),
+            "pa_mpjpe": float(np.mean(pa)) if pa else float("nan"),
+            "evaluated_persons": len(mpjpe)}
+
+
+# The motion-capture field's metrics (PCP as on Shelf/Campus, AP at 25-150 mm as on Panoptic),
+# kept in their own module and offered here with the others.
+from mvm.eval.mocap import COCO_PCP_LIMBS, SHELF_PCP_LIMBS, average_precision, limbs_correct, pcp  # noqa: E402
+
+__all__ = ["reprojection_errors", "scene_quality", "matching_precision_recall", "procrustes_align",
+           "match_persons", "pose_errors", "pcp", "limbs_correct", "average_precision",
+           "COCO_PCP_LIMBS", "SHELF_PCP_LIMBS"]

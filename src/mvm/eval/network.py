@@ -1,0 +1,197 @@
+"""Evaluation of the network: PA-MPJPE (3DPW protocol), OKS AP (pycocotools), C_var, depth error.
+
+All functions take arrays and return numbers; none reads files.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+
+import numpy as np
+
+from mvm.core.keypoints import INDEX
+
+#: The 14 joints common to COCO and SMPL, in this order: the 12 limb joints of COCO, the
+#: neck (mid-shoulders) and the head (the nose).
+COMMON14_NAMES = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+                  "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+                  "right_ankle", "neck", "head")
+_LIMBS14 = [INDEX[n] for n in COMMON14_NAMES[:12]]
+
+
+def coco_to_common14(points: np.ndarray) -> np.ndarray:
+    """``points: (..., 17, D)`` -> ``(..., 14, D)`` in the order of ``COMMON14_NAMES``."""
+    p = np.asarray(points, dtype=float)
+    neck = 0.5 * (p[..., INDEX["left_shoulder"], :] + p[..., INDEX["right_shoulder"], :])
+    return np.concatenate([p[..., _LIMBS14, :], neck[..., None, :], p[..., INDEX["nose"], None, :]], axis=-2)
+
+
+def procrustes_align(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """Similarity transform (scale, rotation, translation) of each ``pred`` onto its ``gt``.
+
+    ``pred, gt: (N, J, 3)``; ``mask: (N, J)`` joints used for the fit (default: finite in both).
+    Returns the aligned ``pred (N, J, 3)``.
+    """
+    pred, gt = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
+    if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[-1] != 3:
+        raise ValueError(f"procrustes_align: expected two (N, J, 3) arrays, got {pred.shape} and {gt.shape}")
+    if mask is None:
+        mask = np.isfinite(pred).all(-1) & np.isfinite(gt).all(-1)
+    w = mask.astype(float)[..., None]                                     # (N, J, 1)
+    n = np.maximum(w.sum(1, keepdims=True), 1)
+    P, G = np.nan_to_num(pred), np.nan_to_num(gt)
+    mp, mg = (w * P).sum(1, keepdims=True) / n, (w * G).sum(1, keepdims=True) / n
+    X, Y = (P - mp) * w, (G - mg) * w
+    U, S, Vt = np.linalg.svd(np.einsum("nji,njk->nik", X, Y))           # X^T Y = U S Vt
+    D = np.ones_like(S)
+    D[:, -1] = np.sign(np.linalg.det(U @ Vt))
+    R = np.einsum("nij,nj,njk->nik", U, D, Vt)                           # rotates rows of X onto Y
+    var = (X ** 2).sum((1, 2))
+    scale = (S * D).sum(1) / np.maximum(var, 1e-12)
+    return scale[:, None, None] * np.einsum("nji,nik->njk", pred - mp, R) + mg
+
+
+def pa_mpjpe(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Procrustes-aligned mean per-joint position error of each pose.
+
+    ``pred, gt: (N, J, 3)`` (NaN joints ignored) -> ``(N,)`` in the unit of ``gt``.
+    """
+    mask = np.isfinite(pred).all(-1) & np.isfinite(gt).all(-1)
+    aligned = procrustes_align(pred, gt, mask)
+    err = np.linalg.norm(aligned - np.nan_to_num(gt), axis=-1)
+    with np.errstate(invalid="ignore"):
+        return np.where(mask.sum(1) >= 3, (err * mask).sum(1) / np.maximum(mask.sum(1), 1), np.nan)
+
+
+def threedpw_pa_mpjpe(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray, clip: np.ndarray,
+                      track: np.ndarray, min_visible: int = 7) -> tuple[float, dict]:
+    """PA-MPJPE in the 3DPW protocol of the paper.
+
+    Poses with fewer than ``min_visible`` visible 2D joints (of the 14) are ignored; the error
+    of each remaining pose is averaged per tracked person per clip, then over the tracks (a
+    clip with two people counts twice).
+
+    Args:
+        pred, gt: ``(N, 14, 3)`` in ``COMMON14_NAMES`` order (see :func:`coco_to_common14`).
+        visible: ``(N, 14)`` whether each joint is visible in the image.
+        clip, track: ``(N,)`` clip and person identifiers of each pose.
+    Returns:
+        the data set's PA-MPJPE (unit of ``gt``; NaN without any pose) and ``{(clip, track): error}``.
+    """
+    pred, gt = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
+    if pred.shape[1:] != (14, 3) or gt.shape != pred.shape:
+        raise ValueError(f"expected pred and gt of shape (N, 14, 3), got {pred.shape} and {gt.shape}")
+    keep = np.asarray(visible, bool).sum(1) >= min_visible
+    errors = pa_mpjpe(pred[keep], gt[keep])
+    keys = list(zip(np.asarray(clip)[keep].tolist(), np.asarray(track)[keep].tolist()))
+    per_track: dict = {}
+    for key, e in zip(keys, errors):
+        if np.isfinite(e):
+            per_track.setdefault(key, []).append(e)
+    per_track = {k: float(np.mean(v)) for k, v in per_track.items()}
+    return (float(np.mean(list(per_track.values()))) if per_track else float("nan")), per_track
+
+
+def oks_ap(ground_truth: dict, detections: list[dict]) -> dict[str, float]:
+    """COCO keypoint AP of ``detections`` against a COCO keypoints ``ground_truth`` dict (pycocotools).
+
+    ``detections``: ``[{"image_id", "keypoints": 51 numbers, "score"}]``. Annotations without an
+    ``area`` get the area of their keypoints' box. Returns AP, AP50, AP75, APm, APl, AR (0–1).
+    """
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    names = ("AP", "AP50", "AP75", "APm", "APl", "AR", "AR50", "AR75", "ARm", "ARl")
+    if not detections:
+        return {n: 0.0 for n in names}
+    gt = {"images": ground_truth["images"], "categories": ground_truth["categories"], "annotations": []}
+    for ann in ground_truth["annotations"]:
+        ann = dict(ann)
+        kp = np.asarray(ann["keypoints"], dtype=float).reshape(-1, 3)
+        vis = kp[:, 2] > 0
+        if "area" not in ann:
+            ann["area"] = float(np.ptp(kp[vis, 0]) * np.ptp(kp[vis, 1])) if vis.any() else 0.0
+        if "bbox" not in ann and vis.any():
+            x0, y0 = kp[vis, :2].min(0)
+            x1, y1 = kp[vis, :2].max(0)
+            ann["bbox"] = [float(x0), float(y0), float(x1 - x0), float(y1 - y0)]
+        ann.setdefault("iscrowd", 0)
+        ann.setdefault("num_keypoints", int(vis.sum()))
+        gt["annotations"].append(ann)
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco = COCO()
+        coco.dataset = gt
+        coco.createIndex()
+        dets = [{"image_id": int(d["image_id"]), "category_id": 1,
+                 "keypoints": [float(v) for v in d["keypoints"]], "score": float(d["score"])} for d in detections]
+        res = coco.loadRes(dets)
+        ev = COCOeval(coco, res, iouType="keypoints")
+        ev.params.imgIds = [im["id"] for im in ground_truth["images"]]
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    return {n: float(max(v, 0.0)) for n, v in zip(names, ev.stats)}
+
+
+def _triangulate_pairs(P1: np.ndarray, P2: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Two-view DLT. ``P1, P2: (M, 3, 4)``, ``x1, x2: (M, 2)`` -> ``(M, 3)``."""
+    A = np.stack([x1[:, 0, None] * P1[:, 2] - P1[:, 0], x1[:, 1, None] * P1[:, 2] - P1[:, 1],
+                  x2[:, 0, None] * P2[:, 2] - P2[:, 0], x2[:, 1, None] * P2[:, 2] - P2[:, 1]], axis=1)
+    X = np.linalg.svd(A)[2][:, -1]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return X[:, :3] / X[:, 3:]
+
+
+def c_var(projections: np.ndarray, keypoints: np.ndarray, tau: float) -> float:
+    """Consistency C_var of a 2D detector over a scene (the paper's Eq. var).
+
+    For each person and joint, the 2D keypoints of confidence ≥ ``tau`` in ``M`` views are
+    triangulated pairwise; ``C_var`` is the mean over the ``M(M−1)/2`` pairs of the squared
+    distance to their mean, averaged over the (person, joint) with at least three such views.
+
+    Args:
+        projections: ``(V, 3, 4)`` camera matrices.
+        keypoints: ``(P, V, 17, 3)`` x, y, confidence of each person in each view (0: absent).
+        tau: confidence threshold that removes outliers.
+    Returns:
+        C_var in squared world units (NaN when no joint has three views).
+    """
+    Pm = np.asarray(projections, dtype=float)
+    kp = np.asarray(keypoints, dtype=float)
+    if kp.ndim != 4 or kp.shape[1] != len(Pm) or kp.shape[3] != 3:
+        raise ValueError(f"keypoints: expected shape (P, {len(Pm)}, J, 3), got {kp.shape}")
+    ok = np.nan_to_num(kp[..., 2]) >= tau                                # (P, V, J)
+    u, v = np.triu_indices(len(Pm), 1)
+    pair_ok = ok[:, u] & ok[:, v]                                        # (P, pairs, J)
+    p, q, j = np.nonzero(pair_ok)
+    if len(p) == 0:
+        return float("nan")
+    X = _triangulate_pairs(Pm[u[q]], Pm[v[q]], kp[p, u[q], j, :2], kp[p, v[q], j, :2])
+    group = p * kp.shape[2] + j
+    _, inv = np.unique(group, return_inverse=True)
+    G = inv.max() + 1
+    count = np.bincount(inv, minlength=G).astype(float)
+    mean = np.stack([np.bincount(inv, X[:, k], G) for k in range(3)], -1) / count[:, None]
+    sq = ((X - mean[inv]) ** 2).sum(-1)
+    var = np.bincount(inv, sq, G) / count
+    views = ok.sum(1).reshape(-1)[np.unique(group)]                      # views per (person, joint)
+    keep = views >= 3
+    return float(var[keep].mean()) if keep.any() else float("nan")
+
+
+def relative_depth_error(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """Mean absolute error of relative depths after normalizing both by their median.
+
+    ``pred, gt: (N, 17)`` (NaN or ≤ 0: missing) -> ``(N,)``; the medians are taken over the
+    joints present in both, so the error ignores each pose's unknown scale.
+    """
+    p, g = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
+    ok = np.isfinite(p) & np.isfinite(g) & (p > 0) & (g > 0)
+    pn, gn = np.where(ok, p, np.nan), np.where(ok, g, np.nan)
+    out = np.full(len(p), np.nan)
+    rows = ok.sum(1) >= 2
+    if rows.any():
+        pn = pn[rows] / np.nanmedian(pn[rows], axis=1, keepdims=True)
+        gn = gn[rows] / np.nanmedian(gn[rows], axis=1, keepdims=True)
+        out[rows] = np.nanmean(np.abs(pn - gn), axis=1)
+    return out

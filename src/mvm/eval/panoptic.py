@@ -1,0 +1,144 @@
+"""Evaluation on the real CMU Panoptic sample: real cameras and real 3D poses, 2D detections
+simulated from them with a detector's errors (:mod:`mvm.sim.rig`), reconstructed with a
+subset of the HD cameras and scored with MPJPE, PA-MPJPE, PCP, AP and the fraction of persons
+found. World in metres (the files' centimetres / 100)."""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mvm.core.config import Config
+from mvm.core.scene import Cameras
+from mvm.errors import InputError
+from mvm.eval.metrics import match_persons, pose_errors
+from mvm.eval.mocap import average_precision, pcp
+from mvm.io.calib_toml import RigCalibration
+from mvm.io.panoptic_calib import read_panoptic_calibration
+from mvm.rig.instants import Detections, reconstruct_instants
+from mvm.sim.rig import DetectorErrors, detect_views, pose_scores
+
+#: Index of each COCO-17 keypoint in Panoptic's ``joints19``.
+JOINTS19_TO_COCO17 = np.array([1, 15, 17, 16, 18, 3, 9, 4, 10, 5, 11, 6, 12, 7, 13, 8, 14])
+
+
+def read_panoptic_bodies(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """One ``body3DScene_*.json`` -> ``(G, 17, 3)`` COCO joints in centimetres (NaN where the
+    confidence is negative) and ``(G,)`` body ids."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise InputError(path, None, f"cannot read JSON: {e}") from None
+    poses, ids = [], []
+    for i, body in enumerate(data.get("bodies", [])):
+        try:
+            joints = np.asarray(body["joints19"], dtype=float).reshape(19, 4)
+        except (KeyError, ValueError, TypeError):
+            raise InputError(path, f"bodies[{i}].joints19", "expected 76 numbers") from None
+        xyz = joints[JOINTS19_TO_COCO17, :3].copy()
+        xyz[joints[JOINTS19_TO_COCO17, 3] < 0] = np.nan
+        poses.append(xyz)
+        ids.append(int(body.get("id", i)))
+    return np.array(poses).reshape(-1, 17, 3), np.array(ids, dtype=int)
+
+
+def metric_calibration(calibration: RigCalibration) -> RigCalibration:
+    """The calibration with the world in metres (translations / 100)."""
+    c = calibration.cameras
+    return RigCalibration(Cameras(c.K, c.R, c.t / 100.0, c.size, c.names), calibration.distortions,
+                          calibration.fisheye, {**calibration.metadata, "units": "m"})
+
+
+def spread_cameras(cameras: Cameras, n: int) -> np.ndarray:
+    """``n`` camera indices spread around the dome: farthest-point sampling of the viewing
+    directions, from camera 0. ``-> (n,)``."""
+    direction = cameras.R[:, 2]                                                    # optical axes
+    chosen = [0]
+    best = 1 - direction @ direction[0]
+    for _ in range(min(n, len(cameras)) - 1):
+        k = int(np.argmax(best))
+        chosen.append(k)
+        best = np.minimum(best, 1 - direction @ direction[k])
+    return np.sort(np.array(chosen))
+
+
+@dataclass
+class PanopticSample:
+    calibration: RigCalibration
+    poses: list[np.ndarray]                                                        # per instant (G, 17, 3), metres
+    ids: list[np.ndarray]
+
+
+def load_sample(sequence_dir: str | Path) -> PanopticSample:
+    """The HD cameras and every ``body3DScene`` of ``sequence_dir`` (sorted by frame number)."""
+    sequence_dir = Path(sequence_dir)
+    calibs = sorted(sequence_dir.glob("calibration_*.json"))
+    if not calibs:
+        raise InputError(sequence_dir, None, "no calibration_*.json")
+    calibration = metric_calibration(read_panoptic_calibration(calibs[0]))
+    files = sorted(sequence_dir.glob("hdPose3d_stage1_coco19/body3DScene_*.json"),
+                   key=lambda p: int(p.stem.split("_")[-1]))
+    poses, ids = [], []
+    for f in files:
+        X, i = read_panoptic_bodies(f)
+        poses.append(X / 100.0)
+        ids.append(i)
+    return PanopticSample(calibration, poses, ids)
+
+
+def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed: int,
+                        errors: DetectorErrors = DetectorErrors()) -> Detections:
+    """Distorted 2D detections of every instant in the chosen cameras, then undistorted with
+    the calibration (as a real pipeline does)."""
+    from mvm.rig.rigdir import subset_calibration, undistort
+
+    calibration = subset_calibration(sample.calibration, cameras_index)
+    rng = np.random.default_rng(seed)
+    kps, cams, inst = [], [], []
+    for t, X in enumerate(sample.poses):
+        k, c, _ = detect_views(calibration.cameras, X, rng, errors, calibration.distortions)
+        kps.append(k)
+        cams.append(c)
+        inst.append(np.full(len(c), t))
+    keypoints = np.concatenate(kps)
+    camera = np.concatenate(cams)
+    keypoints = undistort(calibration, keypoints, camera)
+    return Detections(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
+
+
+def evaluate(sample: PanopticSample, n_cameras: int, config: Config, seeds: int = 3,
+             errors: DetectorErrors = DetectorErrors(), found_mm: float = 150.0) -> dict:
+    """Reconstruct the sample with ``n_cameras`` spread cameras, ``seeds`` detector draws.
+    Returns MPJPE / PA-MPJPE (mm), PCP, AP, persons found (MPJPE <= ``found_mm``), instants/s."""
+    index = spread_cameras(sample.calibration.cameras, n_cameras)
+    cameras = sample.calibration.cameras.subset(index)
+    estimates, truths, ids, scores = [], [], [], []
+    mpjpe, pa, found, total, seconds = [], [], 0, 0, 0.0
+    for seed in range(seeds):
+        det = simulate_detections(sample, index, seed, errors)
+        t0 = time.perf_counter()
+        persons = reconstruct_instants(cameras, det, config)
+        seconds += time.perf_counter() - t0
+        for t, X_true in enumerate(sample.poses):
+            X = persons.X[persons.instant == t]
+            pairs = match_persons(X, X_true, found_mm / 1000.0)
+            e = pose_errors(X, X_true, pairs)
+            if e["evaluated_persons"]:
+                mpjpe += [e["mpjpe"]] * e["evaluated_persons"]
+                pa += [e["pa_mpjpe"]] * e["evaluated_persons"]
+            found += len(pairs)
+            total += len(X_true)
+            estimates.append(X)
+            scores.append(np.nanmean(persons.scores[persons.instant == t], axis=1) if len(X) else np.zeros(0))
+            truths.append(X_true)
+            ids.append(sample.ids[t])
+    ap = average_precision(estimates, scores, truths)
+    return {"cameras": int(n_cameras), "camera_names": [cameras.names[i] for i in range(len(cameras))],
+            "mpjpe_mm": 1000 * float(np.mean(mpjpe)) if mpjpe else float("nan"),
+            "pa_mpjpe_mm": 1000 * float(np.mean(pa)) if pa else float("nan"),
+            "pcp": pcp(estimates, truths, ids)["average"], "found": found / max(total, 1),
+            **ap, "instants_per_s": len(sample.poses) * seeds / max(seconds, 1e-9)}

@@ -1,0 +1,215 @@
+"""Supervision for the monocular network: refined 3D poses projected into every frame.
+
+Every person's 3D joints are projected into every view of its scene, giving 2D keypoints and
+each keypoint's *relative* depth: its camera z divided by the median camera z of the person's
+labelled joints in that view (an SfM reconstruction has no metric scale, so only depth ratios
+are meaningful, Section 5 of the paper). The result is a COCO keypoints dataset with two extra
+per-keypoint fields, ``keypoint_depths`` (17 floats, 0 where missing) and ``has_3d`` (17 flags),
+that many scenes merge into.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
+from mvm.core.scene import Persons3D, Scene
+from mvm.errors import InputError
+from mvm.io.files import atomic_write_json
+
+LOG = logging.getLogger(__name__)
+
+FORMAT = "mvm.net.supervision/1"
+LINK_MODES = ("symlink", "copy", "none")
+ANNOTATIONS_FILE = "annotations.json"
+
+
+def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                    size: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """Project persons into one view.
+
+    Args:
+        keypoints3d: ``(P, 17, 3)`` world coordinates, NaN where missing.
+        K, R, t: ``(3, 3)``, ``(3, 3)``, ``(3,)`` pinhole camera, ``x_cam = R X + t``.
+        size: ``(width, height)`` of the image in pixels.
+    Returns:
+        keypoints ``(P, 17, 3)``: x, y and v = 2 where the joint exists, lies in front of the
+        camera and inside the image, else 0 (and x = y = 0);
+        depths ``(P, 17)``: camera z over the median camera z of the person's labelled joints,
+        0 where the joint is not labelled.
+    """
+    X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
+    cam = X @ np.asarray(R, dtype=float).T + np.asarray(t, dtype=float)    # (P, 17, 3)
+    z = cam[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uvw = cam @ np.asarray(K, dtype=float).T
+        uv = uvw[..., :2] / uvw[..., 2:3]
+    w, h = float(size[0]), float(size[1])
+    ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
+          & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))
+    keypoints = np.zeros(X.shape[:2] + (3,))
+    keypoints[ok, :2] = uv[ok]
+    keypoints[ok, 2] = 2.0
+    depths = np.zeros(X.shape[:2])
+    zz = np.where(ok, z, np.nan)
+    has = ok.any(axis=1)
+    if has.any():
+        med = np.nanmedian(zz[has], axis=1, keepdims=True)
+        depths[has] = np.nan_to_num(zz[has] / med, nan=0.0)
+    return keypoints, depths
+
+
+def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths: np.ndarray | None,
+                      person_id: int | None = None) -> dict:
+    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``."""
+    kp = np.asarray(keypoints, dtype=float)
+    vis = kp[:, 2] > 0
+    x0, y0 = kp[vis, :2].min(axis=0)
+    x1, y1 = kp[vis, :2].max(axis=0)
+    rec = {"id": int(ann_id), "image_id": int(image_id), "category_id": 1,
+           "keypoints": [round(float(v), 2) for v in kp.reshape(-1)],
+           "num_keypoints": int(vis.sum()),
+           "bbox": [round(float(x0), 2), round(float(y0), 2), round(float(x1 - x0), 2), round(float(y1 - y0), 2)],
+           "area": round(float((x1 - x0) * (y1 - y0)), 2), "iscrowd": 0}
+    if depths is not None:
+        d = np.where(vis, np.asarray(depths, dtype=float), 0.0)
+        rec["keypoint_depths"] = [round(float(v), 5) for v in d]
+        rec["has_3d"] = [int(v) for v in (d > 0)]
+    if person_id is not None:
+        rec["person_id"] = int(person_id)
+    return rec
+
+
+def empty_dataset(description: str) -> dict:
+    return {"info": {"format": FORMAT, "description": description,
+                     "keypoint_depths": "camera z of the joint / median camera z of the person's labelled joints; 0: missing"},
+            "images": [], "annotations": [], "categories": [COCO_PERSON_CATEGORY]}
+
+
+def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
+    if not isinstance(item, (tuple, list)) or len(item) not in (2, 3):
+        raise InputError(None, "scenes_and_persons", "expected (Scene, Persons3D) or (Scene, Persons3D, frames_dir) items")
+    scene, persons = item[0], item[1]
+    frames = Path(item[2]) if len(item) == 3 and item[2] is not None else None
+    if not isinstance(scene, Scene) or not isinstance(persons, Persons3D):
+        raise InputError(None, "scenes_and_persons",
+                         f"expected (Scene, Persons3D), got ({type(scene).__name__}, {type(persons).__name__})")
+    return scene, persons, frames
+
+
+def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: str = "symlink",
+                       min_keypoints: int = 3) -> Path:
+    """Write a COCO-style supervision dataset of several scenes; returns the annotation file.
+
+    Args:
+        scenes_and_persons: ``(Scene, Persons3D)`` or ``(Scene, Persons3D, frames_dir)`` items;
+            ``frames_dir`` holds the scene's images under their camera names.
+        out_dir: the dataset directory: ``annotations.json`` and, unless ``link='none'``,
+            ``images/<scene>/<frame>``.
+        link: ``'symlink'`` or ``'copy'`` the frames into ``out_dir``; ``'none'`` leaves them
+            where they are (``file_name`` then points at them, relative to ``out_dir`` when a
+            ``frames_dir`` is given, else ``<scene>/<frame>``).
+        min_keypoints: persons with fewer labelled joints in a view get no annotation there.
+    """
+    if link not in LINK_MODES:
+        raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    data = empty_dataset("mvm supervision: refined 3D poses projected into every frame")
+    names_seen: dict[str, int] = {}
+    image_id = ann_id = 0
+    for item in scenes_and_persons:
+        scene, persons, frames = _as_item(item)
+        label = _unique(scene.name or "scene", names_seen)
+        cams = scene.cameras
+        n_ann = 0
+        for v in range(len(cams)):
+            kp, dep = project_persons(persons.keypoints3d, cams.K[v], cams.R[v], cams.t[v], cams.size[v])
+            keep = np.nonzero((kp[:, :, 2] > 0).sum(1) >= min_keypoints)[0]
+            name = cams.names[v]
+            image_id += 1
+            data["images"].append({"id": image_id, "file_name": _place_frame(name, label, frames, out_dir, link),
+                                   "width": int(cams.size[v, 0]), "height": int(cams.size[v, 1]),
+                                   "scene": label, "frame": name})
+            for p in keep:
+                ann_id += 1
+                data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
+                n_ann += 1
+        LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
+    path = out_dir / ANNOTATIONS_FILE
+    atomic_write_json(path, data)
+    return path
+
+
+def _unique(name: str, seen: dict[str, int]) -> str:
+    if name not in seen:
+        seen[name] = 0
+        return name
+    seen[name] += 1
+    return f"{name}_{seen[name]}"
+
+
+def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link: str) -> str:
+    """Link or copy one frame into ``out_dir/images/<scene>/``; returns its ``file_name``."""
+    if link == "none":
+        if frames is None:
+            return f"{scene}/{name}"
+        return os.path.relpath(frames / name, out_dir)
+    if frames is None:
+        raise InputError(None, "frames_dir", f"scene {scene}: link={link!r} needs the directory of its frames")
+    src = frames / name
+    if not src.is_file():
+        raise InputError(src, None, "frame not found")
+    rel = Path("images") / scene / name
+    dst = out_dir / rel
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.is_symlink() or dst.exists():
+        dst.unlink()
+    if link == "symlink":
+        dst.symlink_to(os.path.relpath(src.resolve(), dst.parent.resolve()))
+    else:
+        shutil.copy2(src, dst)
+    return rel.as_posix()
+
+
+def merge_datasets(paths: Iterable[str | Path], out: str | Path) -> Path:
+    """Merge COCO keypoint files into ``out`` with fresh unique ids.
+
+    ``file_name`` of every image is rewritten relative to ``out``'s directory, so the frames
+    are found from the merged file as they were from each source.
+    """
+    out = Path(out)
+    merged = empty_dataset("mvm supervision: merged")
+    image_id = ann_id = 0
+    for path in paths:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise InputError(path, None, "file not found") from None
+        except json.JSONDecodeError as e:
+            raise InputError(path, None, f"not valid JSON: {e}") from None
+        for key in ("images", "annotations"):
+            if not isinstance(data.get(key), list):
+                raise InputError(path, key, "missing, or not a list")
+        remap = {}
+        for image in data["images"]:
+            image_id += 1
+            remap[image["id"]] = image_id
+            src = Path(image["file_name"])
+            full = src if src.is_absolute() else path.parent / src
+            merged["images"].append({**image, "id": image_id,
+                                     "file_name": Path(os.path.relpath(full, out.parent)).as_posix()})
+        for i, ann in enumerate(data["annotations"]):
+            if ann.get("image_id") not in remap:
+                raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')}")
+            ann_id += 1
+            merged["annotations"].append({**ann, "id": ann_id, "image_id": remap[ann["image_id"]]})
+    atomic_write_json(out, merged)
+    return out

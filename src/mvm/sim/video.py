@@ -1,0 +1,200 @@
+"""A synthetic mannequin video with ground truth: a textured room, coloured people-like
+figures and a hand-held camera touring them.
+
+World frame: metres, z up, floor at z = 0. The room is a box whose walls, floor and ceiling
+carry multi-scale noise textures (so that SIFT finds features); people are capsules (limbs,
+torso) and a disc (head), drawn far to near with OpenCV.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mvm.core.keypoints import NUM_JOINTS
+from mvm.core.scene import Cameras
+from mvm.sim.simulate import look_at
+
+#: A standing adult in the pose bank's frame (metres, z up, feet on z = 0, facing +y).
+STANDING = np.array([
+    [0, 0.10, 1.62], [-0.03, 0.08, 1.66], [0.03, 0.08, 1.66], [-0.07, 0.0, 1.64], [0.07, 0.0, 1.64],
+    [-0.18, 0, 1.42], [0.18, 0, 1.42], [-0.22, 0.02, 1.13], [0.22, 0.02, 1.13], [-0.24, 0.08, 0.88],
+    [0.24, 0.08, 0.88], [-0.10, 0, 0.95], [0.10, 0, 0.95], [-0.11, 0.02, 0.52], [0.11, 0.02, 0.52],
+    [-0.11, 0, 0.08], [0.11, 0, 0.08]])
+
+#: Body parts drawn as capsules: (joint a, joint b, radius in metres, clothing part).
+#: Parts: 0 shirt (torso and upper arms), 1 trousers (legs), 2 skin (forearms).
+_PARTS = (
+    (5, 11, 0.11, 0), (6, 12, 0.11, 0), (5, 12, 0.11, 0), (6, 11, 0.11, 0),
+    (5, 7, 0.05, 0), (6, 8, 0.05, 0), (7, 9, 0.04, 2), (8, 10, 0.04, 2),
+    (11, 13, 0.07, 1), (12, 14, 0.07, 1), (13, 15, 0.055, 1), (14, 16, 0.055, 1),
+)
+_SKIN = np.array([150, 180, 220], dtype=float)  # BGR
+_HEAD_RADIUS = 0.11
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """A rendered tour. Lengths in metres, angles in degrees, sizes in pixels."""
+
+    frames: int = 48
+    width: int = 480
+    height: int = 270
+    focal_px: float = 400.0
+    fps: float = 24.0
+    #: Total angle of the camera's arc around the crowd, its radius and height.
+    arc_deg: float = 60.0
+    radius: float = 4.0
+    camera_height: float = 1.6
+    #: Hand-held shake of the camera centre (metres, standard deviation).
+    shake_m: float = 0.01
+    #: Half-size of the room's floor (square) and its height.
+    room_half: float = 7.0
+    room_height: float = 3.5
+    seed: int = 0
+
+
+@dataclass
+class RenderedScene:
+    """The truth of a rendered video: ``cameras`` (V views), ``poses3d: (G, 17, 3)``,
+    ``shirts: (G, 3)`` and ``trousers: (G, 3)`` BGR colours."""
+
+    cameras: Cameras
+    poses3d: np.ndarray
+    shirts: np.ndarray
+    trousers: np.ndarray
+
+
+def noise_texture(rng: np.random.Generator, size: int = 1024, octaves: int = 7) -> np.ndarray:
+    """A coloured multi-scale noise texture: ``(size, size, 3)`` uint8."""
+    texture = np.zeros((size, size, 3), dtype=np.float32)
+    for o in range(octaves):
+        cells = 4 * 2**o
+        small = rng.uniform(-1, 1, (cells, cells, 3)).astype(np.float32)
+        texture += cv2.resize(small, (size, size), interpolation=cv2.INTER_CUBIC) / (1.15**o)
+    texture -= texture.min()
+    texture *= 230.0 / texture.max()
+    return np.clip(texture + 10, 0, 255).astype(np.uint8)
+
+
+def _room_planes(config: RenderConfig):
+    """The 6 planes of the room: (axis, offset, in-plane axes (2,)) each."""
+    h, H = config.room_half, config.room_height
+    return [(0, -h, (1, 2)), (0, h, (1, 2)), (1, -h, (0, 2)), (1, h, (0, 2)), (2, 0.0, (0, 1)), (2, H, (0, 1))]
+
+
+def render_room(K: np.ndarray, R: np.ndarray, center: np.ndarray, size: tuple[int, int],
+                textures: list[np.ndarray], config: RenderConfig) -> np.ndarray:
+    """Ray-cast the textured room for one camera: ``(H, W, 3)`` uint8 BGR.
+
+    ``K: (3, 3)``, ``R: (3, 3)`` world -> camera, ``center: (3,)``.
+    """
+    W, H = size
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(K).T @ R     # (H, W, 3) world
+    image = np.zeros((H, W, 3), dtype=np.uint8)
+    best = np.full((H, W), np.inf)
+    metres_per_texel = 2 * config.room_half / textures[0].shape[0]
+    for (axis, offset, (a, b)), texture in zip(_room_planes(config), textures):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (offset - center[axis]) / rays[..., axis]
+        hit = np.isfinite(t) & (t > 0) & (t < best)
+        if not hit.any():
+            continue
+        point = center + np.where(hit, t, 0)[..., None] * rays
+        map_x = ((point[..., a] + config.room_half) / metres_per_texel).astype(np.float32)
+        map_y = ((point[..., b] + config.room_half) / metres_per_texel).astype(np.float32)
+        sampled = cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        image[hit] = sampled[hit]
+        best = np.where(hit, t, best)
+    return image
+
+
+def draw_people(image: np.ndarray, P: np.ndarray, poses3d: np.ndarray, shirts: np.ndarray,
+                trousers: np.ndarray, focal: float, brightness: float = 1.0) -> np.ndarray:
+    """Draw people as capsules, far to near, on ``image: (H, W, 3)`` (in place).
+
+    ``P: (3, 4)``, ``poses3d: (G, 17, 3)``, ``shirts, trousers: (G, 3)`` BGR.
+    """
+    G = len(poses3d)
+    x = np.concatenate([poses3d, np.ones((G, NUM_JOINTS, 1))], axis=2) @ P.T
+    depth = x[..., 2]
+    uv = x[..., :2] / np.maximum(depth[..., None], 1e-6)
+    items = []  # (depth, kind, person, part index)
+    for g in range(G):
+        for k, (a, b, _, _) in enumerate(_PARTS):
+            items.append((0.5 * (depth[g, a] + depth[g, b]), 0, g, k))
+        items.append((depth[g, 0], 1, g, -1))
+    items.sort(key=lambda item: -item[0])
+    for d, kind, g, k in items:
+        if d <= 0.1:
+            continue
+        if kind == 1:
+            head = 0.5 * (uv[g, 3] + uv[g, 4])
+            radius = max(int(round(focal * _HEAD_RADIUS / d)), 1)
+            colour = _SKIN * brightness
+            cv2.circle(image, tuple(int(round(c)) for c in head), radius, colour.tolist(), -1, cv2.LINE_AA)
+            continue
+        a, b, r, part = _PARTS[k]
+        colour = (shirts[g], trousers[g], _SKIN)[part] * brightness
+        thickness = max(int(round(2 * focal * r / d)), 1)
+        pa = tuple(int(round(c)) for c in uv[g, a])
+        pb = tuple(int(round(c)) for c in uv[g, b])
+        cv2.line(image, pa, pb, np.clip(colour, 0, 255).tolist(), thickness, cv2.LINE_AA)
+    return image
+
+
+def tour_cameras(config: RenderConfig, rng: np.random.Generator) -> Cameras:
+    """``config.frames`` cameras on an arc around the origin, looking at (0, 0, 1)."""
+    V = config.frames
+    angles = np.radians(-90 + config.arc_deg * np.linspace(-0.5, 0.5, V))
+    centers = np.stack([config.radius * np.cos(angles), config.radius * np.sin(angles),
+                        np.full(V, config.camera_height)], axis=1)
+    centers += rng.normal(0, config.shake_m, (V, 3))
+    R = look_at(centers, np.broadcast_to([0.0, 0.0, 1.0], (V, 3)))
+    t = -np.einsum("vij,vj->vi", R, centers)
+    K = np.array([[config.focal_px, 0, config.width / 2], [0, config.focal_px, config.height / 2], [0, 0, 1]])
+    names = tuple(f"frame_{i:05d}.jpg" for i in range(V))
+    return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t,
+                   np.broadcast_to([float(config.width), float(config.height)], (V, 2)).copy(), names)
+
+
+def default_people(rng: np.random.Generator, count: int = 3, spacing: float = 0.9) -> np.ndarray:
+    """``count`` standing people in a row along x, facing -y (towards the tour): ``(G, 17, 3)``."""
+    poses = []
+    for g in range(count):
+        pose = STANDING * rng.uniform(0.9, 1.08) + rng.normal(0, 0.015, STANDING.shape)
+        pose[:, :2] *= -1  # a half turn about z: face -y
+        pose += [(g - (count - 1) / 2) * spacing, rng.uniform(-0.3, 0.3), 0.0]
+        poses.append(pose)
+    return np.array(poses)
+
+
+def render_video(path: str | Path, config: RenderConfig = RenderConfig(),
+                 poses3d: np.ndarray | None = None, shirts: np.ndarray | None = None,
+                 trousers: np.ndarray | None = None) -> RenderedScene:
+    """Render the tour and write it as an mp4 (``mp4v``) video at ``path``; return the truth."""
+    rng = np.random.default_rng(config.seed)
+    textures = [noise_texture(rng) for _ in range(6)]
+    cameras = tour_cameras(config, rng)
+    poses3d = default_people(rng) if poses3d is None else np.asarray(poses3d, dtype=float)
+    G = len(poses3d)
+    shirts = rng.uniform(40, 230, (G, 3)) if shirts is None else np.asarray(shirts, dtype=float)
+    trousers = rng.uniform(20, 120, (G, 3)) if trousers is None else np.asarray(trousers, dtype=float)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), config.fps,
+                             (config.width, config.height))
+    if not writer.isOpened():
+        raise RuntimeError(f"{path}: OpenCV cannot write mp4v video")
+    try:
+        for v in range(len(cameras)):
+            image = render_room(cameras.K[v], cameras.R[v], cameras.centers[v],
+                                (config.width, config.height), textures, config)
+            draw_people(image, cameras.P[v], poses3d, shirts, trousers, config.focal_px)
+            writer.write(image)
+    finally:
+        writer.release()
+    return RenderedScene(cameras, poses3d, shirts, trousers)

@@ -1,0 +1,138 @@
+"""PA-MPJPE (3DPW protocol), OKS AP, C_var, the scale calibration and the depth error."""
+import numpy as np
+import pytest
+
+from mvm.core.keypoints import BONES, MEAN_BONE_LENGTHS_M
+from mvm.eval import network as metrics
+from mvm.net import scale
+
+
+def _rotation(rng):
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+def test_pa_mpjpe_removes_similarity_transforms():
+    rng = np.random.default_rng(0)
+    gt = rng.normal(size=(5, 14, 3))
+    pred = np.stack([1.7 * g @ _rotation(rng).T + rng.normal(size=3) for g in gt])
+    np.testing.assert_allclose(metrics.pa_mpjpe(pred, gt), 0.0, atol=1e-9)
+    noisy = pred.copy()
+    noisy[0, 3] += 0.5
+    e = metrics.pa_mpjpe(noisy, gt)
+    assert e[0] > 0.01 and np.allclose(e[1:], 0.0, atol=1e-9)
+    # a mirror image is not a rotation: it is not aligned away
+    assert metrics.pa_mpjpe(gt * np.array([-1, 1, 1]), gt).mean() > 0.1
+
+
+def test_threedpw_protocol_averages_per_track_then_over_tracks():
+    rng = np.random.default_rng(1)
+    gt = rng.normal(size=(4, 14, 3))
+    pred = gt.copy()
+    pred[2, 0] += 1.0      # track (a, 1): errors e and 0 -> mean e/2
+    vis = np.ones((4, 14), bool)
+    vis[3, :8] = False     # only 6 visible joints: ignored
+    pred[3] += 10 * rng.normal(size=(14, 3))
+    clip = np.array(["a", "a", "a", "b"])
+    track = np.array([0, 1, 1, 0])
+    total, per = metrics.threedpw_pa_mpjpe(pred, gt, vis, clip, track)
+    e = metrics.pa_mpjpe(pred[2:3], gt[2:3])[0]
+    assert set(per) == {("a", 0), ("a", 1)}
+    assert per[("a", 1)] == pytest.approx(e / 2)
+    assert total == pytest.approx((0.0 + e / 2) / 2)
+
+
+def test_common14_mapping():
+    p = np.arange(17 * 3, dtype=float).reshape(17, 3)
+    c = metrics.coco_to_common14(p)
+    assert c.shape == (14, 3)
+    np.testing.assert_allclose(c[0], p[5])
+    np.testing.assert_allclose(c[12], 0.5 * (p[5] + p[6]))
+    np.testing.assert_allclose(c[13], p[0])
+
+
+def _coco(keypoints):
+    images = [{"id": 1, "file_name": "a.png", "width": 200, "height": 200}]
+    anns = [{"id": i + 1, "image_id": 1, "category_id": 1, "keypoints": k.reshape(-1).tolist(), "iscrowd": 0}
+            for i, k in enumerate(keypoints)]
+    return {"images": images, "annotations": anns, "categories": [{"id": 1, "name": "person"}]}
+
+
+def test_oks_ap_perfect_wrong_and_empty():
+    rng = np.random.default_rng(2)
+    kp = np.concatenate([rng.uniform(20, 180, (2, 17, 2)), np.full((2, 17, 1), 2.0)], -1)
+    gt = _coco(kp)
+    perfect = [{"image_id": 1, "keypoints": k.reshape(-1).tolist(), "score": 0.9} for k in kp]
+    assert metrics.oks_ap(gt, perfect)["AP"] == pytest.approx(1.0)
+    wrong = [{"image_id": 1, "keypoints": (k + [[60, 60, 0]]).reshape(-1).tolist(), "score": 0.9} for k in kp]
+    assert metrics.oks_ap(gt, wrong)["AP"] == pytest.approx(0.0)
+    half = perfect[:1]
+    assert 0.4 < metrics.oks_ap(gt, half)["AP"] < 0.6
+    assert metrics.oks_ap(gt, [])["AP"] == 0.0
+
+
+def _cameras(n, rng):
+    P = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        R = np.array([[np.cos(a), 0, -np.sin(a)], [0, 1, 0], [np.sin(a), 0, np.cos(a)]])
+        C = np.array([5 * np.sin(a), 0, -5 * np.cos(a)])
+        K = np.array([[500, 0, 320], [0, 500, 240], [0, 0, 1.0]])
+        P.append(K @ np.concatenate([R, -(R @ C)[:, None]], 1))
+    return np.array(P)
+
+
+def test_c_var_zero_for_exact_and_grows_with_noise():
+    rng = np.random.default_rng(3)
+    P = _cameras(6, rng)
+    X = rng.normal(scale=0.5, size=(2, 17, 3))
+    x = np.einsum("vij,pkj->pvki", P, np.concatenate([X, np.ones((2, 17, 1))], -1))
+    kp = np.concatenate([x[..., :2] / x[..., 2:], np.full(x.shape[:-1] + (1,), 0.95)], -1)   # (P, V, 17, 3)
+    assert metrics.c_var(P, kp, 0.5) == pytest.approx(0.0, abs=1e-12)
+    noisy = kp.copy()
+    noisy[..., :2] += rng.normal(scale=3.0, size=noisy[..., :2].shape)
+    small = metrics.c_var(P, noisy, 0.5)
+    noisy2 = kp.copy()
+    noisy2[..., :2] += rng.normal(scale=12.0, size=noisy2[..., :2].shape)
+    assert 0 < small < metrics.c_var(P, noisy2, 0.5)
+    # tau removes the low-confidence outliers
+    outlier = kp.copy()
+    outlier[:, 0, :, :2] += 80
+    outlier[:, 0, :, 2] = 0.6
+    assert metrics.c_var(P, outlier, 0.5) > 1e-3
+    assert metrics.c_var(P, outlier, 0.9) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_scale_calibration_closed_form():
+    rng = np.random.default_rng(4)
+    l = rng.uniform(0.1, 0.5, 12)
+    s = scale.optimal_scale(l)
+    expected = (MEAN_BONE_LENGTHS_M * l).sum() / (l * l).sum()
+    assert s == pytest.approx(expected)
+    # s* minimizes Σ ½ (s l − l̄)²: the derivative vanishes there
+    assert ((s * l - MEAN_BONE_LENGTHS_M) * l).sum() == pytest.approx(0.0, abs=1e-12)
+    l[3] = np.nan
+    ok = np.isfinite(l)
+    assert scale.optimal_scale(l) == pytest.approx((MEAN_BONE_LENGTHS_M[ok] * l[ok]).sum() / (l[ok] ** 2).sum())
+
+
+def test_lift_and_calibrate_recover_a_metric_pose():
+    rng = np.random.default_rng(5)
+    from mvm.sim.images import random_poses
+    X = random_poses(rng, 1)[0] * np.array([1, -1, 1]) + np.array([0.2, 1.0, 4.0])   # camera frame, z ≈ 4 m
+    bones = np.linalg.norm(X[[a for a, _ in BONES]] - X[[b for _, b in BONES]], axis=-1)
+    X *= (MEAN_BONE_LENGTHS_M * bones).sum() / (bones ** 2).sum()                      # a person of mean size
+    K = np.array([[400, 0, 160], [0, 400, 120], [0, 0, 1.0]])
+    uv = X @ K.T
+    kp = np.concatenate([uv[:, :2] / uv[:, 2:], np.ones((17, 1))], -1)[None]
+    rel = X[:, 2] / np.median(X[:, 2])
+    lifted = scale.lift(kp, rel[None], K)
+    metric, s = scale.calibrate(lifted)
+    np.testing.assert_allclose(metric[0], X, atol=1e-9)
+    assert s[0] == pytest.approx(np.median(X[:, 2]))
+
+
+def test_relative_depth_error_ignores_scale():
+    gt = np.array([[1.0, 1.1, 0.9, np.nan]])
+    assert metrics.relative_depth_error(3 * gt, gt)[0] == pytest.approx(0.0)
+    assert metrics.relative_depth_error(np.array([[1.0, 1.0, 1.0, 1.0]]), gt)[0] == pytest.approx(0.2 / 3)

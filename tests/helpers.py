@@ -1,0 +1,49 @@
+"""Factories shared by the tests: cameras, standing poses, and where the data lie.
+
+Importable from any test module (``from helpers import random_cameras``): ``tests/`` is on
+pytest's ``pythonpath``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+#: The test folder, the repository, and the shared real data beside the repository.
+TESTS = Path(__file__).resolve().parent
+REPO = TESTS.parent
+SHARED_DATA = REPO.parent / "shared" / "data"
+#: The corpus of malformed inputs and other test data.
+DATA = TESTS / "data"
+
+#: A standing person in the pose bank's frame (metres, z up, feet on z = 0, facing +y).
+STANDING = np.array([
+    [0, 0.10, 1.62], [-0.03, 0.08, 1.66], [0.03, 0.08, 1.66], [-0.07, 0.0, 1.64], [0.07, 0.0, 1.64],
+    [-0.18, 0, 1.42], [0.18, 0, 1.42], [-0.22, 0.02, 1.13], [0.22, 0.02, 1.13], [-0.24, 0.08, 0.88],
+    [0.24, 0.08, 0.88], [-0.10, 0, 0.95], [0.10, 0, 0.95], [-0.11, 0.02, 0.52], [0.11, 0.02, 0.52],
+    [-0.11, 0, 0.08], [0.11, 0, 0.08]])
+
+
+def standing_poses(n: int = 30, seed: int = 0, jitter: float = 0.04) -> np.ndarray:
+    """``(n, 17, 3)`` varied standing poses in the bank frame."""
+    rng = np.random.default_rng(seed)
+    poses = STANDING[None] + rng.normal(0, jitter, (n, 17, 3))
+    poses[..., 2] -= poses[..., 2].min(axis=1, keepdims=True)
+    return poses
+
+
+def random_cameras(rng: np.random.Generator, V: int, radius: float = 5.0, arc_deg: float = 90.0,
+                   width: int = 1280, height: int = 720, focal: float = 1000.0):
+    """``V`` cameras on an arc around the origin looking at (0, 0, 1)."""
+    from mvm.core.scene import Cameras
+    from mvm.sim.simulate import look_at
+
+    angles = np.radians(np.linspace(-arc_deg / 2, arc_deg / 2, V)) + rng.uniform(0, 2 * np.pi)
+    centers = np.stack([radius * np.cos(angles), radius * np.sin(angles),
+                        1.5 + rng.normal(0, 0.1, V)], axis=1)
+    R = look_at(centers, np.broadcast_to([0.0, 0.0, 1.0], (V, 3)))
+    t = -np.einsum("vij,vj->vi", R, centers)
+    K = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1.0]])
+    return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t,
+                   np.broadcast_to([float(width), float(height)], (V, 2)).copy(),
+                   tuple(f"f{i:04d}.jpg" for i in range(V)))

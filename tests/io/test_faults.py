@@ -1,0 +1,199 @@
+"""Fault tests: ``mvm reconstruct`` killed with SIGKILL at random moments and at chosen points
+of writing (between the temporary file and the rename, half-way through the write, just after
+the rename), and several runs on one scene at once.
+
+After every kill the output is either absent (first run) or complete and valid — the previous
+complete output when there was one: an output is never lost nor partial. A clean rerun then
+writes the complete output and removes the killed run's temporary file.
+
+``benchmarks/fault_injection.py`` runs the same faults many more times and prints the counts.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL") or sys.platform == "win32",
+                                reason="SIGKILL and flock are POSIX")
+
+#: Python run before the command line in the child process; ``FAULT`` selects where it kills
+#: itself while writing ``poses3d.json``.
+PRELUDE = r'''
+import os, signal, sys
+fault = os.environ.get("MVM_TEST_FAULT", "")
+target = "poses3d.json"
+def die():
+    os.kill(os.getpid(), signal.SIGKILL)
+if fault in ("before_rename", "after_rename"):
+    real_replace = os.replace
+    def replace(src, dst, *a, **k):
+        if str(dst).endswith(target):
+            if fault == "before_rename":
+                die()
+            real_replace(src, dst, *a, **k)
+            die()
+        return real_replace(src, dst, *a, **k)
+    os.replace = replace
+if fault == "mid_write":
+    real_fdopen = os.fdopen
+    class HalfWriter:
+        def __init__(self, f):
+            self.f = f
+        def __enter__(self):
+            return self
+        def __exit__(self, *exc):
+            return self.f.__exit__(*exc)
+        def write(self, data):
+            self.f.write(data[: len(data) // 2])
+            self.f.flush()
+            os.fsync(self.f.fileno())
+            die()
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+    def fdopen(fd, mode="r", *a, **k):
+        f = real_fdopen(fd, mode, *a, **k)
+        return HalfWriter(f) if "w" in mode else f
+    os.fdopen = fdopen
+from mvm.cli.main import run
+sys.argv = ["mvm"] + sys.argv[1:]
+run()
+'''
+
+FAULTS = ("before_rename", "mid_write", "after_rename")
+
+
+def write_test_scene(path: Path, people: int = 3, frames: int = 30, seed: int = 0) -> Path:
+    try:
+        from helpers import standing_poses
+    except ImportError:
+        from tests.conftest import standing_poses
+    from mvm.io.scene_dir import write_scene
+    from mvm.sim.simulate import SimConfig, simulate
+
+    scene, _ = simulate(SimConfig(people=people, frames=frames, seed=seed), bank_poses=standing_poses())
+    write_scene(path, scene.cameras, scene.poses)
+    return path
+
+
+def start(scene: Path, fault: str = "", *extra: str) -> subprocess.Popen:
+    env = dict(os.environ, MVM_TEST_FAULT=fault)
+    return subprocess.Popen([sys.executable, "-c", PRELUDE, "reconstruct", str(scene), *extra], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def output_of(scene: Path) -> Path:
+    return scene / "mvm" / "poses3d.json"
+
+
+def persons_of(path: Path):
+    """The persons of a complete, valid ``poses3d.json`` (raises on a partial or invalid one)."""
+    document = json.loads(path.read_text())
+    assert document["format"] == "mvm.poses3d/1"
+    assert set(document) >= {"persons", "metrics", "config", "timings_s", "warnings"}
+    for person in document["persons"]:
+        assert len(person["keypoints3d"]) == 17
+    return document["persons"]
+
+
+def state(scene: Path, reference) -> str:
+    """``absent``, ``complete`` (valid and equal to the reference persons) or ``partial``."""
+    path = output_of(scene)
+    if not path.exists():
+        return "absent"
+    try:
+        return "complete" if persons_of(path) == reference else "partial"
+    except (ValueError, KeyError, AssertionError, TypeError):
+        return "partial"
+
+
+def stale_temporaries(scene: Path) -> list[Path]:
+    return sorted((scene / "mvm").glob(".poses3d.json.*.tmp")) if (scene / "mvm").exists() else []
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """A scene and its complete output, from an undisturbed run."""
+    scene = write_test_scene(tmp_path_factory.mktemp("ref") / "scene")
+    process = start(scene)
+    assert process.wait(120) == 0, process.stderr.read().decode()
+    return scene, persons_of(output_of(scene))
+
+
+def copy_scene(scene: Path, to: Path, with_output: bool) -> Path:
+    import shutil
+
+    shutil.copytree(scene, to, ignore=None if with_output else shutil.ignore_patterns("mvm"))
+    return to
+
+
+@pytest.mark.parametrize("fault", FAULTS)
+@pytest.mark.parametrize("with_output", [False, True], ids=["fresh", "rerun"])
+def test_killed_while_writing_then_rerun(reference, tmp_path, fault, with_output):
+    scene = copy_scene(reference[0], tmp_path / "scene", with_output)
+    process = start(scene, fault)
+    assert process.wait(120) == -signal.SIGKILL
+    after_kill = state(scene, reference[1])
+    if fault == "after_rename":
+        assert after_kill == "complete"
+    elif with_output:
+        assert after_kill == "complete"                  # the previous output survives
+    else:
+        assert after_kill == "absent"
+    if fault != "after_rename":
+        assert stale_temporaries(scene)                  # the fault did hit the write
+    rerun = start(scene)
+    assert rerun.wait(120) == 0, rerun.stderr.read().decode()
+    assert state(scene, reference[1]) == "complete"
+    assert stale_temporaries(scene) == []
+
+
+def test_killed_at_random_moments(reference, tmp_path):
+    rng = np.random.default_rng(0)
+    outcomes = []
+    for i in range(6):
+        scene = copy_scene(reference[0], tmp_path / f"s{i}", with_output=bool(i % 2))
+        process = start(scene)
+        time.sleep(rng.uniform(0.2, 1.2))
+        process.send_signal(signal.SIGKILL)
+        process.wait(120)
+        outcome = state(scene, reference[1])
+        assert outcome != "partial"
+        if i % 2:
+            assert outcome == "complete"
+        outcomes.append(outcome)
+        rerun = start(scene)
+        assert rerun.wait(120) == 0
+        assert state(scene, reference[1]) == "complete" and stale_temporaries(scene) == []
+
+
+def test_concurrent_runs_on_one_scene(reference, tmp_path):
+    scene = copy_scene(reference[0], tmp_path / "scene", with_output=False)
+    processes = [start(scene) for _ in range(3)]
+    codes = [p.wait(180) for p in processes]
+    assert codes == [0, 0, 0], [p.stderr.read().decode() for p in processes]
+    assert state(scene, reference[1]) == "complete"
+    assert stale_temporaries(scene) == []
+    assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.json"]
+
+
+def test_a_run_that_cannot_get_the_lock_refuses_cleanly(reference, tmp_path):
+    from mvm.io.files import exclusive_lock
+
+    scene = copy_scene(reference[0], tmp_path / "scene", with_output=True)
+    before = output_of(scene).read_bytes()
+    with exclusive_lock(scene / "mvm"):
+        process = start(scene, "", "--set", "lock_timeout_s=0.2")
+        code = process.wait(120)
+    stderr = process.stderr.read().decode()
+    assert code == 2
+    lines = [line for line in stderr.splitlines() if line.startswith("mvm: error:")]
+    assert len(lines) == 1 and "another mvm run" in lines[0] and "Traceback" not in stderr
+    assert output_of(scene).read_bytes() == before

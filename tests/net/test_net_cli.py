@@ -1,0 +1,101 @@
+"""The ``export``, ``train`` and ``predict`` commands."""
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from mvm.cli.net import _parse_sets, export_cmd, predict_cmd, train_cmd
+from mvm.core.scene import Cameras, Persons3D, Poses2D
+from mvm.errors import InputError
+from mvm.net.supervision import project_persons
+from mvm.sim import images
+
+
+@pytest.mark.parametrize("command", [export_cmd, train_cmd, predict_cmd])
+def test_help(command):
+    result = CliRunner().invoke(command, ["--help"])
+    assert result.exit_code == 0 and "Usage" in result.output
+
+
+def _scene_dir(tmp_path):
+    import cv2
+
+    from mvm.io.scene_dir import poses3d_document, write_poses3d, write_scene
+
+    rng = np.random.default_rng(0)
+    people, K = images.random_scene(rng, 2, (160, 120), distance=(3.0, 4.0))
+    V = 3
+    R = np.tile(np.eye(3), (V, 1, 1))
+    t = np.array([[0.1 * v, 0, 0] for v in range(V)])
+    cams = Cameras(np.tile(K, (V, 1, 1)), R, t, np.tile([160, 120], (V, 1)), tuple(f"{v:04d}.jpg" for v in range(V)))
+    kps = [project_persons(people, K, R[v], t[v], (160, 120))[0] for v in range(V)]
+    kp2d = np.concatenate(kps)
+    kp2d[:, :, 2] = np.minimum(kp2d[:, :, 2], 1.0)
+    view = np.repeat(np.arange(V), len(people))
+    poses = Poses2D(kp2d, view, np.arange(1, len(view) + 1), np.ones(len(view)))
+    scene = tmp_path / "scene1"
+    write_scene(scene, cams, poses)
+    (scene / "frames").mkdir()
+    for name in cams.names:
+        cv2.imwrite(str(scene / "frames" / name), np.zeros((120, 160, 3), np.uint8))
+    P = len(people)
+    persons = Persons3D(people, np.ones((P, 17)), [np.array([p, p + P, p + 2 * P]) for p in range(P)],
+                        np.full((P, 17), 3), np.zeros((P, 17), int), np.zeros(P))
+    (scene / "mvm").mkdir()
+    write_poses3d(scene / "mvm" / "poses3d.json", poses3d_document(persons, poses, {}))
+    return scene
+
+
+def test_export_command(tmp_path):
+    scene = _scene_dir(tmp_path)
+    result = CliRunner().invoke(export_cmd, [str(scene), "--out", str(tmp_path / "ds"), "--link", "copy"])
+    assert result.exit_code == 0, result.output
+    assert "3 images" in result.output
+    data = json.loads((tmp_path / "ds" / "annotations.json").read_text())
+    assert len(data["annotations"]) == 6
+    assert all((tmp_path / "ds" / im["file_name"]).is_file() for im in data["images"])
+
+
+def test_export_without_poses3d_is_an_input_error(tmp_path):
+    (tmp_path / "empty").mkdir()
+    result = CliRunner().invoke(export_cmd, [str(tmp_path / "empty"), "--out", str(tmp_path / "ds")])
+    assert isinstance(result.exception, InputError)
+    assert "poses3d.json: not found" in str(result.exception)
+
+
+def test_train_and_predict_commands(tmp_path):
+    data = images.synthetic_dataset(tmp_path / "data", 4, (64, 64), seed=5)
+    config = tmp_path / "tiny.toml"
+    config.write_text(f"""
+[model]
+backbone = "resnet18"
+stride = 16
+width = 8
+[data]
+input_size = 64
+[[data.train]]
+annotations = "{data}"
+[optim]
+steps = 2
+batch_size = 2
+[output]
+out_dir = "{tmp_path / 'run'}"
+device = "cpu"
+""")
+    result = CliRunner().invoke(train_cmd, [str(config), "--set", "steps=3", "--set", "lr=0.01"])
+    assert result.exit_code == 0, result.output
+    assert "step 3" in result.output and "images/s" in result.output
+    ckpt = tmp_path / "run" / "checkpoint-0000003.pt"
+    image = tmp_path / "data" / "images" / "000000.png"
+    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(ckpt), "--out", str(tmp_path / "p")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "p" / "predictions.json").is_file()
+    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(tmp_path / "missing.pt")])
+    assert isinstance(result.exception, InputError)
+
+
+def test_parse_sets():
+    assert _parse_sets(("lr=0.01", "backbone=resnet18", "flip = 0")) == {"lr": 0.01, "backbone": "resnet18", "flip": 0}
+    with pytest.raises(InputError, match="KEY=VALUE"):
+        _parse_sets(("lr",))

@@ -1,0 +1,155 @@
+"""Training mechanics: config, data augmentation, checkpoints (state_dict + JSON), resume, predict."""
+import json
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from mvm.core.keypoints import FLIP_PERMUTATION
+from mvm.errors import InputError
+from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
+from mvm.net.predict import load_model, predict
+from mvm.net.train import EMA, MixtureSampler, config_from_dict, learning_rate, load_config, read_checkpoint, train
+from mvm.sim import images
+
+from helpers import REPO
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synthetic")
+    return images.synthetic_dataset(root, 6, (64, 64), persons=(1, 2), seed=3, distance=(1.8, 3.0))
+
+
+def _config(data, out, **kw):
+    doc = {"model": {"backbone": "resnet18", "stride": 16, "width": 8},
+           "data": {"input_size": 64, "train": [{"annotations": str(data)}]},
+           "optim": {"lr": 0.01, "batch_size": 2, "steps": 3, "ema_decay": 0.1},
+           "output": {"out_dir": str(out), "checkpoint_every": 2, "log_every": 1, "device": "cpu"}}
+    doc["optim"].update(kw)
+    return config_from_dict(doc)
+
+
+def test_config_files_parse(tmp_path):
+    root = REPO / "configs"
+    paper = load_config(root / "train_paper.toml")
+    assert (paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay) == (1e-3, 0.95, 8, 0.0, 1e-3)
+    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride) == (0.95, 1.0, "resnet152", 8)
+    assert paper.train[0].start_step == 0 and paper.train[1].start_step > 0
+    tiny = load_config(root / "train_cpu_tiny.toml", {"steps": 5})
+    assert tiny.steps == 5 and tiny.backbone == "resnet18"
+    with pytest.raises(InputError, match="unknown setting.*known: .*backbone"):
+        config_from_dict({"optim": {"learning_rate": 1.0}})
+    with pytest.raises(InputError, match="stride"):
+        config_from_dict({"model": {"stride": 32}})
+
+
+def test_crop_and_flip_move_keypoints_with_the_image():
+    image = np.zeros((80, 100, 3), np.uint8)
+    kp = np.zeros((1, 17, 3))
+    kp[0, :, 0] = np.linspace(30, 70, 17)
+    kp[0, :, 1] = 40
+    kp[0, :, 2] = 2
+    kp[0, 5, :2] = (55, 20)   # left shoulder
+    image[20, 55] = 255       # a marker on it
+    depth = np.linspace(0.9, 1.1, 17)[None]
+    for seed in range(20):
+        crop, k, d = random_crop_flip(image, kp, depth, AugmentConfig(input_size=80, flip=0.5), np.random.default_rng(seed))
+        assert crop.shape == (80, 80, 3)
+        y, x = np.unravel_index(np.argmax(crop[:, :, 0]), crop.shape[:2])
+        flipped = d[0, 5] != depth[0, 5]
+        j = 6 if flipped else 5               # after a flip the marker is the *right* shoulder
+        assert abs(k[0, j, 0] - x) <= 1.0 and abs(k[0, j, 1] - y) <= 1.0
+        if flipped:
+            np.testing.assert_allclose(d[0], depth[0, FLIP_PERMUTATION])
+
+
+def test_sampler_mixes_data_sets_from_their_start_step():
+    s = MixtureSampler([10, 5], [1.0, 1.0], [0, 3], batch_size=2, seed=0)
+    it = iter(s)
+    keys = [next(it) for _ in range(200)]
+    assert all(k == 0 for k, _, _ in keys[:6])                    # steps 0-2: first set only
+    assert {k for k, _, _ in keys[6:]} == {0, 1}
+    assert all(0 <= i < (10, 5)[k] for k, i, _ in keys)
+    resumed = iter(MixtureSampler([10, 5], [1.0, 1.0], [0, 3], batch_size=2, seed=0, start=50))
+    assert [next(resumed) for _ in range(5)] == keys[50:55]
+
+
+def test_ema_follows_parameters():
+    m = torch.nn.Linear(2, 1)
+    ema = EMA(m, decay=0.1)
+    with torch.no_grad():
+        m.weight.fill_(1.0)
+    for _ in range(100):
+        ema.update(m)
+    assert torch.allclose(ema.state["weight"], torch.ones(1, 2), atol=1e-4)
+
+
+def test_train_checkpoints_resume_and_predict(tiny_data, tmp_path):
+    out = tmp_path / "run"
+    path = train(_config(tiny_data, out))
+    assert path.name == "checkpoint-0000003.pt"
+    assert (out / "checkpoint-0000002.pt").is_file() and (out / "checkpoint-0000002.json").is_file()
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert meta["step"] == 3 and meta["model"] == {"backbone": "resnet18", "stride": 16, "width": 8}
+    assert meta["images_per_second"] > 0 and set(meta["losses"]) >= {"L_PIF", "L_PAF", "L_PDF", "total"}
+    state = torch.load(path, weights_only=True)  # tensors only: no pickled module
+    assert set(state) >= {"model", "ema", "optimizer"}
+
+    resumed = train(_config(tiny_data, out, steps=5), resume="auto")
+    assert resumed.name == "checkpoint-0000005.pt"
+    s5, _ = read_checkpoint(resumed)
+    assert not torch.equal(s5["model"]["pif.conv.weight"], state["model"]["pif.conv.weight"])
+
+    model, _ = load_model(resumed)
+    ann = read_annotations(tiny_data)
+    results = predict([ann.paths[0], ann.paths[1]], resumed, tmp_path / "pred")
+    assert len(results) == 2 and results[0]["width"] == 64
+    written = json.loads((tmp_path / "pred" / "predictions.json").read_text())
+    assert len(written["images"]) == 2
+    assert (tmp_path / "pred" / f"{ann.paths[0].stem}.overlay.jpg").is_file()
+
+
+def test_bad_checkpoint_is_an_input_error(tmp_path):
+    (tmp_path / "x.pt").write_bytes(b"junk")
+    with pytest.raises(InputError, match="metadata not found"):
+        read_checkpoint(tmp_path / "x.pt")
+    (tmp_path / "x.json").write_text(json.dumps({"format": "mvm.net.checkpoint/1", "model": {}, "step": 1}))
+    with pytest.raises(InputError, match="not a checkpoint"):
+        read_checkpoint(tmp_path / "x.pt")
+
+
+def test_dataset_items_have_the_field_shapes(tiny_data):
+    ds = KeypointDataset(read_annotations(tiny_data), 8, AugmentConfig(input_size=64))
+    item = ds[0]
+    assert item["image"].shape == (3, 64, 64)
+    assert item["pif"].shape == (17, 5, 8, 8) and item["pdf"].shape == (17, 2, 8, 8)
+    assert torch.isfinite(item["pdf"][:, 0]).any()       # the synthetic data carry depth
+    assert torch.equal(ds.sample(0, 7)["image"], ds.sample(0, 7)["image"])  # deterministic per draw
+
+
+def test_learning_rate_warmup_and_cosine_by_hand():
+    cfg = config_from_dict({"optim": {"lr": 0.5, "lr_warmup": 4, "lr_decay": "cosine", "steps": 100}})
+    floor = 0.005
+    assert learning_rate(cfg, 0, 0.0) == pytest.approx(floor)
+    assert learning_rate(cfg, 2, 0.02) == pytest.approx(floor + (0.5 - floor) / 2)     # half-way up
+    assert learning_rate(cfg, 40, 0.4) == pytest.approx(floor + (0.5 - floor) * 0.5 * (1 + np.cos(0.4 * np.pi)))
+    assert learning_rate(cfg, 100, 1.0) == pytest.approx(floor)
+    assert learning_rate(cfg.replace(lr_decay="none"), 90, 0.9) == 0.5
+    with pytest.raises(InputError, match="lr_decay"):
+        config_from_dict({"optim": {"lr_decay": "step"}})
+    with pytest.raises(InputError, match="optimizer"):
+        config_from_dict({"optim": {"optimizer": "rmsprop"}})
+
+
+def test_time_limit_stops_training_and_adamw_trains(tiny_data, tmp_path):
+    cfg = _config(tiny_data, tmp_path / "run", steps=100_000, checkpoint_every=100_000, optimizer="adamw",
+                  lr_decay="cosine", max_seconds=1.0)
+    t = time.perf_counter()
+    path = train(cfg)
+    meta = json.loads(path.with_suffix(".json").read_text())
+    assert 1.0 <= meta["train_seconds"] < 60 and time.perf_counter() - t < 90
+    assert 0 < meta["step"] < 100_000 and path.name == f"checkpoint-{meta['step']:07d}.pt"
+    state, _ = read_checkpoint(path)
+    assert "exp_avg" in state["optimizer"]["state"][0]                      # AdamW moments were kept

@@ -1,0 +1,134 @@
+"""Rig: batched affinity equals the core's, reconstruction against ground truth, tracking,
+smoothing, and the PCP / AP metrics."""
+import numpy as np
+import pytest
+
+from mvm.core.affinity import epipolar_distance
+from mvm.core.config import Config
+from mvm.core.geometry import fundamental_matrices
+from mvm.eval.metrics import match_persons, pose_errors
+from mvm.eval.mocap import COCO_PCP_LIMBS, average_precision, limbs_correct, pcp
+from mvm.rig.instants import Detections, batched_epipolar_distance, pad_by_camera, reconstruct_instants
+from mvm.rig.tracking import link_tracks, smooth_series
+from mvm.sim.rig import DetectorErrors, detect_views, pose_scores, ring_cameras, walking_people
+
+
+def _capture(cameras, T=12, people=4, seed=0, errors=DetectorErrors()):
+    rng = np.random.default_rng(seed)
+    truth = walking_people(people, T, rng)
+    kps, cams, inst = [], [], []
+    for t in range(T):
+        k, c, _ = detect_views(cameras, truth[t], rng, errors)
+        kps.append(k), cams.append(c), inst.append(np.full(len(c), t))
+    kp = np.concatenate(kps)
+    return truth, Detections(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
+
+
+def test_batched_distance_equals_core():
+    cameras = ring_cameras(6)
+    _, det = _capture(cameras, T=3)
+    c = Config()
+    T = 3
+    slot, n = pad_by_camera(det.instant, det.camera, T, len(cameras))
+    padded = np.zeros((T * len(cameras) * n, 17, 3))
+    padded[slot] = det.keypoints
+    D = batched_epipolar_distance(fundamental_matrices(cameras.K, cameras.R, cameras.t),
+                                  c.distance_scale * cameras.focal, padded.reshape(T, len(cameras), n, 17, 3),
+                                  c.keypoint_threshold, c.min_common_keypoints)
+    for t in range(T):
+        rows = np.flatnonzero(det.instant == t)
+        core = epipolar_distance(cameras, det.keypoints[rows], det.camera[rows], c.keypoint_threshold,
+                                 c.distance_scale, c.min_common_keypoints)
+        pos = slot[rows] % (len(cameras) * n)
+        ours = D[t][np.ix_(pos, pos)]
+        assert np.array_equal(np.isnan(core), np.isnan(ours)) and np.array_equal(np.isinf(core), np.isinf(ours))
+        finite = np.isfinite(core)
+        np.testing.assert_allclose(ours[finite], core[finite], rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("batch_size", [5, 64])
+def test_reconstruction_matches_truth(batch_size):
+    cameras = ring_cameras(5)
+    truth, det = _capture(cameras, T=12)
+    persons = reconstruct_instants(cameras, det, Config(refine=False), batch_size=batch_size)
+    found, errors = 0, []
+    for t in range(12):
+        X = persons.X[persons.instant == t]
+        pairs = match_persons(X, truth[t], 0.15)
+        found += len(pairs)
+        errors.append(pose_errors(X, truth[t], pairs)["mpjpe"])
+    assert found >= 0.95 * 12 * 4
+    assert np.nanmean(errors) < 0.04                                   # metres
+    # members point at the detections used, one per camera at most, from the person's instant
+    used = persons.members[persons.members >= 0]
+    assert len(np.unique(used)) == len(used)
+    q, v = np.nonzero(persons.members >= 0)
+    assert (det.instant[persons.members[q, v]] == persons.instant[q]).all()
+    assert (det.camera[persons.members[q, v]] == v).all()
+
+
+def test_tracks_survive_gaps_and_split_far_jumps():
+    rng = np.random.default_rng(0)
+    base = rng.normal(size=(3, 17, 3))
+    base[:, :, 0] += np.array([0.0, 3.0, 6.0])[:, None]               # three people 3 m apart
+    X, inst, who = [], [], []
+    for t in range(20):
+        for g in range(3):
+            if g == 1 and 8 <= t < 11:                                  # person 1 unseen for 3 instants
+                continue
+            X.append(base[g] + 0.01 * t)
+            inst.append(t)
+            who.append(g)
+    X, inst, who = np.array(X), np.array(inst), np.array(who)
+    order = rng.permutation(len(X))                                     # input order must not matter
+    track = link_tracks(X[order], inst[order], 0.5, max_gap=5)
+    for g in range(3):
+        assert len(np.unique(track[who[order] == g])) == 1
+    assert len(np.unique(track)) == 3
+    short_gap = link_tracks(X, inst, 0.5, max_gap=2)
+    assert len(np.unique(short_gap[who == 1])) == 2                    # the gap exceeds max_gap
+
+
+@pytest.mark.parametrize("method", ["butterworth", "savgol"])
+def test_smoothing_reduces_noise(method):
+    rng = np.random.default_rng(0)
+    t = np.arange(120) / 30.0
+    clean = np.stack([np.sin(t), np.cos(t), t], -1)[:, None].repeat(17, 1)
+    noisy = clean + rng.normal(0, 0.01, clean.shape)
+    noisy[50:53, 3] = np.nan                                            # a gap
+    smooth = smooth_series(noisy, method, rate=30.0, cutoff_hz=3.0, window=11)
+    ok = np.isfinite(noisy).all(-1)
+    assert np.isnan(smooth[50:53, 3]).all()
+    assert np.abs(smooth - clean)[ok].mean() < 0.6 * np.abs(noisy - clean)[ok].mean()
+
+
+def test_pcp_definition():
+    truth = np.zeros((1, 17, 3))
+    truth[0, :, 2] = np.arange(17) * 0.1                                # every limb has a known length
+    est = truth.copy()
+    # left upper arm (5 -> 7), true length 0.2: move both ends by 0.1 (mean = half the length: correct)
+    est[0, 5, 0] += 0.1
+    est[0, 7, 0] += 0.1
+    assert limbs_correct(est, truth)[0, 0]
+    est[0, 7, 0] += 0.01                                               # now beyond half the length
+    ok = limbs_correct(est, truth)[0]
+    assert not ok[0]
+    names = list(COCO_PCP_LIMBS)
+    result = pcp([est], [truth], [np.array([7])])
+    expected = ok.mean()
+    assert result["actor"][7] == pytest.approx(expected)
+    assert not result["per_actor"][7]["left_upper_arm"] and result["per_actor"][7]["torso"]
+    assert "torso" in names and "head" in names
+    assert pcp([np.zeros((0, 17, 3))], [truth])["average"] == 0.0      # nothing found: all wrong
+
+
+def test_average_precision():
+    truth = np.zeros((2, 17, 3))
+    truth[1] += 5.0
+    good = truth[0] + [0.02, 0, 0]                                     # 20 mm error
+    far = truth[1] + [0.1, 0, 0]                                       # 100 mm error
+    ap = average_precision([np.stack([good, far])], [np.array([0.9, 0.8])], [truth])
+    assert ap["AP@25"] == pytest.approx(0.5)                           # one of two people
+    assert ap["AP@125"] == pytest.approx(1.0)
+    duplicate = average_precision([np.stack([good, good])], [np.array([0.9, 0.8])], [truth])
+    assert duplicate["AP@150"] == pytest.approx(0.5)                   # a duplicate is a false positive
