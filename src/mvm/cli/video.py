@@ -10,7 +10,8 @@ from pathlib import Path
 
 import click
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
+from rich.text import Text
 from rich.table import Table
 
 from mvm.errors import InputError
@@ -24,10 +25,17 @@ def _fail(error: Exception) -> None:
     sys.exit(2)
 
 
+class _Rate(ProgressColumn):
+    """Items (frames) per second of a task."""
+
+    def render(self, task) -> Text:
+        return Text(f"{task.speed:.1f}/s" if task.speed else "", style="progress.data.speed")
+
+
 @contextmanager
 def _progress():
-    """A rich progress bar; yields ``update(stage, done, total)``."""
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+    """A rich progress bar with frames per second; yields ``update(stage, done, total)``."""
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), _Rate(),
                   TimeElapsedColumn(), console=console, transient=True) as progress:
         tasks: dict[str, int] = {}
 
@@ -71,8 +79,22 @@ sfm_options = [
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
 detect_options = [
+    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "mvm"]), default=None,
+                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), mvm (the "
+                      "project's network, --checkpoint). Default: rtmo when ONNX Runtime is installed."),
+    click.option("--model", type=click.Path(dir_okay=False), default=None,
+                 help="The detector's ONNX model (.onnx or the published .zip; default: the published model, "
+                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
+    click.option("--person-model", type=click.Path(dir_okay=False), default=None,
+                 help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
+    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default="balanced",
+                 show_default=True, help="Size of the published models."),
+    click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+                 help="Where the detector runs (cuda: onnxruntime-gpu or a CUDA torch)."),
+    click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+                 help="Frames given to the detector at once."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
-                 help="Checkpoint of mvm's pose network (local file)."),
+                 help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
@@ -94,6 +116,29 @@ def _frame_options(rate, max_frames, width, blur_ratio):
     from mvm.video.frames import FrameOptions
 
     return FrameOptions(rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio)
+
+
+def _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance):
+    """The detection settings; when no detector is named, the installed one (rtmo)."""
+    from mvm.video.detect import DetectOptions, available_detector
+
+    if source is not None and (detector or checkpoint):
+        raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
+    if checkpoint is not None and detector not in (None, "mvm"):
+        raise InputError(None, "--checkpoint", f"goes with --detector mvm, not {detector}")
+    if detector == "mvm" and checkpoint is None:
+        raise InputError(None, "--detector mvm", "give the network's --checkpoint")
+    if source is not None:
+        detector = "import"
+    elif checkpoint is not None:
+        detector = "mvm"
+    elif detector is None:
+        detector = available_detector()
+        if detector is None:
+            raise InputError(None, "--detector", 'no 2D pose detector is installed: pip install "mvm[detect]" '
+                                                 "(RTMO through ONNX Runtime), or give --import or --checkpoint")
+    return DetectOptions(detector=detector, model=model, person_model=person_model, mode=mode, device=device,
+                         batch_size=batch_size, appearance=appearance)
 
 
 def _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree):
@@ -158,21 +203,22 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
-def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
+def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+               force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
-    from mvm.video.detect import DetectOptions, detect_scene
+    from mvm.video.detect import detect_scene
 
-    if (checkpoint is None) == (source is None):
-        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
     try:
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
         with _progress() as update:
-            d = detect_scene(scene, source, checkpoint, fmt, DetectOptions(appearance=appearance), force,
+            d = detect_scene(scene, source, checkpoint, fmt, options, force,
                              lambda done, total: update("detecting", done, total))
     except (InputError, ValueError) as e:
         _fail(e)
     _table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
+                          ("frames skipped (unreadable)", str(len(d.skipped))),
                           ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
-
 
 
 @click.command("run")
@@ -188,21 +234,21 @@ def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, checkpoint, source, fmt, appearance, cameras, config_path, metric, force):
+            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+            cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.core.config import load_config
-    from mvm.video.detect import DetectOptions
     from mvm.video.pipeline import run_video
 
-    if (checkpoint is None) == (source is None):
-        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
     try:
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
         config = load_config(config_path)
         with _progress() as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
                           sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
-                          detect_options=DetectOptions(appearance=appearance), config=config,
+                          detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
     except (InputError, ValueError) as e:
         _fail(e)
