@@ -221,3 +221,18 @@ def test_a_broken_model_is_one_line_exit_2(tmp_path):
 def test_model_with_wrong_outputs_is_refused(models):
     with pytest.raises(InputError, match="expected 2 outputs"):
         Rtmo(models["yolox"])
+
+
+def test_crop_reads_only_the_region_and_equals_the_whole_frame_warp():
+    from mvm.video.rtm import box_to_input, crop
+
+    rng = np.random.default_rng(1)
+    image = rng.integers(0, 255, (300, 500, 3), dtype=np.uint8)
+    boxes = np.array([[100.3, 50.7, 180.2, 250.1], [-40, -30, 60, 90], [450, 200, 530, 330]])
+    center, scale = box_to_input(boxes, (192, 256))
+    assert scale[0] == pytest.approx([max(79.9, 199.4 * 0.75) * 1.25, max(79.9 / 0.75, 199.4) * 1.25])
+    for c, s in zip(center, scale):
+        k = 192 / s[0]
+        matrix = np.array([[k, 0, 96 - k * c[0]], [0, k, 128 - k * c[1]]])
+        whole = cv2.warpAffine(image, matrix, (192, 256), flags=cv2.INTER_LINEAR)
+        assert np.abs(crop(image, c, s, (192, 256)).astype(int) - whole).max() <= 1

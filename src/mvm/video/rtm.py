@@ -73,15 +73,28 @@ def box_to_input(boxes: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, 
     return center, scale
 
 
-def crop(image: np.ndarray, center: np.ndarray, scale: np.ndarray, size: tuple[int, int],
-         mean, std) -> np.ndarray:
-    """The region ``center ± scale / 2`` of ``image (H, W, 3)`` warped to ``size`` (w, h) and
-    normalized: ``(3, h, w)`` float32."""
+def crop(image: np.ndarray, center: np.ndarray, scale: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The region ``center ± scale / 2`` of ``image (H, W, 3)`` warped to ``size`` (w, h):
+    ``(h, w, 3)``, same type; outside the image: 0. Only the region (and a 2-pixel margin for
+    the interpolation) is read, so the cost does not grow with the frame."""
     s = size[0] / scale[0]
-    matrix = np.array([[s, 0, size[0] / 2 - s * center[0]], [0, s, size[1] / 2 - s * center[1]]])
-    warped = cv2.warpAffine(image, matrix, (int(size[0]), int(size[1])), flags=cv2.INTER_LINEAR)
-    x = (warped.astype(np.float32) - np.asarray(mean, np.float32)) / np.asarray(std, np.float32)
-    return np.ascontiguousarray(x.transpose(2, 0, 1))
+    H, W = image.shape[:2]
+    x0 = int(np.clip(np.floor(center[0] - scale[0] / 2) - 2, 0, W))
+    y0 = int(np.clip(np.floor(center[1] - scale[1] / 2) - 2, 0, H))
+    x1 = int(np.clip(np.ceil(center[0] + scale[0] / 2) + 3, x0, W))
+    y1 = int(np.clip(np.ceil(center[1] + scale[1] / 2) + 3, y0, H))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        x0, y0, x1, y1 = 0, 0, W, H
+    matrix = np.array([[s, 0, size[0] / 2 - s * (center[0] - x0)], [0, s, size[1] / 2 - s * (center[1] - y0)]])
+    return cv2.warpAffine(image[y0:y1, x0:x1], matrix, (int(size[0]), int(size[1])), flags=cv2.INTER_LINEAR)
+
+
+def normalize(crops: np.ndarray, mean, std) -> np.ndarray:
+    """``crops: (N, h, w, 3)`` -> ``(N, 3, h, w)`` float32, ``(crops - mean) / std`` per channel."""
+    x = crops.transpose(0, 3, 1, 2).astype(np.float32)
+    x -= np.asarray(mean, np.float32)[:, None, None]
+    x *= (1 / np.asarray(std, np.float32))[:, None, None]
+    return x
 
 
 # --------------------------------------------------------------------------- post-processing
@@ -236,14 +249,14 @@ class RtmPose:
         crops, owner, centers, scales = [], [], [], []
         for f, (boxes, _) in enumerate(found):
             center, scale = box_to_input(boxes, self.pose.size)
-            crops += [crop(frames[f], c, s, self.pose.size, self.mean, self.std) for c, s in zip(center, scale)]
+            crops += [crop(frames[f], c, s, self.pose.size) for c, s in zip(center, scale)]
             owner.append(np.full(len(boxes), f))
             centers.append(center)
             scales.append(scale)
         owner = np.concatenate(owner)
         if not crops:
             return [(np.zeros((0, NUM_JOINTS, 3)), np.zeros(0)) for _ in frames]
-        simcc_x, simcc_y = self.pose(np.stack(crops))[:2]
+        simcc_x, simcc_y = self.pose(normalize(np.stack(crops), self.mean, self.std))[:2]
         xy, conf = self.postprocess(simcc_x, simcc_y, np.concatenate(centers), np.concatenate(scales))
         keypoints = to_coco(xy, conf)
         return [(keypoints[owner == f], found[f][1]) for f in range(len(frames))]
