@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from mvm.video.appearance import colour_descriptor
-from mvm.video.rtm import RtmOptions, Rtmo, RtmPose
+from mvm.video.rtm import Rtmo, RtmOptions, RtmPose
 
 J = 17
 

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import random_cameras, standing_poses
 
 from mvm.core.scene import Persons3D, Poses2D
 from mvm.io.scene_dir import poses3d_document, write_poses3d, write_scene
 from mvm.sim.simulate import project_people
 from mvm.video.consistency import keypoints_by_view, scene_c_var
+
+from helpers import random_cameras, standing_poses
 
 V, P = 8, 2
 
@@ -30,7 +31,7 @@ def _detections(noise_px: float, seed: int = 0):
 
 
 def test_keypoints_by_view_takes_each_persons_best_pose_per_view():
-    cameras, poses, persons, _ = _detections(0.0)
+    _, poses, persons, _ = _detections(0.0)
     kp = keypoints_by_view(persons, poses, V)
     assert kp.shape == (P, V, 17, 3)
     assert np.allclose(kp[1, 3], poses.keypoints[3 * P + 1])
@@ -44,7 +45,7 @@ def test_keypoints_by_view_takes_each_persons_best_pose_per_view():
 def test_scene_c_var_grows_with_detector_noise(tmp_path):
     values = []
     for noise in (0.0, 2.0, 8.0):
-        cameras, poses, persons, people = _detections(noise)
+        cameras, poses, persons, _ = _detections(noise)
         scene = tmp_path / f"noise{noise}"
         write_scene(scene, cameras, poses)
         (scene / "mvm").mkdir()

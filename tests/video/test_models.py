@@ -7,8 +7,8 @@ import zipfile
 
 import pytest
 
-import mvm.video.models as models
 from mvm.errors import InputError
+from mvm.video import models
 from mvm.video.models import ModelSpec, cache_dir, download, resolve_model, verify_cached
 
 
@@ -49,7 +49,7 @@ def test_download_with_good_checksum_then_cached(published, tmp_path, monkeypatc
 
 
 def test_bad_checksum_keeps_nothing(published, tmp_path):
-    _, url, digest = published
+    _, url, _ = published
     target = tmp_path / "cache" / "model.zip"
     with pytest.raises(InputError, match="checksum mismatch"):
         download(url, target, "0" * 64)

@@ -19,7 +19,7 @@ torch = pytest.importorskip("torch", reason="the test models are exported from t
 pytest.importorskip("onnxruntime", reason="onnxruntime is the optional 'detect' extra")
 pytest.importorskip("onnx", reason="torch's ONNX exporter needs the onnx package")
 
-from mvm.video.rtm import Rtmo, RtmPose, letterbox, nms  # noqa: E402
+from mvm.video.rtm import Rtmo, RtmPose, letterbox, nms
 
 J = 17
 GREY = 60
