@@ -236,3 +236,39 @@ def test_crop_reads_only_the_region_and_equals_the_whole_frame_warp():
         matrix = np.array([[k, 0, 96 - k * c[0]], [0, k, 128 - k * c[1]]])
         whole = cv2.warpAffine(image, matrix, (192, 256), flags=cv2.INTER_LINEAR)
         assert np.abs(crop(image, c, s, (192, 256)).astype(int) - whole).max() <= 1
+
+
+def test_default_detector_uses_the_cached_published_model(models, tmp_path, monkeypatch):
+    """No --detector: rtmo (ONNX Runtime is installed), its published model found in the cache
+    (put there as the published zip), nothing downloaded."""
+    import zipfile
+
+    from mvm.cli.video import detect_cmd
+    from mvm.video.models import RTMO
+
+    monkeypatch.setenv("MVM_CACHE", str(tmp_path / "cache"))
+    cached = tmp_path / "cache" / "models" / RTMO["balanced"].url.rsplit("/", 1)[-1]
+    cached.parent.mkdir(parents=True)
+    with zipfile.ZipFile(cached, "w") as z:
+        z.write(models["rtmo"], "rtmo-m/end2end.onnx")
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    _scene(scene, [_frame(480, 960, 300, 150)])
+    result = CliRunner().invoke(detect_cmd, [str(scene)])
+    assert result.exit_code == 0, result.output
+    info = json.loads((scene / "poses2d.json").read_text())["info"]
+    assert info["detector"] == "rtmo" and info["models"][0]["file"] == "end2end.onnx"
+    assert info["models"][0]["sha256"] == sha256(models["rtmo"])
+
+
+def test_without_a_detector_installed_one_line_says_what_to_install(tmp_path, monkeypatch):
+    import mvm.video.detect
+
+    from mvm.cli.video import detect_cmd
+
+    monkeypatch.setattr(mvm.video.detect, "available_detector", lambda: None)
+    _scene(tmp_path, [_frame(100, 100, 10, 10)])
+    result = CliRunner().invoke(detect_cmd, [str(tmp_path)])
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and 'pip install "mvm[detect]"' in lines[0]
