@@ -146,7 +146,8 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
 
     Args:
         video: the video file; scene: the scene directory to fill.
-        detections / checkpoint: imported 2D poses, or the network's checkpoint (one of them).
+        detections / checkpoint: imported 2D poses, or the mvm network's checkpoint; with
+            neither, ``detect_options.detector`` (``rtmo``, ``rtmpose``) detects them.
         cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
             camera file to use instead of SfM.
         force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;
