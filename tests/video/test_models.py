@@ -107,10 +107,13 @@ def test_a_corrupted_cache_is_found(published, tmp_path, monkeypatch):
         verify_cached(cached)
 
 
-def test_local_model_zip_or_onnx(published, tmp_path):
+def test_local_model_zip_or_onnx(published, tmp_path, monkeypatch):
     archive, _, _ = published
+    monkeypatch.setenv("MVM_CACHE", str(tmp_path / "cache"))
     spec = ModelSpec("rtmo-s", "https://example.invalid/never.zip", (640, 640))
-    assert resolve_model(spec, archive).name == "end2end.onnx"
+    onnx = resolve_model(spec, archive)
+    assert onnx.name == "end2end.onnx" and (tmp_path / "cache") in onnx.parents
+    assert _leftovers(archive.parent) == [archive.name]                 # nothing written beside it
     onnx = tmp_path / "m.onnx"
     onnx.write_bytes(b"x")
     assert resolve_model(spec, onnx) == onnx

@@ -153,9 +153,10 @@ def verify_cached(path: Path, expected_sha256: str | None = None) -> str:
     return digest
 
 
-def onnx_in_zip(archive: Path) -> Path:
-    """The ``.onnx`` file of a published zip, extracted beside it (once) -> its path."""
-    folder = archive.with_suffix("")
+def onnx_in_zip(archive: Path, folder: Path | None = None) -> Path:
+    """The ``.onnx`` file of a published zip, extracted (once) into ``folder`` (default: beside
+    the zip, named as it) -> its path."""
+    folder = folder or archive.with_suffix("")
     found = sorted(folder.rglob("*.onnx")) if folder.is_dir() else []
     if found:
         return found[0]
@@ -166,7 +167,7 @@ def onnx_in_zip(archive: Path) -> Path:
                 raise InputError(archive, None, "the archive holds no .onnx model")
             with tempfile.TemporaryDirectory(dir=archive.parent) as tmp:
                 z.extract(members[0], tmp)
-                folder.mkdir(exist_ok=True)
+                folder.mkdir(parents=True, exist_ok=True)
                 target = folder / Path(members[0]).name
                 os.replace(Path(tmp) / members[0], target)
     except zipfile.BadZipFile as e:
@@ -176,14 +177,16 @@ def onnx_in_zip(archive: Path) -> Path:
 
 def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
                   progress: Callable[[int, int], None] | None = None) -> Path:
-    """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx`` or the published
-    ``.zip``), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
+    """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx``, or the published
+    ``.zip``, extracted into the cache), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
     false, in which case a missing file is an :class:`InputError` naming what to fetch)."""
     if path is not None:
         path = Path(path)
         if not path.is_file():
             raise InputError(path, None, "model file not found")
-        return onnx_in_zip(path) if path.suffix.lower() == ".zip" else path
+        if path.suffix.lower() != ".zip":
+            return path
+        return onnx_in_zip(path, cache_dir() / f"{path.stem}-{sha256(path)[:12]}")
     archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
     if not archive.is_file():
         if not download_ok:
