@@ -191,7 +191,7 @@ def test_scene_stage_records_the_model_and_skips_an_unreadable_frame(models, tmp
     assert coco.appearance is not None and coco.appearance.shape[0] == 2      # colour descriptor
     info = json.loads((tmp_path / "poses2d.json").read_text())["info"]
     assert info["detector"] == "rtmo" and info["skipped_frames"] == [names[1]]
-    assert info["models"] == [{"file": "rtmo.onnx", "sha256": sha256(models["rtmo"])}]
+    assert info["models"] == [{"file": "rtmo.onnx", "sha256": sha256(models["rtmo"]), "from": str(models["rtmo"])}]
 
 
 def test_cli_detect_with_rtmpose(models, tmp_path):
@@ -258,7 +258,7 @@ def test_default_detector_uses_the_cached_published_model(models, tmp_path, monk
     assert result.exit_code == 0, result.output
     info = json.loads((scene / "poses2d.json").read_text())["info"]
     assert info["detector"] == "rtmo" and info["models"][0]["file"] == "end2end.onnx"
-    assert info["models"][0]["sha256"] == sha256(models["rtmo"])
+    assert info["models"][0]["sha256"] == sha256(models["rtmo"]) and info["models"][0]["from"] == RTMO["balanced"].url
 
 
 def test_without_a_detector_installed_one_line_says_what_to_install(tmp_path, monkeypatch):

@@ -264,8 +264,10 @@ class FrameDetector:
     info: dict
 
 
-def _model_info(path: Path) -> dict:
-    return {"file": path.name, "sha256": sha256(path)}
+def _model_info(path: Path, given: str | Path | None = None, url: str | None = None) -> dict:
+    """What ``poses2d.json`` records of a model: the ONNX file's name and SHA-256, and where it
+    came from (the path given, or the published URL)."""
+    return {"file": path.name, "sha256": sha256(path), "from": str(given) if given is not None else url}
 
 
 def _rtm_detector(options: DetectOptions) -> FrameDetector:
@@ -275,14 +277,15 @@ def _rtm_detector(options: DetectOptions) -> FrameDetector:
         spec = RTMO[options.mode]
         path = resolve_model(spec, options.model, options.download)
         model = Rtmo(path, options.device, spec.size, options.rtm)
-        models = [_model_info(path)]
+        models = [_model_info(path, options.model, spec.url)]
     else:
         person_spec, pose_spec = YOLOX[options.mode], RTMPOSE[options.mode]
         person = resolve_model(person_spec, options.person_model, options.download)
         pose = resolve_model(pose_spec, options.model, options.download)
         model = RtmPose(person, pose, options.device, person_spec.size, pose_spec.size, pose_spec.mean,
                         pose_spec.std, options.rtm)
-        models = [_model_info(person), _model_info(pose)]
+        models = [_model_info(person, options.person_model, person_spec.url),
+                  _model_info(pose, options.model, pose_spec.url)]
 
     def run(frames):
         return [(kp, sc, None) for kp, sc in model(frames)]
@@ -313,7 +316,7 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDe
         app = pool_features(features, boxed, model.spec.stride, options.keypoint_threshold)
         return kp, score, app
 
-    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint))], "device": options.device}
+    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
     return FrameDetector(lambda frames: [one(f) for f in frames], info)
 
 
