@@ -272,3 +272,14 @@ def test_without_a_detector_installed_one_line_says_what_to_install(tmp_path, mo
     assert result.exit_code == 2
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and 'pip install "mvm[detect]"' in lines[0]
+
+
+def test_normalize_is_per_channel_mean_and_deviation_channels_first():
+    from mvm.video.rtm import normalize
+
+    crops = np.random.default_rng(2).integers(0, 255, (2, 8, 6, 3), dtype=np.uint8)
+    mean, std = np.array([10.0, 100.0, 200.0]), np.array([1.0, 2.0, 4.0])
+    want = ((crops - mean) / std).transpose(0, 3, 1, 2)
+    got = normalize(crops, mean, std)
+    assert got.shape == (2, 3, 8, 6) and got.dtype == np.float32
+    assert np.allclose(got, want, atol=1e-5)

@@ -90,11 +90,13 @@ def crop(image: np.ndarray, center: np.ndarray, scale: np.ndarray, size: tuple[i
 
 
 def normalize(crops: np.ndarray, mean, std) -> np.ndarray:
-    """``crops: (N, h, w, 3)`` -> ``(N, 3, h, w)`` float32, ``(crops - mean) / std`` per channel."""
-    x = crops.transpose(0, 3, 1, 2).astype(np.float32)
-    x -= np.asarray(mean, np.float32)[:, None, None]
-    x *= (1 / np.asarray(std, np.float32))[:, None, None]
-    return x
+    """``crops: (N, h, w, 3)`` -> ``(N, 3, h, w)`` float32, ``(crops - mean) / std`` per channel
+    (OpenCV's blob maker: one pass, several times faster than numpy)."""
+    n, h, w = crops.shape[:3]
+    params = cv2.dnn.Image2BlobParams(scalefactor=tuple(1.0 / np.asarray(std, float)) + (0.0,), size=(w, h),
+                                      mean=tuple(np.asarray(mean, float)) + (0.0,), swapRB=False,
+                                      ddepth=cv2.CV_32F)
+    return cv2.dnn.blobFromImagesWithParams(list(crops), params).reshape(n, 3, h, w)
 
 
 # --------------------------------------------------------------------------- post-processing
