@@ -19,7 +19,8 @@ from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.panoptic_calib import read_panoptic_calibration
 from mvm.rig.instants import Detections, reconstruct_instants
-from mvm.sim.rig import DetectorErrors, detect_views, pose_scores
+from mvm.sim.detector import DetectorErrors, pose_scores
+from mvm.sim.rig import detect_views
 
 #: Index of each COCO-17 keypoint in Panoptic's ``joints19``.
 JOINTS19_TO_COCO17 = np.array([1, 15, 17, 16, 18, 3, 9, 4, 10, 5, 11, 6, 12, 7, 13, 8, 14])

@@ -15,14 +15,8 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
-from mvm.sim.simulate import look_at
-
-#: A standing adult in the pose bank's frame (metres, z up, feet on z = 0, facing +y).
-STANDING = np.array([
-    [0, 0.10, 1.62], [-0.03, 0.08, 1.66], [0.03, 0.08, 1.66], [-0.07, 0.0, 1.64], [0.07, 0.0, 1.64],
-    [-0.18, 0, 1.42], [0.18, 0, 1.42], [-0.22, 0.02, 1.13], [0.22, 0.02, 1.13], [-0.24, 0.08, 0.88],
-    [0.24, 0.08, 0.88], [-0.10, 0, 0.95], [0.10, 0, 0.95], [-0.11, 0.02, 0.52], [0.11, 0.02, 0.52],
-    [-0.11, 0, 0.08], [0.11, 0, 0.08]])
+from mvm.sim.people import STANDING
+from mvm.sim.tours import look_at
 
 #: Body parts drawn as capsules: (joint a, joint b, radius in metres, clothing part).
 #: Parts: 0 shirt (torso and upper arms), 1 trousers (legs), 2 skin (forearms).
