@@ -30,24 +30,23 @@ _LOWER_BODY = np.arange(11, 17)
 
 @dataclass(frozen=True)
 class DetectorErrors:
-    """Errors of a simulated 2D detector.
+    """Errors of a simulated 2D detector (probabilities per joint unless said otherwise)."""
 
-    ``noise``: joint noise (standard deviation) as a fraction of the person's image size;
-    ``dropout``: probability that a visible joint is missed; ``occlusion``: joints behind
-    another person are lost; ``swap_prob``: probability that a pose has left and right
-    swapped; ``outlier_joint_prob``: probability that a joint lands a quarter of the person's
-    size away; ``false_pose_rate``: false poses per view (mean); ``merge_prob``: probability
-    that two overlapping people are detected as one pose; ``min_visible``: fewer visible
-    joints and the person is not detected.
-    """
-
+    #: Joint noise (standard deviation) as a fraction of the person's image size.
     noise: float = 0.01
+    #: A visible joint is missed.
     dropout: float = 0.03
+    #: Joints behind another person (depth-ordered) are lost.
     occlusion: bool = True
+    #: A pose has left and right swapped (per pose).
     swap_prob: float = 0.01
+    #: A joint lands about a quarter of the person's size away.
     outlier_joint_prob: float = 0.02
+    #: False poses per view (Poisson mean).
     false_pose_rate: float = 0.1
+    #: Two overlapping people are detected as one pose (per overlapping pair).
     merge_prob: float = 0.0
+    #: A person with fewer visible joints is not detected.
     min_visible: int = 5
 
     def __post_init__(self):
