@@ -99,8 +99,9 @@ def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float =
     return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] <= max_distance]
 
 
-def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:
-    """MPJPE and PA-MPJPE (in the units of the inputs) over matched pairs, averaged per person."""
+def person_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """MPJPE and PA-MPJPE (in the units of the inputs) of every matched pair ``(p, g)`` with at
+    least 3 joints finite in both: ``(K,)`` each."""
     mpjpe, pa = [], []
     for p, g in pairs:
         e, t = estimate[p], truth[g]
@@ -110,7 +111,12 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, 
         mpjpe.append(np.linalg.norm(e[ok] - t[ok], axis=-1).mean())
         aligned = procrustes_align(e, t)
         pa.append(np.linalg.norm(aligned[ok] - t[ok], axis=-1).mean())
-    return {"mpjpe": float(np.mean(mpjpe)) if mpjpe else float("nan"),
-            "pa_mpjpe": float(np.mean(pa)) if pa else float("nan"),
-            "evaluated_persons": len(mpjpe)}
+    return np.array(mpjpe, dtype=float), np.array(pa, dtype=float)
 
+
+def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:
+    """MPJPE and PA-MPJPE (in the units of the inputs) over matched pairs, averaged per person."""
+    mpjpe, pa = person_errors(estimate, truth, pairs)
+    return {"mpjpe": float(np.mean(mpjpe)) if len(mpjpe) else float("nan"),
+            "pa_mpjpe": float(np.mean(pa)) if len(pa) else float("nan"),
+            "evaluated_persons": len(mpjpe)}

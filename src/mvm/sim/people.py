@@ -23,7 +23,8 @@ POSTURES: tuple[str, ...] = ("standing", "sitting", "crouching")
 
 def _disc_positions(config, rng: np.random.Generator, extra: np.random.Generator,
                     tangent: np.ndarray) -> np.ndarray:
-    """Pelvis positions ``(G, 2)`` in the crowd's disc, ``min_separation`` apart, except that
+    """Pelvis positions ``(G, 2)`` in the crowd's disc, ``min_separation`` apart (and each
+    within ``max_separation`` of an earlier person when that is set), except that
     the last ``close_pairs`` people each stand ``close_distance`` beside an earlier person
     (side by side as seen from the tour, whose direction along the arc is ``tangent: (2,)``)."""
     G = config.people
@@ -33,12 +34,15 @@ def _disc_positions(config, rng: np.random.Generator, extra: np.random.Generator
     while len(positions) < G - pairs:
         tries += 1
         if tries > 20000:
-            raise ValueError(f"cannot place {config.people} people {config.min_separation} m apart "
+            spacing = f"{config.min_separation}" + (f"-{config.max_separation}" if config.max_separation else "")
+            raise ValueError(f"cannot place {config.people} people {spacing} m apart "
                              f"in a disc of radius {config.crowd_radius} m")
         r = config.crowd_radius * np.sqrt(rng.uniform())
         a = rng.uniform(0, 2 * np.pi)
         p = np.array([r * np.cos(a), r * np.sin(a)])
-        if all(np.linalg.norm(p - q) >= config.min_separation for q in positions):
+        gaps = [np.linalg.norm(p - q) for q in positions]
+        if all(d >= config.min_separation for d in gaps) and (
+                config.max_separation is None or not gaps or min(gaps) <= config.max_separation):
             positions.append(p)
     for k in range(pairs):
         for _ in range(2000):

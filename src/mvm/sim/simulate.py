@@ -53,6 +53,8 @@ class SimConfig:
     #: People stand in a disc of this radius, at least ``min_separation`` apart (pelvis).
     crowd_radius: float = 2.0
     min_separation: float = 0.7
+    #: Every person's nearest neighbour stands at most this far (pelvis); None: no bound.
+    max_separation: float | None = None
     #: Body size factor range applied to the bank's poses.
     size_range: tuple[float, float] = (0.85, 1.1)
     #: The detector's errors.
@@ -96,11 +98,18 @@ class SimConfig:
         return dataclasses.replace(self, **changes)
 
 
+def crowd_radius(people: int) -> float:
+    """Radius of the disc of a frozen crowd of ``people`` (with ``min_separation`` 0.6 m and
+    ``max_separation`` 1.0 m, the nearest neighbours stand 0.6-1.0 m apart, median 0.73 m). [m]"""
+    return 0.3 + 0.55 * float(np.sqrt(people))
+
+
 #: Presets. 'clean': exact projections (only frame borders and occlusion hide joints);
 #: 'realistic': errors of a good bottom-up detector on crowded frames; 'hard': a poor
 #: detector, crowded and look-alike people; 'crowd': a frozen crowd as dense as the real ones
-#: (8-15 people 0.6-1.0 m apart, standing and seated, a camera at eye height), see
-#: :mod:`mvm.eval.crowd` for the scenes drawn around it.
+#: (12 people 0.6-1.0 m apart, standing and seated, of similar sizes, a 1080p camera at eye
+#: height 5.5 m away; noise 1.5 % of the person's size, 5 % dropout, 2 % swaps, 1 % outliers,
+#: false poses 10 % of the true ones), see :mod:`mvm.eval.crowd` for the scenes drawn around it.
 PRESETS: dict[str, dict] = {
     "clean": dict(noise=0.0, dropout=0.0, swap_prob=0.0, outlier_joint_prob=0.0, false_pose_rate=0.0,
                   merge_prob=0.0, appearance_noise=0.05, lighting_drift=0.0, shake_deg=0.2),
@@ -110,6 +119,13 @@ PRESETS: dict[str, dict] = {
     "hard": dict(noise=0.015, dropout=0.08, swap_prob=0.03, outlier_joint_prob=0.03,
                  false_pose_rate=0.5, merge_prob=0.03, appearance_noise=0.3, lighting_drift=0.4,
                  postures=(0.4, 0.4, 0.2), close_pairs=2, lookalikes=2, shake_deg=1.0),
+    "crowd": dict(people=12, frames=150, arc_deg=60.0, camera_distance=5.5, camera_height=1.6,
+                  image_width=1920, image_height=1080, focal_px=1500.0, shake_deg=0.8, shake_m=0.03,
+                  crowd_radius=crowd_radius(12), min_separation=0.6, max_separation=1.0,
+                  size_range=(0.92, 1.06), postures=(0.6, 0.35, 0.05),
+                  noise=0.015, dropout=0.05, swap_prob=0.02, outlier_joint_prob=0.01,
+                  false_pose_rate=0.1 * 12, merge_prob=0.0, appearance_noise=0.2, lighting_drift=0.2,
+                  lookalikes=2),
 }
 
 
