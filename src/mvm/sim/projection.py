@@ -51,15 +51,27 @@ def occluded_joints(uv: np.ndarray, depth: np.ndarray, focal: float, limb_radius
 
     ``uv: (G, 17, 2)`` pixels, ``depth: (G, 17)`` camera z -> ``(G, 17)`` bool: a joint is
     hidden when it lies within ``limb_radius`` (metres, at the occluder's depth) of a limb of a
-    person whose limb is nearer the camera than the joint by more than 0.15 m.
+    person whose limb is nearer the camera than the joint by more than 0.15 m. Only the pairs
+    of people whose boxes overlap and whose depths allow it are tested, all at once.
     """
     G = len(uv)
     limbs_a = uv[:, OCCLUDER_LIMBS[:, 0]]                                # (G, L, 2)
     limbs_b = uv[:, OCCLUDER_LIMBS[:, 1]]
     limb_depth = 0.5 * (depth[:, OCCLUDER_LIMBS[:, 0]] + depth[:, OCCLUDER_LIMBS[:, 1]])
     radius = focal * limb_radius / np.maximum(limb_depth, 1e-3)          # (G, L) px
-    dist = _segment_distance(uv[:, :, None, None, :], limbs_a[None, None], limbs_b[None, None])  # (G, J, G, L)
-    nearer = limb_depth[None, None] < depth[:, :, None, None] - 0.15
-    hidden = (dist < radius[None, None]) & nearer
-    hidden[np.arange(G), :, np.arange(G)] = False
-    return hidden.any(axis=(2, 3))
+    # Candidate (person, occluder) pairs: overlapping boxes, the occluder partly nearer.
+    reach = radius.max(axis=1)[:, None]
+    lo, hi = uv.min(axis=1), uv.max(axis=1)                              # (G, 2)
+    limb_lo = np.minimum(limbs_a, limbs_b).min(axis=1) - reach
+    limb_hi = np.maximum(limbs_a, limbs_b).max(axis=1) + reach
+    overlap = ((lo[:, None] <= limb_hi[None]) & (limb_lo[None] <= hi[:, None])).all(-1)    # (G, G)
+    overlap &= limb_depth.min(axis=1)[None] < depth.max(axis=1)[:, None] - 0.15
+    np.fill_diagonal(overlap, False)
+    person, occluder = np.nonzero(overlap)
+    hidden = np.zeros((G, NUM_JOINTS), bool)
+    if len(person):
+        dist = _segment_distance(uv[person][:, :, None, :], limbs_a[occluder][:, None], limbs_b[occluder][:, None])
+        nearer = limb_depth[occluder][:, None] < depth[person][:, :, None] - 0.15             # (P, J, L)
+        covered = ((dist < radius[occluder][:, None]) & nearer).any(axis=2)                   # (P, J)
+        np.logical_or.at(hidden, person, covered)
+    return hidden
