@@ -11,7 +11,7 @@ from mvm.core.scene import Cameras
 from mvm.io.calib_toml import distort_points
 from mvm.sim.detector import DetectorErrors, detect_people, pose_scores
 from mvm.sim.people import STANDING
-from mvm.sim.tours import look_at
+from mvm.sim.tours import cameras_looking_at
 
 __all__ = ["ring_cameras", "walking_people", "detect_views", "pose_scores", "DetectorErrors"]
 
@@ -21,11 +21,8 @@ def ring_cameras(n: int, radius: float = 4.5, height: float = 2.5, focal: float 
     """``n`` cameras evenly on a circle around the origin, looking at (0, 0, 1)."""
     angle = 2 * np.pi * np.arange(n) / n
     centers = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.full(n, height)], 1)
-    R = look_at(centers, np.tile([0.0, 0.0, 1.0], (n, 1)))
-    t = -np.einsum("vij,vj->vi", R, centers)
-    K = np.tile(np.array([[focal, 0, size[0] / 2], [0, focal, size[1] / 2], [0, 0, 1.0]]), (n, 1, 1))
-    names = names or tuple(f"cam_{i + 1}" for i in range(n))
-    return Cameras(K, R, t, np.tile(size, (n, 1)).astype(float), names)
+    return cameras_looking_at(centers, [0.0, 0.0, 1.0], (focal, focal), size,
+                              names or tuple(f"cam_{i + 1}" for i in range(n)))
 
 
 def walking_people(people: int, instants: int, rng: np.random.Generator, area: float = 1.8,

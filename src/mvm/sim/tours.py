@@ -34,16 +34,23 @@ def _smooth_noise(rng, n: int, dims: int, scale: float, smoothness: int = 8) -> 
     return scale * smooth[smoothness:smoothness + n]
 
 
-def _intrinsics(config, V: int, focal: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``K: (V, 3, 3)`` and ``size: (V, 2)`` of the simulated camera."""
-    fx, fy = focal or (config.focal_px, config.focal_px)
-    K = np.array([[fx, 0, config.image_width / 2], [0, fy, config.image_height / 2], [0, 0, 1]])
-    size = np.array([config.image_width, config.image_height], dtype=float)
-    return np.broadcast_to(K, (V, 3, 3)).copy(), np.broadcast_to(size, (V, 2)).copy()
-
-
-def _frame_names(V: int) -> tuple[str, ...]:
-    return tuple(f"frame_{i:05d}.jpg" for i in range(V))
+def cameras_looking_at(centers: np.ndarray, target: np.ndarray, focal: tuple[float, float],
+                       size: tuple[float, float], names: tuple[str, ...] | None = None,
+                       shake: np.ndarray | None = None) -> Cameras:
+    """Pinhole cameras at ``centers: (V, 3)`` looking at ``target: (3,)`` (z up), focal
+    lengths ``(fx, fy)`` px, principal point at the centre of the ``(width, height)`` image,
+    rotated further by ``shake: (V, 3, 3)`` when given; frames named ``frame_00000.jpg``…
+    unless ``names``."""
+    V = len(centers)
+    R = look_at(centers, np.broadcast_to(np.asarray(target, dtype=float), (V, 3)))
+    if shake is not None:
+        R = shake @ R
+    t = -np.einsum("vij,vj->vi", R, centers)
+    fx, fy = focal
+    K = np.array([[fx, 0, size[0] / 2], [0, fy, size[1] / 2], [0, 0, 1]])
+    sizes = np.array([size[0], size[1]], dtype=float)
+    names = names or tuple(f"frame_{i:05d}.jpg" for i in range(V))
+    return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t, np.broadcast_to(sizes, (V, 2)).copy(), names)
 
 
 def _shaken_cameras(config, rng: np.random.Generator, centers: np.ndarray, target: np.ndarray,
@@ -52,11 +59,9 @@ def _shaken_cameras(config, rng: np.random.Generator, centers: np.ndarray, targe
     floor at ``target: (3,)``, with the hand-held shake of ``config``."""
     V = len(centers)
     centers = centers + _smooth_noise(rng, V, 3, config.shake_m)
-    R = look_at(centers, np.broadcast_to(np.array([target[0], target[1], 1.0]), (V, 3)))
-    R = _rotation(_smooth_noise(rng, V, 3, np.radians(config.shake_deg))) @ R
-    t = -np.einsum("vij,vj->vi", R, centers)
-    K, size = _intrinsics(config, V, focal)
-    return Cameras(K, R, t, size, _frame_names(V))
+    shake = _rotation(_smooth_noise(rng, V, 3, np.radians(config.shake_deg)))
+    return cameras_looking_at(centers, [target[0], target[1], 1.0], focal or (config.focal_px, config.focal_px),
+                              (config.image_width, config.image_height), shake=shake)
 
 
 def camera_tour(config, rng: np.random.Generator, target: np.ndarray, heading: float) -> Cameras:

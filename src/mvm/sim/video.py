@@ -16,7 +16,7 @@ import numpy as np
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
 from mvm.sim.people import STANDING
-from mvm.sim.tours import look_at
+from mvm.sim.tours import cameras_looking_at
 
 #: Body parts drawn as capsules: (joint a, joint b, radius in metres, clothing part).
 #: Parts: 0 shirt (torso and upper arms), 1 trousers (legs), 2 skin (forearms).
@@ -147,12 +147,8 @@ def tour_cameras(config: RenderConfig, rng: np.random.Generator) -> Cameras:
     centers = np.stack([config.radius * np.cos(angles), config.radius * np.sin(angles),
                         np.full(V, config.camera_height)], axis=1)
     centers += rng.normal(0, config.shake_m, (V, 3))
-    R = look_at(centers, np.broadcast_to([0.0, 0.0, 1.0], (V, 3)))
-    t = -np.einsum("vij,vj->vi", R, centers)
-    K = np.array([[config.focal_px, 0, config.width / 2], [0, config.focal_px, config.height / 2], [0, 0, 1]])
-    names = tuple(f"frame_{i:05d}.jpg" for i in range(V))
-    return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t,
-                   np.broadcast_to([float(config.width), float(config.height)], (V, 2)).copy(), names)
+    return cameras_looking_at(centers, [0.0, 0.0, 1.0], (config.focal_px, config.focal_px),
+                              (config.width, config.height))
 
 
 def default_people(rng: np.random.Generator, count: int = 3, spacing: float = 0.9) -> np.ndarray:
