@@ -163,14 +163,16 @@ COLUMNS = (("scene", "scene", 0), ("people", "people", 0), ("frames", "frames", 
            ("method", "method", 0), ("cues", "cues", 0), ("precision", "precision", 3), ("recall", "recall", 3),
            ("found_true", "persons / found / true", 0), ("mpjpe_mm", "MPJPE mm", 1),
            ("mpjpe_median_mm", "median mm", 1), ("E_R_px", "E_R px (paper 14.6)", 1), ("seconds", "s", 1),
-           ("oracle_mpjpe_mm", "oracle MPJPE mm", 1), ("oracle_mpjpe_median_mm", "oracle median mm", 1),
+           ("oracle_precision", "oracle precision", 3), ("oracle_recall", "oracle recall", 3),
+           ("oracle_found_true", "oracle persons / found / true", 0), ("oracle_mpjpe_mm", "oracle MPJPE mm", 1), ("oracle_mpjpe_median_mm", "oracle median mm", 1),
            ("oracle_E_R_px", "oracle E_R px", 1), ("oracle_seconds", "oracle s", 1))
 SWEEP_COLUMNS = (("axis", "axis", 0), ("value", "value", 0)) + COLUMNS[4:]
 
 
 def table_rows(rows: list[dict]) -> list[dict]:
-    """``rows`` with the persons column as text (estimated / found / true)."""
-    return [{**r, "found_true": f"{r['persons']} / {r['found']} / {r['true']}"} for r in rows]
+    """``rows`` with the persons columns as text (estimated / found / true)."""
+    return [{**r, "found_true": f"{r['persons']} / {r['found']} / {r['true']}",
+             "oracle_found_true": f"{r['oracle_persons']} / {r['oracle_found']} / {r['oracle_true']}"} for r in rows]
 
 
 def summary(rows: list[dict]) -> list[dict]:
@@ -189,6 +191,9 @@ def summary(rows: list[dict]) -> list[dict]:
                     "mpjpe_mm": mean("mpjpe_mm"),
                     "mpjpe_median_mm": float(np.nanmedian([r["mpjpe_median_mm"] for r in sel])),
                     "E_R_px": mean("E_R_px"), "seconds": mean("seconds"),
+                    "oracle_precision": mean("oracle_precision"), "oracle_recall": mean("oracle_recall"),
+                    "oracle_found_true": f"{sum(r['oracle_persons'] for r in sel)} / "
+                                         f"{sum(r['oracle_found'] for r in sel)} / {sum(r['oracle_true'] for r in sel)}",
                     "oracle_mpjpe_mm": mean("oracle_mpjpe_mm"),
                     "oracle_mpjpe_median_mm": float(np.nanmedian([r["oracle_mpjpe_median_mm"] for r in sel])),
                     "oracle_E_R_px": mean("oracle_E_R_px"), "oracle_seconds": mean("oracle_seconds")})
