@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 from mvm.video.consistency import scene_c_var
@@ -26,11 +25,12 @@ def simulated_scenes(root: Path, noises: list[float], frames: int, people: int, 
     """One tour and crowd, detected with each keypoint noise (fraction of the person's size), reconstructed."""
     from mvm.core.config import Config
     from mvm.core.reconstruct import reconstruct_dir
-    from mvm.sim.simulate import SimConfig, simulate, write_simulation
+    from mvm.io.ground_truth import write_simulation
+    from mvm.sim.simulate import SimConfig, simulate
 
     scenes = []
     for noise in noises:
-        config = replace(SimConfig(seed=seed, frames=frames, people=people), noise=noise)
+        config = SimConfig(seed=seed, frames=frames, people=people).replace(noise=noise)
         scene, truth = simulate(config)
         path = root / f"noise_{noise:g}"
         write_simulation(path, scene, truth, config)

@@ -7,7 +7,7 @@ import pytest
 
 from mvm.core.scene import Persons3D, Poses2D
 from mvm.io.scene_dir import poses3d_document, write_poses3d, write_scene
-from mvm.sim.simulate import project_people
+from mvm.sim.projection import project_people
 from mvm.video.consistency import keypoints_by_view, scene_c_var
 
 from helpers import random_cameras, standing_poses
