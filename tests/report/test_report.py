@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from mvm.core.config import Config
 from mvm.core.geometry import project
-from mvm.core.reconstruct import reconstruct_dir
+from mvm.scenes import reconstruct_dir
 from mvm.errors import InputError
 from mvm.io.scene_dir import read_poses3d, write_scene
 from mvm.report import analysis, write_report, write_summary

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.config import Config
 from mvm.core.geometry import skew
-from mvm.core.scene import Cameras
+from mvm.core.scene import Cameras, Poses2D
 
 #: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
 #: of a block of pose pairs, ``17 × rows × columns`` numbers.
@@ -22,7 +23,7 @@ BLOCK_BYTES = 64 * 2**20
 
 
 def affinity_bytes(n_poses: int, appearance: bool, dtype=np.float32) -> int:
-    """Peak memory of the affinity of ``n_poses`` 2D poses (:func:`mvm.core.reconstruct.match`).
+    """Peak memory of the affinity of ``n_poses`` 2D poses (:func:`pose_affinity`).
 
     The ``N × N`` distance matrix becomes the affinity matrix in place (``N² · 4`` bytes in
     float32); with appearance descriptors the ``N × N`` similarity S adds as much again. The
@@ -162,6 +163,20 @@ def affinity(D: np.ndarray, gamma: float, S: np.ndarray | float = 1.0,
         return A
     A *= S
     return A
+
+
+def pose_affinity(cameras: Cameras, poses: Poses2D, config: Config, appearance: bool | None = None) -> np.ndarray:
+    """Eq. 1 and 2 for every pair of ``poses`` (one block: one scene, or one instant of a rig).
+
+    ``A: (N, N)`` float32 in [0, 0.5], NaN where D is undefined. ``appearance``: multiply by
+    the appearance similarity S (default ``config.use_appearance``; ignored without descriptors).
+    Memory: see :func:`affinity_bytes` (D becomes A in place).
+    """
+    use_appearance = config.use_appearance if appearance is None else appearance
+    D = epipolar_distance(cameras, poses.keypoints, poses.view, config.keypoint_threshold,
+                          config.distance_scale, config.min_common_keypoints)
+    S = appearance_similarity(poses.appearance if use_appearance else None, len(poses))
+    return affinity(D, config.gamma, S, out=D)
 
 
 def mse_distance(keypoints: np.ndarray, view: np.ndarray, keypoint_threshold: float,

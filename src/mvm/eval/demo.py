@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.core.reconstruct import reconstruct_dir
+from mvm.scenes import reconstruct_dir
 from mvm.eval.metrics import match_persons, matching_precision_recall, pose_errors
 from mvm.sim.simulate import SimConfig, simulate, write_simulation
 

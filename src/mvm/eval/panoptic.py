@@ -18,7 +18,8 @@ from mvm.eval.metrics import match_persons, pose_errors
 from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.panoptic_calib import read_panoptic_calibration
-from mvm.rig.instants import Detections, reconstruct_instants
+from mvm.core.scene import Poses2D
+from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.rig import DetectorErrors, detect_views, pose_scores
 
 #: Index of each COCO-17 keypoint in Panoptic's ``joints19``.
@@ -91,7 +92,7 @@ def load_sample(sequence_dir: str | Path) -> PanopticSample:
 
 
 def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed: int,
-                        errors: DetectorErrors = DetectorErrors()) -> Detections:
+                        errors: DetectorErrors = DetectorErrors()) -> Poses2D:
     """Distorted 2D detections of every instant in the chosen cameras, then undistorted with
     the calibration (as a real pipeline does)."""
     from mvm.rig.rigdir import subset_calibration, undistort
@@ -107,7 +108,7 @@ def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed:
     keypoints = np.concatenate(kps)
     camera = np.concatenate(cams)
     keypoints = undistort(calibration, keypoints, camera)
-    return Detections(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
+    return rig_poses(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
 
 
 def evaluate(sample: PanopticSample, n_cameras: int, config: Config, seeds: int = 3,
