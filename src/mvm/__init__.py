@@ -33,7 +33,8 @@ _EXPORTS = {
     "write_scene": "mvm.io.scene_dir",
 }
 
-__all__ = sorted(_EXPORTS) + ["__version__"]
+__all__ = ["Cameras", "Config", "InputError", "Persons3D", "Poses2D", "Result", "Scene", "__version__",
+           "load_config", "read_poses3d", "read_scene", "reconstruct", "reconstruct_dir", "write_scene"]
 
 
 def __getattr__(name: str):

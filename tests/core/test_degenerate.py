@@ -15,11 +15,11 @@ from mvm.cli.main import main
 from mvm.core.affinity import affinity_bytes, epipolar_distance
 from mvm.core.config import Config
 from mvm.core.reconstruct import reconstruct
-from mvm.scenes import reconstruct_dir
 from mvm.core.scene import Cameras, Poses2D, Scene
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_json
 from mvm.io.scene_dir import write_scene
+from mvm.scenes import reconstruct_dir
 from mvm.sim.simulate import SimConfig, look_at, simulate
 
 from helpers import standing_poses

@@ -128,9 +128,6 @@ class FittedKeypoints:
     xy: np.ndarray
     conf: np.ndarray
 
-    def __len__(self) -> int:
-        return len(self.param)
-
 
 @dataclass(frozen=True)
 class SparsityPattern:
@@ -168,7 +165,7 @@ def residuals(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks
 def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
              pattern: SparsityPattern) -> sp.csr_matrix:
     """The analytic Jacobian of :func:`residuals` at ``x``, sparse as ``pattern``."""
-    K = len(fitted)
+    K = len(fitted.param)
     homogeneous = np.concatenate([x.reshape(-1, 3)[fitted.param], np.ones((K, 1))], axis=1)
     proj = np.einsum("kab,kb->ka", fitted.P, homogeneous)
     z = proj[:, 2:3]
@@ -182,7 +179,7 @@ def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks:
 def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int) -> SparsityPattern:
     """Where :func:`jacobian` is non-zero: 3 entries per reprojection row (the coordinates of the
     keypoint's joint), a dense block per person's prior rows."""
-    K = len(fitted)
+    K = len(fitted.param)
     rows_reproj = np.repeat(np.arange(2 * K), 3)
     cols_reproj = (3 * np.repeat(fitted.param, 2)[:, None] + np.arange(3)).reshape(-1)
     sizes = [b.G.shape[0] * b.G.shape[1] for b in blocks]
