@@ -41,7 +41,7 @@ def _block_rows(columns: int, row_bytes_per_column: int, block_bytes: int) -> in
 def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
                       keypoint_threshold: float, distance_scale: float,
                       min_common_keypoints: int = 1, dtype=np.float32,
-                      block_bytes: int = BLOCK_BYTES) -> np.ndarray:
+                      block_bytes: int = BLOCK_BYTES, instant: np.ndarray | None = None) -> np.ndarray:
     """Geometric distance D (Eq. 2) of every pair of 2D poses.
 
     Args:
@@ -52,6 +52,8 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
         distance_scale: the unit of D as a fraction of the focal length.
         min_common_keypoints: pairs sharing fewer keypoints get D = inf.
         block_bytes: working memory of one block (see below).
+        instant: ``(N,)`` instant of each pose (a rig), or None: poses of different instants
+            are never compared (D = inf), as poses of one view.
     Returns:
         ``D: (N, N)`` symmetric; ``inf`` for poses of the same view and for pairs whose
         distance overflows; NaN (undefined) for pairs of views with no baseline (no epipolar
@@ -85,7 +87,7 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
         points = homogeneous.transpose(1, 0, 2).astype(dtype)                      # (J, N, 3)
 
         _one_sided_sums(sums, points, plucker, M, unit, view, used, block_bytes)
-        _symmetrize(sums, visible.astype(dtype), view, no_baseline, max(min_common_keypoints, 1),
+        _symmetrize(sums, visible.astype(dtype), view, instant, no_baseline, max(min_common_keypoints, 1),
                     max(1, int(np.sqrt(block_bytes / (4 * item)))))
     return sums
 
@@ -137,10 +139,11 @@ def _no_baseline(centers: np.ndarray, used: np.ndarray) -> np.ndarray:
     return no_baseline
 
 
-def _symmetrize(sums: np.ndarray, visible: np.ndarray, view: np.ndarray, no_baseline: np.ndarray,
+def _symmetrize(sums: np.ndarray, visible: np.ndarray, view: np.ndarray, instant: np.ndarray | None,
+                no_baseline: np.ndarray,
                 min_common: int, step: int) -> None:
     """In place, ``step × step`` block pair by block pair: ``D = (s + sᵀ) / (2 · common)`` from the
-    one-sided sums ``sums: (N, N)``; ``inf`` on overflow and within a view, NaN where fewer than
+    one-sided sums ``sums: (N, N)``; ``inf`` on overflow, within a view and across instants, NaN where fewer than
     ``min_common`` keypoints are shared or the views have no baseline. ``visible: (N, J)``."""
     N = len(sums)
     for i0 in range(0, N, step):
@@ -153,6 +156,8 @@ def _symmetrize(sums: np.ndarray, visible: np.ndarray, view: np.ndarray, no_base
             D[~np.isfinite(total)] = np.inf                                       # overflow: no match
             D[(common < min_common) | no_baseline[view[i][:, None], view[j][None, :]]] = np.nan
             D[view[i][:, None] == view[j][None, :]] = np.inf
+            if instant is not None:
+                D[instant[i][:, None] != instant[j][None, :]] = np.inf
             sums[i, j] = D
             sums[j, i] = D.T
 
@@ -195,15 +200,15 @@ def affinity(D: np.ndarray, gamma: float, S: np.ndarray | float = 1.0,
 
 
 def pose_affinity(cameras: Cameras, poses: Poses2D, config: Config, appearance: bool | None = None) -> np.ndarray:
-    """Eq. 1 and 2 for every pair of ``poses`` (one block: one scene, or one instant of a rig).
+    """Eq. 1 and 2 for every pair of ``poses`` (a scene, or instants of a rig).
 
-    ``A: (N, N)`` float32 in [0, 0.5], NaN where D is undefined. ``appearance``: multiply by
+    ``A: (N, N)`` float32 in [0, 0.5], NaN where D is undefined, 0 across instants. ``appearance``: multiply by
     the appearance similarity S (default ``config.use_appearance``; ignored without descriptors).
     Memory: see :func:`affinity_bytes` (D becomes A in place).
     """
     use_appearance = config.use_appearance if appearance is None else appearance
     D = epipolar_distance(cameras, poses.keypoints, poses.view, config.keypoint_threshold,
-                          config.distance_scale, config.min_common_keypoints)
+                          config.distance_scale, config.min_common_keypoints, instant=poses.instant)
     S = appearance_similarity(poses.appearance if use_appearance else None, len(poses))
     return affinity(D, config.gamma, S, out=D)
 

@@ -33,18 +33,42 @@ from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups
 log = logging.getLogger(__name__)
 
 
+#: Rig instants are matched a few at a time in one affinity of at most this many poses: one
+#: call per instant would cost more in overhead than the pairs across instants (never grouped).
+MATCH_BATCH_POSES = 64
+
+
+def _batches(blocks: list[np.ndarray], max_poses: int) -> list[list[np.ndarray]]:
+    """Consecutive blocks in batches of at most ``max_poses`` poses (a larger block alone)."""
+    batches: list[list[np.ndarray]] = []
+    size = 0
+    for rows in blocks:
+        if not batches or size + len(rows) > max_poses:
+            batches.append([])
+            size = 0
+        batches[-1].append(rows)
+        size += len(rows)
+    return batches
+
+
 def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
     """Affinity (Eq. 1, 2) and greedy grouping (Algorithm 1) within each block of ``poses``.
 
     Returns groups of pose indices (each within one block), block by block. Memory: one
-    ``(n, n)`` float32 matrix for a block of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`).
+    ``(n, n)`` float32 matrix for a scene of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`),
+    at most ``MATCH_BATCH_POSES²`` for a rig with small instants.
     """
     groups: list[np.ndarray] = []
-    for rows in poses.blocks():
-        block = poses if len(rows) == len(poses) else poses.subset(rows)
-        A = pose_affinity(cameras, block, config)
-        groups += [rows[g] for g in greedy_groups(A, block.score, block.view, config.tau,
-                                                  config.min_pose_score, config.min_group_size)]
+    for batch in _batches(poses.blocks(), MATCH_BATCH_POSES):
+        rows_all = np.concatenate(batch)
+        sub = poses if len(batch) == 1 and len(rows_all) == len(poses) else poses.subset(rows_all)
+        A = pose_affinity(cameras, sub, config)
+        start = 0
+        for rows in batch:
+            part = slice(start, start + len(rows))
+            start += len(rows)
+            groups += [rows[g] for g in greedy_groups(A[part, part], sub.score[part], sub.view[part], config.tau,
+                                                      config.min_pose_score, config.min_group_size)]
     return groups
 
 
