@@ -10,7 +10,8 @@ from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.errors import InputError
 from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.predict import load_model, predict
-from mvm.net.train import EMA, MixtureSampler, config_from_dict, learning_rate, load_config, read_checkpoint, train
+from mvm.net.train import (EMA, MixtureSampler, config_from_dict, finite_or_none, latest_checkpoint, learning_rate,
+                           list_checkpoints, load_config, prune_checkpoints, read_checkpoint, read_metrics_log, train)
 from mvm.sim import images
 
 from helpers import REPO
@@ -27,7 +28,8 @@ def _config(data, out, **kw):
            "data": {"input_size": 64, "train": [{"annotations": str(data)}]},
            "optim": {"lr": 0.01, "batch_size": 2, "steps": 3, "ema_decay": 0.1},
            "output": {"out_dir": str(out), "checkpoint_every": 2, "log_every": 1, "device": "cpu"}}
-    doc["optim"].update(kw)
+    for key, value in kw.items():
+        doc["output" if key in ("val_every", "checkpoint_every", "keep_last", "keep_best") else "optim"][key] = value
     return config_from_dict(doc)
 
 
@@ -153,3 +155,83 @@ def test_time_limit_stops_training_and_adamw_trains(tiny_data, tmp_path):
     assert 0 < meta["step"] < 100_000 and path.name == f"checkpoint-{meta['step']:07d}.pt"
     state, _ = read_checkpoint(path)
     assert "exp_avg" in state["optimizer"]["state"][0]                      # AdamW moments were kept
+
+
+def _two_d_only(data, root):
+    """The annotation file ``data`` without its depths: a 2D-only validation set (as COCO val2017)."""
+    doc = json.loads(data.read_text())
+    for ann in doc["annotations"]:
+        ann.pop("keypoint_depths", None)
+        ann.pop("has_3d", None)
+    path = root / "val2d.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_two_d_only_validation_trains_and_checkpoints(tiny_data, tmp_path):
+    val = _two_d_only(tiny_data, tiny_data.parent)
+    cfg = _config(tiny_data, tmp_path / "run", steps=4, val_every=2, checkpoint_every=100)
+    cfg = cfg.replace(val=config_from_dict({"data": {"val": {"annotations": str(val)}}}).val)
+    path = train(cfg)
+    assert path.name == "checkpoint-0000004.pt"
+    for step in (2, 4):                                                   # periodic validation
+        meta = json.loads((tmp_path / "run" / f"checkpoint-{step:07d}.json").read_text())
+        v = meta["validation"]
+        assert v["metrics"]["depth_error"] is None and "2D-only" in v["missing"]["depth_error"]
+        assert v["metrics"]["AP"] is not None and v["metrics"]["persons"] == 0.0
+    records = read_metrics_log(tmp_path / "run" / "metrics.jsonl")
+    assert [r["step"] for r in records if "losses" in r] == [1, 2, 3, 4]
+    assert [r["step"] for r in records if "validation" in r] == [2, 4]
+    assert train(cfg, resume="auto") == path                              # nothing left to do
+
+
+def test_resume_after_a_kill_between_the_weights_and_the_metadata(tiny_data, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    train(_config(tiny_data, out, steps=2))
+    import mvm.net.train as train_module
+
+    real = train_module.atomic_write_json
+
+    def killed(path, obj, indent=None):
+        if "0000004" in str(path):
+            raise KeyboardInterrupt("killed")
+        real(path, obj, indent)
+
+    monkeypatch.setattr(train_module, "atomic_write_json", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train(_config(tiny_data, out, steps=4), resume="auto")
+    monkeypatch.undo()
+    assert (out / "checkpoint-0000004.pt").is_file() and not (out / "checkpoint-0000004.json").exists()
+    assert latest_checkpoint(out).name == "checkpoint-0000002.pt"
+    # a .json whose recorded size does not match its .pt (a .pt rewritten by a killed run) is skipped too
+    meta = json.loads((out / "checkpoint-0000002.json").read_text())
+    (out / "checkpoint-0000003.pt").write_bytes(b"partial")
+    (out / "checkpoint-0000003.json").write_text(json.dumps(meta))
+    assert latest_checkpoint(out).name == "checkpoint-0000002.pt"
+    (out / "checkpoint-0000003.pt").unlink()
+    (out / "checkpoint-0000003.json").unlink()
+    path = train(_config(tiny_data, out, steps=4), resume="auto")
+    assert path.name == "checkpoint-0000004.pt" and latest_checkpoint(out) == path
+    state, meta = read_checkpoint(path)
+    assert meta["step"] == 4 and meta["weights_bytes"] == path.stat().st_size
+
+
+def test_keep_last_and_keep_best(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    for step, ap in zip(range(1, 6), (0.1, 0.5, 0.2, 0.3, 0.4)):
+        pt = out / f"checkpoint-{step:07d}.pt"
+        pt.write_bytes(b"x" * step)
+        pt.with_suffix(".json").write_text(json.dumps({"format": "mvm.net.checkpoint/1", "weights_bytes": step,
+                                                      "validation": {"metrics": {"AP": ap}}}))
+    deleted = prune_checkpoints(out, keep_last=2, keep_best="AP")
+    assert [p.name[11:18] for p in deleted] == ["0000001", "0000003"]
+    assert [p.name[11:18] for p in list_checkpoints(out)] == ["0000002", "0000004", "0000005"]
+    assert not (out / "checkpoint-0000001.json").exists()
+    assert prune_checkpoints(out, keep_last=0) == []                      # 0: keep all
+    prune_checkpoints(out, keep_last=1)
+    assert [p.name for p in list_checkpoints(out)] == ["checkpoint-0000005.pt"]
+
+
+def test_metadata_with_nan_is_written_as_null(tmp_path):
+    assert finite_or_none({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"}) == {"a": None, "b": [1.0, None], "c": "x"}

@@ -48,6 +48,21 @@ def oks(a: np.ndarray, b: np.ndarray, area: float) -> float:
     return float(np.where(vis & present, np.exp(-e), 0.0).sum() / vis.sum())
 
 
+def missing_reasons(result: dict[str, float]) -> dict[str, str]:
+    """Why each NaN metric of :func:`evaluate`'s ``result`` could not be computed: ``{name: reason}``."""
+    reasons = {}
+    for name, value in result.items():
+        if np.isfinite(value):
+            continue
+        if name.startswith("depth_error") and not result.get("persons"):
+            reasons[name] = "no person with depth in the validation set (2D-only data)"
+        elif name in ("depth_error", "depth_error_flat_matched") and not result.get("matched"):
+            reasons[name] = "no detection matched a person with depth at OKS >= 0.5"
+        else:
+            reasons[name] = "no joint with a depth in both prediction and ground truth"
+    return reasons
+
+
 def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None = None, input_size: int = 385,
              decoder: DecoderConfig = DecoderConfig(), max_images: int | None = None) -> dict[str, float]:
     """OKS AP and relative-depth errors of ``model`` on a COCO keypoints file.
