@@ -47,10 +47,14 @@ def test_project_persons_labels_and_relative_depth():
     assert kp[1, 4, 2] == 0 and kp[1, 5, 2] == 0
     ok = kp[..., 2] > 0
     np.testing.assert_allclose(kp[0, 0, :2], K[:2, :2] @ (X[0, 0, :2] / X[0, 0, 2]) + K[:2, 2])
+    z_all = X[..., 2][ok]
+    for p in range(2):                     # one reference per image: the people's depth order is kept
+        np.testing.assert_allclose(dep[p, ok[p]], X[p, ok[p], 2] / np.median(z_all))
+    assert np.median(dep[ok]) == pytest.approx(1.0)
+    _, per_person = project_persons(persons.keypoints3d, K, np.eye(3), np.zeros(3), (160, 120), reference="person")
     for p in range(2):
         z = X[p, ok[p], 2]
-        np.testing.assert_allclose(dep[p, ok[p]], z / np.median(z))
-        assert np.median(dep[p, ok[p]]) == pytest.approx(1.0)
+        np.testing.assert_allclose(per_person[p, ok[p]], z / np.median(z))
 
 
 @pytest.mark.parametrize("link", ["symlink", "copy", "none"])
