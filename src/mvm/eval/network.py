@@ -92,6 +92,42 @@ def threedpw_pa_mpjpe(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray, cli
     return (float(np.mean(list(per_track.values()))) if per_track else float("nan")), per_track
 
 
+def match_poses_2d(pred: np.ndarray, gt: np.ndarray, max_distance: float = 0.5) -> np.ndarray:
+    """One-to-one matching of detected to true people of an image by their 2D joints.
+
+    The cost of a pair is the mean pixel distance over the joints visible in ``gt`` and
+    present in ``pred``, divided by the diagonal of the true person's visible-joint box;
+    pairs are assigned by minimum total cost (Hungarian) and kept below ``max_distance``.
+
+    Args:
+        pred: ``(P, J, 3)`` x, y, confidence (≤ 0: absent); gt: ``(G, J, 3)`` x, y, visibility.
+    Returns:
+        ``(G,)`` index of the matched detection of each true person, -1: none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    pred, gt = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
+    out = np.full(len(gt), -1)
+    if len(pred) == 0 or len(gt) == 0:
+        return out
+    if pred.shape[1:] != gt.shape[1:]:
+        raise ValueError(f"match_poses_2d: expected (P, J, 3) and (G, J, 3), got {pred.shape} and {gt.shape}")
+    both = (gt[None, :, :, 2] > 0) & (pred[:, None, :, 2] > 0)                       # (P, G, J)
+    dist = np.linalg.norm(pred[:, None, :, :2] - gt[None, :, :, :2], axis=-1)
+    vis = gt[..., 2] > 0
+    lo = np.where(vis[..., None], gt[..., :2], np.inf).min(1)
+    hi = np.where(vis[..., None], gt[..., :2], -np.inf).max(1)
+    diag = np.where(vis.any(1), np.linalg.norm(hi - lo, axis=-1), np.inf)            # (G,)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cost = (dist * both).sum(-1) / both.sum(-1) / np.maximum(diag, 1.0)
+    cost = np.where(both.sum(-1) > 0, cost, np.inf)
+    big = 1e9
+    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
+    ok = cost[rows, cols] < max_distance
+    out[cols[ok]] = rows[ok]
+    return out
+
+
 def oks_ap(ground_truth: dict, detections: list[dict]) -> dict[str, float]:
     """COCO keypoint AP of ``detections`` against a COCO keypoints ``ground_truth`` dict (pycocotools).
 

@@ -8,9 +8,9 @@ import numpy as np
 import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
-from mvm.eval.network import oks_ap, relative_depth_error
+from mvm.eval.network import coco_to_common14, match_poses_2d, oks_ap, relative_depth_error, threedpw_pa_mpjpe
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
-from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at
+from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth
 from mvm.net.model import PoseNet, fields_from_raw
 
 LOG = logging.getLogger(__name__)
@@ -120,3 +120,64 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
             "depth_error_gt2d": mean(oracle_err), "depth_error_flat": mean(flat_err),
             "depth_error_flat_matched": mean(matched_flat),
             "matched": float(len(matched_err)), "persons": float(n_persons)}
+
+
+def predict_3d(model: PoseNet, image: np.ndarray, K: np.ndarray, input_size: int,
+               decoder: DecoderConfig = DecoderConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """People of one image: 2D joints ``(P, 17, 3)`` and camera-frame 3D joints ``(P, 17, 3)``
+    (relative depths back-projected through ``K (3, 3)``, scaled by the bone lengths s*)."""
+    from mvm.net.scale import calibrate, lift
+
+    poses, _, _ = run_model(model, image, input_size, decoder)
+    if len(poses) == 0:
+        return np.zeros((0, 17, 3)), np.zeros((0, 17, 3))
+    metric, _ = calibrate(lift(poses.keypoints, normalize_depth(poses.depth), K))
+    return poses.keypoints, metric
+
+
+def evaluate_3dpw(model: PoseNet, data, input_size: int = 385, decoder: DecoderConfig = DecoderConfig(),
+                  min_visible: int = 7, max_images: int | None = None, progress=None) -> dict:
+    """PA-MPJPE of ``model`` on 3DPW poses (the paper's Table 3 protocol).
+
+    Each image is run once; its detections are matched to the true people by their 2D
+    joints (:func:`mvm.eval.network.match_poses_2d`); the 14 common joints of each matched
+    pose are Procrustes-aligned to the truth; errors are averaged per tracked person per
+    clip, then over the data set (:func:`mvm.eval.network.threedpw_pa_mpjpe`). Subjects with
+    fewer than ``min_visible`` visible joints are ignored; a true person without a matching
+    detection is counted in ``missed`` (and gets no error).
+
+    Args:
+        data: :class:`mvm.net.threedpw.ThreeDPWPoses`.
+        progress: optional ``progress(done, total)`` callback per image.
+    Returns:
+        ``{"PA_MPJPE_mm", "tracks", "poses", "missed", "ignored", "images", "per_track_mm"}``.
+    """
+    was_training = model.training
+    model.eval()
+    eligible = data.visible.sum(1) >= min_visible
+    images = list(dict.fromkeys(p for p, e in zip(data.images, eligible) if e))
+    if max_images is not None:
+        images = images[:max_images]
+    rows_of: dict = {}
+    for i, (path, e) in enumerate(zip(data.images, eligible)):
+        if e:
+            rows_of.setdefault(path, []).append(i)
+    pred = np.full((len(data), 14, 3), np.nan)
+    found = np.zeros(len(data), bool)
+    for n, path in enumerate(images):
+        rows = np.array(rows_of[path])
+        kp2d, kp3d = predict_3d(model, load_image(path), data.intrinsics[rows[0]], input_size, decoder)
+        match = match_poses_2d(coco_to_common14(kp2d), data.joints2d[rows])
+        hit = match >= 0
+        pred[rows[hit]] = coco_to_common14(kp3d[match[hit]])
+        found[rows[hit]] = True
+        if progress is not None:
+            progress(n + 1, len(images))
+    model.train(was_training)
+    used = found & eligible
+    error, per_track = threedpw_pa_mpjpe(pred[used], data.joints3d[used], data.visible[used], data.clip[used],
+                                         data.track[used], min_visible)
+    evaluated = np.isin(np.array([str(p) for p in data.images], dtype=object), [str(p) for p in images])
+    return {"PA_MPJPE_mm": 1000.0 * error, "tracks": len(per_track), "poses": int(used.sum()),
+            "missed": int((evaluated & eligible & ~found).sum()), "ignored": int((evaluated & ~eligible).sum()),
+            "images": len(images), "per_track_mm": {f"{c}/{t}": 1000.0 * e for (c, t), e in per_track.items()}}
