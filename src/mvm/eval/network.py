@@ -97,7 +97,7 @@ def match_poses_2d(pred: np.ndarray, gt: np.ndarray, max_distance: float = 0.5) 
 
     The cost of a pair is the mean pixel distance over the joints visible in ``gt`` and
     present in ``pred``, divided by the diagonal of the true person's visible-joint box;
-    pairs are assigned by minimum total cost (Hungarian) and kept below ``max_distance``.
+    pairs above ``max_distance`` are excluded, the others assigned by minimum total cost (Hungarian).
 
     Args:
         pred: ``(P, J, 3)`` x, y, confidence (≤ 0: absent); gt: ``(G, J, 3)`` x, y, visibility.
@@ -120,10 +120,9 @@ def match_poses_2d(pred: np.ndarray, gt: np.ndarray, max_distance: float = 0.5) 
     diag = np.where(vis.any(1), np.linalg.norm(hi - lo, axis=-1), np.inf)            # (G,)
     with np.errstate(invalid="ignore", divide="ignore"):
         cost = (dist * both).sum(-1) / both.sum(-1) / np.maximum(diag, 1.0)
-    cost = np.where(both.sum(-1) > 0, cost, np.inf)
-    big = 1e9
-    rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, big))
-    ok = cost[rows, cols] < max_distance
+    allowed = (both.sum(-1) > 0) & (cost < max_distance)                                # gate before assigning
+    rows, cols = linear_sum_assignment(np.where(allowed, cost, 1e9))
+    ok = allowed[rows, cols]
     out[cols[ok]] = rows[ok]
     return out
 
