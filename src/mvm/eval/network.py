@@ -214,6 +214,28 @@ def c_var(projections: np.ndarray, keypoints: np.ndarray, tau: float) -> float:
     return float(var[keep].mean()) if keep.any() else float("nan")
 
 
+def keypoints_per_view(keypoints: np.ndarray, view: np.ndarray, score: np.ndarray, members: list[np.ndarray],
+                       n_views: int) -> np.ndarray:
+    """The 2D poses grouped into each reconstructed person, laid out by view, for :func:`c_var`.
+
+    Args:
+        keypoints: ``(N, J, 3)`` the 2D poses of a scene; view: ``(N,)`` their view index;
+        score: ``(N,)`` (the best-scoring pose is kept where a person has two in one view);
+        members: per person, the indices into the ``N`` poses grouped into it.
+    Returns:
+        ``(P, V, J, 3)``; zeros where a person has no pose in a view.
+    """
+    kp = np.asarray(keypoints, dtype=float)
+    out = np.zeros((len(members), n_views) + kp.shape[1:])
+    if not members:
+        return out
+    person = np.concatenate([np.full(len(m), p) for p, m in enumerate(members)]).astype(int)
+    pose = np.concatenate([np.asarray(m, dtype=int) for m in members])
+    order = np.argsort(np.asarray(score, dtype=float)[pose], kind="stable")      # the best is written last
+    out[person[order], np.asarray(view)[pose[order]]] = kp[pose[order]]
+    return out
+
+
 def relative_depth_error(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """Mean absolute error of relative depths after normalizing both by their median.
 

@@ -8,7 +8,9 @@ import numpy as np
 import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
-from mvm.eval.network import coco_to_common14, match_poses_2d, oks_ap, relative_depth_error, threedpw_pa_mpjpe
+from mvm.errors import InputError
+from mvm.eval.network import (c_var, coco_to_common14, keypoints_per_view, match_poses_2d, oks_ap,
+                              relative_depth_error, threedpw_pa_mpjpe)
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
 from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth
 from mvm.net.model import PoseNet, fields_from_raw
@@ -46,6 +48,26 @@ def oks(a: np.ndarray, b: np.ndarray, area: float) -> float:
     e = d2 / (2 * max(area, 1.0) * k2)
     present = a[:, 2] > 0
     return float(np.where(vis & present, np.exp(-e), 0.0).sum() / vis.sum())
+
+
+def evaluate_detections(annotations: str | Path, detections: str | Path) -> dict[str, float]:
+    """OKS AP of a COCO results file (``[{"image_id", "keypoints", "score"}]``) on a COCO keypoints file."""
+    import json
+
+    ann = read_annotations(annotations)
+    path = Path(detections)
+    try:
+        dets = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, ValueError) as e:
+        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    if not isinstance(dets, list):
+        raise InputError(path, None, "expected a list of detections")
+    for i, d in enumerate(dets):
+        if not isinstance(d, dict) or len(d.get("keypoints", ())) != 51 or "image_id" not in d or "score" not in d:
+            raise InputError(path, f"[{i}]", "expected {image_id, keypoints: 51 numbers, score}")
+    return oks_ap(ann.document, dets)
 
 
 def missing_reasons(result: dict[str, float]) -> dict[str, str]:
@@ -181,3 +203,41 @@ def evaluate_3dpw(model: PoseNet, data, input_size: int = 385, decoder: DecoderC
     return {"PA_MPJPE_mm": 1000.0 * error, "tracks": len(per_track), "poses": int(used.sum()),
             "missed": int((evaluated & eligible & ~found).sum()), "ignored": int((evaluated & ~eligible).sum()),
             "images": len(images), "per_track_mm": {f"{c}/{t}": 1000.0 * e for (c, t), e in per_track.items()}}
+
+
+def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 0.9),
+                  output_name: str = "mvm") -> dict:
+    """The paper's Table 5: C_var of the 2D poses of reconstructed scenes.
+
+    For each scene, the 2D poses that the reconstruction grouped into each person
+    (``<scene>/<output_name>/poses3d.json``) are triangulated pairwise per joint
+    (:func:`mvm.eval.network.c_var`); the table value is the mean over scenes, in squared
+    units of each scene's model. Run it on scenes whose ``poses2d.json`` came from the
+    detector under test.
+
+    Returns:
+        ``{"C_var": {tau: mean or None}, "scenes": {name: {tau: value or None}}, "missing": {…}}``.
+    """
+    from mvm.io.scene_dir import read_poses3d, read_scene
+
+    per_scene, missing = {}, {}
+    for scene_dir in map(Path, scene_dirs):
+        poses3d = scene_dir / output_name / "poses3d.json"
+        if not poses3d.is_file():
+            raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+        scene = read_scene(scene_dir)
+        persons = read_poses3d(poses3d, scene.poses)
+        kp = keypoints_per_view(scene.poses.keypoints, scene.poses.view, scene.poses.score, persons.members,
+                                len(scene.cameras))
+        values = {}
+        for tau in taus:
+            v = c_var(scene.cameras.P, kp, tau)
+            values[str(tau)] = float(v) if np.isfinite(v) else None
+            if values[str(tau)] is None:
+                missing[f"{scene_dir.name}@{tau}"] = "no joint of any person seen in three views above tau"
+        per_scene[scene_dir.name] = values
+    table = {}
+    for tau in map(str, taus):
+        vals = [v[tau] for v in per_scene.values() if v[tau] is not None]
+        table[tau] = float(np.mean(vals)) if vals else None
+    return {"C_var": table, "scenes": per_scene, "missing": missing}
