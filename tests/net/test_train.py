@@ -235,3 +235,56 @@ def test_keep_last_and_keep_best(tmp_path):
 
 def test_metadata_with_nan_is_written_as_null(tmp_path):
     assert finite_or_none({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"}) == {"a": None, "b": [1.0, None], "c": "x"}
+
+
+def test_coco_as_pifpaf_people_only_crowds_and_unlabelled_people_masked(tmp_path):
+    import cv2
+
+    from mvm.net.encoder import encode
+
+    kp = np.zeros((17, 3))
+    kp[:, 0], kp[:, 1], kp[:, 2] = np.linspace(10, 40, 17), np.linspace(10, 50, 17), 2
+    doc = {"images": [{"id": i, "file_name": f"{i}.png"} for i in (1, 2, 3)],
+           "annotations": [
+               {"id": 1, "image_id": 1, "category_id": 1, "keypoints": kp.reshape(-1).tolist()},
+               {"id": 2, "image_id": 1, "category_id": 1, "iscrowd": 1, "bbox": [70, 70, 20, 20]},
+               {"id": 3, "image_id": 2, "category_id": 1, "num_keypoints": 0, "keypoints": [0] * 51,
+                "bbox": [40, 0, 30, 30]}]}                                  # image 3: nobody
+    (tmp_path / "a.json").write_text(json.dumps(doc))
+    for i in (1, 2, 3):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), np.zeros((96, 96, 3), np.uint8))
+    everything = read_annotations(tmp_path / "a.json")
+    people = read_annotations(tmp_path / "a.json", people_only=True)
+    assert len(everything.paths) == 3 and list(people.image_ids) == [1, 2]
+    assert [len(k) for k in people.keypoints] == [1, 0]
+    np.testing.assert_allclose(people.ignore[0], [[70, 70, 90, 90]])
+    np.testing.assert_allclose(people.ignore[1], [[40, 0, 70, 30]])
+    # inside the crowd box the background has no target; elsewhere it is background (0)
+    t = encode(people.keypoints[0], (96, 96), 8, ignore_boxes=people.ignore[0])
+    assert np.isnan(t["pif"][:, 0, 10, 10]).all() and np.isnan(t["paf"][:, 0, 10, 10]).all()
+    assert (t["pif"][:, 0, 5, 10] == 0).all() and np.nanmax(t["pif"][:, 0]) == 1.0
+    ds = KeypointDataset(people, 8, AugmentConfig(input_size=96, flip=0.0))
+    item = ds[1]
+    assert torch.isnan(item["pif"][:, 0, 1, 6]).all() and (item["pif"][:, 0, 10, 10] == 0).all()
+
+
+def test_scale_augmentation_moves_keypoints_and_boxes_with_the_image():
+    image = np.zeros((80, 100, 3), np.uint8)
+    kp = np.zeros((1, 17, 3))
+    kp[0, :, :2], kp[0, :, 2] = (50, 40), 2
+    kp[0, 5, :2] = (55, 20)
+    image[19:22, 54:57] = 255                                            # a marker on the left shoulder
+    sides = []
+    for seed in range(20):
+        cfg = AugmentConfig(input_size=80, flip=0.5, scale_min=0.5, scale_max=2.0)
+        crop, k, d, boxes = random_crop_flip(image, kp, np.arange(17.0)[None], cfg, np.random.default_rng(seed),
+                                             np.array([[54.0, 19.0, 57.0, 22.0]]))
+        if crop.max() == 0:
+            continue                                                     # the marker left the crop
+        y, x = np.unravel_index(np.argmax(crop[:, :, 0]), crop.shape[:2])
+        j = 6 if d[0, 6] == 5 else 5                                     # after a flip: the right shoulder
+        assert k[0, j, 2] > 0 and abs(k[0, j, 0] - x) <= 2.0 and abs(k[0, j, 1] - y) <= 2.0
+        x0, y0, x1, y1 = boxes[0]
+        assert x0 - 1 <= x <= x1 + 1 and y0 - 1 <= y <= y1 + 1
+        sides.append(x1 - x0)
+    assert len(sides) >= 8 and min(sides) < 0.8 * 3 and max(sides) > 1.25 * 3   # the 3 px marker shrank and grew

@@ -90,6 +90,31 @@ def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths:
     return rec
 
 
+def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:
+    """Boxes ``(M, 4)`` (``x0, y0, x1, y1``) of the 2D poses of ``view`` that no reconstructed
+    person holds (``persons.members``: annotation ids): people MVM saw but did not reconstruct,
+    which training must ignore rather than learn as background."""
+    poses = scene.poses
+    held = np.concatenate([np.asarray(m, dtype=int).reshape(-1) for m in persons.members] + [np.zeros(0, int)])
+    rows = np.nonzero((poses.view == view) & ~np.isin(poses.ids, held))[0]
+    kp = poses.keypoints[rows]
+    vis = kp[..., 2] > 0
+    rows, kp, vis = rows[vis.sum(1) >= 2], kp[vis.sum(1) >= 2], vis[vis.sum(1) >= 2]
+    lo = np.where(vis[..., None], kp[..., :2], np.inf).min(1)
+    hi = np.where(vis[..., None], kp[..., :2], -np.inf).max(1)
+    margin = 0.1 * (hi - lo)                                  # joints span less than the body
+    return np.concatenate([lo - margin, hi + margin], axis=1).reshape(-1, 4)
+
+
+def ignore_record(ann_id: int, image_id: int, box: np.ndarray) -> dict:
+    """A person without keypoints (COCO's ``num_keypoints: 0``): its box is ignored in training
+    and in OKS evaluation. ``box: (4,)`` ``x0, y0, x1, y1``."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return {"id": int(ann_id), "image_id": int(image_id), "category_id": 1, "keypoints": [0] * (3 * NUM_JOINTS),
+            "num_keypoints": 0, "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
+            "area": round((x1 - x0) * (y1 - y0), 2), "iscrowd": 0}
+
+
 def empty_dataset(description: str) -> dict:
     return {"info": {"format": FORMAT, "description": description,
                      "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; 0: missing"},
@@ -145,6 +170,9 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
                 ann_id += 1
                 data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
                 n_ann += 1
+            for box in unreconstructed_boxes(scene, persons, v):
+                ann_id += 1
+                data["annotations"].append(ignore_record(ann_id, image_id, box))
         LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
     path = out_dir / ANNOTATIONS_FILE
     atomic_write_json(path, data)

@@ -46,6 +46,9 @@ class DataSource:
         weight: relative sampling weight while active. [1]
         start_step: the step from which the set is sampled (0: from the start). [steps]
         use_depth: read ``keypoint_depths`` when present (false: train it as 2D-only).
+        people_only: drop the images without any person annotation (as PifPaf does with COCO).
+        scale_min, scale_max: random rescale of this set's crops (PifPaf on COCO: about 0.5-2;
+            1, 1: none, the paper's MVM recipe). [1]
     """
 
     annotations: str
@@ -53,6 +56,9 @@ class DataSource:
     weight: float = 1.0
     start_step: int = 0
     use_depth: bool = True
+    people_only: bool = True
+    scale_min: float = 1.0
+    scale_max: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -192,7 +198,10 @@ def _source(d, source: str, field_name: str) -> DataSource:
     unknown = sorted(set(d) - names)
     if unknown:
         raise InputError(source, f"{field_name}.{unknown[0]}", f"unknown key (known: {', '.join(sorted(names))})")
-    return DataSource(**d)
+    src = DataSource(**d)
+    if not 0 < src.scale_min <= src.scale_max:
+        raise InputError(source, f"{field_name}.scale_min", "expected 0 < scale_min <= scale_max")
+    return src
 
 
 def _check(cfg: TrainConfig, source: str) -> None:
@@ -430,10 +439,11 @@ def build_datasets(cfg: TrainConfig) -> MixtureDataset:
         raise InputError(None, "train", "no training data set given ([[data.train]])")
     sets = []
     for k, src in enumerate(cfg.train):
-        ann = read_annotations(src.annotations, src.images)
+        ann = read_annotations(src.annotations, src.images, people_only=src.people_only)
         if len(ann.paths) == 0:
-            raise InputError(src.annotations, "images", "empty data set")
-        sets.append(KeypointDataset(ann, cfg.stride, cfg.augment, EncoderConfig(), seed=cfg.seed + k,
+            raise InputError(src.annotations, "images", "empty data set (no image with a person)")
+        augment = dataclasses.replace(cfg.augment, scale_min=src.scale_min, scale_max=src.scale_max)
+        sets.append(KeypointDataset(ann, cfg.stride, augment, EncoderConfig(), seed=cfg.seed + k,
                                     use_depth=src.use_depth))
         n3d = sum(int(np.isfinite(d).any(axis=1).sum()) for d in ann.depths)
         LOG.info("data set %s: %d images, %d persons with depth", src.annotations, len(ann.paths), n3d)
