@@ -37,7 +37,8 @@ def test_config_files_parse(tmp_path):
     root = REPO / "configs"
     paper = load_config(root / "train_paper.toml")
     assert (paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay) == (1e-3, 0.95, 8, 0.0, 1e-3)
-    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride) == (0.95, 1.0, "resnet152", 8)
+    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride, paper.upsample) == (0.95, 1.0, "resnet152", 8, 2)
+    assert paper.model_spec.backbone_stride == 16 and paper.depth_loss == "image" and paper.keep_last > 0
     assert paper.train[0].start_step == 0 and paper.train[1].start_step > 0
     tiny = load_config(root / "train_cpu_tiny.toml", {"steps": 5})
     assert tiny.steps == 5 and tiny.backbone == "resnet18"
@@ -94,7 +95,7 @@ def test_train_checkpoints_resume_and_predict(tiny_data, tmp_path):
     assert path.name == "checkpoint-0000003.pt"
     assert (out / "checkpoint-0000002.pt").is_file() and (out / "checkpoint-0000002.json").is_file()
     meta = json.loads(path.with_suffix(".json").read_text())
-    assert meta["step"] == 3 and meta["model"] == {"backbone": "resnet18", "stride": 16, "width": 8}
+    assert meta["step"] == 3 and meta["model"] == {"backbone": "resnet18", "stride": 16, "width": 8, "upsample": 1}
     assert meta["images_per_second"] > 0 and set(meta["losses"]) >= {"L_PIF", "L_PAF", "L_PDF", "total"}
     state = torch.load(path, weights_only=True)  # tensors only: no pickled module
     assert set(state) >= {"model", "ema", "optimizer"}

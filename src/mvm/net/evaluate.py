@@ -27,7 +27,7 @@ def run_model(model: PoseNet, image: np.ndarray, input_size: int,
     letterboxed input (``{"pif": (17, 5, h, w), …}``) and the letterbox scale.
     """
     stride = model.spec.stride
-    boxed, scale = letterbox(image, input_size, stride)
+    boxed, scale = letterbox(image, input_size, model.spec.backbone_stride)
     device = next(model.parameters()).device
     raw = model(to_tensor(boxed)[None].to(device))
     fields = {k: v[0].float().cpu().numpy() for k, v in fields_from_raw(raw).items()}

@@ -66,7 +66,7 @@ class TrainConfig:
     """Every setting of a training run (read from TOML, see ``configs/``).
 
     Attributes:
-        backbone, stride, width: the network (see :class:`ModelSpec`).
+        backbone, stride, width, upsample: the network (see :class:`ModelSpec`).
         pretrained: torchvision ImageNet state dict of the backbone ('' for none).
         init_checkpoint: start from this checkpoint's (EMA) weights ('' for none).
         train: the data sets of the mixture; val: an optional validation set.
@@ -107,6 +107,7 @@ class TrainConfig:
     backbone: str = "resnet50"
     stride: int = 16
     width: int = 64
+    upsample: int = 1
     pretrained: str = ""
     init_checkpoint: str = ""
     input_size: int = 385
@@ -144,7 +145,7 @@ class TrainConfig:
 
     @property
     def model_spec(self) -> ModelSpec:
-        return ModelSpec(self.backbone, self.stride, self.width)
+        return ModelSpec(self.backbone, self.stride, self.width, self.upsample)
 
     @property
     def augment(self) -> AugmentConfig:
@@ -207,6 +208,8 @@ def _source(d, source: str, field_name: str) -> DataSource:
 def _check(cfg: TrainConfig, source: str) -> None:
     if cfg.stride not in (8, 16):
         raise InputError(source, "stride", f"expected 8 or 16, got {cfg.stride}")
+    if cfg.upsample not in (1, 2):
+        raise InputError(source, "upsample", f"expected 1 or 2, got {cfg.upsample}")
     if not 0 < cfg.crop_min <= cfg.crop_max <= 1:
         raise InputError(source, "crop_min", "expected 0 < crop_min <= crop_max <= 1")
     if not 0 < cfg.ema_decay <= 1:
