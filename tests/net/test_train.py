@@ -289,3 +289,58 @@ def test_scale_augmentation_moves_keypoints_and_boxes_with_the_image():
         assert x0 - 1 <= x <= x1 + 1 and y0 - 1 <= y <= y1 + 1
         sides.append(x1 - x0)
     assert len(sides) >= 8 and min(sides) < 0.8 * 3 and max(sides) > 1.25 * 3   # the 3 px marker shrank and grew
+
+
+def test_sampler_ranks_split_one_stream():
+    one = iter(MixtureSampler([10, 5], [1.0, 2.0], [0, 1], batch_size=4, seed=3, start=8))
+    ranks = [iter(MixtureSampler([10, 5], [1.0, 2.0], [0, 1], batch_size=4, seed=3, start=8, rank=r, world=2))
+             for r in range(2)]
+    stream = [next(one) for _ in range(40)]
+    assert [next(ranks[i % 2]) for i in range(40)] == stream
+
+
+def _ddp_worker(rank, world, port, cfg):
+    import os
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world), RANK=str(rank),
+                      LOCAL_RANK=str(rank))
+    train(cfg)
+
+
+def test_data_parallel_on_cpu_with_gloo(tiny_data, tmp_path):
+    """Two processes (torchrun's environment, the gloo backend): one run, written once by rank 0."""
+    import socket
+
+    import torch.multiprocessing as mp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = _config(tiny_data, tmp_path / "run", steps=2).replace(threads=1)
+    mp.spawn(_ddp_worker, args=(2, port, cfg), nprocs=2, join=True)
+    meta = json.loads((tmp_path / "run" / "checkpoint-0000002.json").read_text())
+    assert meta["step"] == 2 and meta["images_per_second"] > 0
+    records = read_metrics_log(tmp_path / "run" / "metrics.jsonl")
+    assert [r["step"] for r in records] == [1, 2]                         # one log, not one per process
+
+
+def test_plot_draws_the_curves(tiny_data, tmp_path):
+    from click.testing import CliRunner
+
+    from mvm.cli.net import train_cmd
+    from mvm.net.curves import curves
+
+    val = _two_d_only(tiny_data, tiny_data.parent)
+    out = tmp_path / "run"
+    config = tmp_path / "c.toml"
+    config.write_text(f"""[model]\nbackbone = "resnet18"\nstride = 16\nwidth = 8\n[data]\ninput_size = 64
+[[data.train]]\nannotations = "{tiny_data}"\n[data.val]\nannotations = "{val}"
+[optim]\nsteps = 2\nbatch_size = 2\nlr = 0.01\n[output]\nout_dir = "{out}"\nval_every = 1\nlog_every = 1\nthreads = 1\n""")
+    result = CliRunner().invoke(train_cmd, [str(config), "--device", "cpu"])
+    assert result.exit_code == 0, result.output
+    assert "depth_error: missing (no person with depth" in result.output
+    data = curves(read_metrics_log(out / "metrics.jsonl"))
+    assert data["total"][0] == [1, 2] and data["val/AP"][0] == [1, 2] and "val/depth_error" not in data
+    result = CliRunner().invoke(train_cmd, [str(config), "--plot"])
+    assert result.exit_code == 0, result.output
+    assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"

@@ -39,13 +39,10 @@ _device = click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), d
 
 
 def _load(checkpoint: Path, device: str, input_size: int | None):
-    import torch
-
     from mvm.net.predict import load_model
+    from mvm.net.train import select_device
 
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    model, meta = load_model(checkpoint, device=device)
+    model, meta = load_model(checkpoint, device=str(select_device(device)))
     return model, input_size or int(meta.get("config", {}).get("input_size", 385))
 
 

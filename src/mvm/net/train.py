@@ -311,7 +311,10 @@ class EMA:
                 self.state[k].copy_(v)
 
 
-def _device(name: str, index: int = 0) -> torch.device:
+def select_device(name: str, index: int = 0) -> torch.device:
+    """'auto' (a GPU when there is one), 'cpu' or 'cuda' (an InputError without a GPU)."""
+    if name not in ("auto", "cpu", "cuda"):
+        raise InputError(None, "device", f"expected auto, cpu or cuda, got {name!r}")
     if name == "cuda" and not torch.cuda.is_available():
         raise InputError(None, "device", "cuda requested but no GPU is available")
     if name == "cpu" or not torch.cuda.is_available():
@@ -579,7 +582,7 @@ def _train_step(model, batch: dict, optimizer, ema: "EMA", weights: LossWeights,
 
 def _train(cfg: TrainConfig, resume, progress, dist: Distributed) -> Path:
     torch.manual_seed(cfg.seed)
-    device = _device(cfg.device, dist.local_rank)
+    device = select_device(cfg.device, dist.local_rank)
     out_dir = Path(cfg.out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     model = _build_model(cfg).to(device)
