@@ -108,7 +108,7 @@ def coco_cmd(annotations: Path, images: Path | None, checkpoint: Path | None, de
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--tau", "taus", type=float, multiple=True, help="Confidence threshold (repeatable; default 0.5 and 0.9).")
 @click.option("--output-name", default="mvm", show_default=True, help="Directory of each scene holding poses3d.json.")
-@_label
+@click.option("--label", default="detector of poses2d.json", show_default=True, help="First column of the table row.")
 @_out
 def cvar_cmd(scenes: tuple[Path, ...], taus: tuple[float, ...], output_name: str, label: str, out: Path | None) -> None:
     """Table 5: C_var of the 2D poses of reconstructed SCENES (run on the detector's poses2d.json)."""
