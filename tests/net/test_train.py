@@ -39,6 +39,8 @@ def test_config_files_parse(tmp_path):
     assert (paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay) == (1e-3, 0.95, 8, 0.0, 1e-3)
     assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride, paper.upsample) == (0.95, 1.0, "resnet152", 8, 2)
     assert paper.model_spec.backbone_stride == 16 and paper.depth_loss == "image" and paper.keep_last > 0
+    baseline = load_config(root / "train_paper_coco.toml")
+    assert baseline.train == paper.train[:1] and baseline.model_spec == paper.model_spec and baseline.lr == paper.lr
     assert paper.train[0].start_step == 0 and paper.train[1].start_step > 0
     tiny = load_config(root / "train_cpu_tiny.toml", {"steps": 5})
     assert tiny.steps == 5 and tiny.backbone == "resnet18"
