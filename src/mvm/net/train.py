@@ -531,12 +531,12 @@ def _check_spec(path, meta: dict, cfg: TrainConfig) -> None:
         raise InputError(path, "model", f"checkpoint is {meta['model']}, config asks for {cfg.model_spec}")
 
 
-def _restore(resume, cfg: TrainConfig, model: PoseNet, optimizer, ema: "EMA", device) -> int:
-    """Load a checkpoint's weights, optimizer and moving average; returns its step (0: none)."""
+def _restore(resume, cfg: TrainConfig, model: PoseNet, optimizer, ema: "EMA", device) -> tuple[int, Path | None]:
+    """Load a checkpoint's weights, optimizer and moving average; returns its step and path (0, None: none)."""
     if resume == "auto":
         resume = latest_checkpoint(cfg.out_dir)
     if not resume:
-        return 0
+        return 0, None
     state, meta = read_checkpoint(resume)
     _check_spec(resume, meta, cfg)
     model.load_state_dict(state["model"])
@@ -544,7 +544,7 @@ def _restore(resume, cfg: TrainConfig, model: PoseNet, optimizer, ema: "EMA", de
     ema.state = {k: v.to(device) for k, v in state["ema"].items()}
     ema.updates = int(state.get("ema_updates", torch.tensor(meta["step"])))
     LOG.info("resumed from %s at step %d", resume, meta["step"])
-    return int(meta["step"])
+    return int(meta["step"]), Path(resume)
 
 
 def _loader(cfg: TrainConfig, step: int, dist: Distributed) -> torch.utils.data.DataLoader:
@@ -588,10 +588,10 @@ def _train(cfg: TrainConfig, resume, progress, dist: Distributed) -> Path:
     model = _build_model(cfg).to(device)
     optimizer = make_optimizer(model, cfg)
     ema = EMA(model, cfg.ema_decay)
-    step = _restore(resume, cfg, model, optimizer, ema, device)
+    step, resumed = _restore(resume, cfg, model, optimizer, ema, device)
     if step >= cfg.steps:
         LOG.info("nothing to do: the checkpoint is at step %d of %d", step, cfg.steps)
-        return checkpoint_paths(out_dir, step)[0]
+        return resumed
     if dist.world > 1:
         model = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
     loader = _loader(cfg, step, dist)
