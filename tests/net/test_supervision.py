@@ -3,8 +3,8 @@ import json
 import os
 
 import numpy as np
-import torch
 import pytest
+import torch
 
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError

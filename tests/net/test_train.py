@@ -10,8 +10,20 @@ from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.errors import InputError
 from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.predict import load_model, predict
-from mvm.net.train import (EMA, MixtureSampler, config_from_dict, finite_or_none, latest_checkpoint, learning_rate,
-                           list_checkpoints, load_config, prune_checkpoints, read_checkpoint, read_metrics_log, train)
+from mvm.net.train import (
+    EMA,
+    MixtureSampler,
+    config_from_dict,
+    finite_or_none,
+    latest_checkpoint,
+    learning_rate,
+    list_checkpoints,
+    load_config,
+    prune_checkpoints,
+    read_checkpoint,
+    read_metrics_log,
+    train,
+)
 from mvm.sim import images
 
 from helpers import REPO

@@ -9,8 +9,15 @@ import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
 from mvm.errors import InputError
-from mvm.eval.network import (c_var, coco_to_common14, keypoints_per_view, match_poses_2d, oks_ap,
-                              relative_depth_error, threedpw_pa_mpjpe)
+from mvm.eval.network import (
+    c_var,
+    coco_to_common14,
+    keypoints_per_view,
+    match_poses_2d,
+    oks_ap,
+    relative_depth_error,
+    threedpw_pa_mpjpe,
+)
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
 from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth
 from mvm.net.model import PoseNet, fields_from_raw
