@@ -2,7 +2,8 @@
 detector's 2D poses are across frames (lower: more consistent).
 
 Given scene directories (each detected with one detector and reconstructed), prints C_var at
-τ = 0.5 and 0.9 for each, with the detector ``poses2d.json`` records:
+τ = 0.5 and 0.9 for each (:func:`mvm.net.evaluate.evaluate_cvar`, as ``mvm evaluate cvar``),
+with the detector that ``poses2d.json`` records:
 
     mvm detect clip_rtmo --detector rtmo && mvm reconstruct clip_rtmo
     mvm detect clip_rtmpose --detector rtmpose && mvm reconstruct clip_rtmpose
@@ -15,17 +16,27 @@ a known cause.
 from __future__ import annotations
 
 import argparse
+import json
 import tempfile
 from pathlib import Path
 
-from mvm.video.consistency import scene_c_var
+from mvm.net.evaluate import evaluate_cvar
+
+
+def detector_of(scene: Path) -> str:
+    """What produced ``scene/poses2d.json`` (its ``info.source``)."""
+    try:
+        info = json.loads((scene / "poses2d.json").read_text()).get("info") or {}
+    except (OSError, ValueError, AttributeError):
+        info = {}
+    return str(info.get("source", "(not recorded)")) if isinstance(info, dict) else "(not recorded)"
 
 
 def simulated_scenes(root: Path, noises: list[float], frames: int, people: int, seed: int) -> list[Path]:
     """One tour and crowd, detected with each keypoint noise (fraction of the person's size), reconstructed."""
     from mvm.core.config import Config
-    from mvm.core.reconstruct import reconstruct_dir
     from mvm.io.ground_truth import write_simulation
+    from mvm.scenes import reconstruct_dir
     from mvm.sim.simulate import SimConfig, simulate
 
     scenes = []
@@ -51,12 +62,11 @@ def main() -> None:
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         scenes = args.scenes or simulated_scenes(Path(tmp), args.noise, args.frames, args.people, args.seed)
-        print(f"{'scene':<24} {'detector':<40} {'persons':>7} {'C_var@0.5':>10} {'C_var@0.9':>10}")
+        print(f"{'scene':<24} {'detector':<40} {'C_var@0.5':>10} {'C_var@0.9':>10}")
         for scene in scenes:
-            r = scene_c_var(scene, args.output, (0.5, 0.9))
-            detector = r["detector"] or "(not recorded)"
-            print(f"{scene.name:<24} {detector[:40]:<40} {r['persons']:>7} {r['c_var'][0.5]:>10.5f} "
-                  f"{r['c_var'][0.9]:>10.5f}")
+            values = evaluate_cvar([scene], (0.5, 0.9), args.output)["scenes"][scene.name]
+            cells = " ".join(f"{'–' if v is None else f'{v:.5f}':>10}" for v in values.values())
+            print(f"{scene.name:<24} {detector_of(scene)[:40]:<40} {cells}")
         print("C_var in squared world units (m² for a metric scene; the simulation is in metres)")
 
 

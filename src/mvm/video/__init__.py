@@ -3,6 +3,5 @@
 Stages (each resumable): :func:`frames.extract_frames`, :func:`sfm.run_sfm` (or
 :func:`sfm.import_colmap` / :func:`sfm.import_trajectory`), :func:`detect.detect_scene`,
 :func:`pipeline.reconstruct_scene`; :func:`pipeline.run_video` runs them all. The RTMO /
-RTMPose detectors are in :mod:`rtm`, their published models and cache in :mod:`models`; the
-paper's C_var of a detector on a reconstructed scene in :mod:`consistency`.
+RTMPose detectors are in :mod:`rtm`, their published models and cache in :mod:`models`.
 """
