@@ -52,9 +52,9 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
             yield read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
 
     path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
-    import json
+    from mvm.io.checks import load_json
 
-    data = json.loads(path.read_text())
+    data = load_json(path)
     click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
                f"from {len(scenes)} scene(s)")
 

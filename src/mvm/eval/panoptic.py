@@ -4,7 +4,6 @@ subset of the HD cameras and scored with MPJPE, PA-MPJPE, PCP, AP and the fracti
 found. World in metres (the files' centimetres / 100)."""
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ from mvm.errors import InputError
 from mvm.eval.metrics import match_persons, pose_errors
 from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
+from mvm.io.checks import load_json_object
 from mvm.io.panoptic_calib import read_panoptic_calibration
 from mvm.rig.instants import Detections, reconstruct_instants
 from mvm.sim.rig import DetectorErrors, detect_views, pose_scores
@@ -29,10 +29,7 @@ def read_panoptic_bodies(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """One ``body3DScene_*.json`` -> ``(G, 17, 3)`` COCO joints in centimetres (NaN where the
     confidence is negative) and ``(G,)`` body ids."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read JSON: {e}") from None
+    data = load_json_object(path, what="a Panoptic body3DScene object")
     poses, ids = [], []
     for i, body in enumerate(data.get("bodies", [])):
         try:

@@ -22,6 +22,9 @@ POSES2D = "poses2d.json"
 FRAMES = "frames"
 SPARSE = "sparse"
 POSES3D_FORMAT = "mvm.poses3d/1"
+MAX_COORDINATE = 1e12
+"""The largest coordinate magnitude a ``poses3d.json`` may hold (model units): beyond it a
+squared distance could overflow, and no scene measures that much in any unit."""
 
 
 def read_scene(path: str | Path) -> Scene:
@@ -115,13 +118,43 @@ def write_poses3d(path: str | Path, document: dict) -> None:
     atomic_write_json(path, document, indent=1)
 
 
-def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
+def load_poses3d_document(path: str | Path, root: str | Path | None = None) -> dict:
+    """The ``mvm.poses3d/1`` document of ``path`` (read by the guarded reader, inside ``root``
+    when given), its format and ``metrics`` checked: every metric is a finite number, null,
+    a string or a list/object of those."""
+    data = load_json(path, root)
+    if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
+        raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
+    metrics = data.get("metrics", {})
+    if not isinstance(metrics, dict):
+        raise InputError(path, "metrics", "expected an object")
+    for key, value in metrics.items():
+        _check_metric(value, path, f"metrics.{key}")
+    return data
+
+
+def _check_metric(value, path, field) -> None:
+    if value is None or isinstance(value, (str, bool)):
+        return
+    if isinstance(value, (int, float)):
+        number(value, path, field)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_metric(v, path, f"{field}[{i}]")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_metric(v, path, f"{field}.{k}")
+
+
+def read_poses3d(path: str | Path, poses: Poses2D | None = None, root: str | Path | None = None) -> Persons3D:
     """Read ``poses3d.json``. With ``poses``, members are mapped back to indices into it;
     otherwise ``members`` hold the annotation ids."""
     path = Path(path)
-    data = load_json(path)
-    if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
-        raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
+    return parse_poses3d(load_poses3d_document(path, root), path, poses)
+
+
+def parse_poses3d(data: dict, path: str | Path, poses: Poses2D | None = None) -> Persons3D:
+    """The persons of a document from :func:`load_poses3d_document` (``path`` names it in errors)."""
     persons = data.get("persons")
     if not isinstance(persons, list):
         raise InputError(path, "persons", "missing, or not a list")
@@ -146,6 +179,8 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
                 raise InputError(path, where, "expected [x, y, z, score]")
             if entry[0] is not None:
                 X[p, j] = numbers(entry[:3], path, where)
+                if np.abs(X[p, j]).max() > MAX_COORDINATE:
+                    raise InputError(path, where, f"coordinate beyond ±{MAX_COORDINATE:g} model units")
             elif entry[1] is not None or entry[2] is not None:
                 raise InputError(path, where, "x, y and z must all be numbers or all null")
             scores[p, j] = number(entry[3], path, f"{where}[3]")

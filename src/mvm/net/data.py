@@ -10,7 +10,6 @@ keypoints (``FLIP_PERMUTATION``), and a resize to ``input_size``.
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import torch
 
 from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
 from mvm.net.encoder import EncoderConfig, encode
 from mvm.net.model import IMAGE_MEAN, IMAGE_STD
 
@@ -54,12 +54,7 @@ class Annotations:
 def read_annotations(path: str | Path, images_dir: str | Path | None = None, min_keypoints: int = 1) -> Annotations:
     """Read a COCO keypoints file; images are found under ``images_dir`` (default: the file's directory)."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    doc = load_json_object(path, what="a COCO keypoints object")
     for key in ("images", "annotations"):
         if not isinstance(doc.get(key), list):
             raise InputError(path, key, "missing, or not a list")

@@ -9,18 +9,18 @@ that many scenes merge into.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
+from mvm.io.checks import integer, load_json_object
 from mvm.io.files import atomic_write_json
 
 LOG = logging.getLogger(__name__)
@@ -178,11 +178,39 @@ def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link
     return rel.as_posix()
 
 
-def merge_datasets(paths: Iterable[str | Path], out: str | Path) -> Path:
+def _source_dataset(path: Path) -> tuple[list[dict], list[dict]]:
+    """The images and annotations of one supervision file, checked: every image has an integer
+    ``id`` (unique) and a ``file_name``, every annotation names one of those images."""
+    data = load_json_object(path, what="a COCO keypoints object")
+    for key in ("images", "annotations"):
+        if not isinstance(data.get(key), list):
+            raise InputError(path, key, "missing, or not a list")
+    ids = set()
+    for i, image in enumerate(data["images"]):
+        if not isinstance(image, dict):
+            raise InputError(path, f"images[{i}]", "expected an object")
+        image_id = integer(image.get("id"), path, f"images[{i}].id")
+        if image_id in ids:
+            raise InputError(path, f"images[{i}].id", f"duplicate image id {image_id}")
+        ids.add(image_id)
+        if not isinstance(image.get("file_name"), str) or not image["file_name"]:
+            raise InputError(path, f"images[{i}].file_name", "missing, or not a string")
+    for i, ann in enumerate(data["annotations"]):
+        if not isinstance(ann, dict):
+            raise InputError(path, f"annotations[{i}]", "expected an object")
+        if ann.get("image_id") not in ids:
+            raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')!r}")
+    return data["images"], data["annotations"]
+
+
+def merge_datasets(paths: Iterable[str | Path], out: str | Path,
+                   on_bad_source: Callable[[Path, InputError], None] | None = None) -> Path:
     """Merge COCO keypoint files into ``out`` with fresh unique ids.
 
     ``file_name`` of every image is rewritten relative to ``out``'s directory, so the frames
-    are found from the merged file as they were from each source.
+    are found from the merged file as they were from each source. A source that cannot be
+    read or is inconsistent raises :class:`InputError`; with ``on_bad_source`` it is reported
+    to that callback and left out instead, and the others are merged.
     """
     out = Path(out)
     merged = empty_dataset("mvm supervision: merged")
@@ -190,25 +218,21 @@ def merge_datasets(paths: Iterable[str | Path], out: str | Path) -> Path:
     for path in paths:
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(path, None, "file not found") from None
-        except json.JSONDecodeError as e:
-            raise InputError(path, None, f"not valid JSON: {e}") from None
-        for key in ("images", "annotations"):
-            if not isinstance(data.get(key), list):
-                raise InputError(path, key, "missing, or not a list")
+            images, annotations = _source_dataset(path)
+        except InputError as e:
+            if on_bad_source is None:
+                raise
+            on_bad_source(path, e)
+            continue
         remap = {}
-        for image in data["images"]:
+        for image in images:
             image_id += 1
             remap[image["id"]] = image_id
             src = Path(image["file_name"])
             full = src if src.is_absolute() else path.parent / src
             merged["images"].append({**image, "id": image_id,
                                      "file_name": Path(os.path.relpath(full, out.parent)).as_posix()})
-        for i, ann in enumerate(data["annotations"]):
-            if ann.get("image_id") not in remap:
-                raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')}")
+        for ann in annotations:
             ann_id += 1
             merged["annotations"].append({**ann, "id": ann_id, "image_id": remap[ann["image_id"]]})
     atomic_write_json(out, merged)

@@ -14,7 +14,6 @@ camera number (``cam_01`` and ``cam1_json``) when that number is unique on both 
 """
 from __future__ import annotations
 
-import json
 import logging
 import re
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
+from mvm.io.checks import load_json
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_files, frame_number, read_openpose_frame
 from mvm.rig.instants import Detections
@@ -152,10 +152,7 @@ def _source_format(path: Path) -> str:
     if path.is_file():
         return "coco"
     first = next(iter(sorted(path.glob("*.json"))))
-    try:
-        data = json.loads(first.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(first, None, f"not valid JSON: {e}") from None
+    data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
         return "openpose"
     if isinstance(data, list):

@@ -12,7 +12,6 @@ trajectories) draw from a second generator seeded with ``(seed, 1)`` and only wh
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -554,14 +553,10 @@ def write_simulation(path: str | Path, scene: Scene, truth: GroundTruth, config:
 def read_ground_truth(path: str | Path) -> GroundTruth:
     """Read ``<scene>.groundtruth.json`` as written by :func:`write_simulation`."""
     from mvm.errors import InputError
+    from mvm.io.checks import load_json_object
 
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except json.JSONDecodeError as e:
-        raise InputError(path, f"line {e.lineno}", f"not valid JSON: {e.msg}") from None
+    data = load_json_object(path, what="a ground truth object")
     for key in ("poses3d", "person_of_annotation"):
         if key not in data:
             raise InputError(path, key, "missing")

@@ -14,7 +14,6 @@ For imported detections the appearance is the colour descriptor of the frame
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
 from mvm.io.files import atomic_write_json
 from mvm.io.paths import resolve_in
@@ -88,17 +88,11 @@ def detect_format(path: str | Path) -> str:
         first = next(iter(sorted(path.glob("*.json"))), None)
         if first is None:
             raise InputError(path, None, "no JSON files to import")
-        try:
-            data = json.loads(first.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(first, None, f"not valid JSON: {e}") from None
+        data = load_json(first)
         return "openpose" if isinstance(data, dict) and "people" in data else "openpifpaf"
     if not path.is_file():
         raise InputError(path, None, "file or directory not found")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if isinstance(data, list):
         return "coco-results"
     if isinstance(data, dict) and "annotations" in data:
@@ -142,12 +136,7 @@ def read_coco_results(path: str | Path, names: list[str]) -> tuple[np.ndarray, n
     """A COCO results JSON -> ``keypoints: (N, 17, 3)``, ``image: (N,)`` index into ``names``,
     ``score: (N,)``. ``image_id`` is a file name (or its stem), or a 1-based position."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, list):
         raise InputError(path, None, "expected a JSON list of results")
     by_name = {n: i for i, n in enumerate(names)}

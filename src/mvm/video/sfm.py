@@ -6,7 +6,6 @@ registered, the reprojection error and the trajectory) and the model in ``SCENE/
 """
 from __future__ import annotations
 
-import json
 import logging
 import tempfile
 from dataclasses import asdict, dataclass, field
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_replace_dir, atomic_write_json
 from mvm.video.frames import FRAMES_DIR, list_frames
 
@@ -212,14 +212,14 @@ def _warn_unregistered(report: SfmReport, scene: Path) -> None:
 
 def read_sfm_report(scene: str | Path) -> SfmReport:
     path = Path(scene) / SFM_DIR / SFM_REPORT
+    if not path.exists():
+        raise InputError(path, None, "file not found (run `mvm sfm` first)")
+    data = load_json_object(path, root=scene, what="an SfM report object")
+    data.pop("options", None)
     try:
-        data = json.loads(path.read_text())
-        data.pop("options", None)
         return SfmReport.from_json(data)
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (run `mvm sfm` first)") from None
-    except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    except (TypeError, ValueError) as e:
+        raise InputError(path, None, f"not an SfM report: {e}") from None
 
 
 def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
