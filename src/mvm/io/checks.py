@@ -61,6 +61,33 @@ def inside_root(path: str | Path, root: str | Path) -> Path:
     return path
 
 
+def check_input_file(path: str | Path, root: str | Path | None = None, limit: int | None = None) -> Path:
+    """``path`` when it names a regular file of at most ``limit`` bytes (inside ``root`` when
+    given), for a reader that opens it itself (a link to it, a copy); InputError otherwise."""
+    path = Path(path)
+    if root is not None:
+        inside_root(path, root)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    _check_kind(path, info, MAX_INPUT_BYTES if limit is None else limit)
+    return path
+
+
+def _check_kind(path: Path, info: os.stat_result, limit: int) -> None:
+    for test, problem in _KINDS:
+        if test(info.st_mode):
+            raise InputError(path, None, problem)
+    if not stat.S_ISREG(info.st_mode):
+        raise InputError(path, None, "not a regular file")
+    if info.st_size > limit:
+        raise InputError(path, None, f"{_size_text(info.st_size)}, more than the "
+                                     f"{_size_text(limit)} limit for an input file (MVM_MAX_INPUT_MB)")
+
+
 def read_bytes(path: str | Path, root: str | Path | None = None, limit: int | None = None) -> bytes:
     """The content of the regular file ``path``, read the guarded way.
 
@@ -82,15 +109,7 @@ def read_bytes(path: str | Path, root: str | Path | None = None, limit: int | No
     except OSError as e:
         raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
     try:
-        info = os.fstat(fd)
-        for test, problem in _KINDS:
-            if test(info.st_mode):
-                raise InputError(path, None, problem)
-        if not stat.S_ISREG(info.st_mode):
-            raise InputError(path, None, "not a regular file")
-        if info.st_size > limit:
-            raise InputError(path, None, f"{_size_text(info.st_size)}, more than the "
-                                         f"{_size_text(limit)} limit for an input file (MVM_MAX_INPUT_MB)")
+        _check_kind(path, os.fstat(fd), limit)
         chunks, total = [], 0
         while True:
             chunk = os.read(fd, min(1 << 24, limit + 1 - total))

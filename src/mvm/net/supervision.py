@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -20,8 +19,8 @@ import numpy as np
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import integer, load_json_object
-from mvm.io.files import atomic_write_json
+from mvm.io.checks import check_input_file, integer, load_json_object, read_bytes
+from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_bytes, atomic_write_json, make_dir
 
 LOG = logging.getLogger(__name__)
 
@@ -120,12 +119,27 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
     if link not in LINK_MODES:
         raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    _check_dataset_dir(out_dir)
+    items = [_as_item(item) for item in scenes_and_persons]
+    atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints), out_dir)
+    return out_dir / ANNOTATIONS_FILE
+
+
+def _check_dataset_dir(out_dir: Path) -> None:
+    """An existing dataset folder is replaced as a whole: refuse one that holds anything else."""
+    if out_dir.is_dir():
+        other = sorted(p.name for p in out_dir.iterdir() if p.name not in (ANNOTATIONS_FILE, "images"))
+        if other:
+            raise OutputError(out_dir, None, f"holds {other[0]!r}, not only a dataset (annotations.json, "
+                                             "images/): choose a new or empty folder")
+
+
+def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int) -> None:
+    """Fill ``tmp`` (which becomes ``out_dir``) with the dataset of ``items``."""
     data = empty_dataset("mvm supervision: refined 3D poses projected into every frame")
     names_seen: dict[str, int] = {}
     image_id = ann_id = 0
-    for item in scenes_and_persons:
-        scene, persons, frames = _as_item(item)
+    for scene, persons, frames in items:
         label = _unique(scene.name or "scene", names_seen)
         cams = scene.cameras
         n_ann = 0
@@ -134,7 +148,7 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
             keep = np.nonzero((kp[:, :, 2] > 0).sum(1) >= min_keypoints)[0]
             name = cams.names[v]
             image_id += 1
-            data["images"].append({"id": image_id, "file_name": _place_frame(name, label, frames, out_dir, link),
+            data["images"].append({"id": image_id, "file_name": _place_frame(name, label, frames, out_dir, tmp, link),
                                    "width": int(cams.size[v, 0]), "height": int(cams.size[v, 1]),
                                    "scene": label, "frame": name})
             for p in keep:
@@ -142,9 +156,7 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
                 data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
                 n_ann += 1
         LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
-    path = out_dir / ANNOTATIONS_FILE
-    atomic_write_json(path, data)
-    return path
+    atomic_write_json(tmp / ANNOTATIONS_FILE, data)
 
 
 def _unique(name: str, seen: dict[str, int]) -> str:
@@ -155,8 +167,10 @@ def _unique(name: str, seen: dict[str, int]) -> str:
     return f"{name}_{seen[name]}"
 
 
-def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link: str) -> str:
-    """Link or copy one frame into ``out_dir/images/<scene>/``; returns its ``file_name``."""
+def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, tmp: Path, link: str) -> str:
+    """Link or copy one frame into ``tmp/images/<scene>/`` (``tmp`` becomes ``out_dir``);
+    returns its ``file_name``. The frame must be a regular file inside its scene directory
+    (``frames``' parent) once links are resolved (:func:`mvm.io.checks.check_input_file`)."""
     if link == "none":
         if frames is None:
             return f"{scene}/{name}"
@@ -164,17 +178,17 @@ def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link
     if frames is None:
         raise InputError(None, "frames_dir", f"scene {scene}: link={link!r} needs the directory of its frames")
     src = frames / name
-    if not src.is_file():
+    if not (src.exists() or src.is_symlink()):
         raise InputError(src, None, "frame not found")
+    check_input_file(src, root=frames.parent)
     rel = Path("images") / scene / name
-    dst = out_dir / rel
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    if dst.is_symlink() or dst.exists():
-        dst.unlink()
+    dst = tmp / rel
+    make_dir(dst.parent)
     if link == "symlink":
-        dst.symlink_to(os.path.relpath(src.resolve(), dst.parent.resolve()))
+        # tmp and out_dir are siblings: the relative link reads the same from either
+        dst.symlink_to(os.path.relpath(src.resolve(), (out_dir / rel).parent.resolve()))
     else:
-        shutil.copy2(src, dst)
+        atomic_write_bytes(dst, read_bytes(src, root=frames.parent))
     return rel.as_posix()
 
 
