@@ -189,7 +189,7 @@ def _reconstruct(clip: Clip, options: BatchOptions) -> None:
 
 
 def _export(clip: Clip, options: BatchOptions) -> None:
-    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.io.scene_dir import output_dir, read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
 
     scene = Path(clip.scene)
@@ -198,7 +198,7 @@ def _export(clip: Clip, options: BatchOptions) -> None:
         raise InputError(poses3d, None, "not found: the clip is not reconstructed")
     frames = scene / "frames"
     item = (read_scene(scene), read_poses3d(poses3d), frames if frames.is_dir() else None)
-    export_supervision([item], scene / options.output / SUPERVISION_DIR, link="none",
+    export_supervision([item], output_dir(scene, options.output) / SUPERVISION_DIR, link="none",
                        min_keypoints=options.min_keypoints)
 
 

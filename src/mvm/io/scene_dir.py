@@ -10,11 +10,11 @@ import numpy as np
 from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import integer, load_json, number, numbers
+from mvm.io.checks import inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
-from mvm.io.files import atomic_replace_dir, atomic_write_json
-from mvm.io.paths import resolve_in
+from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json
+from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +31,8 @@ def read_scene(path: str | Path) -> Scene:
     """Read a scene directory into a :class:`Scene` (keypoints undistorted, unregistered
     images' poses dropped with a warning).
 
+    ``poses2d.json`` is read the guarded way (a regular file of bounded size inside the scene:
+    a FIFO, ``/dev/zero`` or a link leading out is refused before anything is read).
     Image names (COCO ``file_name``, COLMAP ``NAME``) name files of ``frames/``: a name that is
     absolute, climbs out with ``..``, or resolves through a symbolic link to a place outside
     the scene directory is refused (:func:`mvm.io.paths.resolve_in`).
@@ -40,7 +42,7 @@ def read_scene(path: str | Path) -> Scene:
         raise InputError(path, None, "not a scene directory (expected sparse/ and poses2d.json)")
     model = read_colmap(path / SPARSE)
     coco_path = path / POSES2D
-    coco = read_coco_keypoints(coco_path)
+    coco = read_coco_keypoints(coco_path, root=path)
     view_of_name = model.index()
     unregistered = set(model.unregistered)
     image_view = np.full(len(coco.file_names), -1)
@@ -69,6 +71,24 @@ def read_scene(path: str | Path) -> Scene:
     appearance = None if coco.appearance is None else coco.appearance[kept]
     poses = Poses2D(keypoints, view[kept], coco.ann_ids[kept], coco.score[kept], appearance)
     return Scene(path.name, model.cameras, poses, model.points3d)
+
+
+def output_dir(scene: str | Path, output: str = "mvm") -> Path:
+    """The folder ``scene/output`` that receives a scene's results, checked before any work:
+    ``output`` is a relative name that stays in the scene, and an existing ``scene/output``
+    must be a folder that, every symbolic link resolved, lies inside the scene directory
+    (:class:`~mvm.io.files.OutputError` otherwise). It is created by the first write."""
+    scene = Path(scene)
+    check_name(output, "--output", "output folder name")
+    path = scene / output
+    if path.is_symlink() or path.exists():
+        try:
+            inside_root(path, scene)
+        except InputError as e:
+            raise OutputError(path, None, f"refusing to write: {e.problem}") from None
+        if not path.is_dir():
+            raise OutputError(path, None, "cannot write: exists and is not a folder")
+    return path
 
 
 def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool = True,

@@ -20,6 +20,7 @@ import torch
 from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
+from mvm.io.images import read_image
 from mvm.net.encoder import EncoderConfig, encode
 from mvm.net.model import IMAGE_MEAN, IMAGE_STD
 
@@ -98,12 +99,7 @@ def read_annotations(path: str | Path, images_dir: str | Path | None = None, min
 
 def load_image(path: Path) -> np.ndarray:
     """-> ``(H, W, 3)`` uint8 RGB; a missing or unreadable file raises an InputError."""
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise InputError(path, None, "image not found or not readable")
-    return image[:, :, ::-1]
+    return read_image(path)[:, :, ::-1]
 
 
 def random_crop_flip(image: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,

@@ -10,8 +10,8 @@ import numpy as np
 
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import load_json, load_json_object
-from mvm.io.scene_dir import read_poses3d, read_scene
+from mvm.io.checks import load_json_object
+from mvm.io.scene_dir import load_poses3d_document, output_dir, parse_poses3d, read_scene
 from mvm.sim.simulate import GroundTruth
 
 log = logging.getLogger(__name__)
@@ -42,7 +42,7 @@ class SceneResult:
 
     @property
     def out_dir(self) -> Path:
-        return self.path / self.output
+        return output_dir(self.path, self.output)
 
     @property
     def frames_dir(self) -> Path | None:
@@ -75,11 +75,11 @@ def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
     """Read a reconstructed scene directory (and its ground truth when one lies beside it)."""
     path = Path(scene_dir)
     scene = read_scene(path)
-    poses3d = path / output / "poses3d.json"
-    if not poses3d.is_file():
+    poses3d = output_dir(path, output) / "poses3d.json"
+    if not (poses3d.exists() or poses3d.is_symlink()):
         raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
-    persons = read_poses3d(poses3d, scene.poses)
-    document = load_json(poses3d, root=path)
+    document = load_poses3d_document(poses3d, root=path)
+    persons = parse_poses3d(document, poses3d, scene.poses)
     metrics = document.get("metrics") or {}
     timings = document.get("timings_s") or {}
     truth = true_person = None

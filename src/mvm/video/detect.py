@@ -27,6 +27,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
 from mvm.io.files import atomic_write_json
+from mvm.io.images import read_image
 from mvm.io.paths import resolve_in
 from mvm.video.appearance import colour_descriptor, pool_features
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
@@ -297,7 +298,7 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     colour = [] if want_colour and source is not None else None
     for i, name in enumerate(names):
         file = resolve_in(frames_dir, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
-        frame = cv2.imread(str(file)) if file.is_file() else None
+        frame = read_image(file, root=scene, missing_ok=True)
         if frame is None:
             if detector is not None or colour is not None:
                 raise InputError(frames_dir / name, None, "cannot read frame image")

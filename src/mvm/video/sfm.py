@@ -16,6 +16,7 @@ import numpy as np
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.images import check_frames, read_image
 from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
@@ -101,9 +102,7 @@ def _camera_params(model: str, focal: float, width: int, height: int) -> str:
 def _image_size(path: Path) -> tuple[int, int]:
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError(path, None, "cannot read image")
+    image = read_image(path, flags=cv2.IMREAD_UNCHANGED)
     return image.shape[1], image.shape[0]
 
 
@@ -126,6 +125,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
         return read_sfm_report(scene)
     names = list_frames(scene)
     frames_dir = scene / FRAMES_DIR
+    check_frames(frames_dir, names, root=scene)
     if len(names) < 2:
         raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
     work = scene / SFM_DIR
