@@ -8,13 +8,12 @@ import shutil
 from pathlib import Path
 
 import pytest
+from test_batch import states, truth_error_mm
 
 from mvm.batch import run_batch
 from mvm.errors import InputError
 from mvm.net.supervision import merge_datasets
 from mvm.sim.simulate import SimConfig, simulate, write_simulation
-
-from test_batch import states, truth_error_mm
 
 #: clip -> (file broken after its reconstruction, new content, text its recorded error holds)
 CORRUPT = {
