@@ -122,6 +122,18 @@ def first_non_finite(obj, where: str = "") -> str | None:
     return None
 
 
+SIGNIFICANT_DIGITS = 10
+"""Significant digits of a number in a JSON output: relative precision 1e-10, whatever the
+unit of the model (a coordinate of 1.234e-7 keeps its digits; fixed decimals would erase it)."""
+
+
+def json_number(value, digits: int = SIGNIFICANT_DIGITS) -> float | None:
+    """The JSON writer policy for one number: finite -> rounded to ``digits`` significant
+    digits; NaN or infinite -> None (``null``)."""
+    value = float(value)
+    return float(f"{value:.{digits}g}") if math.isfinite(value) else None
+
+
 def atomic_write_json(path: str | Path, obj, indent: int | None = None) -> None:
     """Serialize ``obj`` and write it atomically. NaN and infinity are refused (outputs carry
     ``null`` instead): a ``ValueError`` names the file and the first offending field, and

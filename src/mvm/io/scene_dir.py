@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +12,7 @@ from mvm.errors import InputError
 from mvm.io.checks import inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json
+from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json, json_number
 from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
@@ -104,19 +103,17 @@ def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool
     atomic_write_json(path / POSES2D, document)
 
 
-def _finite_or_none(value: float, digits: int = 5):
-    return round(float(value), digits) if math.isfinite(value) else None
-
-
 def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: dict | None = None) -> dict:
-    """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``."""
+    """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``. Numbers
+    follow the writer policy (:func:`mvm.io.files.json_number`): coordinates keep 10
+    significant digits whatever the model's unit, and a non-finite value is ``null``."""
     out = []
     for p in range(len(persons)):
         kp = []
         for j in range(NUM_JOINTS):
             x = persons.keypoints3d[p, j]
             if np.all(np.isfinite(x)):
-                kp.append([round(float(v), 6) for v in x] + [round(float(persons.scores[p, j]), 4)])
+                kp.append([json_number(v) for v in x] + [round(float(persons.scores[p, j]), 4)])
             else:
                 kp.append([None, None, None, 0.0])
         out.append({
@@ -125,10 +122,10 @@ def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: d
             "members": [int(poses.ids[m]) for m in persons.members[p]],
             "views_per_joint": [int(v) for v in persons.views_per_joint[p]],
             "outliers_per_joint": [int(v) for v in persons.outliers_per_joint[p]],
-            "reprojection_error_px": _finite_or_none(persons.reprojection_error_px[p], 4),
+            "reprojection_error_px": json_number(persons.reprojection_error_px[p], 6),
         })
     document = {"format": POSES3D_FORMAT, "keypoints": list(COCO_KEYPOINTS), "persons": out,
-                "metrics": {k: (_finite_or_none(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}}
+                "metrics": {k: (json_number(v, 6) if isinstance(v, float) else v) for k, v in metrics.items()}}
     if extra:
         document.update(extra)
     return document
