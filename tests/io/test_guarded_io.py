@@ -201,22 +201,11 @@ def test_os_errors_of_a_write_are_one_line(tmp_path, monkeypatch, err, text):
 
 def test_a_full_disk_during_reconstruct_is_one_line(scene_dir, tmp_path, monkeypatch):
     path = _copy(scene_dir, tmp_path)
-    real = os.fdopen
 
-    class Full:
-        def __init__(self, f):
-            self.f = f
+    def full(fd):                                           # the data reaches the disk at fsync
+        raise OSError(errno.ENOSPC, "No space left on device")
 
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            return self.f.__exit__(*exc)
-
-        def write(self, data):
-            raise OSError(errno.ENOSPC, "No space left on device")
-
-    monkeypatch.setattr("mvm.io.files.os.fdopen", lambda fd, mode="r", *a, **k: Full(real(fd, mode, *a, **k)))
+    monkeypatch.setattr("mvm.io.files.os.fsync", full)
     code, lines = _run("reconstruct", path)
     out = path / "mvm" / "poses3d.json"
     assert (code, lines) == (2, [f"mvm: error: {out}: cannot write: no space left on the device"])

@@ -75,29 +75,37 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, fsync it, then rename over ``path``."""
+@contextlib.contextmanager
+def atomic_output(path: str | Path, suffix: str = ".tmp"):
+    """Yield the name of a fresh temporary file beside ``path`` (``.NAME.XXXX<suffix>``) for a
+    writer to fill; when the block ends cleanly it is renamed over ``path``, otherwise removed.
+    Every OS error (the folder, the temporary file, the rename) raises :class:`OutputError`."""
     path = Path(path)
     make_dir(path.parent)
     if path.is_dir():
         raise OutputError(path, None, "cannot write: is a directory, expected a file")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        os.close(fd)
     except OSError as e:
         raise output_error(path, e) from None
     try:
-        with os.fdopen(fd, "wb") as f:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise output_error(path, e) from None
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    _fsync_dir(path.parent)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file beside ``path``, fsync it, then rename over ``path``."""
+    with atomic_output(path) as tmp:
+        with os.fdopen(os.open(tmp, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)), "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as e:
-        Path(tmp).unlink(missing_ok=True)
-        raise output_error(path, e) from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:

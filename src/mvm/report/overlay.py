@@ -7,8 +7,6 @@ read frames and write images or an MP4.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +14,7 @@ import numpy as np
 
 from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_bytes, make_dir, output_error
+from mvm.io.files import OutputError, atomic_output, atomic_replace_dir, atomic_write_bytes
 from mvm.io.images import read_image
 from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
 from mvm.report.load import SceneResult, load_result
@@ -238,33 +236,20 @@ def _write_images(folder: Path, renderer: ViewRenderer, views, max_width: int | 
 def _write_video(path: Path, images, fps: float) -> None:
     """Write BGR images (resized to the first one's size) as an MP4, atomically."""
     cv2 = _cv2()
-    make_dir(path.parent)
-    if path.is_dir():
-        raise OutputError(path, None, "cannot write: is a directory, expected a file")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
-    except OSError as e:
-        raise output_error(path, e) from None
-    os.close(fd)
     writer = None
-    try:
-        for image in images:
+    with atomic_output(path, suffix=".mp4") as tmp:
+        try:
+            for image in images:
+                if writer is None:
+                    size = (image.shape[1], image.shape[0])
+                    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+                    if not writer.isOpened():
+                        raise InputError(path, None, "OpenCV cannot write MP4 video here (no mp4v encoder)")
+                if (image.shape[1], image.shape[0]) != size:
+                    image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+                writer.write(image)
             if writer is None:
-                size = (image.shape[1], image.shape[0])
-                writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-                if not writer.isOpened():
-                    raise InputError(path, None, "OpenCV cannot write MP4 video here (no mp4v encoder)")
-            if (image.shape[1], image.shape[0]) != size:
-                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-            writer.write(image)
-        if writer is None:
-            raise InputError(path, None, "no views to write")
-        writer.release()
-        writer = None
-        os.replace(tmp, path)
-    except OSError as e:
-        raise output_error(path, e) from None
-    finally:
-        if writer is not None:
-            writer.release()
-        Path(tmp).unlink(missing_ok=True)
+                raise InputError(path, None, "no views to write")
+        finally:
+            if writer is not None:
+                writer.release()
