@@ -197,7 +197,7 @@ def _export(clip: Clip, options: BatchOptions) -> None:
     if not poses3d.is_file():
         raise InputError(poses3d, None, "not found: the clip is not reconstructed")
     frames = scene / "frames"
-    item = (read_scene(scene), read_poses3d(poses3d), frames if frames.is_dir() else None)
+    item = (read_scene(scene), read_poses3d(poses3d, root=scene), frames if frames.is_dir() else None)
     export_supervision([item], output_dir(scene, options.output) / SUPERVISION_DIR, link="none",
                        min_keypoints=options.min_keypoints)
 

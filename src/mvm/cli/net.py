@@ -49,7 +49,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
             if not poses3d.is_file():
                 raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
             frames = scene_dir / "frames"
-            yield read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
+            yield read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 
     path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
     from mvm.io.checks import load_json
