@@ -90,13 +90,13 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
     that the world is in metres; otherwise s* is only recorded.
     """
     from mvm.core.reconstruct import reconstruct_dir
-    from mvm.io.scene_dir import poses3d_document, write_poses3d
+    from mvm.io.scene_dir import load_poses3d_document, poses3d_document, write_poses3d
 
     scene = Path(scene)
     out = scene / output / "poses3d.json"
     if out.is_file() and not force:
         log.info("%s exists: already reconstructed (use force to redo)", out)
-        doc = load_json_object(out, root=scene, what="an mvm.poses3d/1 object")
+        doc = load_poses3d_document(out, root=scene)
         record = ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict) else ScaleRecord("none", None, None, False)
         return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
     config = config or Config()
