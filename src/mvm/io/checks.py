@@ -29,6 +29,11 @@ def _limit_from_env() -> int:
     return int(megabytes * 2 ** 20) if math.isfinite(megabytes) and megabytes > 0 else 2048 * 2 ** 20
 
 
+MAX_COORDINATE = 1e12
+"""The largest coordinate magnitude (model units) a reader accepts, in a COLMAP model or a
+``poses3d.json``: beyond it a squared distance or a projection could overflow, and no scene
+measures that much in any unit."""
+
 MAX_INPUT_BYTES = _limit_from_env()
 """The largest input file any reader accepts (bytes); ``MVM_MAX_INPUT_MB`` sets it (default 2048)."""
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
-from mvm.io.checks import read_bytes
+from mvm.io.checks import MAX_COORDINATE, read_bytes
 from mvm.io.paths import name_problem
 
 FILES = ("cameras", "images", "points3D")
@@ -101,11 +101,20 @@ def _camera(model: _Model, path, where, camera_id, model_id, width, height, para
         raise InputError(path, where, f"camera model {name} takes {n_params} parameters, got {len(params)}")
     if not all(math.isfinite(p) for p in params):
         raise InputError(path, where, "camera parameters are not finite")
+    if any(abs(p) > MAX_COORDINATE for p in params):
+        raise InputError(path, where, f"a camera parameter is beyond ±{MAX_COORDINATE:g}")
     if any(params[i] <= 0 for i in focal):
         raise InputError(path, where, f"focal length must be > 0, got {params[focal[0]]:g}")
     if not (0 < width < 2 ** 31 and 0 < height < 2 ** 31):
         raise InputError(path, where, f"image size must be > 0, got {width} × {height}")
     model.camera_ids.add(camera_id)
+
+
+def _position(path, where, xyz) -> None:
+    if not all(math.isfinite(v) for v in xyz):
+        raise InputError(path, where, "position is not finite")
+    if any(abs(v) > MAX_COORDINATE for v in xyz):
+        raise InputError(path, where, f"position beyond ±{MAX_COORDINATE:g} model units")
 
 
 def _pose(path, where, values) -> None:
@@ -117,6 +126,8 @@ def _pose(path, where, values) -> None:
         raise InputError(path, where, "zero-norm quaternion")
     if not 1e-8 < norm < 1e150:
         raise InputError(path, where, f"quaternion norm {norm:g} is out of range")
+    if any(abs(v) > MAX_COORDINATE for v in values[4:]):
+        raise InputError(path, where, f"translation beyond ±{MAX_COORDINATE:g} model units")
 
 
 def _image(model: _Model, path, where, image_id, pose, camera_id, name) -> None:
@@ -258,8 +269,7 @@ def _points_bin(data, path, model: _Model) -> None:
     for i in range(r.count(43, "3D points")):
         r.record = f"points3D[{i}]"
         values = r.take("Q3d3BdQ")
-        if not all(math.isfinite(v) for v in values[1:4]):
-            raise InputError(path, f"point {values[0]}", "position is not finite")
+        _position(path, f"point {values[0]}", values[1:4])
         start = r.offset
         r.skip(values[-1], 8, "track elements")
         track = np.frombuffer(data, dtype="<u4", count=2 * values[-1], offset=start).reshape(-1, 2)
@@ -444,7 +454,7 @@ def _points_txt(data, path, model: _Model) -> None:
             raise InputError(path, where, "expected POINT3D_ID X Y Z R G B ERROR and (IMAGE_ID, POINT2D_IDX) "
                                           f"pairs, got {len(tokens)} values")
         _ints(tokens[:1], path, where, 0, 2 ** 63)
-        _floats(tokens[1:4], path, where)
+        _position(path, where, _floats(tokens[1:4], path, where))
         _ints(tokens[4:7], path, where, 0, 256)
         _floats(tokens[7:8], path, where)
         track = _ints(tokens[8:], path, where)

@@ -9,7 +9,7 @@ import numpy as np
 from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import inside_root, integer, load_json, number, numbers
+from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
 from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json, json_number
@@ -21,9 +21,6 @@ POSES2D = "poses2d.json"
 FRAMES = "frames"
 SPARSE = "sparse"
 POSES3D_FORMAT = "mvm.poses3d/1"
-MAX_COORDINATE = 1e12
-"""The largest coordinate magnitude a ``poses3d.json`` may hold (model units): beyond it a
-squared distance could overflow, and no scene measures that much in any unit."""
 
 
 def read_scene(path: str | Path) -> Scene:
