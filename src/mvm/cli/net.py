@@ -71,9 +71,9 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
 
     cfg = load_config(config, _parse_sets(sets))
     path = train(cfg, resume=resume)
-    import json
+    from mvm.io.checks import load_json_object
 
-    meta = json.loads(path.with_suffix(".json").read_text())
+    meta = load_json_object(path.with_suffix(".json"))
     click.echo(f"{path}: step {meta['step']}, {meta.get('images_per_second', float('nan')):.1f} images/s "
                f"on {meta.get('device', '?')}")
 
