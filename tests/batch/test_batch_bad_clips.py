@@ -12,8 +12,9 @@ from test_batch import states, truth_error_mm
 
 from mvm.batch import run_batch
 from mvm.errors import InputError
+from mvm.io.ground_truth import write_simulation
 from mvm.net.supervision import merge_datasets
-from mvm.sim.simulate import SimConfig, simulate, write_simulation
+from mvm.sim.simulate import SimConfig, simulate
 
 #: clip -> (file broken after its reconstruction, new content, text its recorded error holds)
 CORRUPT = {
