@@ -2,8 +2,8 @@
 
 Two sources, used in this order:
 
-- **time** (:func:`interpolate_series`): a joint missing at some instants of a track is linearly
-  interpolated between the track's neighbouring instants where it was observed, over gaps of at
+- **time** (:func:`interpolate_series`): a joint missing at some instants of a track is
+  interpolated (cubic Hermite, tangents from the neighbouring observations) between the track's neighbouring instants where it was observed, over gaps of at
   most ``max_gap`` instants (never extrapolated past a track's ends);
 - **the body** (:func:`infer_missing`): a joint still missing is the conditional expectation of
   the GMM pose prior (:mod:`mvm.core.prior`) given the person's present joints, computed in the
@@ -46,7 +46,9 @@ def parse_flags(names, field: str = "flags") -> np.ndarray:
 
 
 def interpolate_series(series: np.ndarray, max_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    """Linear interpolation of one track along time.
+    """Interpolation of one track along time: a cubic Hermite curve between the observations
+    on either side of a gap, with tangents from their neighbouring observations (the secant where
+    there are none), so a swinging limb follows its curve rather than the chord.
 
     Args:
         series: ``(L, J, 3)`` consecutive instants of one track, NaN where a joint (or the whole
@@ -71,8 +73,18 @@ def interpolate_series(series: np.ndarray, max_gap: int) -> tuple[np.ndarray, np
     if fill.any():
         t, j = np.nonzero(fill)
         p, n = prev[t, j], nxt[t, j]
-        w = ((t - p) / (n - p))[:, None]
-        out[t, j] = (1 - w) * series[p, j] + w * series[n, j]
+        a, b = series[p, j], series[n, j]                                           # (F, 3)
+        secant = (b - a) / (n - p)[:, None]                                          # per instant
+        # Tangents from the neighbouring observations where there are some, else the secant.
+        before = (p >= 1) & observed[np.maximum(p - 1, 0), j]
+        after = (n + 1 < L) & observed[np.minimum(n + 1, L - 1), j]
+        da = np.where(before[:, None], a - series[np.maximum(p - 1, 0), j], secant)
+        db = np.where(after[:, None], series[np.minimum(n + 1, L - 1), j] - b, secant)
+        h = (n - p).astype(float)
+        s = ((t - p) / h)[:, None]
+        # Cubic Hermite between the two observations (tangents in units of the gap).
+        out[t, j] = ((2 * s ** 3 - 3 * s ** 2 + 1) * a + (s ** 3 - 2 * s ** 2 + s) * h[:, None] * da
+                     + (-2 * s ** 3 + 3 * s ** 2) * b + (s ** 3 - s ** 2) * h[:, None] * db)
     return out, fill
 
 

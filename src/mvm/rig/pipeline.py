@@ -94,7 +94,7 @@ def gap_policy(options: RigOptions) -> str:
         return "gaps: markers not reconstructed at a frame are left empty"
     kinds = "observed, interpolated and inferred (pose prior)" if options.trc_inferred else \
         "observed and interpolated"
-    return (f"gaps: {kinds} markers; interpolation is linear along the track over gaps of at most "
+    return (f"gaps: {kinds} markers; interpolation is cubic (Hermite) along the track over gaps of at most "
             f"{options.max_interpolation_gap} frames; other missing markers are left empty")
 
 
