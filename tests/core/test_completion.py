@@ -134,3 +134,50 @@ def test_flag_names_round_trip():
     with pytest.raises(ValueError, match="guessed"):
         parse_flags(["observed", "guessed"])
     assert FLAG_NAMES[OBSERVED] == "observed"
+
+
+def test_hand_held_scene_completed_flagged_and_exported(tmp_path, prior):
+    """A mannequin scene whose detector never reports a left ankle: `complete` infers it from the
+    prior for every person (within 15 cm median of the truth), poses3d.json keeps the flags, and
+    the exported supervision carries them per keypoint."""
+    import json
+
+    from mvm.core.config import Config
+    from mvm.core.reconstruct import reconstruct
+    from mvm.eval.metrics import match_persons
+    from mvm.io.scene_dir import poses3d_document, read_poses3d, write_poses3d
+    from mvm.net.supervision import export_supervision
+    from mvm.sim.simulate import SimConfig, simulate
+
+    scene, truth = simulate(SimConfig(people=3, frames=30, seed=4))
+    scene.poses.keypoints[:, 15] = 0.0
+    plain = reconstruct(scene, Config(refine=False))
+    assert np.isnan(plain.persons.keypoints3d[:, 15]).all() and plain.persons.flags is None
+    result = reconstruct(scene, Config(refine=False, complete=True), prior=prior)
+    persons = result.persons
+    assert (persons.flags[:, 15] == INFERRED).all() and np.isfinite(persons.keypoints3d).all()
+    assert ((persons.flags == OBSERVED) == np.isfinite(plain.persons.keypoints3d).all(-1)).all()
+    pairs = match_persons(persons.keypoints3d, truth.poses3d, 0.5)
+    error = [np.linalg.norm(persons.keypoints3d[p, 15] - truth.poses3d[g, 15]) for p, g in pairs]
+    assert len(pairs) == 3 and np.median(error) < 0.15
+    path = tmp_path / "poses3d.json"
+    write_poses3d(path, poses3d_document(persons, scene.poses, result.metrics))
+    back = read_poses3d(path)
+    assert (back.flags == persons.flags).all()
+    document = json.loads(path.read_text())
+    document["persons"][0]["flags"][3] = "missing"                        # coordinates present: refused
+    path.write_text(json.dumps(document))
+    from mvm.errors import InputError
+
+    with pytest.raises(InputError, match=r"persons\[0\]\.flags\[3\]"):
+        read_poses3d(path)
+    annotations = json.loads(export_supervision([(scene, back)], tmp_path / "sup", link="none")
+                             .read_text())["annotations"]
+    names = {n for a in annotations for n, v in zip(a["keypoint_flags"], a["keypoints"][2::3]) if v > 0}
+    assert names == {"observed", "inferred"}
+    assert all(f == "missing" for a in annotations
+               for f, v in zip(a["keypoint_flags"], a["keypoints"][2::3]) if v == 0)
+    # export completes persons itself when asked, from a poses3d.json without flags
+    plain_annotations = json.loads(export_supervision([(scene, plain.persons)], tmp_path / "sup2", link="none",
+                                                      prior=prior).read_text())["annotations"]
+    assert any("inferred" in a["keypoint_flags"] for a in plain_annotations)

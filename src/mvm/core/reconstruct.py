@@ -282,6 +282,11 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
         views_per_joint=inliers.sum(1), outliers_per_joint=(valid & ~inliers).sum(1),
         reprojection_error_px=np.where(inliers.any((1, 2)) & np.isfinite(per_person_err), per_person_err, np.nan),
     )
+    if config.complete and len(persons):
+        from mvm.core.completion import complete_persons
+
+        persons.keypoints3d, persons.flags = complete_persons(persons.keypoints3d, default_prior() if prior is None
+                                                              else prior, config.min_person_joints)
     n_matched = int(sum(len(m) for m in members))
     metrics = scene_quality(X[keep], errors[keep], inliers, valid, len(scene.poses), n_matched)
     metrics = {k: (v if not isinstance(v, float) or np.isfinite(v) else float("nan")) for k, v in metrics.items()}
