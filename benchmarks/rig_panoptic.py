@@ -64,9 +64,12 @@ def temporal_table(sample, seeds: int, config: Config, n_cameras: int = 5) -> di
         for seed in range(seeds):
             det = simulate_detections(sample, index, seed, CROWD_ERRORS)
             t0 = time.perf_counter()
-            persons = reconstruct_instants(cameras, det, config, prior)
-            tracking, X, flags = (_before(persons, options) if name == "before"
-                                  else track_and_complete(persons, options, prior))
+            if name == "before":
+                persons = reconstruct_instants(cameras, det, config, prior)
+                tracking, X, flags = _before(persons, options)
+            else:
+                persons = reconstruct_instants(cameras, det, config.replace(refine=False), prior)
+                tracking, persons, X, flags = track_and_complete(persons, options, prior, config, det, cameras)
             seconds += time.perf_counter() - t0
             truth_id = np.full(len(X), -1)
             for t, X_true in enumerate(sample.poses):

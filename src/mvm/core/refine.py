@@ -113,9 +113,24 @@ def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior
     return blocks
 
 
+def bone_residuals(x: np.ndarray, ends: np.ndarray, target: np.ndarray, root_weight: float):
+    """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` and their Jacobian entries.
+
+    ``x``: the parameters (3 per present joint); ``ends: (N, 2)`` parameter indices of each
+    bone's joints; ``target: (N,)`` lengths. Returns ``(residuals (N,), values (N, 2, 3))``:
+    the derivatives with respect to the 3 coordinates of each end."""
+    points = x.reshape(-1, 3)
+    d = points[ends[:, 0]] - points[ends[:, 1]]
+    length = np.linalg.norm(d, axis=-1)
+    u = d / np.maximum(length, 1e-12)[:, None]
+    scale = root_weight / target
+    return scale * (length - target), np.stack([scale[:, None] * u, -scale[:, None] * u], axis=1)
+
+
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
                  prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
-                 max_iterations: int = 30, outer_iterations: int = 3) -> RefineResult:
+                 max_iterations: int = 30, outer_iterations: int = 3,
+                 bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0) -> RefineResult:
     """Refine ``P`` persons' 3D joints.
 
     Args:
@@ -126,6 +141,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
         prior_weight: λ, pixels² per nat.
         robust_scale_px: scale ``f`` of the soft-L1 loss.
+        bone_lengths: ``(P, B)`` target lengths of :data:`mvm.core.keypoints.BONES` per person
+            (NaN: none), e.g. a track's; ``bone_weight``: their soft term's weight, pixels² per
+            squared relative length error.
     Returns:
         :class:`RefineResult`.
     """
@@ -148,6 +166,21 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
 
     use_prior = prior is not None and prior_weight > 0
+    bone_ends = np.zeros((0, 2), dtype=int)
+    bone_target = np.zeros(0)
+    if bone_lengths is not None and bone_weight > 0:
+        from mvm.core.keypoints import BONES
+
+        bones = np.array(BONES)
+        target = np.asarray(bone_lengths, dtype=float).reshape(Pn, len(bones))
+        ok = present[:, bones[:, 0]] & present[:, bones[:, 1]] & np.isfinite(target) & (target > 0)
+        bp, bb = np.nonzero(ok)
+        bone_ends = np.stack([param_of[bp, bones[bb, 0]], param_of[bp, bones[bb, 1]]], axis=1)
+        bone_target = target[bp, bb]
+    root_bone = float(np.sqrt(bone_weight))
+    Nb = len(bone_target)
+    rows_bone = np.repeat(np.arange(Nb), 6)
+    cols_bone = (3 * bone_ends[:, :, None] + np.arange(3)).reshape(-1)
 
     def unpack(x):
         X = np.full((Pn, J, 3), np.nan)
@@ -168,7 +201,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         e, _ = reprojection(x)
         f2 = robust_scale_px**2
         total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-        return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
+        bones = 0.5 * np.sum(bone_residuals(x, bone_ends, bone_target, root_bone)[0] ** 2) if Nb else 0.0
+        return float(total + bones + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
 
     x = X0[present].reshape(-1).copy()
     cost_before = objective(x, prior_terms(X0))
@@ -187,11 +221,14 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         cols_all = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
                                                    for b in terms])
         prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in terms])
-        shape = (int(starts[-1]), n_params)
+        rows = np.concatenate([rows, int(starts[-1]) + rows_bone])
+        cols_all = np.concatenate([cols_all, cols_bone])
+        shape = (int(starts[-1]) + Nb, n_params)
 
         def residuals(x):
             e, _ = reprojection(x)
-            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms])
+            bone = bone_residuals(x, bone_ends, bone_target, root_bone)[0] if Nb else np.zeros(0)
+            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms] + [bone])
 
         def jacobian(x):
             homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
@@ -200,7 +237,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
             uv = proj[:, :2] / z
             d = (obs_P[:, :2, :3] - uv[:, :, None] * obs_P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
             values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-            return sp.csr_matrix((np.concatenate([values, prior_values]), (rows, cols_all)), shape=shape)
+            bone = bone_residuals(x, bone_ends, bone_target, root_bone)[1].reshape(-1) if Nb else np.zeros(0)
+            return sp.csr_matrix((np.concatenate([values, prior_values, bone]), (rows, cols_all)), shape=shape)
 
         x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
                           x_scale="jac", max_nfev=max_iterations).x

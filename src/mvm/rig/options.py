@@ -38,6 +38,10 @@ class RigOptions:
     metres_per_unit: float = 1.0
     #: The world's up axis, for the Y-up .trc files: "+z", "-z", "+y" or "-y". [-]
     up: str = "+z"
+    #: Weight of the soft bone-length term in the refinement: each person's bones are pulled
+    #: to its track's median lengths. A bone 1 % off costs ``bone_weight / 10⁴`` px² (2 px² by
+    #: default); raise it for a more rigid skeleton, 0 turns the term off. [px²]
+    bone_weight: float = 20000.0
     #: Complete every person: missing joints interpolated along the track, then inferred from the
     #: pose prior; each joint flagged observed / interpolated / inferred. [bool]
     complete: bool = True
@@ -57,6 +61,8 @@ class RigOptions:
                      "min_link_joints", "max_interpolation_gap"):
             if getattr(self, name) < (0 if name in ("max_gap", "max_interpolation_gap") else 1):
                 raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
+        if not (math.isfinite(self.bone_weight) and self.bone_weight >= 0):
+            raise ValueError(f"bone_weight: must be a finite number >= 0, got {self.bone_weight}")
         for name in ("max_link_distance_m", "frame_rate", "metres_per_unit") + (
                 ("cutoff_hz",) if self.cutoff_hz is not None else ()):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):

@@ -21,6 +21,7 @@ from mvm.rig.options import RigOptions
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
 from mvm.rig.outputs import replace_output_set
+from mvm.rig.skeleton import refine_tracks
 from mvm.rig.tracking import smooth_tracks, track_persons, track_series
 
 log = logging.getLogger(__name__)
@@ -137,22 +138,30 @@ def completion_prior(config: Config, options: RigOptions, prior=None):
         return None
 
 
-def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None):
-    """Tracks, smoothing and completion of reconstructed instants (no I/O).
+def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None, config: Config | None = None,
+                       detections=None, cameras=None):
+    """Tracks, the rigid-skeleton refinement, smoothing and completion of reconstructed instants
+    (no I/O).
 
-    Returns ``(tracking, X: (Q, 17, 3), flags: (Q, 17))``: smoothing runs over each track's
-    observed joints, then completion fills what is missing (time, then ``prior``) unless
-    ``options.complete`` is off."""
+    With ``config.refine`` (and ``detections``, ``cameras``), every person is refined once its
+    track is known: reprojection, the pose prior and the track's robust bone lengths
+    (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come unrefined from
+    :func:`reconstruct_instants`. Smoothing runs over each track's observed joints, then
+    completion fills what is missing (time, then ``prior``) unless ``options.complete`` is off.
+    Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
     unit = 1.0 / options.metres_per_unit
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
+    if config is not None and config.refine and detections is not None and len(persons):
+        persons = refine_tracks(persons, tracking.track, detections, cameras, config, prior,
+                                options.bone_weight, options.batch_size)
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if options.complete:
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
     else:
         flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
-    return tracking, X, flags
+    return tracking, persons, X, flags
 
 
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
@@ -172,13 +181,14 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     prior = completion_prior(config, options, prior)
-    persons = reconstruct_instants(rig.calibration.cameras, rig.detections, config, prior,
+    cameras = rig.calibration.cameras
+    persons = reconstruct_instants(cameras, rig.detections, config.replace(refine=False), prior,
                                    options.batch_size, progress)
     timings["reconstruct_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tracking, X, flags = track_and_complete(persons, options, prior)
+    tracking, persons, X, flags = track_and_complete(persons, options, prior, config, rig.detections, cameras)
     track = tracking.track
-    timings["tracking_s"] = time.perf_counter() - t0
+    timings["tracking_refinement_s"] = time.perf_counter() - t0
     names = rig.calibration.cameras.names
     summary = recap(persons, names, len(rig.frames), len(rig.detections))
     summary["tracks"] = tracking.tracks
@@ -186,7 +196,8 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     summary["persons_not_linked_few_joints"] = tracking.unlinked
     counts = np.bincount(np.asarray(flags, dtype=int).ravel(), minlength=len(FLAG_NAMES))
     summary["joint_flags"] = {n: round(float(c / max(counts.sum(), 1)), 4) for n, c in zip(FLAG_NAMES, counts)}
-    summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"], 1e-9), 2)
+    summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"]
+                                                            + timings["tracking_refinement_s"], 1e-9), 2)
     out_dir = Path(output) if output else Path(rig_dir) / "mvm"
     t0 = time.perf_counter()
     lines = poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names, flags)
