@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from helpers import SHARED_DATA
+from helpers import SHARED_DATA, cmu_walk
 from mvm.core.completion import (FLAG_NAMES, INFERRED, INTERPOLATED, MISSING, OBSERVED, complete_persons,
                                  complete_tracks, flag_names, interpolate_series, parse_flags)
 from mvm.core.prior import PosePrior
@@ -29,15 +29,7 @@ def real_poses():
 
 @pytest.fixture(scope="module")
 def real_walk():
-    """CMU motion capture, subject 02 walking, at 30 Hz: ``(T, 17, 3)`` metres."""
-    folder = SHARED_DATA / "cmu_mocap" / "02"
-    if not (folder / "02_01.amc").is_file():
-        pytest.skip(f"CMU motion capture absent: {folder}")
-    from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf
-
-    skeleton = read_asf(folder / "02.asf")
-    positions, rotations = forward_kinematics(skeleton, read_amc(folder / "02_01.amc"))
-    return asf_to_coco17(positions[::4], rotations[::4], skeleton)          # 120 Hz -> 30 Hz
+    return cmu_walk(z_up=False)
 
 
 def test_hidden_joint_interpolated_within_2cm(real_walk):

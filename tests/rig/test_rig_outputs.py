@@ -13,7 +13,6 @@ from mvm.cli.rig import rig
 from mvm.core.config import Config
 from mvm.errors import InputError
 from mvm.io.trc import read_trc, to_opensim
-from mvm.rig import outputs as rig_outputs
 from mvm.rig.options import RigOptions
 from mvm.rig.pipeline import reconstruct_rig
 from test_rig_dir import _write_rig
@@ -114,10 +113,11 @@ def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
     assert [p.name for p in tmp_path.iterdir()] == ["set"]                 # no temporary folder left
-    # a killed run's folders (its process gone) are removed by the next run; a shorter run
-    # leaves no .trc of the longer one
-    (tmp_path / ".set.tmp.999999999.1").mkdir()
-    (tmp_path / ".set.tmp.999999999.1" / "poses3d.jsonl").write_text("partial")
+    # a killed run's folders are removed by the next run; a shorter run leaves no .trc of the
+    # longer one
+    (tmp_path / ".set.k2j4h_x").mkdir()                                   # as atomic_replace_dir names them
+    (tmp_path / ".set.k2j4h_x" / "poses3d.jsonl").write_text("partial")
+    (tmp_path / ".set.old.12345").mkdir()
     (out / "tracks" / "track_7.trc").write_text("stale")
     reconstruct_rig(root, Config(refine=False), frames="0:6", output=out)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]

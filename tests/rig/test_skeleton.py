@@ -9,21 +9,13 @@ from mvm.core.prior import PosePrior
 from mvm.rig.instants import Detections, reconstruct_instants
 from mvm.rig.skeleton import bone_length_cv, bone_lengths, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import link_tracks
-from helpers import SHARED_DATA
+from helpers import cmu_walk
 from mvm.sim.rig import DetectorErrors, detect_views, pose_scores, ring_cameras
 
 
 @pytest.fixture(scope="module")
 def capture():
-    folder = SHARED_DATA / "cmu_mocap" / "02"
-    if not (folder / "02_01.amc").is_file():
-        pytest.skip(f"CMU motion capture absent: {folder}")
-    from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf
-
-    skeleton = read_asf(folder / "02.asf")
-    positions, rotations = forward_kinematics(skeleton, read_amc(folder / "02_01.amc"))
-    walk = asf_to_coco17(positions[::4], rotations[::4], skeleton)             # 30 Hz, metres, y up
-    walk = np.stack([walk[..., 0] - walk[..., 0].mean(), -walk[..., 2], walk[..., 1]], -1)   # z up
+    walk = cmu_walk()
     truth = np.stack([walk[:60], walk[::-1][:60] + [1.2, 0, 0]], 1)          # two people passing
     rng = np.random.default_rng(2)
     cameras = ring_cameras(5)
