@@ -153,8 +153,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
     if config is not None and config.refine and detections is not None and len(persons):
-        persons = refine_tracks(persons, tracking.track, detections, cameras, config, prior,
-                                options.bone_weight, options.batch_size)
+        persons = refine_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight)
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if options.complete:

@@ -89,12 +89,13 @@ def refit(persons: InstantPersons, X: np.ndarray, detections: Detections, camera
 
 
 def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Detections, cameras: Cameras,
-                  config, prior=None, bone_weight: float = 20000.0, batch_size: int = 256) -> InstantPersons:
+                  config, prior=None, bone_weight: float = 20000.0, batch_size: int = 16) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
     ``bone_weight``, px² per squared relative length error). ``config``: a
     :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Persons are solved
-    ``batch_size`` instants at a time (they are independent once the lengths are fixed)."""
+    ``batch_size`` instants at a time (they are independent once the lengths are fixed; small
+    problems keep the iterative solver's steps few)."""
     from threadpoolctl import threadpool_limits
 
     from mvm.core.refine import refine_poses
