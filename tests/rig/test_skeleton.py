@@ -6,11 +6,12 @@ import pytest
 
 from mvm.core.config import Config
 from mvm.core.prior import PosePrior
-from mvm.rig.instants import Detections, reconstruct_instants
+from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.skeleton import bone_length_cv, bone_lengths, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import link_tracks
 from helpers import cmu_walk
-from mvm.sim.rig import DetectorErrors, detect_views, pose_scores, ring_cameras
+from mvm.sim.detector import DetectorErrors, pose_scores
+from mvm.sim.rig import detect_views, ring_cameras
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,7 @@ def capture():
         k, c, _ = detect_views(cameras, truth[t], rng, DetectorErrors(noise=0.01, false_pose_rate=0.0))
         kps.append(k), cams.append(c), inst.append(np.full(len(c), t))
     kp = np.concatenate(kps)
-    det = Detections(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
+    det = rig_poses(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
     config = Config()
     persons = reconstruct_instants(cameras, det, config.replace(refine=False))
     track = link_tracks(persons.X, persons.instant, 0.5, 10)

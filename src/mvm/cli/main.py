@@ -92,7 +92,7 @@ def reconstruct(scenes, config_path, sets, refine, output):
     written to SCENE/<output>/poses3d.json. A scene with bad input is reported and skipped;
     the exit status is 2 if any scene failed.
     """
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     try:
         config = _config(config_path, sets, refine=refine)
@@ -179,6 +179,7 @@ def _register_optional_commands() -> None:
         ("mvm.cli.video", ("run_cmd", "frames_cmd", "sfm_cmd", "detect_cmd")),
         ("mvm.cli.rig", ("rig",)),
         ("mvm.cli.net", ("export_cmd", "train_cmd", "predict_cmd")),
+        ("mvm.cli.evaluate", ("evaluate",)),
         ("mvm.cli.report", ("report_cmd", "overlay_cmd")),
         ("mvm.cli.batch", ("batch_cmd", "status_cmd")),
     ):

@@ -5,7 +5,8 @@
 with ρ the soft-L1 robust loss of scale ``f`` pixels, ``c_u`` the keypoint confidences, X̃
 the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`) and λ the
 prior weight. It is solved with ``scipy.optimize.least_squares`` (trust region, LSMR) on an
-analytic sparse Jacobian whose pattern is built once per outer iteration:
+analytic sparse Jacobian whose pattern is built once per outer iteration
+(residuals and Jacobian are pure functions of the parameter vector):
 
 - each 2D keypoint gives two rows that depend on the 3 coordinates of its joint only;
 - each person's prior rows depend on that person's coordinates only (a dense block).
@@ -26,7 +27,7 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from mvm.core.geometry import project
-from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
 
 log = logging.getLogger(__name__)
@@ -113,18 +114,150 @@ def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior
     return blocks
 
 
-def bone_residuals(x: np.ndarray, ends: np.ndarray, target: np.ndarray, root_weight: float):
-    """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` and their Jacobian entries.
+@dataclass(frozen=True)
+class FittedKeypoints:
+    """The ``K`` 2D keypoints the refinement fits, flattened.
 
-    ``x``: the parameters (3 per present joint); ``ends: (N, 2)`` parameter indices of each
-    bone's joints; ``target: (N,)`` lengths. Returns ``(residuals (N,), values (N, 2, 3))``:
-    the derivatives with respect to the 3 coordinates of each end."""
-    points = x.reshape(-1, 3)
-    d = points[ends[:, 0]] - points[ends[:, 1]]
-    length = np.linalg.norm(d, axis=-1)
-    u = d / np.maximum(length, 1e-12)[:, None]
-    scale = root_weight / target
-    return scale * (length - target), np.stack([scale[:, None] * u, -scale[:, None] * u], axis=1)
+    ``param: (K,)`` parameter joint (row of ``x.reshape(-1, 3)``) each keypoint observes;
+    ``person: (K,)`` its person; ``P: (K, 3, 4)`` its view's projection; ``xy: (K, 2)`` pixels;
+    ``conf: (K,)`` confidences."""
+
+    param: np.ndarray
+    person: np.ndarray
+    P: np.ndarray
+    xy: np.ndarray
+    conf: np.ndarray
+
+
+@dataclass(frozen=True)
+class SparsityPattern:
+    """The Jacobian's non-zero entries (``rows``, ``cols``: 3 per reprojection row, a dense
+    block per person's prior rows), the constant prior values and the ``shape``."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    prior_values: np.ndarray
+    shape: tuple[int, int]
+
+
+@dataclass(frozen=True)
+class BoneTerms:
+    """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` (a relative error, weight ``w`` in
+    pixels²). ``ends: (N, 2)`` parameter joints of each bone; ``target: (N,)`` lengths ``L``."""
+
+    ends: np.ndarray
+    target: np.ndarray
+    root_weight: float
+
+    @staticmethod
+    def build(lengths, weight: float, present: np.ndarray, param_of: np.ndarray) -> "BoneTerms":
+        """Terms for the :data:`mvm.core.keypoints.BONES` of ``lengths: (P, B)`` (NaN: none)
+        whose two joints are present."""
+        bones = np.array(BONES)
+        target = np.asarray(lengths, dtype=float).reshape(len(present), len(bones))
+        ok = present[:, bones[:, 0]] & present[:, bones[:, 1]] & np.isfinite(target) & (target > 0)
+        p, b = np.nonzero(ok)
+        ends = np.stack([param_of[p, bones[b, 0]], param_of[p, bones[b, 1]]], axis=1)
+        return BoneTerms(ends, target[p, b], float(np.sqrt(weight)))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """``(N,)``."""
+        points = x.reshape(-1, 3)
+        length = np.linalg.norm(points[self.ends[:, 0]] - points[self.ends[:, 1]], axis=-1)
+        return self.root_weight * (length - self.target) / self.target
+
+    def jacobian_values(self, x: np.ndarray) -> np.ndarray:
+        """``(N, 2, 3)``: derivatives by the coordinates of each bone's two joints."""
+        points = x.reshape(-1, 3)
+        d = points[self.ends[:, 0]] - points[self.ends[:, 1]]
+        u = d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[:, None] * (self.root_weight / self.target)[:, None]
+        return np.stack([u, -u], axis=1)
+
+
+def reprojection(x: np.ndarray, fitted: FittedKeypoints) -> tuple[np.ndarray, np.ndarray]:
+    """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints at ``x: (3 n,)``."""
+    uv, depth = project(x.reshape(-1, 3)[fitted.param], fitted.P)
+    return uv - fitted.xy, depth
+
+
+def objective(x: np.ndarray, fitted: FittedKeypoints, blocks: list[PriorBlock], robust_scale_px: float,
+              bones: BoneTerms | None = None) -> float:
+    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``x: (3 n,)``."""
+    e, _ = reprojection(x, fitted)
+    f2 = robust_scale_px**2
+    total = (fitted.conf * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+    total += 0.5 * np.sum(bones.residuals(x) ** 2) if bones is not None else 0.0
+    return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in blocks))
+
+
+def residuals(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
+              pattern: SparsityPattern, bones: BoneTerms | None = None) -> np.ndarray:
+    """The inner least-squares residuals ``(2 K + prior rows [+ bone rows],)``: weighted
+    reprojection errors (``sqrt_w: (2 K,)``, the IRLS weights of ρ), the linearized prior rows
+    and the bone terms."""
+    e, _ = reprojection(x, fitted)
+    extra = [bones.residuals(x)] if bones is not None else []
+    return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in blocks] + extra)
+
+
+def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
+             pattern: SparsityPattern, bones: BoneTerms | None = None) -> sp.csr_matrix:
+    """The analytic Jacobian of :func:`residuals` at ``x``, sparse as ``pattern``."""
+    K = len(fitted.param)
+    homogeneous = np.concatenate([x.reshape(-1, 3)[fitted.param], np.ones((K, 1))], axis=1)
+    proj = np.einsum("kab,kb->ka", fitted.P, homogeneous)
+    z = proj[:, 2:3]
+    uv = proj[:, :2] / z
+    d = (fitted.P[:, :2, :3] - uv[:, :, None] * fitted.P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
+    values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
+    extra = [bones.jacobian_values(x).reshape(-1)] if bones is not None else []
+    return sp.csr_matrix((np.concatenate([values, pattern.prior_values] + extra), (pattern.rows, pattern.cols)),
+                         shape=pattern.shape)
+
+
+def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int,
+                     bones: BoneTerms | None = None) -> SparsityPattern:
+    """Where :func:`jacobian` is non-zero: 3 entries per reprojection row (the coordinates of the
+    keypoint's joint), a dense block per person's prior rows, 6 per bone row (its two joints)."""
+    K = len(fitted.param)
+    rows_reproj = np.repeat(np.arange(2 * K), 3)
+    cols_reproj = (3 * np.repeat(fitted.param, 2)[:, None] + np.arange(3)).reshape(-1)
+    sizes = [b.G.shape[0] * b.G.shape[1] for b in blocks]
+    starts = 2 * K + np.cumsum([0] + sizes)
+    rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
+                                           for a, n, b in zip(starts, sizes, blocks)])
+    cols = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
+                                           for b in blocks])
+    prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in blocks])
+    n_rows = int(starts[-1])
+    if bones is not None:
+        rows = np.concatenate([rows, n_rows + np.repeat(np.arange(len(bones.target)), 6)])
+        cols = np.concatenate([cols, (3 * bones.ends[:, :, None] + np.arange(3)).reshape(-1)])
+        n_rows += len(bones.target)
+    return SparsityPattern(rows, cols, prior_values, (n_rows, n_params))
+
+
+def irls_weights(x: np.ndarray, fitted: FittedKeypoints, robust_scale_px: float) -> np.ndarray:
+    """``sqrt(2 ρ'(e²) c)`` of soft-L1 at ``x``, repeated for the two rows of each keypoint: ``(2 K,)``."""
+    e, _ = reprojection(x, fitted)
+    robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)
+    return np.repeat(np.sqrt(2.0 * robust_w * fitted.conf), 2)
+
+
+def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, fitted: FittedKeypoints,
+                     robust_scale_px: float) -> np.ndarray:
+    """``(P,)`` bool: observed persons whose refinement is not finite, has a median
+    reprojection error above twice the triangulation's plus ``robust_scale_px``, or puts a
+    fitted joint behind a camera."""
+    Pn = len(X0)
+    e0, _ = reprojection(X0[present].reshape(-1), fitted)
+    e1, depth1 = reprojection(X[present].reshape(-1), fitted)
+    observed = np.bincount(fitted.person, minlength=Pn) > 0
+    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
+    worse = (_median_by(np.linalg.norm(e1, axis=-1), fitted.person, Pn)
+             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), fitted.person, Pn) + robust_scale_px)
+    behind = np.bincount(fitted.person, weights=depth1 <= 0, minlength=Pn) > 0
+    return observed & (~finite | worse | behind)
 
 
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
@@ -141,9 +274,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
         prior_weight: λ, pixels² per nat.
         robust_scale_px: scale ``f`` of the soft-L1 loss.
-        bone_lengths: ``(P, B)`` target lengths of :data:`mvm.core.keypoints.BONES` per person
-            (NaN: none), e.g. a track's; ``bone_weight``: their soft term's weight, pixels² per
-            squared relative length error.
+        bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
+            are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
+            relative length error (0: no bone term).
     Returns:
         :class:`RefineResult`.
     """
@@ -153,107 +286,36 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     param_of = -np.ones((Pn, J), dtype=int)
     param_of[present] = np.arange(present.sum())
     n_params = 3 * int(present.sum())
-    use = inliers & present[:, None, :]
-    p_idx, m_idx, j_idx = np.nonzero(use)
+    p_idx, m_idx, j_idx = np.nonzero(inliers & present[:, None, :])
     if n_params == 0 or len(p_idx) == 0:
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
-    obs_param = param_of[p_idx, j_idx]                                   # (K,)
-    obs_P = P[p_idx, m_idx]                                              # (K, 3, 4)
-    obs_xy = xy[p_idx, m_idx, j_idx]                                     # (K, 2)
-    obs_c = conf[p_idx, m_idx, j_idx]
-    K = len(obs_param)
-    rows_reproj = np.repeat(np.arange(2 * K), 3)
-    cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
-
+    fitted = FittedKeypoints(param_of[p_idx, j_idx], p_idx, P[p_idx, m_idx], xy[p_idx, m_idx, j_idx],
+                             conf[p_idx, m_idx, j_idx])
     use_prior = prior is not None and prior_weight > 0
-    bone_ends = np.zeros((0, 2), dtype=int)
-    bone_target = np.zeros(0)
-    if bone_lengths is not None and bone_weight > 0:
-        from mvm.core.keypoints import BONES
-
-        bones = np.array(BONES)
-        target = np.asarray(bone_lengths, dtype=float).reshape(Pn, len(bones))
-        ok = present[:, bones[:, 0]] & present[:, bones[:, 1]] & np.isfinite(target) & (target > 0)
-        bp, bb = np.nonzero(ok)
-        bone_ends = np.stack([param_of[bp, bones[bb, 0]], param_of[bp, bones[bb, 1]]], axis=1)
-        bone_target = target[bp, bb]
-    root_bone = float(np.sqrt(bone_weight))
-    Nb = len(bone_target)
-    rows_bone = np.repeat(np.arange(Nb), 6)
-    cols_bone = (3 * bone_ends[:, :, None] + np.arange(3)).reshape(-1)
 
     def unpack(x):
         X = np.full((Pn, J, 3), np.nan)
         X[present] = x.reshape(-1, 3)
         return X
 
-    def reprojection(x):
-        """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints."""
-        uv, depth = project(x.reshape(-1, 3)[obs_param], obs_P)
-        return uv - obs_xy, depth
-
-    def prior_terms(X):
-        """Linearized prior of every person (already scaled by sqrt(λ))."""
+    def linearized_prior(X):
         return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
 
-    def objective(x, terms):
-        """Σ c ρ(e²) + λ E_P (up to the mixture's constants)."""
-        e, _ = reprojection(x)
-        f2 = robust_scale_px**2
-        total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-        bones = 0.5 * np.sum(bone_residuals(x, bone_ends, bone_target, root_bone)[0] ** 2) if Nb else 0.0
-        return float(total + bones + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
-
+    bones = (BoneTerms.build(bone_lengths, bone_weight, present, param_of)
+             if bone_lengths is not None and bone_weight > 0 else None)
     x = X0[present].reshape(-1).copy()
-    cost_before = objective(x, prior_terms(X0))
-
+    cost_before = objective(x, fitted, linearized_prior(X0), robust_scale_px, bones)
     for _ in range(outer_iterations):
-        e, _ = reprojection(x)
-        robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)   # ρ'(e²) of soft-L1
-        sqrt_w = np.repeat(np.sqrt(2.0 * robust_w * obs_c), 2)                 # (2K,)
-        terms = prior_terms(unpack(x))
-        # The Jacobian's sparsity pattern: 3 entries per reprojection row, a dense block per
-        # person's prior rows.
-        sizes = [b.G.shape[0] * b.G.shape[1] for b in terms]
-        starts = 2 * K + np.cumsum([0] + sizes)
-        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
-                                               for a, n, b in zip(starts, sizes, terms)])
-        cols_all = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
-                                                   for b in terms])
-        prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in terms])
-        rows = np.concatenate([rows, int(starts[-1]) + rows_bone])
-        cols_all = np.concatenate([cols_all, cols_bone])
-        shape = (int(starts[-1]) + Nb, n_params)
-
-        def residuals(x):
-            e, _ = reprojection(x)
-            bone = bone_residuals(x, bone_ends, bone_target, root_bone)[0] if Nb else np.zeros(0)
-            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms] + [bone])
-
-        def jacobian(x):
-            homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
-            proj = np.einsum("kab,kb->ka", obs_P, homogeneous)
-            z = proj[:, 2:3]
-            uv = proj[:, :2] / z
-            d = (obs_P[:, :2, :3] - uv[:, :, None] * obs_P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
-            values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-            bone = bone_residuals(x, bone_ends, bone_target, root_bone)[1].reshape(-1) if Nb else np.zeros(0)
-            return sp.csr_matrix((np.concatenate([values, prior_values, bone]), (rows, cols_all)), shape=shape)
-
-        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
-                          x_scale="jac", max_nfev=max_iterations).x
+        sqrt_w = irls_weights(x, fitted, robust_scale_px)
+        blocks = linearized_prior(unpack(x))
+        pattern = sparsity_pattern(fitted, blocks, n_params, bones)
+        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
+                          max_nfev=max_iterations, args=(fitted, sqrt_w, blocks, pattern, bones)).x
 
     X = unpack(x)
-    e0, _ = reprojection(X0[present].reshape(-1))
-    e1, depth1 = reprojection(x)
-    observed = np.bincount(p_idx, minlength=Pn) > 0
-    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
-    worse = (_median_by(np.linalg.norm(e1, axis=-1), p_idx, Pn)
-             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), p_idx, Pn) + robust_scale_px)
-    behind = np.bincount(p_idx, weights=depth1 <= 0, minlength=Pn) > 0
-    fallback = observed & (~finite | worse | behind)
+    fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-    x_final = X[present].reshape(-1)
-    return RefineResult(X, fallback, cost_before, objective(x_final, prior_terms(X)))
+    cost_after = objective(X[present].reshape(-1), fitted, linearized_prior(X), robust_scale_px, bones)
+    return RefineResult(X, fallback, cost_before, cost_after)

@@ -11,16 +11,17 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.core.scene import Cameras
+from mvm.core.scene import Cameras, Poses2D
 from mvm.errors import InputError
 from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, pose_errors
 from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.mocap import read_panoptic_coco19, read_panoptic_ids
 from mvm.io.panoptic_calib import read_panoptic_calibration
-from mvm.rig.instants import Detections, reconstruct_instants
+from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.detector import DetectorErrors, pose_scores
 from mvm.sim.rig import detect_views
+
 
 def metric_calibration(calibration: RigCalibration) -> RigCalibration:
     """The calibration with the world in metres (translations / 100)."""
@@ -66,7 +67,7 @@ def load_sample(sequence_dir: str | Path) -> PanopticSample:
 
 
 def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed: int,
-                        errors: DetectorErrors = DetectorErrors()) -> Detections:
+                        errors: DetectorErrors = DetectorErrors()) -> Poses2D:
     """Distorted 2D detections of every instant in the chosen cameras, then undistorted with
     the calibration (as a real pipeline does)."""
     from mvm.rig.rigdir import subset_calibration, undistort
@@ -82,7 +83,7 @@ def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed:
     keypoints = np.concatenate(kps)
     camera = np.concatenate(cams)
     keypoints = undistort(calibration, keypoints, camera)
-    return Detections(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
+    return rig_poses(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
 
 
 def evaluate(sample: PanopticSample, n_cameras: int, config: Config, seeds: int = 3,

@@ -16,7 +16,8 @@ from mvm.core.config import Config
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.io.files import atomic_write_json, atomic_write_text
 from mvm.io.trc import to_opensim, write_trc
-from mvm.rig.instants import InstantPersons, load_prior, reconstruct_instants
+from mvm.core.prior import load_prior, shipped_prior
+from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
@@ -79,7 +80,7 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
     """Members as the pose's index within its camera and frame (as in the input files)."""
     det = rig.detections
-    key = det.instant * (det.camera.max() + 1 if len(det) else 1) + det.camera
+    key = det.instant * (det.view.max() + 1 if len(det) else 1) + det.view
     order = np.argsort(key, kind="stable")
     rank = np.empty(len(key), dtype=int)
     starts = np.searchsorted(key[order], key[order])
@@ -125,17 +126,10 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
 
 def completion_prior(config: Config, options: RigOptions, prior=None):
     """The pose prior for refinement and completion: ``prior``, else the shipped one when either
-    needs it (None, with a warning, when it cannot be loaded)."""
+    needs it (:func:`mvm.core.prior.load_prior`'s rule, extended to completion)."""
     if prior is not None or not options.complete:
         return load_prior(config, prior)
-    from mvm.core.prior import PosePrior
-    from mvm.errors import InputError
-
-    try:
-        return PosePrior.load()
-    except (InputError, OSError) as e:
-        log.warning("pose prior unavailable (%s); joints are completed along tracks only", e)
-        return None
+    return shipped_prior()
 
 
 def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None, config: Config | None = None,

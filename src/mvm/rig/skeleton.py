@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.keypoints import BONES
-from mvm.core.scene import Cameras
-from mvm.eval.metrics import reprojection_errors
-from mvm.rig.instants import Detections, InstantPersons
+from mvm.core.quality import reprojection_errors
+from mvm.core.scene import Cameras, Poses2D
+from mvm.rig.instants import InstantPersons
 
 _BONES = np.array(BONES)
 
@@ -61,7 +61,7 @@ def bone_length_cv(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> np.n
     return np.array(out).reshape(-1, len(BONES))
 
 
-def observations(persons: InstantPersons, detections: Detections, cameras: Cameras,
+def observations(persons: InstantPersons, detections: Poses2D, cameras: Cameras,
                  keypoint_threshold: float = 0.0):
     """The 2D keypoints each person was triangulated from, per camera.
 
@@ -76,7 +76,7 @@ def observations(persons: InstantPersons, detections: Detections, cameras: Camer
     return kp[..., :2], conf, P, persons.inliers & has[..., None] & (conf > 0)
 
 
-def refit(persons: InstantPersons, X: np.ndarray, detections: Detections, cameras: Cameras) -> InstantPersons:
+def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: Cameras) -> InstantPersons:
     """``persons`` with joints ``X: (Q, 17, 3)`` and their reprojection errors recomputed."""
     xy, _, P, used = observations(persons, detections, cameras)
     errors = np.where(persons.valid, reprojection_errors(X, xy, P), np.nan)
@@ -88,7 +88,7 @@ def refit(persons: InstantPersons, X: np.ndarray, detections: Detections, camera
                           errors, person_error)
 
 
-def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Detections, cameras: Cameras,
+def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
                   config, prior=None, bone_weight: float = 20000.0, batch_size: int = 16) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
