@@ -38,7 +38,11 @@ def _parse_sets(pairs: tuple[str, ...]) -> dict:
               help="Directory of each scene holding poses3d.json.")
 @click.option("--min-keypoints", default=3, show_default=True, type=int,
               help="Persons with fewer labelled joints in a frame get no annotation there.")
-def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int) -> None:
+@click.option("--complete", is_flag=True,
+              help="Infer the joints a person lacks from the pose prior before projecting; every "
+                   "annotation then says per keypoint whether it was observed or inferred (keypoint_flags).")
+def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int,
+               complete: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
     from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
@@ -51,7 +55,12 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
             frames = scene_dir / "frames"
             yield read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 
-    path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
+    prior = None
+    if complete:
+        from mvm.core.prior import PosePrior
+
+        prior = PosePrior.load()
+    path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints, prior=prior)
     from mvm.io.checks import load_json
 
     data = load_json(path)

@@ -12,6 +12,18 @@ from mvm.errors import InputError
 from mvm.rig.options import RigOptions
 
 
+def _bool(value: str) -> bool:
+    if value.lower() in ("1", "true", "yes", "on"):
+        return True
+    if value.lower() in ("0", "false", "no", "off"):
+        return False
+    raise ValueError(value)
+
+
+_PARSERS = {"int": int, "float": float, "str": str, "bool": _bool,
+            "float | None": lambda v: None if v.lower() in ("none", "auto") else float(v)}
+
+
 def _options(pairs: tuple[str, ...], **flags) -> RigOptions:
     values = {}
     types = {f.name: f.type for f in dataclasses.fields(RigOptions)}
@@ -22,8 +34,8 @@ def _options(pairs: tuple[str, ...], **flags) -> RigOptions:
         if key not in types:
             raise InputError("--rig-set", key, f"unknown setting (known: {', '.join(sorted(types))})")
         try:
-            values[key] = {"int": int, "float": float, "str": str}[types[key]](value)
-        except ValueError:
+            values[key] = _PARSERS[types[key]](value)
+        except (ValueError, KeyError):
             raise InputError("--rig-set", key, f"expected {types[key]}, got {value!r}") from None
     values.update({k: v for k, v in flags.items() if v is not None})
     try:
@@ -46,26 +58,36 @@ def rig() -> None:
 @click.option("--output", "-o", type=click.Path(file_okay=False), default=None,
               help="Output folder (default RIG_DIR/mvm).")
 @click.option("--smoothing", type=click.Choice(["none", "butterworth", "savgol"]), default=None,
-              help="Temporal smoothing of each track (default none).")
+              help="Temporal smoothing of each track (default butterworth, cut-off 6 Hz or a fifth "
+                   "of the frame rate).")
+@click.option("--no-complete", "no_complete", is_flag=True,
+              help="Leave joints that were not reconstructed empty (null) instead of interpolating "
+                   "them along the track and inferring the rest from the pose prior.")
+@click.option("--trc-inferred", is_flag=True,
+              help="Write inferred joints into the .trc files too (default: observed and interpolated only).")
 @click.option("--frame-rate", type=float, default=None, help="Rig frame rate in Hz (default 30).")
 @click.option("--rig-set", "rig_sets", multiple=True, metavar="KEY=VALUE",
               help="Override one rig setting (batch_size, max_link_distance_m, max_gap, up, ...).")
 @with_config
-def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, frame_rate, rig_sets, config_path, sets, refine):
+def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_inferred, frame_rate, rig_sets,
+                    config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
     from mvm.rig.pipeline import reconstruct_rig
 
     config = _config(config_path, sets, refine=refine)
-    options = _options(rig_sets, smoothing=smoothing, frame_rate=frame_rate)
+    options = _options(rig_sets, smoothing=smoothing, frame_rate=frame_rate,
+                       complete=False if no_complete else None, trc_inferred=True if trc_inferred else None)
     with Progress(TextColumn("instants"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=console, transient=True) as bar:
         task = bar.add_task("instants", total=None)
         result = reconstruct_rig(rig_dir, config, options, calib, frames, output,
                                  progress=lambda done, total: bar.update(task, completed=done, total=total))
     r = result.recap
-    table = Table(title=f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks, "
-                        f"{r['instants_per_s']} instants/s")
+    flags = r["joint_flags"]
+    table = Table(title=f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
+                        f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
+                        + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v))
     table.add_column("keypoint")
     table.add_column("error px", justify="right")
     table.add_column("views", justify="right")

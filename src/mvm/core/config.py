@@ -61,6 +61,9 @@ class Config:
     robust_scale_px: float = 5.0
     #: Iterations of the solver (function evaluations ≈ 50 × this). [1]
     refine_max_iterations: int = 30
+    #: Complete every person: joints not reconstructed are inferred from the pose prior given the
+    #: others (flagged "inferred" in poses3d.json); off leaves them null. [bool]
+    complete: bool = False
     # --- random numbers ------------------------------------------------------------------
     #: Seed of RANSAC's sampling: a scene gives the same result every run. [1]
     seed: int = 0

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED, flag_names, parse_flags
 from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
@@ -121,6 +122,8 @@ def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: d
             "outliers_per_joint": [int(v) for v in persons.outliers_per_joint[p]],
             "reprojection_error_px": json_number(persons.reprojection_error_px[p], 6),
         })
+        if persons.flags is not None:
+            out[-1]["flags"] = flag_names(persons.flags[p])
     document = {"format": POSES3D_FORMAT, "keypoints": list(COCO_KEYPOINTS), "persons": out,
                 "metrics": {k: (json_number(v, 6) if isinstance(v, float) else v) for k, v in metrics.items()}}
     if extra:
@@ -179,6 +182,8 @@ def parse_poses3d(data: dict, path: str | Path, poses: Poses2D | None = None) ->
     outliers = np.zeros((P, NUM_JOINTS), dtype=int)
     err = np.full(P, np.nan)
     members = []
+    flags = np.where(np.isfinite(X[..., 0]), OBSERVED, MISSING).astype(np.int8)
+    has_flags = False
     index = None if poses is None else {int(a): i for i, a in enumerate(poses.ids)}
     for p, person in enumerate(persons):
         field = f"persons[{p}]"
@@ -205,6 +210,9 @@ def parse_poses3d(data: dict, path: str | Path, poses: Poses2D | None = None) ->
             target[p] = [integer(v, path, f"{field}.{key}[{j}]") for j, v in enumerate(values)]
         if person.get("reprojection_error_px") is not None:
             err[p] = number(person["reprojection_error_px"], path, f"{field}.reprojection_error_px")
+        if "flags" in person:
+            flags[p] = _flags(person["flags"], X[p], path, f"{field}.flags")
+            has_flags = True
         ids = person.get("members", [])
         if not isinstance(ids, list):
             raise InputError(path, f"{field}.members", "expected a list of annotation ids")
@@ -215,4 +223,18 @@ def parse_poses3d(data: dict, path: str | Path, poses: Poses2D | None = None) ->
                 raise InputError(path, f"{field}.members", f"annotation id {missing[0]} not in poses2d.json")
             ids = [index[a] for a in ids]
         members.append(np.array(ids, dtype=np.int64))
-    return Persons3D(X, scores, members, views, outliers, err)
+    return Persons3D(X, scores, members, views, outliers, err, flags if has_flags else None)
+
+
+def _flags(value, X: np.ndarray, path: Path, field: str) -> np.ndarray:
+    """A person's ``flags`` (17 names) checked against its joints ``X: (17, 3)``."""
+    if not isinstance(value, list) or len(value) != NUM_JOINTS:
+        raise InputError(path, field, f"expected a list of {NUM_JOINTS} names ({', '.join(FLAG_NAMES)})")
+    try:
+        flags = parse_flags(value, field)
+    except ValueError as e:
+        raise InputError(path, field, str(e).split(": ", 1)[1]) from None
+    bad = np.flatnonzero((flags == MISSING) == np.isfinite(X).all(-1))
+    if len(bad):
+        raise InputError(path, f"{field}[{bad[0]}]", "'missing' must go with null coordinates, and only with them")
+    return flags

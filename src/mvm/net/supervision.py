@@ -10,6 +10,7 @@ that many scenes merge into.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from pathlib import Path
@@ -17,6 +18,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from mvm.core.completion import INFERRED, MISSING, complete_persons, flag_names
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
@@ -69,8 +71,9 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
 
 
 def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths: np.ndarray | None,
-                      person_id: int | None = None) -> dict:
-    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``."""
+                      person_id: int | None = None, flags: np.ndarray | None = None) -> dict:
+    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``,
+    ``flags: (17,)`` how each 3D joint was obtained (written as ``keypoint_flags`` names)."""
     kp = np.asarray(keypoints, dtype=float)
     vis = kp[:, 2] > 0
     x0, y0 = kp[vis, :2].min(axis=0)
@@ -86,6 +89,8 @@ def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths:
         rec["has_3d"] = [int(v) for v in (d > 0)]
     if person_id is not None:
         rec["person_id"] = int(person_id)
+    if flags is not None:
+        rec["keypoint_flags"] = flag_names(np.where(vis, flags, MISSING))
     return rec
 
 
@@ -132,7 +137,7 @@ def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
 
 
 def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: str = "symlink",
-                       min_keypoints: int = 3) -> Path:
+                       min_keypoints: int = 3, prior=None) -> Path:
     """Write a COCO-style supervision dataset of several scenes; returns the annotation file.
 
     Args:
@@ -144,13 +149,17 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
             where they are (``file_name`` then points at them, relative to ``out_dir`` when a
             ``frames_dir`` is given, else ``<scene>/<frame>``).
         min_keypoints: persons with fewer labelled joints in a view get no annotation there.
+        prior: a :class:`mvm.core.prior.PosePrior`: joints the persons lack are inferred from it
+            first (:func:`mvm.core.completion.complete_persons`). Whenever the persons carry
+            flags (from completion here or in ``poses3d.json``), every annotation carries them as
+            ``keypoint_flags`` ("observed", "interpolated", "inferred"; "missing" where not labelled).
     """
     if link not in LINK_MODES:
         raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
     out_dir = Path(out_dir)
     _check_dataset_dir(out_dir)
     items = [_as_item(item) for item in scenes_and_persons]
-    atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints), out_dir)
+    atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints, prior), out_dir)
     return out_dir / ANNOTATIONS_FILE
 
 
@@ -163,12 +172,17 @@ def _check_dataset_dir(out_dir: Path) -> None:
                                              "images/): choose a new or empty folder")
 
 
-def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int) -> None:
+def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int, prior=None) -> None:
     """Fill ``tmp`` (which becomes ``out_dir``) with the dataset of ``items``."""
     data = empty_dataset("mvm supervision: refined 3D poses projected into every frame")
     names_seen: dict[str, int] = {}
     image_id = ann_id = 0
     for scene, persons, frames in items:
+        flags = persons.flags
+        if prior is not None and len(persons):
+            X, new = complete_persons(persons.keypoints3d, prior)
+            flags = np.where(new == INFERRED, INFERRED, new if flags is None else flags)
+            persons = dataclasses.replace(persons, keypoints3d=X, flags=flags)
         label = _unique(scene.name or "scene", names_seen)
         cams = scene.cameras
         n_ann = 0
@@ -182,7 +196,8 @@ def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoin
                                    "scene": label, "frame": name})
             for p in keep:
                 ann_id += 1
-                data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
+                data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p),
+                                                             flags=None if flags is None else flags[p]))
                 n_ann += 1
             for box in unreconstructed_boxes(scene, persons, v):
                 ann_id += 1

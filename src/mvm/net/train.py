@@ -13,6 +13,7 @@ configuration, losses, validation, throughput). No module is pickled.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import time
@@ -325,7 +326,7 @@ def _complete(pt: Path) -> bool:
     """Whether ``pt`` and its ``.json`` form a complete pair: the metadata parses, has the
     checkpoint format and records the byte size the ``.pt`` has."""
     try:
-        meta = json.loads(pt.with_suffix(".json").read_text())
+        meta = load_json_object(pt.with_suffix(".json"))
         return meta.get("format") == CHECKPOINT_FORMAT and meta.get("weights_bytes") in (None, pt.stat().st_size)
     except (OSError, ValueError, AttributeError):
         return False
@@ -404,7 +405,7 @@ def prune_checkpoints(out_dir: str | Path, keep_last: int, keep_best: str = "", 
 def _best_checkpoint(found: list[Path], metric: str, higher_is_better: bool) -> Path | None:
     scored = []
     for pt in found:
-        meta = json.loads(pt.with_suffix(".json").read_text())
+        meta = load_json_object(pt.with_suffix(".json"))
         value = ((meta.get("validation") or {}).get("metrics") or {}).get(metric)
         if isinstance(value, (int, float)):
             scored.append((value if higher_is_better else -value, pt))
