@@ -107,7 +107,7 @@ def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(pipeline, "write_tracks", broken)
-    with pytest.raises(InputError, match="No space left"):
+    with pytest.raises(InputError, match="no space left"):
         reconstruct_rig(root, Config(refine=False), output=out)
     monkeypatch.undo()
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
