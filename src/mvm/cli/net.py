@@ -8,27 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import tomllib
 
+from mvm.cli.common import command
+from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
 
-def _parse_sets(pairs: tuple[str, ...]) -> dict:
-    """``("lr=0.01", "backbone='resnet18'")`` -> ``{"lr": 0.01, "backbone": "resnet18"}`` (TOML values;
-    a bare word is taken as a string)."""
-    out = {}
-    for pair in pairs:
-        if "=" not in pair:
-            raise InputError("--set", pair, "expected KEY=VALUE")
-        key, value = (s.strip() for s in pair.split("=", 1))
-        try:
-            out[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key] = value
-    return out
-
-
-@click.command("export")
+@command("export")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Dataset directory to write (annotations.json, images/).")
@@ -59,7 +45,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
                f"from {len(scenes)} scene(s)")
 
 
-@click.command("train")
+@command("train")
 @click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a setting, e.g. --set steps=1000 --set backbone=resnet18 (repeatable).")
@@ -78,7 +64,7 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
                f"on {meta.get('device', '?')}")
 
 
-@click.command("predict")
+@command("predict")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="A checkpoint .pt written by mvm train (its .json beside it).")

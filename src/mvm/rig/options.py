@@ -4,47 +4,47 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from mvm.core.config import check_settings, setting
+
 
 @dataclass(frozen=True)
 class RigOptions:
     #: Instants reconstructed together (one batched affinity, triangulation and refinement);
     #: larger is faster per instant and uses more memory. [instants]
-    batch_size: int = 64
+    batch_size: int = setting(64, ge=1, le=100_000)
     #: A person links to a track when its mean joint distance to the track's last pose is below
     #: this; raise it for fast motion or low frame rates. [metres]
-    max_link_distance_m: float = 0.5
+    max_link_distance_m: float = setting(0.5, gt=0)
     #: A track not seen for more than this many instants ends; a person seen later gets a new id.
     #: [instants]
-    max_gap: int = 10
+    max_gap: int = setting(10, ge=0)
     #: Tracks shorter than this are dropped from the .trc output (they stay in the JSON Lines). [instants]
-    min_track_length: int = 1
+    min_track_length: int = setting(1, ge=1)
     #: Temporal smoothing of each track: "none", "butterworth" (zero-phase low-pass) or "savgol". [-]
-    smoothing: str = "none"
+    smoothing: str = setting("none", choices=("none", "butterworth", "savgol"))
     #: Cut-off of the Butterworth filter; lower smooths more. [Hz]
-    cutoff_hz: float = 6.0
+    cutoff_hz: float = setting(6.0, gt=0)
     #: Order of the Butterworth filter. [1]
-    filter_order: int = 4
+    filter_order: int = setting(4, ge=1, le=16)
     #: Window of the Savitzky-Golay filter (odd); longer smooths more. [instants]
-    savgol_window: int = 9
+    savgol_window: int = setting(9, ge=3, odd=True)
     #: Frame rate of the rig, for times in .trc files and the filter. [Hz]
-    frame_rate: float = 30.0
+    frame_rate: float = setting(30.0, gt=0)
     #: Size of one world unit in metres (Pose2Sim calibrations: 1; anipose in mm: 0.001;
     #: Panoptic: 0.01). [m / unit]
-    metres_per_unit: float = 1.0
+    metres_per_unit: float = setting(1.0, gt=0)
     #: The world's up axis, for the Y-up .trc files: "+z", "-z", "+y" or "-y". [-]
-    up: str = "+z"
+    up: str = setting("+z", choices=("+z", "-z", "+y", "-y"))
 
     def __post_init__(self):
-        if self.smoothing not in ("none", "butterworth", "savgol"):
-            raise ValueError(f"smoothing: expected 'none', 'butterworth' or 'savgol', got {self.smoothing!r}")
-        if self.up not in ("+z", "-z", "+y", "-y"):
-            raise ValueError(f"up: expected '+z', '-z', '+y' or '-y', got {self.up!r}")
-        for name in ("batch_size", "max_gap", "min_track_length", "filter_order", "savgol_window"):
-            if getattr(self, name) < (0 if name == "max_gap" else 1):
-                raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
-        for name in ("max_link_distance_m", "cutoff_hz", "frame_rate", "metres_per_unit"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        check_settings(self)
 
-    def replace(self, **changes) -> "RigOptions":
+    def implied_problems(self) -> list[tuple[str, str]]:
+        """The Butterworth cut-off must lie below the Nyquist frequency of the frame rate."""
+        if self.smoothing == "butterworth" and not self.cutoff_hz < self.frame_rate / 2:
+            return [("cutoff_hz", f"must be below half the frame rate ({self.frame_rate / 2:g} Hz at "
+                                  f"frame_rate {self.frame_rate:g}), got {self.cutoff_hz:g}")]
+        return []
+
+    def replace(self, **changes) -> RigOptions:
         return dataclasses.replace(self, **changes)
