@@ -7,6 +7,7 @@ for rich, numpy or the pipeline. Everything heavier is imported where it is used
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import sys
 from contextlib import contextmanager
@@ -73,6 +74,20 @@ def err():
     from rich.console import Console
 
     return Console(stderr=True)
+
+
+class LogHandler(logging.Handler):
+    """Log records on the stderr console through rich, which is imported at the first record
+    (so that configuring logging costs nothing at start-up)."""
+
+    @functools.cached_property
+    def _rich(self):
+        from rich.logging import RichHandler
+
+        return RichHandler(console=err(), show_time=False, show_path=False)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._rich.emit(record)
 
 
 def progress(*extra_columns):
@@ -198,8 +213,6 @@ def run_each(items, work, label: str = "") -> tuple[list, list]:
     """``work(item)`` for every item, each isolated from the others: any exception while handling
     one item is that item's failure, printed as one line (the traceback goes to the debug log,
     ``mvm -vv``), and the next item is done. Returns ``([(item, result)], [failed item])``."""
-    import logging
-
     done, failed = [], []
     items = list(items)
     with progress() as bar:

@@ -13,7 +13,7 @@ import click
 
 from mvm import __version__
 from mvm.cli import batch, net, report, rig, scene, sim, video
-from mvm.cli.common import Group, err
+from mvm.cli.common import Group, LogHandler
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -21,11 +21,8 @@ from mvm.cli.common import Group, err
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
 def main(verbose: int) -> None:
     """mvm: multi-person 3D human poses from many views of a static scene."""
-    from rich.logging import RichHandler
-
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)]
-    logging.basicConfig(level=level, format="%(message)s",
-                        handlers=[RichHandler(console=err(), show_time=False, show_path=False)])
+    logging.basicConfig(level=level, format="%(message)s", handlers=[LogHandler()])
 
 
 for command in (scene.reconstruct, sim.demo_cmd, sim.simulate_cmd, sim.bench_cmd, video.run_cmd, video.frames_cmd,
