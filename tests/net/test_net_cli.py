@@ -61,7 +61,8 @@ def test_export_without_poses3d_is_an_input_error(tmp_path):
     (tmp_path / "empty").mkdir()
     result = CliRunner().invoke(export_cmd, [str(tmp_path / "empty"), "--out", str(tmp_path / "ds")])
     assert result.exit_code == 2
-    assert "poses3d.json: not found" in result.output and len(result.output.strip().splitlines()) == 1
+    assert result.stderr.splitlines()[0] == f"mvm: error: {tmp_path / 'empty' / 'mvm' / 'poses3d.json'}: not found: " \
+                                            "reconstruct the scene first (mvm reconstruct)"
 
 
 def test_train_and_predict_commands(tmp_path):

@@ -209,26 +209,44 @@ def failure_line(item, error: BaseException) -> str:
     return f"{item}: {type(error).__name__}: {text}"
 
 
+def each_isolated(items, work, failed: list, console=None):
+    """Yield ``(item, work(item))`` for every item, each isolated from the others: any exception
+    while handling one item is that item's failure, appended to ``failed`` and printed as one
+    line (the traceback goes to the debug log, ``mvm -vv``), and the next item is done."""
+    for item in items:
+        try:
+            result = work(item)
+        except Exception as e:                      # one item's failure is not the run's
+            logging.getLogger("mvm").debug("%s failed", item, exc_info=True)
+            failed.append(item)
+            print_line(f"mvm: error: {failure_line(item, e)}", console)
+        else:
+            yield item, result
+
+
 def run_each(items, work, label: str = "") -> tuple[list, list]:
-    """``work(item)`` for every item, each isolated from the others: any exception while handling
-    one item is that item's failure, printed as one line (the traceback goes to the debug log,
-    ``mvm -vv``), and the next item is done. Returns ``([(item, result)], [failed item])``."""
+    """:func:`each_isolated` under a progress bar; returns ``([(item, result)], [failed item])``."""
     done, failed = [], []
     items = list(items)
     with progress() as bar:
         task = bar.add_task(label, total=len(items))
-        for item in items:
+
+        def step(item):
             bar.update(task, description=f"{label} {getattr(item, 'name', item)}".strip())
             try:
-                result = work(item)
-            except Exception as e:                   # one item's failure is not the run's
-                logging.getLogger("mvm").debug("%s failed", item, exc_info=True)
-                failed.append(item)
-                print_line(f"mvm: error: {failure_line(item, e)}", bar.console)
-            else:
-                done.append((item, result))
-            bar.advance(task)
+                return work(item)
+            finally:
+                bar.advance(task)
+
+        done = list(each_isolated(items, step, failed, bar.console))
     return done, failed
+
+
+def report_failures(failed: list, total: int, kind: str = "scene") -> None:
+    """After a run over several inputs: how many failed, and exit status 2 when any did."""
+    if failed:
+        err().print(f"{len(failed)} of {total} {kind}(s) failed", style="red")
+        sys.exit(2)
 
 
 #: Option types of the frame selection and cameras, shared by ``frames``, ``run`` and ``batch``.

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import command
+from mvm.cli.common import command, each_isolated, report_failures
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
@@ -29,20 +29,22 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
 
-    def items():
-        for scene_dir in scenes:
-            poses3d = scene_dir / output_name / "poses3d.json"
-            if not poses3d.is_file():
-                raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
-            frames = scene_dir / "frames"
-            yield read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
+    def read(scene_dir):
+        poses3d = scene_dir / output_name / "poses3d.json"
+        if not poses3d.is_file():
+            raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+        frames = scene_dir / "frames"
+        return read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
 
-    path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
+    failed: list = []
+    items = (item for _, item in each_isolated(scenes, read, failed))
+    path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints)
     import json
 
     data = json.loads(path.read_text())
     click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
-               f"from {len(scenes)} scene(s)")
+               f"from {len(scenes) - len(failed)} scene(s)")
+    report_failures(failed, len(scenes))
 
 
 @command("train")

@@ -1,11 +1,9 @@
 """``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.core.reconstruct.reconstruct_dir`)."""
 from __future__ import annotations
 
-import sys
-
 import click
 
-from mvm.cli.common import command, config_options, err, fmt, out, read_config, run_each
+from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_each
 
 
 @command("reconstruct")
@@ -36,6 +34,4 @@ def reconstruct(scenes, config_path, sets, refine, output):
                           fmt(m["E_R_px"]), fmt(m["outliers"], 1), fmt(m["G_k"], 1),
                           fmt(r.timings["read_s"] + r.timings["total_s"]))
         out().print(table)
-    if failed:
-        err().print(f"{len(failed)} of {len(scenes)} scene(s) failed", style="red")
-        sys.exit(2)
+    report_failures(failed, len(scenes))
