@@ -106,7 +106,7 @@ def status_cmd(root, as_json, verify):
         import json
 
         click.echo(json.dumps(status.to_json(), indent=1))
-        return
+        sys.exit(1 if status.mismatched else 0)
     c = status.clips
     stages = Table(title=f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
                          f"{c['running']} running, {c['pending']} pending ({status.runs} runs)")
