@@ -38,6 +38,8 @@ BAD = [
     (["batch", "{d}/root", "--rate", "0"], "--rate: must be > 0, got 0.0"),
     (["batch", "{d}/root", "--set", "seed=-1"], "--set: seed: must be >= 0, got -1"),
     (["overlay", "{d}/scene", "--fps", "nan"], "--fps: expected float, got nan"),
+    (["predict", "{d}/a.png", "--checkpoint", "{d}/c.pt", "--focal", "inf"], "--focal: must be finite, got inf"),
+    (["export", "{d}/scene", "--out", "{d}/ds", "--min-keypoints", "18"], "--min-keypoints: must be <= 17, got 18"),
     (["rig", "reconstruct", "{d}/rig", "--frame-rate", "inf"], "--frame-rate: frame_rate: must be finite, got inf"),
     (["rig", "reconstruct", "{d}/rig", "--frame-rate", "0"], "--frame-rate: frame_rate: must be > 0, got 0.0"),
     (["rig", "reconstruct", "{d}/rig", "--smoothing", "butterworth", "--frame-rate", "10"],
@@ -64,19 +66,21 @@ def test_bad_setting_is_one_line_before_any_work(tmp_path, args, line):
     assert sorted(tmp_path.rglob("*")) == before                        # nothing written, nothing created
 
 
-@pytest.mark.parametrize("text, line", [
-    ("seed = -1", "seed: must be >= 0, got -1"),
-    ("[reconstruct]\nransac_hypotheses = 1e9", "ransac_hypotheses: must be <= 10000, got 1000000000"),
-    ("min_parallax_deg = inf", "min_parallax_deg: must be finite, got inf"),
-    ("distance_scale = nan", "distance_scale: expected float, got nan"),
-    ("seed = 99999999999999999999", "seed: must be <= 9223372036854775807, got 99999999999999999999"),
-])
-def test_bad_setting_in_a_file_names_the_file(tmp_path, text, line):
-    path = tmp_path / "settings.toml"
-    path.write_text(text)
-    result = CliRunner().invoke(main, ["reconstruct", str(tmp_path / "scene"), "--config", str(path)])
-    assert result.exit_code == 2
-    assert result.stderr == f"mvm: error: {path}: {line}\n"
+#: (a settings file's text, the line after its name).
+BAD_FILES = [("seed = -1", "seed: must be >= 0, got -1"),
+             ("[reconstruct]\nransac_hypotheses = 1e9", "ransac_hypotheses: must be <= 10000, got 1000000000"),
+             ("min_parallax_deg = inf", "min_parallax_deg: must be finite, got inf"),
+             ("distance_scale = nan", "distance_scale: expected float, got nan"),
+             ("seed = 99999999999999999999", "seed: must be <= 9223372036854775807, got 99999999999999999999")]
+
+
+@pytest.mark.parametrize("command", [["reconstruct", "{d}/scene"], ["rig", "reconstruct", "{d}/rig"], ["batch", "{d}"]])
+@pytest.mark.parametrize("text, line", BAD_FILES)
+def test_bad_setting_in_a_file_names_the_file(tmp_path, command, text, line):
+    (tmp_path / "settings.toml").write_text(text)
+    args = [a.format(d=tmp_path) for a in command] + ["--config", str(tmp_path / "settings.toml")]
+    result = CliRunner().invoke(main, args)
+    assert (result.exit_code, result.stderr) == (2, f"mvm: error: {tmp_path / 'settings.toml'}: {line}\n")
 
 
 def test_set_overrides_a_file_and_is_named_when_bad(tmp_path):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import command, each_isolated, report_failures
+from mvm.cli.common import FOCAL, Number, command, each_isolated, report_failures
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
@@ -22,7 +22,7 @@ from mvm.errors import InputError
               help="How the frames get into the dataset.")
 @click.option("--output-name", default="mvm", show_default=True,
               help="Directory of each scene holding poses3d.json.")
-@click.option("--min-keypoints", default=3, show_default=True, type=int,
+@click.option("--min-keypoints", default=3, show_default=True, type=Number(int, ge=0, le=17),
               help="Persons with fewer labelled joints in a frame get no annotation there.")
 def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
@@ -72,7 +72,7 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
               help="A checkpoint .pt written by mvm train (its .json beside it).")
 @click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Where predictions.json and the overlays go.")
-@click.option("--focal", "focal_px", default=None, type=float, help="Focal length in pixels (default: the long edge).")
+@click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
 @click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
 def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal_px: float | None,
                 input_size: int | None) -> None:
