@@ -123,3 +123,14 @@ def test_old_absolute_paths_still_verify_after_a_move(root, tmp_path):
     tampered = moved / "seq00" / "clip01" / "mvm" / "poses3d.json"
     tampered.write_text(tampered.read_text() + " ")
     assert batch_status(moved, verify=True).mismatched == [("seq00/clip01", "reconstruct")]
+
+
+def test_a_manifest_being_created_reads_as_empty(root):
+    """The instant a first run has created the database file but not yet its tables."""
+    for name in ("manifest.sqlite", "manifest.sqlite-wal", "manifest.sqlite-shm"):
+        (root / ".mvm" / name).unlink(missing_ok=True)
+    (root / MANIFEST).write_bytes(b"")
+    result = _status(root, "--json")
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["clips"] == {"total": 3, "done": 0, "failed": 0, "running": 0, "pending": 3}
+    assert (root / MANIFEST).read_bytes() == b""

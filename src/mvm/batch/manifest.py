@@ -92,13 +92,18 @@ class Manifest:
             if create:
                 self.db.execute("PRAGMA journal_mode=WAL")
                 self.db.execute("PRAGMA synchronous=FULL")
-                self.db.executescript(_SCHEMA)
+                self.db.executescript(f"BEGIN IMMEDIATE;\n{_SCHEMA}\nCOMMIT;")      # readers see all tables or none
             self._check_schema()
         except sqlite3.DatabaseError as e:
             raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
         self.db.row_factory = sqlite3.Row
 
     def _check_schema(self) -> None:
+        """Refuse tables of another program. A database without any table yet (a run is
+        creating it) reads as an empty manifest."""
+        self.empty = self.db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] == 0
+        if self.empty:
+            return
         for table, columns in _COLUMNS.items():
             have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
             if not have:
@@ -211,6 +216,8 @@ class Manifest:
     # ---------------------------------------------------------------------------- stages
 
     def state(self, clip: str, stage: str) -> str | None:
+        if self.empty:
+            return None
         row = self.db.execute("SELECT state FROM stages WHERE clip = ? AND stage = ?", (clip, stage)).fetchone()
         return None if row is None else row["state"]
 
@@ -305,9 +312,11 @@ class Manifest:
             rows.append(row)
         return rows
 
-    def _select(self, query: str) -> list[sqlite3.Row]:
+    def _select(self, query: str, parameters: tuple = ()) -> list[sqlite3.Row]:
+        if self.empty:
+            return []
         try:
-            return self.db.execute(query).fetchall()
+            return self.db.execute(query, parameters).fetchall()
         except sqlite3.DatabaseError as e:
             raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
 
@@ -332,7 +341,7 @@ class Manifest:
 
     def history(self, event: str | None = None) -> list[dict]:
         query = "SELECT * FROM history" + (" WHERE event = ?" if event else "") + " ORDER BY id"
-        return [dict(r) for r in self.db.execute(query, (event,) if event else ())]
+        return [dict(r) for r in self._select(query, (event,) if event else ())]
 
     def runs(self) -> list[dict]:
         return [dict(r) for r in self._select("SELECT * FROM runs ORDER BY id")]
