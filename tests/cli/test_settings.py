@@ -32,6 +32,7 @@ BAD = [
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--width", "-5"], "--width: must be >= 16, got -5"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--width", "100000"], "--width: must be <= 16384, got 100000"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--max-frames", "-1"], "--max-frames: must be >= 1, got -1"),
+    (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--max-frames", "1e3"], "--max-frames: expected int, got '1e3'"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--rate", "nan"], "--rate: expected float, got nan"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--blur-ratio", "inf"], "--blur-ratio: must be finite, got inf"),
     (["run", "{d}/clip.mp4", "-o", "{d}/scene", "--import", "{d}/x.json", "--focal", "-1"], "--focal: must be > 0, got -1.0"),

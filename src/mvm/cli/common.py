@@ -180,7 +180,7 @@ class Number(click.ParamType):
             try:
                 number = self.kind(value) if self.kind is float else int(str(value), 10)
             except (TypeError, ValueError):
-                self.fail(f"expected {self.name}, got {value!r}", param, ctx)
+                raise InputError(None, _option_name(param), f"expected {self.name}, got {value!r}") from None
         problem = self.bounds.problem(number)
         if problem:
             raise InputError(None, _option_name(param), problem)
