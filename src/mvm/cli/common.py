@@ -217,7 +217,8 @@ def each_isolated(items, work, failed: list, console=None):
         try:
             result = work(item)
         except Exception as e:                      # one item's failure is not the run's
-            logging.getLogger("mvm").debug("%s failed", item, exc_info=True)
+            if not isinstance(e, InputError):
+                logging.getLogger("mvm").debug("%s failed", item, exc_info=True)
             failed.append(item)
             print_line(f"mvm: error: {failure_line(item, e)}", console)
         else:
