@@ -13,9 +13,9 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 
 #: Every subcommand of ``mvm``; removing one must be a decision, not an import that broke.
-COMMANDS = ("batch", "bench", "demo", "detect", "export", "frames", "overlay", "predict", "reconstruct", "report",
-            "rig", "run", "sfm", "simulate", "status", "train")
-RIG_COMMANDS = ("reconstruct",)
+COMMANDS = ("batch", "bench", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict", "reconstruct",
+            "report", "rig", "run", "sfm", "simulate", "status", "train")
+SUBCOMMANDS = {"rig": ("reconstruct",), "evaluate": ("3dpw", "coco", "cvar")}
 
 
 def _listed(help_text: str) -> set[str]:
@@ -27,11 +27,12 @@ def test_every_subcommand_is_listed():
     result = CliRunner().invoke(main, ["--help"])
     assert result.exit_code == 0, result.output
     assert _listed(result.output) == set(COMMANDS)
-    result = CliRunner().invoke(main, ["rig", "--help"])
-    assert _listed(result.output) == set(RIG_COMMANDS)
+    for group, commands in SUBCOMMANDS.items():
+        result = CliRunner().invoke(main, [group, "--help"])
+        assert _listed(result.output) == set(commands), group
 
 
-@pytest.mark.parametrize("command", [[c] for c in COMMANDS] + [["rig", c] for c in RIG_COMMANDS])
+@pytest.mark.parametrize("command", [[c] for c in COMMANDS] + [[g, c] for g, cs in SUBCOMMANDS.items() for c in cs])
 def test_every_help_works(command):
     result = CliRunner().invoke(main, [*command, "--help"])
     assert result.exit_code == 0, result.output

@@ -26,7 +26,7 @@ def scenes(tmp_path_factory, bank_poses):
 
 
 def test_any_error_is_the_scene_s_own(scenes, monkeypatch):
-    import mvm.core.reconstruct as core
+    import mvm.scenes as core
 
     real = core.reconstruct_dir
 
@@ -55,7 +55,7 @@ def test_any_error_is_the_scene_s_own(scenes, monkeypatch):
 
 def test_export_skips_a_bad_scene_and_exports_the_others(tmp_path, bank_poses):
     from mvm.core.config import Config
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     scene, _ = simulate(SimConfig(people=2, frames=24, seed=5), bank_poses)
     for name in ("good", "missing", "corrupt"):

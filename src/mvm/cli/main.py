@@ -12,7 +12,7 @@ import logging
 import click
 
 from mvm import __version__
-from mvm.cli import batch, net, report, rig, scene, sim, video
+from mvm.cli import batch, evaluate, net, report, rig, scene, sim, video
 from mvm.cli.common import Group, LogHandler
 
 
@@ -26,7 +26,7 @@ def main(verbose: int) -> None:
 
 
 for command in (scene.reconstruct, sim.demo_cmd, sim.simulate_cmd, sim.bench_cmd, video.run_cmd, video.frames_cmd,
-                video.sfm_cmd, video.detect_cmd, rig.rig, net.export_cmd, net.train_cmd, net.predict_cmd,
+                video.sfm_cmd, video.detect_cmd, rig.rig, net.export_cmd, net.train_cmd, net.predict_cmd, evaluate.evaluate,
                 report.report_cmd, report.overlay_cmd, batch.batch_cmd, batch.status_cmd):
     main.add_command(command)
 

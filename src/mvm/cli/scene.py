@@ -1,4 +1,4 @@
-"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.core.reconstruct.reconstruct_dir`)."""
+"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dir`)."""
 from __future__ import annotations
 
 import click
@@ -20,7 +20,7 @@ def reconstruct(scenes, config_path, sets, refine, output):
     """
     from rich.table import Table
 
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     config = read_config(config_path, sets, refine=refine)
     rows, failed = run_each(scenes, lambda scene: reconstruct_dir(scene, config, output), "reconstructing")

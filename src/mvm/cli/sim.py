@@ -31,22 +31,29 @@ def scene_options(f):
 @scene_options
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")
-def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory):
+@click.option("--render", is_flag=True, help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
+def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
     (SCENE_DIR.groundtruth.json)."""
-    from mvm.sim.simulate import SimConfig, simulate, write_simulation
+    from mvm.io.ground_truth import write_simulation
+    from mvm.sim.simulate import SimConfig, simulate
 
     with refused(ValueError):
         sim = SimConfig.preset(preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
                                trajectory=trajectory)
         scene, truth = simulate(sim)
         truth_path = write_simulation(scene_dir, scene, truth, sim)
+        if render:
+            from mvm.sim.video import render_frames
+
+            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, seed)
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"
     measure_table(f"mvm simulate ({preset})", [
         ("people", f"{len(truth.poses3d)} ({labels})"), ("frames", str(len(scene.cameras))),
         ("2D poses", str(len(scene.poses))), ("false positives", str(int((truth.person < 0).sum()))),
         ("merged poses", str(int((truth.merged_with >= 0).sum()))),
-        ("scene", str(scene_dir)), ("ground truth", str(truth_path))])
+        ("scene", str(scene_dir)), ("ground truth", str(truth_path))]
+        + ([("rendered frames", f"{scene_dir}/frames")] if render else []))
 
 
 @command("demo")
