@@ -39,6 +39,8 @@ class BatchOptions:
         config: the reconstruction's settings.
         output: folder of each scene directory receiving ``poses3d.json`` and the supervision.
         checkpoint: the pose network's checkpoint for ``detect`` (None: imported detections).
+        detector: ``rtmo`` or ``rtmpose`` to detect every clip's frames with (None: ``checkpoint``
+            or the imported detections).
         max_frames / rate / width: frame sampling of ``frames`` (see ``mvm frames``).
         focal_px / max_features: ``sfm`` settings (see ``mvm sfm``); SfM runs on one thread.
         device: torch device of the network in ``detect`` (``cpu``, ``cuda``).
@@ -48,6 +50,7 @@ class BatchOptions:
     config: Config = field(default_factory=Config)
     output: str = "mvm"
     checkpoint: str | None = None
+    detector: str | None = None
     max_frames: int | None = None
     rate: float | None = None
     width: int | None = None
@@ -165,6 +168,9 @@ def _sfm(clip: Clip, options: BatchOptions) -> None:
 def _detect(clip: Clip, options: BatchOptions) -> None:
     from mvm.video.detect import DetectOptions, detect_scene
 
+    if options.detector is not None:
+        detect_scene(clip.scene, options=DetectOptions(detector=options.detector, device=options.device))
+        return
     if options.checkpoint is None and clip.detections is None:
         raise InputError(clip.scene, "detect", "no 2D poses: give --checkpoint, or put detections.json or "
                                                "detections/ in the scene directory")

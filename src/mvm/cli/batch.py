@@ -39,6 +39,9 @@ def _f(value) -> str:
               help="Further attempts of a stage after a transient failure (a lost worker, an OS error).")
 @click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
               help="The pose network for detect (default: each clip's imported detections).")
+@click.option("--detector", type=click.Choice(["rtmo", "rtmpose"]), default=None,
+              help="detect: run this 2D pose detector on every clip's frames (default: --checkpoint, or "
+                   "each clip's imported detections).")
 @click.option("--max-frames", type=MAX_FRAMES, default=None, help="frames: keep at most this many frames per clip.")
 @click.option("--rate", type=RATE, default=None, help="frames: frames per second to keep.")
 @click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
@@ -46,8 +49,8 @@ def _f(value) -> str:
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings of the reconstruction.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
-def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_frames, rate, width, focal_px,
-              config_path, sets):
+def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
+              focal_px, config_path, sets):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
@@ -60,7 +63,7 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_f
     from mvm.batch import BatchOptions, parse_stages, run_batch
 
     chosen = parse_stages(stages)
-    options = BatchOptions(config=read_config(config_path, sets), checkpoint=checkpoint,
+    options = BatchOptions(config=read_config(config_path, sets), checkpoint=checkpoint, detector=detector,
                            max_frames=max_frames, rate=rate, width=width, focal_px=focal_px)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:

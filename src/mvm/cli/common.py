@@ -98,10 +98,22 @@ def progress(*extra_columns):
                     TimeElapsedColumn(), console=err(), transient=True)
 
 
+def rate_column():
+    """A progress column of items (frames) per second."""
+    from rich.progress import ProgressColumn
+    from rich.text import Text
+
+    class Rate(ProgressColumn):
+        def render(self, task) -> Text:
+            return Text(f"{task.speed:.1f}/s" if task.speed else "", style="progress.data.speed")
+
+    return Rate()
+
+
 @contextmanager
-def stage_progress():
+def stage_progress(*extra_columns):
     """A progress bar with one task per stage; yields ``update(stage, done, total)``."""
-    with progress() as bar:
+    with progress(*extra_columns) as bar:
         tasks: dict[str, int] = {}
 
         def update(stage: str, done: int, total: int | None) -> None:

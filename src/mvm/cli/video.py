@@ -19,6 +19,7 @@ from mvm.cli.common import (
     measure_table,
     out,
     read_config,
+    rate_column,
     refused,
     stage_progress,
 )
@@ -42,8 +43,22 @@ sfm_options = [
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
 detect_options = [
+    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "mvm"]), default=None,
+                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), mvm (the "
+                      "project's network, --checkpoint). Default: rtmo when ONNX Runtime is installed."),
+    click.option("--model", type=click.Path(dir_okay=False), default=None,
+                 help="The detector's ONNX model (.onnx or the published .zip; default: the published model, "
+                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
+    click.option("--person-model", type=click.Path(dir_okay=False), default=None,
+                 help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
+    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default="balanced",
+                 show_default=True, help="Size of the published models."),
+    click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+                 help="Where the detector runs (cuda: onnxruntime-gpu or a CUDA torch)."),
+    click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+                 help="Frames given to the detector at once."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
-                 help="Checkpoint of mvm's pose network (local file)."),
+                 help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
@@ -65,6 +80,29 @@ def _frame_options(rate, max_frames, width, blur_ratio):
     from mvm.video.frames import FrameOptions
 
     return FrameOptions(rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio)
+
+
+def _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance):
+    """The detection settings; when no detector is named, the installed one (rtmo)."""
+    from mvm.video.detect import DetectOptions, available_detector
+
+    if source is not None and (detector or checkpoint):
+        raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
+    if checkpoint is not None and detector not in (None, "mvm"):
+        raise InputError(None, "--checkpoint", f"goes with --detector mvm, not {detector}")
+    if detector == "mvm" and checkpoint is None:
+        raise InputError(None, "--detector mvm", "give the network's --checkpoint")
+    if source is not None:
+        detector = "import"
+    elif checkpoint is not None:
+        detector = "mvm"
+    elif detector is None:
+        detector = available_detector()
+        if detector is None:
+            raise InputError(None, "--detector", 'no 2D pose detector is installed: pip install "mvm[detect]" '
+                                                 "(RTMO through ONNX Runtime), or give --import or --checkpoint")
+    return DetectOptions(detector=detector, model=model, person_model=person_model, mode=mode, device=device,
+                         batch_size=batch_size, appearance=appearance)
 
 
 def _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree):
@@ -90,7 +128,7 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
     """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
     from mvm.video.frames import extract_frames
 
-    with refused(ValueError), stage_progress() as update:
+    with refused(ValueError), stage_progress(rate_column()) as update:
         index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
                                lambda d, t: update("frames", d, t))
     measure_table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
@@ -124,18 +162,18 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
-def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
+def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+               force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
-    from mvm.video.detect import DetectOptions, detect_scene
+    from mvm.video.detect import detect_scene
 
-    if (checkpoint is None) == (source is None):
-        raise InputError(None, "--checkpoint/--import", "give exactly one of them")
-    with refused(ValueError), stage_progress() as update:
-        d = detect_scene(scene, source, checkpoint, fmt, DetectOptions(appearance=appearance), force,
+    options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance)
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
     measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
-                             ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
-
+                                 ("frames skipped (unreadable)", str(len(d.skipped))),
+                                 ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
 
 
 @command("run")
@@ -151,20 +189,19 @@ def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, checkpoint, source, fmt, appearance, cameras, config_path, metric, force):
+            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+            cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
-    from mvm.video.detect import DetectOptions
     from mvm.video.pipeline import run_video
 
-    if (checkpoint is None) == (source is None):
-        raise InputError(None, "--checkpoint/--import", "give exactly one of them")
+    options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance)
     with refused(ValueError):
         config = read_config(config_path, ())
-        with stage_progress() as update:
+        with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
                           sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
-                          detect_options=DetectOptions(appearance=appearance), config=config,
+                          detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
     rec = r.reconstruction
     scale = rec.scale.to_json()

@@ -15,7 +15,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.io.files import atomic_replace_dir, atomic_write_json
-from mvm.video.detect import Detections, DetectOptions, detect_scene
+from mvm.video.detect import DetectOptions, FramePoses, detect_scene
 from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
 from mvm.video.scale import people_scale
 from mvm.video.sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
@@ -124,7 +124,7 @@ class RunReport:
 
     frames: FrameIndex | None = None
     sfm: SfmReport | None = None
-    detections: Detections | None = None
+    detections: FramePoses | None = None
     reconstruction: ReconstructReport | None = None
     seconds: dict = field(default_factory=dict)
 
@@ -146,7 +146,8 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
 
     Args:
         video: the video file; scene: the scene directory to fill.
-        detections / checkpoint: imported 2D poses, or the network's checkpoint (one of them).
+        detections / checkpoint: imported 2D poses, or the mvm network's checkpoint; with
+            neither, ``detect_options.detector`` (``rtmo``, ``rtmpose``) detects them.
         cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
             camera file to use instead of SfM.
         force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;
