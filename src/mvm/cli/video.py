@@ -167,7 +167,9 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
     from mvm.video.detect import detect_scene
 
-    options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance)
+    with refused(ValueError):
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
@@ -194,7 +196,9 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.video.pipeline import run_video
 
-    options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance)
+    with refused(ValueError):
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
     with refused(ValueError):
         config = read_config(config_path, ())
         with stage_progress(rate_column()) as update:
