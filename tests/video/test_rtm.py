@@ -263,7 +263,6 @@ def test_default_detector_uses_the_cached_published_model(models, tmp_path, monk
 
 def test_without_a_detector_installed_one_line_says_what_to_install(tmp_path, monkeypatch):
     import mvm.video.detect
-
     from mvm.cli.video import detect_cmd
 
     monkeypatch.setattr(mvm.video.detect, "available_detector", lambda: None)

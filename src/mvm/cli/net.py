@@ -34,14 +34,14 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
         if not poses3d.is_file():
             raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
         frames = scene_dir / "frames"
-        return read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
+        return read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 
     failed: list = []
     items = (item for _, item in each_isolated(scenes, read, failed))
     path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints)
-    import json
+    from mvm.io.checks import load_json
 
-    data = json.loads(path.read_text())
+    data = load_json(path)
     click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
                f"from {len(scenes) - len(failed)} scene(s)")
     report_failures(failed, len(scenes))
@@ -70,9 +70,9 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
         click.echo(f"{plot_metrics(Path(cfg.out_dir) / 'metrics.jsonl', Path(cfg.out_dir) / 'curves.png')}")
         return
     path = train(cfg, resume=resume)
-    import json
+    from mvm.io.checks import load_json_object
 
-    meta = json.loads(path.with_suffix(".json").read_text())
+    meta = load_json_object(path.with_suffix(".json"))
     click.echo(f"{path}: step {meta['step']}, {meta.get('images_per_second', float('nan')):.1f} images/s "
                f"on {meta.get('device', '?')}")
     validation = meta.get("validation")

@@ -13,7 +13,6 @@ configuration, losses, validation, throughput). No module is pickled.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import time
@@ -22,10 +21,10 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-import tomllib
 import torch
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object, load_toml
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.net.data import AugmentConfig, KeypointDataset, collate, read_annotations
 from mvm.net.encoder import EncoderConfig
@@ -237,12 +236,7 @@ def _check(cfg: TrainConfig, source: str) -> None:
 def load_config(path: str | Path, overrides: dict | None = None) -> TrainConfig:
     """Read a TOML training configuration; ``overrides`` (flat keys) replace its values."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(path, None, f"not valid TOML: {e}") from None
+    doc = load_toml(path)
     doc.update(overrides or {})
     return config_from_dict(doc, str(path))
 
@@ -421,12 +415,9 @@ def read_checkpoint(path: str | Path) -> tuple[dict, dict]:
     """-> (state dicts, metadata) of a checkpoint ``.pt`` and its ``.json``; InputError if unusable."""
     path = Path(path)
     js = path.with_suffix(".json")
-    try:
-        meta = json.loads(js.read_text())
-    except FileNotFoundError:
-        raise InputError(js, None, "checkpoint metadata not found (expected beside the .pt)") from None
-    except json.JSONDecodeError as e:
-        raise InputError(js, None, f"not valid JSON: {e}") from None
+    if not js.exists():
+        raise InputError(js, None, "checkpoint metadata not found (expected beside the .pt)")
+    meta = load_json_object(js, what="checkpoint metadata (an object)")
     if meta.get("format") != CHECKPOINT_FORMAT:
         raise InputError(js, "format", f"expected {CHECKPOINT_FORMAT!r}, got {meta.get('format')!r}")
     try:

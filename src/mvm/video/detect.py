@@ -18,7 +18,6 @@ A frame that cannot be read is reported and left out; the others are detected.
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -29,8 +28,10 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
 from mvm.io.files import atomic_write_json
+from mvm.io.images import NOT_AN_IMAGE, read_image
 from mvm.io.paths import resolve_in
 from mvm.video.appearance import colour_descriptor, pool_features
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
@@ -125,17 +126,11 @@ def detect_format(path: str | Path) -> str:
         first = next(iter(sorted(path.glob("*.json"))), None)
         if first is None:
             raise InputError(path, None, "no JSON files to import")
-        try:
-            data = json.loads(first.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(first, None, f"not valid JSON: {e}") from None
+        data = load_json(first)
         return "openpose" if isinstance(data, dict) and "people" in data else "openpifpaf"
     if not path.is_file():
         raise InputError(path, None, "file or directory not found")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if isinstance(data, list):
         return "coco-results"
     if isinstance(data, dict) and "annotations" in data:
@@ -179,12 +174,7 @@ def read_coco_results(path: str | Path, names: list[str]) -> tuple[np.ndarray, n
     """A COCO results JSON -> ``keypoints: (N, 17, 3)``, ``image: (N,)`` index into ``names``,
     ``score: (N,)``. ``image_id`` is a file name (or its stem), or a 1-based position."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, list):
         raise InputError(path, None, "expected a JSON list of results")
     by_name = {n: i for i, n in enumerate(names)}
@@ -374,7 +364,12 @@ def read_frames(scene: Path, names: list[str], batch_size: int, warn: bool = Tru
     indices, images = [], []
     for i, name in enumerate(names):
         file = resolve_in(scene / FRAMES_DIR, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
-        image = cv2.imread(str(file)) if file.is_file() else None
+        try:
+            image = read_image(file, root=scene, missing_ok=True)
+        except InputError as e:
+            if e.problem != NOT_AN_IMAGE:
+                raise
+            image = None
         if image is None and warn:
             log.warning("%s: cannot read this frame image; it is skipped", file)
         indices.append(i)

@@ -3,7 +3,6 @@ keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.jso
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -13,6 +12,7 @@ import cv2
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.paths import check_name
 
@@ -203,12 +203,9 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
 def read_frame_index(scene: str | Path) -> FrameIndex:
     """Read ``scene/frames.json``."""
     path = Path(scene) / FRAMES_INDEX
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (run `mvm frames` first)") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    if not path.exists():
+        raise InputError(path, None, "file not found (run `mvm frames` first)")
+    data = load_json(path, root=scene)
     if not isinstance(data, dict) or data.get("format") != FRAMES_FORMAT:
         raise InputError(path, "format", f"expected {FRAMES_FORMAT!r}")
     try:
@@ -218,7 +215,7 @@ def read_frame_index(scene: str | Path) -> FrameIndex:
             tuple(str(f["file_name"]) for f in frames), np.array([int(f["frame"]) for f in frames], dtype=np.int64),
             np.array([float(f["timestamp_s"]) for f in frames]), np.array([float(f.get("sharpness", 0)) for f in frames]),
             tuple(int(k) for k in data.get("skipped_blurred", [])))
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise InputError(path, "frames", f"malformed entry: {e}") from None
     for i, name in enumerate(index.names):
         check_name(name, path, f"frames[{i}].file_name")

@@ -6,7 +6,6 @@ registered, the reprojection error and the trajectory) and the model in ``SCENE/
 """
 from __future__ import annotations
 
-import json
 import logging
 import tempfile
 from dataclasses import asdict, dataclass, field
@@ -15,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.images import check_frames, read_image
 from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
@@ -101,9 +102,7 @@ def _camera_params(model: str, focal: float, width: int, height: int) -> str:
 def _image_size(path: Path) -> tuple[int, int]:
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError(path, None, "cannot read image")
+    image = read_image(path, flags=cv2.IMREAD_UNCHANGED)
     return image.shape[1], image.shape[0]
 
 
@@ -182,6 +181,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
         return read_sfm_report(scene)
     names = list_frames(scene)
     frames_dir = scene / FRAMES_DIR
+    check_frames(frames_dir, names, root=scene)
     if len(names) < 2:
         raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
     work = scene / SFM_DIR
@@ -229,14 +229,14 @@ def _warn_unregistered(report: SfmReport, scene: Path) -> None:
 
 def read_sfm_report(scene: str | Path) -> SfmReport:
     path = Path(scene) / SFM_DIR / SFM_REPORT
+    if not path.exists():
+        raise InputError(path, None, "file not found (run `mvm sfm` first)")
+    data = load_json_object(path, root=scene, what="an SfM report object")
+    data.pop("options", None)
     try:
-        data = json.loads(path.read_text())
-        data.pop("options", None)
         return SfmReport.from_json(data)
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (run `mvm sfm` first)") from None
-    except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    except (TypeError, ValueError) as e:
+        raise InputError(path, None, f"not an SfM report: {e}") from None
 
 
 def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
