@@ -4,77 +4,41 @@ Each command is a thin call of one library function in :mod:`mvm.video` and prin
 """
 from __future__ import annotations
 
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeElapsedColumn
-from rich.table import Table
-from rich.text import Text
 
+from mvm.cli.common import (
+    FOCAL,
+    MAX_FRAMES,
+    RATE,
+    WIDTH,
+    Number,
+    command,
+    err,
+    measure_table,
+    out,
+    rate_column,
+    read_config,
+    refused,
+    stage_progress,
+)
+from mvm.cli.common import fmt as _f
 from mvm.errors import InputError
 
-console = Console(stderr=True)
-out = Console()
-
-
-def _fail(error: Exception) -> None:
-    click.echo(f"mvm: error: {error}", err=True)
-    sys.exit(2)
-
-
-class _Rate(ProgressColumn):
-    """Items (frames) per second of a task."""
-
-    def render(self, task) -> Text:
-        return Text(f"{task.speed:.1f}/s" if task.speed else "", style="progress.data.speed")
-
-
-@contextmanager
-def _progress():
-    """A rich progress bar with frames per second; yields ``update(stage, done, total)``."""
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), _Rate(),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
-        tasks: dict[str, int] = {}
-
-        def update(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = progress.add_task(stage, total=total)
-            progress.update(tasks[stage], completed=done, total=total)
-
-        yield update
-
-
-def _table(title: str, rows) -> None:
-    table = Table(title=title)
-    table.add_column("measure")
-    table.add_column("value", justify="right")
-    for key, value in rows:
-        table.add_row(key, value)
-    out.print(table)
-
-
-def _f(value, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and value != value):
-        return "–"
-    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
-
-
 frame_options = [
-    click.option("--rate", type=float, default=None, help="Frames per second to keep (default: all)."),
-    click.option("--max-frames", type=int, default=None, help="Keep at most this many frames, evenly spread."),
-    click.option("--width", type=int, default=None, help="Resize frames to this width (px)."),
-    click.option("--blur-ratio", type=float, default=0.35, show_default=True,
+    click.option("--rate", type=RATE, default=None, help="Frames per second to keep (default: all)."),
+    click.option("--max-frames", type=MAX_FRAMES, default=None, help="Keep at most this many frames, evenly spread."),
+    click.option("--width", type=WIDTH, default=None, help="Resize frames to this width (px)."),
+    click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=0.35, show_default=True,
                  help="Skip frames sharper than less than this fraction of the median (0: keep all)."),
 ]
 sfm_options = [
     click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
                  help="COLMAP camera model shared by all frames."),
-    click.option("--focal", "focal_px", type=float, default=None, help="Known focal length (px)."),
+    click.option("--focal", "focal_px", type=FOCAL, default=None, help="Known focal length (px)."),
     click.option("--fix-focal", is_flag=True, help="Keep the known focal length fixed in bundle adjustment."),
-    click.option("--max-features", type=int, default=4096, show_default=True, help="SIFT features per frame."),
+    click.option("--max-features", type=Number(int, ge=64, le=1_000_000), default=4096, show_default=True, help="SIFT features per frame."),
     click.option("--vocab-tree", type=click.Path(dir_okay=False), default=None,
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
@@ -155,7 +119,7 @@ def _sfm_rows(report):
             ("3D points", str(report.points))]
 
 
-@click.command("frames")
+@command("frames")
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options)
@@ -164,17 +128,14 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
     """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
     from mvm.video.frames import extract_frames
 
-    try:
-        with _progress() as update:
-            index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
-                                   lambda d, t: update("frames", d, t))
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
-                          ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
+                               lambda d, t: update("frames", d, t))
+    measure_table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
+                             ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
 
 
-@click.command("sfm")
+@command("sfm")
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(sfm_options)
 @click.option("--cameras", type=click.Path(), default=None,
@@ -185,21 +146,19 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
 
-    try:
+    with refused(ValueError):
         if cameras is None:
             report = sfm.run_sfm(scene, _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree), force)
         elif Path(cameras).is_dir():
             report = sfm.import_colmap(cameras, scene)
         else:
             report = sfm.import_trajectory(cameras, scene)
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm sfm", _sfm_rows(report))
+    measure_table("mvm sfm", _sfm_rows(report))
     if report.unregistered:
-        console.print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
+        err().print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
 
 
-@click.command("detect")
+@command("detect")
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
@@ -208,20 +167,18 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
     from mvm.video.detect import detect_scene
 
-    try:
+    with refused(ValueError):
         options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
                                   appearance)
-        with _progress() as update:
-            d = detect_scene(scene, source, checkpoint, fmt, options, force,
-                             lambda done, total: update("detecting", done, total))
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
-                          ("frames skipped (unreadable)", str(len(d.skipped))),
-                          ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        d = detect_scene(scene, source, checkpoint, fmt, options, force,
+                         lambda done, total: update("detecting", done, total))
+    measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
+                                 ("frames skipped (unreadable)", str(len(d.skipped))),
+                                 ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
 
 
-@click.command("run")
+@command("run")
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options + sfm_options + detect_options)
@@ -237,21 +194,19 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
             vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
             cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
-    from mvm.core.config import load_config
     from mvm.video.pipeline import run_video
 
-    try:
+    with refused(ValueError):
         options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
                                   appearance)
-        config = load_config(config_path)
-        with _progress() as update:
+    with refused(ValueError):
+        config = read_config(config_path, ())
+        with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
                           sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
                           detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
-    except (InputError, ValueError) as e:
-        _fail(e)
     rec = r.reconstruction
     scale = rec.scale.to_json()
     rows = [("frames", str(len(r.frames.names)))] + _sfm_rows(r.sfm) + [
@@ -261,5 +216,5 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
         ("time: frames / sfm / detect / reconstruct (s)", " / ".join(_f(r.seconds[k], 1) for k in
                                                                    ("frames", "sfm", "detect", "reconstruct"))),
     ]
-    _table(f"mvm run: {scene}", rows)
-    out.print(f"result: {rec.path}")
+    measure_table(f"mvm run: {scene}", rows)
+    out().print(f"result: {rec.path}")
