@@ -43,8 +43,8 @@ BAD = [
     (["export", "{d}/scene", "--out", "{d}/ds", "--min-keypoints", "18"], "--min-keypoints: must be <= 17, got 18"),
     (["rig", "reconstruct", "{d}/rig", "--frame-rate", "inf"], "--frame-rate: frame_rate: must be finite, got inf"),
     (["rig", "reconstruct", "{d}/rig", "--frame-rate", "0"], "--frame-rate: frame_rate: must be > 0, got 0.0"),
-    (["rig", "reconstruct", "{d}/rig", "--smoothing", "butterworth", "--frame-rate", "10"],
-     "cutoff_hz: must be below half the frame rate (5 Hz at frame_rate 10), got 6"),
+    (["rig", "reconstruct", "{d}/rig", "--smoothing", "butterworth", "--frame-rate", "10", "--rig-set", "cutoff_hz=6"],
+     "--rig-set: cutoff_hz: must be below half the frame rate (5 Hz at frame_rate 10), got 6"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "smoothing=butterworth", "--rig-set", "cutoff_hz=20"],
      "--rig-set: cutoff_hz: must be below half the frame rate (15 Hz at frame_rate 30), got 20"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "cutoff_hz=inf"], "--rig-set: cutoff_hz: must be finite, got inf"),
@@ -52,8 +52,8 @@ BAD = [
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=8"], "--rig-set: savgol_window: must be odd, got 8"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"], "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"], "--rig-set: seed: unknown setting (known: batch_size, "
-     "cutoff_hz, filter_order, frame_rate, max_gap, max_link_distance_m, metres_per_unit, min_track_length, "
-     "savgol_window, smoothing, up)"),
+     "bone_weight, complete, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, max_link_distance_m, "
+     "metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, up)"),
     (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"], "--set: refine_max_iterations: must be >= 1, got 0"),
 ]
 
@@ -102,8 +102,9 @@ def test_settings_are_checked_however_they_are_made():
     with pytest.raises(InputError, match="^refine: expected bool, got 'yes'$"):
         Config(refine="yes")
     with pytest.raises(InputError, match="^cutoff_hz: must be below half the frame rate"):
-        RigOptions(smoothing="butterworth", frame_rate=10.0)
-    assert RigOptions(smoothing="savgol", frame_rate=10.0).cutoff_hz == 6.0   # the cut-off only matters to butterworth
+        RigOptions(smoothing="butterworth", frame_rate=10.0, cutoff_hz=6.0)
+    assert RigOptions(smoothing="butterworth", frame_rate=10.0).cutoff == 2.0   # by default it follows the frame rate
+    assert RigOptions(smoothing="savgol", frame_rate=10.0, cutoff_hz=6.0).cutoff_hz == 6.0   # only butterworth uses it
     assert Config() == Config(**{f.name: f.default for f in dataclasses.fields(Config)})
 
 
