@@ -9,8 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from mvm.cli.main import main
-from mvm.core.config import Bounds, Config, check_settings, load_config, setting, settings_from
+from mvm.core.config import Bounds, Config, check_settings, setting, settings_from
 from mvm.errors import InputError
+from mvm.io.settings import load_config
 from mvm.rig.options import RigOptions
 
 #: (arguments after ``mvm``, with ``{d}`` for a fresh folder; the exact line on stderr).

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import pytest
 
-from mvm.core.config import Config, load_config
+from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.settings import load_config
 
 
 def test_toml_and_overrides(tmp_path):

@@ -21,7 +21,6 @@ EXPECTED = tomllib.loads((BAD / "expected.toml").read_text())
 
 
 def _readers():
-    from mvm.core.config import load_config
     from mvm.io.calib_toml import read_calib_toml
     from mvm.io.coco import read_coco_keypoints
     from mvm.io.colmap import read_colmap
@@ -29,6 +28,7 @@ def _readers():
     from mvm.io.openpose import read_openpose_frame
     from mvm.io.panoptic_calib import read_panoptic_calibration
     from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.io.settings import load_config
     from mvm.io.trajectory import read_trajectory
     from mvm.io.trc import read_trc
 

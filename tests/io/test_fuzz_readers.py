@@ -253,7 +253,8 @@ def _poses3d(root: Path):
 
 
 def _config(root: Path):
-    from mvm.core.config import Config, load_config
+    from mvm.core.config import Config
+    from mvm.io.settings import load_config
 
     config = load_config(root / "config.toml")
     assert isinstance(config, Config)

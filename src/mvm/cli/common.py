@@ -286,7 +286,7 @@ def config_options(f):
 def read_config(config_path: str | None, sets: tuple[str, ...], **flags):
     """The reconstruction :class:`~mvm.core.config.Config` of a TOML file, ``--set`` pairs and
     command flags (a flag left at None keeps the file's value); every setting is checked here."""
-    from mvm.core.config import load_config
+    from mvm.io.settings import load_config
 
     config = load_config(config_path, parse_sets(sets))
     changes = {k: v for k, v in flags.items() if v is not None}
