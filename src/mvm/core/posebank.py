@@ -9,7 +9,6 @@ so the person's left hand side is -x.
 """
 from __future__ import annotations
 
-import importlib.resources
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.keypoints import INDEX, LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER, pelvis
+from mvm.core.shipped import read_arrays
 from mvm.errors import InputError
 
 LABELS: tuple[str, ...] = ("standing", "sitting", "crouching", "other")
@@ -95,27 +95,11 @@ class PoseBank:
 
 def load_pose_bank(path: str | Path | None = None) -> PoseBank:
     """Read a pose bank ``.npz`` (default: the one shipped in ``mvm/data``)."""
-    if path is None:
-        resource = importlib.resources.files("mvm").joinpath("data/pose_bank.npz")
-        with importlib.resources.as_file(resource) as file:
-            return _read_bank(file)
-    return _read_bank(Path(path))
-
-
-def _read_bank(path: Path) -> PoseBank:
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in ("poses", "labels", "sources")}
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except KeyError as e:
-        raise InputError(path, str(e.args[0]), "array missing") from None
-    except (OSError, ValueError) as e:
-        raise InputError(path, None, f"not a pose bank .npz: {e}") from None
+    arrays = read_arrays(path, "pose_bank.npz", ("poses", "labels", "sources"), "a pose bank")
     try:
         return PoseBank(arrays["poses"].astype(np.float32), arrays["labels"].astype(str), arrays["sources"].astype(str))
     except ValueError as e:
-        raise InputError(path, None, str(e)) from None
+        raise InputError(path or "mvm/data/pose_bank.npz", None, str(e)) from None
 
 
 # --- building the bank (pure functions, used by scripts/build_pose_data.py) ----------------

@@ -11,7 +11,6 @@ component is the Gaussian with the rows and columns of the present coordinates.
 from __future__ import annotations
 
 import functools
-import importlib.resources
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ from scipy.special import logsumexp
 
 from mvm.core.config import Config
 from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.shipped import read_arrays
 from mvm.errors import InputError
 
 #: Dimension of a flattened canonical pose (joint-major: x0, y0, z0, x1, ...).
@@ -120,27 +120,11 @@ class PosePrior:
     @classmethod
     def load(cls, path: str | Path | None = None) -> "PosePrior":
         """Read a prior ``.npz`` (arrays ``weights``, ``means``, ``covariances``); default: the shipped one."""
-        if path is None:
-            resource = importlib.resources.files("mvm").joinpath("data/pose_prior.npz")
-            with importlib.resources.as_file(resource) as file:
-                return cls._read(file)
-        return cls._read(Path(path))
-
-    @classmethod
-    def _read(cls, path: Path) -> "PosePrior":
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {key: data[key] for key in ("weights", "means", "covariances")}
-        except FileNotFoundError:
-            raise InputError(path, None, "file not found") from None
-        except KeyError as e:
-            raise InputError(path, str(e.args[0]), "array missing") from None
-        except (OSError, ValueError) as e:
-            raise InputError(path, None, f"not a pose prior .npz: {e}") from None
+        arrays = read_arrays(path, "pose_prior.npz", ("weights", "means", "covariances"), "a pose prior")
         try:
             return cls(**arrays)
         except ValueError as e:
-            raise InputError(path, None, str(e)) from None
+            raise InputError(path or "mvm/data/pose_prior.npz", None, str(e)) from None
 
     @property
     def components(self) -> int:

@@ -295,14 +295,20 @@ _BINARY = {"rigs": _rigs_bin, "cameras": _cameras_bin, "frames": _frames_bin,
 
 # --- text ----------------------------------------------------------------------------------
 
-def _lines(data: bytes, path: Path):
-    """``(line number, tokens)`` of the data lines (not empty, not comments) of a text file."""
+def _text(data: bytes, path: Path) -> str:
+    """``data`` as UTF-8 text without NUL bytes, else an InputError naming ``path``."""
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise InputError(path, None, f"not UTF-8 text (byte {e.start})") from None
     if "\0" in text:
         raise InputError(path, None, "not a text file (contains NUL bytes)")
+    return text
+
+
+def _lines(data: bytes, path: Path):
+    """``(line number, tokens)`` of the data lines (not empty, not comments) of a text file."""
+    text = _text(data, path)
     for number, line in enumerate(text.split("\n"), start=1):
         line = line.strip()
         if line and not line.startswith("#"):
@@ -428,12 +434,7 @@ def _images_txt(data, path, model: _Model) -> None:
 def _lines_with_blanks(data: bytes, path: Path):
     """Like :func:`_lines`, but an empty line after an image line is kept (as no tokens): it is
     that image's (empty) list of 2D points."""
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise InputError(path, None, f"not UTF-8 text (byte {e.start})") from None
-    if "\0" in text:
-        raise InputError(path, None, "not a text file (contains NUL bytes)")
+    text = _text(data, path)
     raw = text.split("\n")
     number = 0
     while number < len(raw):
