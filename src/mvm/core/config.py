@@ -13,6 +13,10 @@ from pathlib import Path
 from mvm.errors import InputError
 
 
+#: The ways 2D poses become persons (``Config.association``).
+ASSOCIATIONS: tuple[str, ...] = ("paper", "3d")
+
+
 @dataclass(frozen=True)
 class Config:
     # --- affinity (Eq. 1, 2) -------------------------------------------------------------
@@ -47,6 +51,20 @@ class Config:
     #: Two persons whose joints are on average closer than this fraction of the torso length
     #: are one person split into two groups, and are merged; 0 disables. [torso lengths]
     merge_distance: float = 0.3
+    # --- association consistent in 3D ----------------------------------------------------
+    #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
+    #: "3d" then reassigns every 2D pose to the triangulated person whose reprojection explains
+    #: it, one pose per person per view, and re-triangulates until nothing changes. [name]
+    association: str = "3d"
+    #: A 2D pose joins a person only when its keypoints lie, on average, closer than this to
+    #: the person's reprojection, in person sizes (sqrt of its image box area, as OKS); lower
+    #: refuses noisy poses, higher lets neighbours' poses in. [person sizes]
+    association_gate: float = 0.15
+    #: Rounds of assignment and re-triangulation at most (most scenes settle in 2-3). [1]
+    association_iterations: int = 4
+    #: A person must explain at least this fraction of the views it projects into, else it is
+    #: refused (false positives that happen to agree in a few views). [0-1]
+    association_min_support: float = 0.2
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = 2
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]
@@ -92,6 +110,10 @@ def _coerce(name: str, value, source: str) -> object:
             if not isinstance(value, bool):
                 raise ValueError
             return value
+        if kind == "str":
+            if not isinstance(value, str):
+                raise ValueError
+            return value
         if kind == "int":
             if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
                 raise ValueError
@@ -135,9 +157,15 @@ def _validate(config: Config, source: str) -> None:
                  "lock_timeout_s"):
         if getattr(config, name) < 0:
             raise InputError(source, name, f"must be >= 0, got {getattr(config, name)}")
+    if config.association not in ASSOCIATIONS:
+        raise InputError(source, "association", f"unknown method {config.association!r} (known: {', '.join(ASSOCIATIONS)})")
+    if not 0 < config.association_gate:
+        raise InputError(source, "association_gate", f"must be > 0, got {config.association_gate}")
+    if not 0 <= config.association_min_support <= 1:
+        raise InputError(source, "association_min_support", f"must be in [0, 1], got {config.association_min_support}")
     if config.min_views < 2:
         raise InputError(source, "min_views", f"must be >= 2, got {config.min_views}")
-    for name in ("ransac_hypotheses", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
+    for name in ("ransac_hypotheses", "association_iterations", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
                  "max_affinity_bytes"):
         if getattr(config, name) < 1:
             raise InputError(source, name, f"must be >= 1, got {getattr(config, name)}")

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from mvm.core.association import associate
 from mvm.core.affinity import affinity, affinity_bytes, appearance_similarity, epipolar_distance
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
@@ -168,7 +169,8 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
         scene: cameras and 2D poses.
         config: thresholds (default :class:`Config`).
         prior: a :class:`mvm.core.prior.PosePrior`; default the shipped one when refining.
-        groups: precomputed groups of pose indices (skips matching), e.g. from a baseline.
+        groups: precomputed groups of pose indices (skips matching and the association in 3D),
+            e.g. from a baseline or the true grouping.
     """
     config = config or Config()
     validate_scene(scene)
@@ -235,6 +237,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
     timings = {}
     warnings_ = _scene_warnings(scene, config)
     t = time.perf_counter()
+    given = groups is not None
     if groups is None:
         groups = match(scene, config)
     timings["matching_s"] = time.perf_counter() - t
@@ -257,6 +260,17 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
             groups = merged
             obs, tri = triangulate(groups)
     timings["triangulation_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if config.association == "3d" and not given:
+        groups, (obs, tri) = associate(
+            scene.poses.keypoints, scene.poses.view, scene.cameras.P, scene.cameras.size, groups, triangulate,
+            lambda X, g: merge_duplicates(X, g, scene.poses.view, config.merge_distance) if config.merge_distance > 0 else None,
+            gate=config.association_gate, max_iterations=config.association_iterations,
+            min_group_size=config.min_group_size, min_support=config.association_min_support,
+            min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
+            min_common_keypoints=config.min_common_keypoints, eligible=scene.poses.score >= config.min_pose_score,
+            initial=(obs, tri))
+    timings["association_s"] = time.perf_counter() - t
 
     warnings_ += _triangulation_warnings(tri, config)
 
