@@ -62,15 +62,37 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     K = len(pose)
     if K == 0:
         return np.zeros(0), np.zeros(0)
-    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)                # (Q, J, 4)
-    x = np.einsum("kab,kjb->kja", P[frame[pose]], Xh[person])                       # (K, J, 3)
+    # Project every person into every view used (Q·F·J points, far fewer than pairs·J).
+    frames, frame_of_pair = np.unique(frame[pose], return_inverse=True)
+    persons, person_of_pair = np.unique(person, return_inverse=True)
+    Xh = np.concatenate([X[persons], np.ones((len(persons), X.shape[1], 1))], axis=-1)   # (Q', J, 4)
+    x = np.matmul(Xh[:, None], P[frames].transpose(0, 2, 1)[None])                      # (Q', F', J, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
-        uv = x[..., :2] / x[..., 2:3]
-        seen = np.isfinite(uv).all(-1) & (x[..., 2] > 0)                             # (K, J)
-        lo = np.where(seen[..., None], uv, np.inf).min(1)
-        hi = np.where(seen[..., None], uv, -np.inf).max(1)
-        size = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))                  # (K,)
-    kp = keypoints[pose]
+        uv_all = x[..., :2] / x[..., 2:3]
+        seen_all = np.isfinite(uv_all).all(-1) & (x[..., 2] > 0)                          # (Q', F', J)
+        lo = np.where(seen_all[..., None], uv_all, np.inf).min(2)
+        hi = np.where(seen_all[..., None], uv_all, -np.inf).max(2)
+        size_all = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))                   # (Q', F')
+        centre_all = np.where(seen_all[..., None], uv_all, 0).sum(2) / np.maximum(seen_all.sum(2), 1)[..., None]
+    # A pose whose keypoints' centre lies more than 1.5 person sizes from the reprojection's
+    # centre (half a body even when only the upper or lower half is detected) cannot have half
+    # its joints within a fraction of a size of it: such pairs are skipped.
+    observed = keypoints[..., 2] >= keypoint_threshold                                   # (N, J)
+    centre = np.where(observed[..., None], keypoints[..., :2], 0).sum(1) / np.maximum(observed.sum(1), 1)[:, None]
+    size = size_all[person_of_pair, frame_of_pair]
+    near = np.linalg.norm(centre[pose] - centre_all[person_of_pair, frame_of_pair], axis=-1) < 1.5 * size
+    cost = np.full(K, np.inf)
+    cost[near] = _median_distance(keypoints[pose[near]], uv_all[person_of_pair[near], frame_of_pair[near]],
+                                  seen_all[person_of_pair[near], frame_of_pair[near]], size[near],
+                                  keypoint_threshold, min_common_keypoints)
+    return cost, np.where(np.isfinite(cost), size, np.nan)
+
+
+def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.ndarray,
+                     keypoint_threshold: float, min_common_keypoints: int) -> np.ndarray:
+    """Median normalized keypoint distance, the pose as detected or left-right swapped back.
+    ``kp: (K, J, 3)``, ``uv: (K, J, 2)``, ``seen: (K, J)``, ``size: (K,)`` -> ``(K,)``."""
+    K = len(kp)
     cost = np.full(K, np.inf)
     for order in (slice(None), FLIP_PERMUTATION):
         observed = kp[:, order, 2] >= keypoint_threshold
@@ -81,7 +103,7 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
         n = common.sum(1)
         median = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
         cost = np.fmin(cost, np.where(n >= min_common_keypoints, median, np.inf))
-    return cost, np.where(np.isfinite(cost), size, np.nan)
+    return cost
 
 
 def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slot: np.ndarray,
@@ -203,7 +225,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
               min_support: float = 0.2, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
               min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
               pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
-              temporal_weight: float = 0.5, max_gap: int = 3, initial=None):
+              temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
     """Regroup 2D poses so that every group is the set of poses one 3D person explains.
 
     Args:
@@ -211,8 +233,10 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         frame: ``(N,)`` view of each pose, indexing ``P`` and ``image_size``.
         P: ``(F, 3, 4)`` projection matrices; image_size: ``(F, 2)`` width, height (px).
         groups: initial groups of pose indices (e.g. from Algorithm 1), one pose per view each.
-        triangulate: ``triangulate(groups) -> (observations, triangulation)`` where
-            ``triangulation.X: (len(groups), J, 3)`` (NaN where not reconstructed).
+        triangulate: ``triangulate(groups, initial=None) -> (observations, triangulation)``
+            where ``triangulation.X: (len(groups), J, 3)`` (NaN where not reconstructed);
+            ``initial: (len(groups), J, 3)``, when given, is the persons' previous 3D pose, a
+            hypothesis that spares most of RANSAC's random ones.
         merge: ``merge(X, groups) -> groups or None``, joining persons whose 3D poses coincide.
         gate: a pose joins a person only when its mean keypoint distance to the person's
             reprojection is below this, in person sizes.
@@ -227,7 +251,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         sequence: ``(F,)`` position of each view in a video, or None for unordered views. When
             given, a pose's cost mixes in, with ``temporal_weight``, its distance to the
             person's pose in the nearest frame (at most ``max_gap`` positions away).
-        initial: the ``triangulate(groups)`` result when already computed.
+        triangulated: the ``triangulate(groups)`` result when already computed.
     Returns:
         ``(groups, result)``: the new groups (pose indices, sorted) and ``triangulate(groups)``.
     """
@@ -241,7 +265,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
     slot_of = pose_scene * F + frame
     groups = [np.sort(np.asarray(g)) for g in groups]
-    result = triangulate(groups) if initial is None else initial
+    result = triangulate(groups) if triangulated is None else triangulated
     clip = _CLIP_GATES * gate
     assignment = None
     for _ in range(max_iterations):
@@ -282,7 +306,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             break
         groups = new
-        result = triangulate(groups)
+        result = triangulate(groups, X[keep])
     return groups, result
 
 

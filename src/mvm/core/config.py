@@ -62,6 +62,9 @@ class Config:
     association_gate: float = 0.15
     #: Rounds of assignment and re-triangulation at most (most scenes settle in 2-3). [1]
     association_iterations: int = 4
+    #: Random RANSAC hypotheses per joint when re-triangulating a person during the
+    #: association, besides its previous 3D joint (which is nearly always the best). [1]
+    association_hypotheses: int = 8
     #: A person must explain at least this fraction of the views it projects into, else it is
     #: refused (false positives that happen to agree in a few views). [0-1]
     association_min_support: float = 0.2
@@ -165,7 +168,7 @@ def _validate(config: Config, source: str) -> None:
         raise InputError(source, "association_min_support", f"must be in [0, 1], got {config.association_min_support}")
     if config.min_views < 2:
         raise InputError(source, "min_views", f"must be >= 2, got {config.min_views}")
-    for name in ("ransac_hypotheses", "association_iterations", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
+    for name in ("ransac_hypotheses", "association_iterations", "association_hypotheses", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
                  "max_affinity_bytes"):
         if getattr(config, name) < 1:
             raise InputError(source, name, f"must be >= 1, got {getattr(config, name)}")

@@ -244,13 +244,14 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
 
     t = time.perf_counter()
 
-    def triangulate(groups):
+    def triangulate(groups, initial=None):
         obs = gather_groups(scene.cameras, scene.poses, groups, config.keypoint_threshold)
         rng = np.random.default_rng(config.seed)
+        hypotheses = config.ransac_hypotheses if initial is None else config.association_hypotheses
         with np.errstate(all="ignore"):                  # degenerate rays give NaN, left null
-            return obs, ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
+            return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses,
                                            config.min_views, config.min_parallax_deg, rng,
-                                           use_ransac=config.ransac)
+                                           use_ransac=config.ransac, initial=initial)
 
     obs, tri = triangulate(groups)
     if config.merge_distance > 0:
@@ -269,7 +270,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
             min_group_size=config.min_group_size, min_support=config.association_min_support,
             min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
             min_common_keypoints=config.min_common_keypoints, eligible=scene.poses.score >= config.min_pose_score,
-            initial=(obs, tri))
+            triangulated=(obs, tri))
     timings["association_s"] = time.perf_counter() - t
 
     warnings_ += _triangulation_warnings(tri, config)
