@@ -8,7 +8,7 @@ Geometry only (``use_appearance=False``). Per scene and method: pairwise precisi
 the groups, persons found / estimated / true, MPJPE (mm) and the reconstruction's time (s).
 The oracle reconstructs the same scene from the true grouping (``person`` of the ground truth)
 with plain RANSAC triangulation and no refinement; "3d (tri)" is the new association without
-refinement, to compare triangulations like for like.
+refinement, to compare triangulations like for like; "3d+order" adds the order of the video.
 """
 from __future__ import annotations
 
@@ -34,17 +34,20 @@ def crowd_scene(people: int, frames: int, arc: float, seed: int, preset: str = "
                             close_pairs=max(2, people // 4), postures=(0.5, 0.4, 0.1))
 
 
-def run_scene(sim: SimConfig, config: Config) -> dict[str, dict]:
+def run_scene(sim: SimConfig, config: Config, only: list[str] | None = None) -> dict[str, dict]:
     """Every method on one simulated scene: ``{method: evaluate(...) + time_s}``."""
     scene, truth = simulate(sim)
     rows = {}
     methods = {
         "paper": (config.replace(association="paper"), None),
-        "3d": (config, None),
-        "3d (tri)": (config.replace(refine=False), None),
+        "3d": (config.replace(video_order=False), None),
+        "3d+order": (config.replace(video_order=True), None),
+        "3d (tri)": (config.replace(refine=False, video_order=False), None),
         "oracle": (config.replace(refine=False), true_groups(truth)),
     }
     for name, (cfg, groups) in methods.items():
+        if only and name not in only:
+            continue
         t = time.perf_counter()
         result = reconstruct(scene, cfg, groups=groups)
         elapsed = time.perf_counter() - t
@@ -79,22 +82,26 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--preset", default="hard")
     parser.add_argument("--sweep", action="store_true", help="crowd size 5-15 x arc 20-120°, 120 frames")
+    parser.add_argument("--only", nargs="*", help="methods to run (default all)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="Config overrides")
     args = parser.parse_args()
     from mvm.core.config import load_config
 
     config = load_config(None, dict(kv.split("=", 1) for kv in args.set)).replace(use_appearance=False)
+    import logging
+
+    logging.disable(logging.WARNING)                 # the per-scene warnings; figures only
     all_rows = []
     if args.sweep:
         for people in (5, 10, 15):
             for arc in (20, 45, 90, 120):
                 for seed in args.seeds:
-                    rows = run_scene(crowd_scene(people, 120, arc, seed, args.preset), config)
+                    rows = run_scene(crowd_scene(people, 120, arc, seed, args.preset), config, args.only)
                     print_rows(f"{people} people {arc}° seed {seed}", rows)
                     all_rows.append(rows)
     else:
         for seed in args.seeds:
-            rows = run_scene(crowd_scene(args.people, args.frames, args.arc, seed, args.preset), config)
+            rows = run_scene(crowd_scene(args.people, args.frames, args.arc, seed, args.preset), config, args.only)
             print_rows(f"{args.people}p {args.frames}f {args.arc:g}° seed {seed}", rows)
             all_rows.append(rows)
     summarize(all_rows)

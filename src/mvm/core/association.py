@@ -18,6 +18,7 @@ Arrays: ``N`` 2D poses, ``J = 17`` joints, ``F`` views (frames, or the cameras o
 """
 from __future__ import annotations
 
+import re
 import warnings
 from typing import Callable
 
@@ -210,6 +211,22 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
 
 
+def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """Position of each view in a video from its image name, numbers compared as numbers
+    (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
+
+    >>> frame_sequence(["f_10.jpg", "f_2.jpg", "f_1.jpg"]).tolist()
+    [2, 1, 0]
+    """
+    def key(name: str):
+        return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name)]
+
+    order = sorted(range(len(names)), key=lambda i: key(names[i]))
+    sequence = np.empty(len(names), dtype=np.int64)
+    sequence[order] = np.arange(len(names))
+    return sequence
+
+
 def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
     """Pose indices of each person ``0..count-1`` (sorted)."""
     held = np.flatnonzero(assignment >= 0)
@@ -249,8 +266,9 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         pose_scene: ``(N,)`` scene of each pose when ``keypoints`` holds several static scenes
             (the instants of a rig); a person belongs to the scene of its first member.
         sequence: ``(F,)`` position of each view in a video, or None for unordered views. When
-            given, a pose's cost mixes in, with ``temporal_weight``, its distance to the
-            person's pose in the nearest frame (at most ``max_gap`` positions away).
+            given, a pose's cost may be lowered by mixing in, with ``temporal_weight``, its
+            distance to the person's pose in the nearest frame (at most ``max_gap`` positions
+            away): the cost is the smaller of the reprojection's and that mix.
         triangulated: the ``triangulate(groups)`` result when already computed.
     Returns:
         ``(groups, result)``: the new groups (pose indices, sorted) and ``triangulate(groups)``.
@@ -267,7 +285,6 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     clip = _CLIP_GATES * gate
-    assignment = None
     for _ in range(max_iterations):
         X = result[1].X
         if merge is not None and len(groups) > 1:
@@ -290,18 +307,24 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
                 current[g] = q
             near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose, person, size,
                                  keypoint_threshold, min_common_keypoints, clip, max_gap)
-            cost = np.where(np.isfinite(near), (1 - temporal_weight) * cost + temporal_weight * near, cost)
+            # The cue only lowers a cost: a pose that continues the person's track explains
+            # itself where the reprojection is off, and large motion between frames costs nothing.
+            blend = (1 - temporal_weight) * cost + temporal_weight * near
+            cost = np.where(np.isfinite(near), np.fmin(cost, blend), cost)
         assignment = assign_per_frame(cost, pose, person, slot_of[pose], N, gate)
         new = _groups_of(assignment, Q)
+        # A person too incomplete to reproject keeps the poses nobody else took (the pipeline
+        # then drops it for want of joints, and says why).
+        for q in np.flatnonzero(~usable):
+            new[q] = groups[q][assignment[groups[q]] < 0]
         # Refuse persons that explain too few poses, or too few of the views they project into.
         count = np.array([len(g) for g in new])
-        keep = count >= min_group_size
+        keep = (count >= min_group_size) | (~usable & (count > 0))
         if min_support > 0 and keep.any():
-            Xk = np.where(np.isfinite(X), X, np.nan)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                visible = visible_frames(Xk, P, image_size)
-            keep &= count >= min_support * visible
+                visible = visible_frames(X, P, image_size)
+            keep &= (count >= min_support * visible) | ~usable
         new = [g for g, k in zip(new, keep) if k]
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             break

@@ -65,6 +65,11 @@ class Config:
     #: Random RANSAC hypotheses per joint when re-triangulating a person during the
     #: association, besides its previous 3D joint (which is nearly always the best). [1]
     association_hypotheses: int = 8
+    #: The frames of a scene are a video (in the order of their names, numbers as numbers): a
+    #: pose close to a person's pose in a neighbouring frame (at most 3 frames away) may join
+    #: it although its distance to the reprojection is up to twice the gate. Off for unordered
+    #: photos. [bool]
+    video_order: bool = True
     #: A person must explain at least this fraction of the views it projects into, else it is
     #: refused (false positives that happen to agree in a few views). [0-1]
     association_min_support: float = 0.2

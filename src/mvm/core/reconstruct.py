@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from mvm.core.association import associate
+from mvm.core.association import associate, frame_sequence
 from mvm.core.affinity import affinity, affinity_bytes, appearance_similarity, epipolar_distance
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
@@ -270,7 +270,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
             min_group_size=config.min_group_size, min_support=config.association_min_support,
             min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
             min_common_keypoints=config.min_common_keypoints, eligible=scene.poses.score >= config.min_pose_score,
-            triangulated=(obs, tri))
+            sequence=frame_sequence(scene.cameras.names) if config.video_order else None, triangulated=(obs, tri))
     timings["association_s"] = time.perf_counter() - t
 
     warnings_ += _triangulation_warnings(tri, config)
