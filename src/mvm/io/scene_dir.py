@@ -1,4 +1,4 @@
-"""The scene directory (DESIGN.md): ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out."""
+"""The scene directory (docs/architecture.md): ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out."""
 from __future__ import annotations
 
 import logging

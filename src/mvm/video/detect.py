@@ -1,4 +1,4 @@
-"""2D poses of every frame and their appearance -> ``SCENE/poses2d.json`` (DESIGN.md).
+"""2D poses of every frame and their appearance -> ``SCENE/poses2d.json`` (docs/architecture.md).
 
 Sources (one interface, :func:`detect_scene`):
 
