@@ -34,12 +34,13 @@ _CLIP_GATES = 2.0
 
 def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.ndarray,
                       pose: np.ndarray, person: np.ndarray, keypoint_threshold: float,
-                      min_common_keypoints: int) -> tuple[np.ndarray, np.ndarray]:
+                      min_common_keypoints: int, swap_above: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Normalized distance of 2D poses to the reprojection of 3D persons, for candidate pairs.
 
     The distance of a pose is the median, over the joints both observed and reconstructed, of
     the keypoint's distance to the reprojected joint divided by the person's image size: a few
-    wrong joints do not move it. A pose detected left-right swapped is measured swapped back.
+    wrong joints do not move it. A pose detected left-right swapped is measured swapped back
+    (tried where the distance as detected is at least ``swap_above``).
 
     Args:
         keypoints: ``(N, J, 3)`` pixels and confidence.
@@ -85,25 +86,28 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     cost = np.full(K, np.inf)
     cost[near] = _median_distance(keypoints[pose[near]], uv_all[person_of_pair[near], frame_of_pair[near]],
                                   seen_all[person_of_pair[near], frame_of_pair[near]], size[near],
-                                  keypoint_threshold, min_common_keypoints)
+                                  keypoint_threshold, min_common_keypoints, swap_above)
     return cost, np.where(np.isfinite(cost), size, np.nan)
 
 
 def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.ndarray,
-                     keypoint_threshold: float, min_common_keypoints: int) -> np.ndarray:
-    """Median normalized keypoint distance, the pose as detected or left-right swapped back.
+                     keypoint_threshold: float, min_common_keypoints: int, swap_above: float) -> np.ndarray:
+    """Median normalized keypoint distance, the pose as detected or, where that is at least
+    ``swap_above``, left-right swapped back if that is closer.
     ``kp: (K, J, 3)``, ``uv: (K, J, 2)``, ``seen: (K, J)``, ``size: (K,)`` -> ``(K,)``."""
-    K = len(kp)
-    cost = np.full(K, np.inf)
-    for order in (slice(None), FLIP_PERMUTATION):
-        observed = kp[:, order, 2] >= keypoint_threshold
-        common = seen & observed
+    def median(kp, uv, seen, size):
+        common = seen & (kp[..., 2] >= keypoint_threshold)
         with np.errstate(invalid="ignore"):
-            d = np.linalg.norm(kp[:, order, :2] - uv, axis=-1) / size[:, None]
+            d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
         d = np.sort(np.where(common, d, np.inf), axis=1)
         n = common.sum(1)
-        median = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
-        cost = np.fmin(cost, np.where(n >= min_common_keypoints, median, np.inf))
+        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
+        return np.where(n >= min_common_keypoints, value, np.inf)
+
+    cost = median(kp, uv, seen, size)
+    # Swapped back only where the pose as detected does not fit (a swap then shows).
+    far = np.flatnonzero(cost >= swap_above)
+    cost[far] = np.fmin(cost[far], median(kp[far][:, FLIP_PERMUTATION], uv[far], seen[far], size[far]))
     return cost
 
 
@@ -300,17 +304,19 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
         pose, person = _candidate_pairs(pose_scene, group_scene, np.flatnonzero(eligible), usable)
         cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
-                                       min_common_keypoints)
+                                       min_common_keypoints, swap_above=gate)
         if sequence is not None and temporal_weight > 0:
             current = np.full(N, -1)
             for q, g in enumerate(groups):
                 current[g] = q
-            near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose, person, size,
-                                 keypoint_threshold, min_common_keypoints, clip, max_gap)
             # The cue only lowers a cost: a pose that continues the person's track explains
-            # itself where the reprojection is off, and large motion between frames costs nothing.
-            blend = (1 - temporal_weight) * cost + temporal_weight * near
-            cost = np.where(np.isfinite(near), np.fmin(cost, blend), cost)
+            # itself where the reprojection is off, and large motion between frames costs
+            # nothing. Pairs it cannot bring under the gate are left out.
+            hope = np.flatnonzero(cost * (1 - temporal_weight) < gate)
+            near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose[hope], person[hope],
+                                 size[hope], keypoint_threshold, min_common_keypoints, clip, max_gap)
+            blend = (1 - temporal_weight) * cost[hope] + temporal_weight * near
+            cost[hope] = np.where(np.isfinite(near), np.fmin(cost[hope], blend), cost[hope])
         assignment = assign_per_frame(cost, pose, person, slot_of[pose], N, gate)
         new = _groups_of(assignment, Q)
         # A person too incomplete to reproject keeps the poses nobody else took (the pipeline
