@@ -145,3 +145,14 @@ def test_cost_is_the_median_distance_in_person_sizes_and_forgives_a_swap(mixed):
     far, _ = reprojection_cost(kp, np.array([v, v]), scene.cameras.P, truth.poses3d, np.array([0, 1]),
                                np.array([0, 0]), 0.2, 3)
     assert (far > 0.15).all()
+
+
+def test_proportions_tell_a_body_from_a_scramble(mixed):
+    from mvm.core.association import proportion_deviation
+
+    _, truth = mixed
+    bodies = truth.poses3d                                         # standing and seated
+    assert (proportion_deviation(bodies) < 0.12).all()
+    assert (proportion_deviation(3.0 * bodies) < 0.12).all()       # whatever the model's scale
+    scrambled = bodies[:, np.random.default_rng(0).permutation(17)]
+    assert (proportion_deviation(scrambled) > 0.25).all()

@@ -25,7 +25,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mvm.core.keypoints import FLIP_PERMUTATION
+from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
 
 #: Per-joint normalized distances are clipped to this many gates: a wrong or swapped joint
 #: weighs like a few ordinary ones, never like the whole pose.
@@ -215,6 +215,26 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
 
 
+def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
+    """How far each person's bone lengths are from human proportions, whatever the posture
+    and the model's scale: the median over bones of ``|l / (s · l_mean) - 1|`` with ``s`` the
+    median of ``l / l_mean``. About 0.05 for a real person; a cluster of false positives that
+    happens to triangulate gives 0.5 and more.
+
+    ``X: (Q, J, 3)`` -> ``(Q,)``, NaN where fewer than ``min_bones`` bones are reconstructed.
+
+    >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
+    [nan]
+    """
+    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
+    known = np.isfinite(ratio).sum(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                         # all-NaN rows
+        scale = np.nanmedian(ratio, axis=1)
+        deviation = np.nanmedian(np.abs(ratio / scale[:, None] - 1), axis=1)
+    return np.where(known >= min_bones, deviation, np.nan)
+
+
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
     """Position of each view in a video from its image name, numbers compared as numbers
     (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
@@ -243,7 +263,7 @@ def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
 def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None, *,
               gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3,
-              min_support: float = 0.2, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
+              min_support: float = 0.2, max_proportion_deviation: float = 0.25, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
               min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
               pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
               temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
@@ -265,6 +285,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         min_group_size: persons explaining fewer poses are refused.
         min_support: persons explaining fewer than this fraction of the views they project
             into are refused (a cluster of false positives explains a few views only).
+        max_proportion_deviation: persons whose bone lengths deviate more than this from human
+            proportions (:func:`proportion_deviation`) are refused.
         min_person_joints: persons with fewer reconstructed joints explain nothing.
         eligible: ``(N,)`` bool, poses that may be assigned (default all).
         pose_scene: ``(N,)`` scene of each pose when ``keypoints`` holds several static scenes
@@ -331,6 +353,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
                 warnings.simplefilter("ignore", RuntimeWarning)
                 visible = visible_frames(X, P, image_size)
             keep &= (count >= min_support * visible) | ~usable
+        # Refuse persons whose body is not one: false positives agreeing in a few close views.
+        keep &= ~(proportion_deviation(X) > max_proportion_deviation)
         new = [g for g, k in zip(new, keep) if k]
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             break

@@ -73,6 +73,10 @@ class Config:
     #: A person must explain at least this fraction of the views it projects into, else it is
     #: refused (false positives that happen to agree in a few views). [0-1]
     association_min_support: float = 0.2
+    #: A person whose bone lengths deviate from human proportions by more than this (median
+    #: over the bones, after fitting the scale; a real person: about 0.05) is refused: false
+    #: positives that agree in a few close views triangulate to no body. [fraction]
+    association_max_proportion_deviation: float = 0.25
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = 2
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]
@@ -167,6 +171,9 @@ def _validate(config: Config, source: str) -> None:
             raise InputError(source, name, f"must be >= 0, got {getattr(config, name)}")
     if config.association not in ASSOCIATIONS:
         raise InputError(source, "association", f"unknown method {config.association!r} (known: {', '.join(ASSOCIATIONS)})")
+    if config.association_max_proportion_deviation <= 0:
+        raise InputError(source, "association_max_proportion_deviation",
+                         f"must be > 0, got {config.association_max_proportion_deviation}")
     if not 0 < config.association_gate:
         raise InputError(source, "association_gate", f"must be > 0, got {config.association_gate}")
     if not 0 <= config.association_min_support <= 1:

@@ -268,6 +268,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
             lambda X, g: merge_duplicates(X, g, scene.poses.view, config.merge_distance) if config.merge_distance > 0 else None,
             gate=config.association_gate, max_iterations=config.association_iterations,
             min_group_size=config.min_group_size, min_support=config.association_min_support,
+            max_proportion_deviation=config.association_max_proportion_deviation,
             min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
             min_common_keypoints=config.min_common_keypoints, eligible=scene.poses.score >= config.min_pose_score,
             sequence=frame_sequence(scene.cameras.names) if config.video_order else None, triangulated=(obs, tri))
