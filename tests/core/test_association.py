@@ -156,3 +156,14 @@ def test_proportions_tell_a_body_from_a_scramble(mixed):
     assert (proportion_deviation(3.0 * bodies) < 0.12).all()       # whatever the model's scale
     scrambled = bodies[:, np.random.default_rng(0).permutation(17)]
     assert (proportion_deviation(scrambled) > 0.25).all()
+
+
+def test_the_method_is_a_setting_with_its_choices_listed():
+    from mvm.core.config import load_config
+    from mvm.errors import InputError
+
+    assert load_config(None, {"association": "paper"}).association == "paper"
+    with pytest.raises(InputError, match="known: paper, 3d"):
+        load_config(None, {"association": "hungarian"})
+    with pytest.raises(InputError, match="association_gate"):
+        load_config(None, {"association_gate": "0"})
