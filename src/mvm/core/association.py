@@ -313,12 +313,19 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     clip = _CLIP_GATES * gate
     for _ in range(max_iterations):
         X = result[1].X
+        stale = False                                    # ``result`` triangulates ``groups``
         if merge is not None and len(groups) > 1:
             merged = merge(X, groups)
             if merged is not None:
+                # Each merged person keeps the 3D pose of the group it has most poses from,
+                # until the re-triangulation below.
+                owner = np.full(N, -1)
+                for q, g in enumerate(groups):
+                    owner[g] = q
+                survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
                 groups = [np.sort(np.asarray(g)) for g in merged]
-                result = triangulate(groups)
-                X = result[1].X
+                X = X[survivor]
+                stale = True
         Q = len(groups)
         if Q == 0:
             break
@@ -357,6 +364,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         keep &= ~(proportion_deviation(X) > max_proportion_deviation)
         new = [g for g, k in zip(new, keep) if k]
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
+            if stale:
+                result = triangulate(groups, X)
             break
         groups = new
         result = triangulate(groups, X[keep])

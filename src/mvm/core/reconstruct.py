@@ -254,7 +254,8 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
                                            use_ransac=config.ransac, initial=initial)
 
     obs, tri = triangulate(groups)
-    if config.merge_distance > 0:
+    associate_3d = config.association == "3d" and not given          # merges duplicates itself
+    if config.merge_distance > 0 and not associate_3d:
         merged = merge_duplicates(tri.X, groups, scene.poses.view, config.merge_distance)
         if merged is not None:
             log.info("%s: merged %d duplicate group(s)", scene.name, len(groups) - len(merged))
@@ -262,7 +263,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
             obs, tri = triangulate(groups)
     timings["triangulation_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    if config.association == "3d" and not given:
+    if associate_3d:
         groups, (obs, tri) = associate(
             scene.poses.keypoints, scene.poses.view, scene.cameras.P, scene.cameras.size, groups, triangulate,
             lambda X, g: merge_duplicates(X, g, scene.poses.view, config.merge_distance) if config.merge_distance > 0 else None,
