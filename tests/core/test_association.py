@@ -39,10 +39,11 @@ def triangulator(scene, config=CONFIG):
 
 def run(scene, groups, **options):
     """``associate`` on a scene with the settings of the reconstruction."""
-    settings = dict(gate=CONFIG.association_gate, min_support=CONFIG.association_min_support,
-                    min_group_size=CONFIG.min_group_size)
-    settings.update(options)
-    merge = lambda X, g: merge_duplicates(X, g, scene.poses.view, CONFIG.merge_distance)  # noqa: E731
+    settings = {"gate": CONFIG.association_gate, "min_support": CONFIG.association_min_support,
+                "min_group_size": CONFIG.min_group_size, **options}
+
+    def merge(X, g):
+        return merge_duplicates(X, g, scene.poses.view, CONFIG.merge_distance)
     return associate(scene.poses.keypoints, scene.poses.view, scene.cameras.P, scene.cameras.size, groups,
                      triangulator(scene), merge, **settings)
 
@@ -96,7 +97,7 @@ def test_a_false_positive_cluster_is_refused(mixed):
 
 
 def test_one_pose_per_person_per_frame_and_a_fixed_point(mixed):
-    scene, truth = mixed
+    scene, _ = mixed
     paper = reconstruct(scene, CONFIG.replace(association="paper"))
     out, result = run(scene, [np.asarray(m) for m in paper.persons.members])
     for g in out:

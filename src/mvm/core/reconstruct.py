@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from mvm.core.association import associate, frame_sequence
 from mvm.core.affinity import affinity, affinity_bytes, appearance_similarity, epipolar_distance
+from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
 from mvm.core.refine import refine_poses
