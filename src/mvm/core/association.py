@@ -8,7 +8,9 @@ each 2D pose (grouped or not) to the person whose reprojection it matches, at mo
 person per view (an optimal assignment per view, with a gate), re-triangulates, and repeats to a
 fixed point. Persons whose 3D poses coincide are merged, members that do not fit their person's
 triangulation are released (a mixed group splits), and persons that explain too few of the
-views they are visible in are refused.
+views they are visible in, or whose bones have no human proportions, are refused. In a video,
+a pose's distance to the same person in a neighbouring frame may lower its cost (an optional
+cue).
 
 Distances are those of OKS: pixels divided by the person's image size, ``s = sqrt(w h)`` of
 the bounding box of its reprojected joints, so one gate serves every distance and resolution.
@@ -27,8 +29,8 @@ from scipy.optimize import linear_sum_assignment
 
 from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
 
-#: Per-joint normalized distances are clipped to this many gates: a wrong or swapped joint
-#: weighs like a few ordinary ones, never like the whole pose.
+#: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
+#: joint weighs like a few ordinary ones, never like the whole pose.
 _CLIP_GATES = 2.0
 
 
@@ -159,7 +161,8 @@ def temporal_cost(keypoints: np.ndarray, frame: np.ndarray, sequence: np.ndarray
     ``sequence: (F,)`` position of each view in the video; ``assignment: (N,)`` the current
     person of each pose (-1: none). For each candidate pair ``(pose, person)`` of ``(K,)``, the
     nearest other frame within ``max_gap`` positions where ``person`` has a pose gives the
-    reference; the distance is measured as in :func:`reprojection_cost` with ``size: (K,)``.
+    reference; the distance is the confidence-weighted mean over the joints both poses have of
+    the keypoint distances, each clipped to ``clip``, in person sizes ``size: (K,)`` (px).
     Returns ``(K,)``, NaN where the person has no pose near that frame.
     """
     K = len(pose)
