@@ -264,7 +264,8 @@ def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
 
 
 def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_size: np.ndarray,
-              groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None, *,
+              groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None,
+              seed: Callable | None = None, *,
               gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3,
               min_support: float = 0.2, max_proportion_deviation: float = 0.25, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
               min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
@@ -282,6 +283,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             ``initial: (len(groups), J, 3)``, when given, is the persons' previous 3D pose, a
             hypothesis that spares most of RANSAC's random ones.
         merge: ``merge(X, groups) -> groups or None``, joining persons whose 3D poses coincide.
+        seed: ``seed(poses) -> groups`` (indices into ``poses``), the grouping run once, after
+            the first assignment, on the eligible poses no person took: persons it missed.
         gate: a pose joins a person only when its mean keypoint distance to the person's
             reprojection is below this, in person sizes.
         max_iterations: rounds of assignment and re-triangulation (stops earlier at a fixed point).
@@ -289,7 +292,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         min_support: persons explaining fewer than this fraction of the views they project
             into are refused (a cluster of false positives explains a few views only).
         max_proportion_deviation: persons whose bone lengths deviate more than this from human
-            proportions (:func:`proportion_deviation`) are refused.
+            proportions (:func:`proportion_deviation`) are refused, unless they explain at
+            least half the views they project into.
         min_person_joints: persons with fewer reconstructed joints explain nothing.
         eligible: ``(N,)`` bool, poses that may be assigned (default all).
         pose_scene: ``(N,)`` scene of each pose when ``keypoints`` holds several static scenes
@@ -314,6 +318,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     clip = _CLIP_GATES * gate
+    first = True
     for _ in range(max_iterations):
         X = result[1].X
         stale = False                                    # ``result`` triangulates ``groups``
@@ -358,20 +363,32 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         # Refuse persons that explain too few poses, or too few of the views they project into.
         count = np.array([len(g) for g in new])
         keep = (count >= min_group_size) | (~usable & (count > 0))
-        if min_support > 0 and keep.any():
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                visible = visible_frames(X, P, image_size)
-            keep &= (count >= min_support * visible) | ~usable
-        # Refuse persons whose body is not one: false positives agreeing in a few close views.
-        keep &= ~(proportion_deviation(X) > max_proportion_deviation)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            visible = visible_frames(X, P, image_size)
+        keep &= (count >= min_support * visible) | ~usable
+        # Refuse persons whose body is not one (false positives agreeing in a few close views),
+        # unless they explain most of the views they project into, as no false cluster does.
+        keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
         new = [g for g, k in zip(new, keep) if k]
+        initial = X[keep]
+        if seed is not None and first:
+            # Poses no person explains may be a person the grouping missed: group them once.
+            taken = np.zeros(N, dtype=bool)
+            for g in new:
+                taken[g] = True
+            rest = np.flatnonzero(eligible & ~taken)
+            found = [np.sort(rest[g]) for g in seed(rest)] if len(rest) else []
+            if found:
+                new += found
+                initial = np.concatenate([initial, np.full((len(found),) + X.shape[1:], np.nan)])
+        first = False
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             if stale:
                 result = triangulate(groups, X)
             break
         groups = new
-        result = triangulate(groups, X[keep])
+        result = triangulate(groups, initial)
     return groups, result
 
 

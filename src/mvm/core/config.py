@@ -74,9 +74,10 @@ class Config:
     #: refused (false positives that happen to agree in a few views). [0-1]
     association_min_support: float = 0.2
     #: A person whose bone lengths deviate from human proportions by more than this (median
-    #: over the bones, after fitting the scale; a real person: about 0.05) is refused: false
-    #: positives that agree in a few close views triangulate to no body. [fraction]
-    association_max_proportion_deviation: float = 0.25
+    #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
+    #: arcs) is refused unless it explains half the views it projects into: false positives
+    #: that agree in a few close views triangulate to no body. [fraction]
+    association_max_proportion_deviation: float = 0.4
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = 2
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]

@@ -267,6 +267,7 @@ def _reconstruct(scene: Scene, config: Config, prior, groups) -> Result:
         groups, (obs, tri) = associate(
             scene.poses.keypoints, scene.poses.view, scene.cameras.P, scene.cameras.size, groups, triangulate,
             lambda X, g: merge_duplicates(X, g, scene.poses.view, config.merge_distance) if config.merge_distance > 0 else None,
+            lambda rest: match(Scene(scene.name, scene.cameras, scene.poses.subset(rest)), config),
             gate=config.association_gate, max_iterations=config.association_iterations,
             min_group_size=config.min_group_size, min_support=config.association_min_support,
             max_proportion_deviation=config.association_max_proportion_deviation,
