@@ -23,7 +23,8 @@ import time
 from pathlib import Path
 
 from mvm.batch import run_batch
-from mvm.sim.simulate import SimConfig, simulate, write_simulation
+from mvm.io.ground_truth import write_simulation
+from mvm.sim.simulate import SimConfig, simulate
 
 
 def make_clips(root: Path, clips: int, people: int, frames: int) -> None:

@@ -15,7 +15,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.eval.metrics import match_persons, pose_errors
-from mvm.rig.instants import Detections, reconstruct_instants
+from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.rig import detect_views, pose_scores, ring_cameras, walking_people
 
 
@@ -35,7 +35,7 @@ def main() -> None:
         k, c, _ = detect_views(cameras, truth[t], rng)
         kps.append(k), cams.append(c), inst.append(np.full(len(c), t))
     kp = np.concatenate(kps)
-    det = Detections(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
+    det = rig_poses(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
     print(f"{args.cameras} cameras, {args.people} people, {args.instants} instants, {len(det)} 2D poses")
     for refine in (False, True):
         reconstruct_instants(cameras, det.subset(np.flatnonzero(det.instant < 8)), Config(refine=refine))  # warm-up

@@ -9,20 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.sim.people import STANDING  # noqa: F401  (re-exported for the tests)
+
 #: The test folder, the repository, and the shared real data beside the repository.
 TESTS = Path(__file__).resolve().parent
 REPO = TESTS.parent
 SHARED_DATA = REPO.parent / "shared" / "data"
 #: The corpus of malformed inputs and other test data.
 DATA = TESTS / "data"
-
-#: A standing person in the pose bank's frame (metres, z up, feet on z = 0, facing +y).
-STANDING = np.array([
-    [0, 0.10, 1.62], [-0.03, 0.08, 1.66], [0.03, 0.08, 1.66], [-0.07, 0.0, 1.64], [0.07, 0.0, 1.64],
-    [-0.18, 0, 1.42], [0.18, 0, 1.42], [-0.22, 0.02, 1.13], [0.22, 0.02, 1.13], [-0.24, 0.08, 0.88],
-    [0.24, 0.08, 0.88], [-0.10, 0, 0.95], [0.10, 0, 0.95], [-0.11, 0.02, 0.52], [0.11, 0.02, 0.52],
-    [-0.11, 0, 0.08], [0.11, 0, 0.08]])
-
 
 def standing_poses(n: int = 30, seed: int = 0, jitter: float = 0.04) -> np.ndarray:
     """``(n, 17, 3)`` varied standing poses in the bank frame."""

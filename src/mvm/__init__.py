@@ -6,16 +6,44 @@ The Python API mirrors the command line::
     import mvm
     result = mvm.reconstruct_dir("scene/")           # mvm reconstruct scene/
     scene = mvm.read_scene("scene/")
-    result = mvm.core.reconstruct(scene, mvm.Config(tau=0.25))
+    result = mvm.reconstruct(scene, mvm.Config(tau=0.25))
+
+``import mvm`` is cheap: the names below are imported on first use.
 """
-from mvm.core.config import Config, load_config
-from mvm.core.reconstruct import Result, reconstruct, reconstruct_dir
-from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
-from mvm.errors import InputError
-from mvm.io.scene_dir import read_poses3d, read_scene, write_scene
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
-__all__ = ["Cameras", "Config", "InputError", "Persons3D", "Poses2D", "Result", "Scene",
-           "load_config", "read_poses3d", "read_scene", "reconstruct", "reconstruct_dir", "write_scene",
-           "__version__"]
+#: Public name -> the module that defines it.
+_EXPORTS = {
+    "Cameras": "mvm.core.scene",
+    "Persons3D": "mvm.core.scene",
+    "Poses2D": "mvm.core.scene",
+    "Scene": "mvm.core.scene",
+    "Config": "mvm.core.config",
+    "load_config": "mvm.core.config",
+    "InputError": "mvm.errors",
+    "Result": "mvm.core.reconstruct",
+    "reconstruct": "mvm.core.reconstruct",
+    "reconstruct_dir": "mvm.scenes",
+    "read_poses3d": "mvm.io.scene_dir",
+    "read_scene": "mvm.io.scene_dir",
+    "write_scene": "mvm.io.scene_dir",
+}
+
+__all__ = ["Cameras", "Config", "InputError", "Persons3D", "Poses2D", "Result", "Scene", "__version__",
+           "load_config", "read_poses3d", "read_scene", "reconstruct", "reconstruct_dir", "write_scene"]
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(_EXPORTS[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'mvm' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -57,7 +57,7 @@ def test_bad_setting_is_one_line(tmp_path):
 
 
 def test_poses3d_has_every_field(tmp_path, bank_poses):
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     scene, truth = simulate(SimConfig(people=2, frames=25, seed=3), bank_poses)
     write_scene(tmp_path / "s", scene.cameras, scene.poses)

@@ -7,8 +7,8 @@ from scipy.optimize import linear_sum_assignment
 
 from mvm.core.association import assign_per_frame, associate, reprojection_cost
 from mvm.core.config import Config
-from mvm.core.reconstruct import merge_duplicates, reconstruct
-from mvm.core.triangulate import gather_groups, ransac_triangulate
+from mvm.core.pipeline import merge_duplicates, triangulate_groups
+from mvm.core.reconstruct import reconstruct
 from mvm.eval.metrics import matching_precision_recall
 from mvm.sim.simulate import SimConfig, simulate
 
@@ -29,11 +29,7 @@ def true_groups(truth):
 
 def triangulator(scene, config=CONFIG):
     def triangulate(groups, initial=None):
-        obs = gather_groups(scene.cameras, scene.poses, groups, config.keypoint_threshold)
-        hypotheses = config.ransac_hypotheses if initial is None else config.association_hypotheses
-        with np.errstate(all="ignore"):
-            return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
-                                           config.min_parallax_deg, np.random.default_rng(0), initial=initial)
+        return triangulate_groups(scene.cameras, scene.poses, groups, config, initial)
     return triangulate
 
 

@@ -14,11 +14,12 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 from mvm.core.affinity import affinity_bytes, epipolar_distance
 from mvm.core.config import Config
-from mvm.core.reconstruct import reconstruct, reconstruct_dir
+from mvm.core.reconstruct import reconstruct
 from mvm.core.scene import Cameras, Poses2D, Scene
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_json
 from mvm.io.scene_dir import write_scene
+from mvm.scenes import reconstruct_dir
 from mvm.sim.simulate import SimConfig, look_at, simulate
 
 from helpers import standing_poses
@@ -285,11 +286,11 @@ class _WrongPrior:
 
 
 def test_diverging_refinement_falls_back_and_says_so():
-    from mvm.core.reconstruct import default_prior
+    from mvm.core.prior import shipped_prior
 
     scene, truth = simulate(SimConfig(people=3, frames=20, seed=2), bank_poses=standing_poses())
     plain = reconstruct(scene, Config(refine=False))
-    bad = reconstruct(scene, Config(prior_weight=1e6), prior=_WrongPrior(default_prior()))
+    bad = reconstruct(scene, Config(prior_weight=1e6), prior=_WrongPrior(shipped_prior()))
     assert bad.metrics["refine_fallbacks"] >= 1
     assert any("refinement diverged" in w for w in bad.warnings)
     kept = [p for p in range(len(bad.persons))
@@ -301,7 +302,7 @@ def test_diverging_refinement_falls_back_and_says_so():
 def test_refinement_that_raises_falls_back(monkeypatch):
     import sys
 
-    rec = sys.modules["mvm.core.reconstruct"]
+    rec = sys.modules["mvm.core.pipeline"]
 
     def broken(*args, **kwargs):
         raise ValueError("Residuals are not finite in the initial point.")

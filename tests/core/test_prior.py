@@ -8,9 +8,10 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 from scipy.stats import multivariate_normal
 
+from mvm.core.config import Config
 from mvm.core.keypoints import INDEX, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.posebank import load_pose_bank
-from mvm.core.prior import DIM, PosePrior, body_frame, canonicalize
+from mvm.core.prior import DIM, PosePrior, body_frame, canonicalize, load_prior, shipped_prior
 from mvm.errors import InputError
 
 # A standing person (metres, z up, facing +y: the left side at -x).
@@ -217,3 +218,13 @@ def test_body_frame_is_a_rotation_that_gives_the_canonical_pose():
     np.testing.assert_allclose(np.linalg.det(rotation), 1.0)
     manual = np.einsum("pij,pkj->pki", rotation, poses - centre[:, None]) / scale[:, None, None]
     np.testing.assert_allclose(canonicalize(poses), manual, atol=1e-12)
+
+
+def test_load_prior_has_one_rule_for_every_driver():
+    given = _tiny_mixture(np.random.default_rng(0))
+    assert load_prior(Config(), given) is given                                 # a given prior wins
+    assert load_prior(Config(refine=False)) is None                             # not used: not read
+    assert load_prior(Config(prior_weight=0.0)) is None
+    shipped = load_prior(Config())
+    assert isinstance(shipped, PosePrior) and shipped.components == 8           # the paper's 8 components
+    assert load_prior(Config()) is shipped is shipped_prior()                   # read once per process

@@ -34,7 +34,7 @@ def test_refinement_lowers_reprojection_error_on_a_scene():
 
 
 def test_without_ransac_outliers_raise_the_error():
-    scene, truth = simulate(SimConfig(people=4, frames=60, seed=6, outlier_joint_prob=0.05))
+    scene, truth = simulate(SimConfig(people=4, frames=60, seed=6).replace(outlier_joint_prob=0.05))
     with_ransac = reconstruct(scene, Config(refine=False))
     without = reconstruct(scene, Config(refine=False, ransac=False))
     assert with_ransac.metrics["E_R_px"] < without.metrics["E_R_px"]

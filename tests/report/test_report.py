@@ -11,12 +11,13 @@ from click.testing import CliRunner
 
 from mvm.core.config import Config
 from mvm.core.geometry import project
-from mvm.core.reconstruct import reconstruct_dir
 from mvm.errors import InputError
+from mvm.io.ground_truth import write_simulation
 from mvm.io.scene_dir import read_poses3d, write_scene
 from mvm.report import analysis, write_report, write_summary
 from mvm.report.plots import bar_chart
-from mvm.sim.simulate import SimConfig, simulate, write_simulation
+from mvm.scenes import reconstruct_dir
+from mvm.sim.simulate import SimConfig, simulate
 
 from helpers import standing_poses
 

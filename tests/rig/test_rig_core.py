@@ -1,14 +1,14 @@
-"""Rig: batched affinity equals the core's, reconstruction against ground truth, tracking,
+"""Rig: instants are independent blocks of the core, reconstruction against ground truth, tracking,
 smoothing, and the PCP / AP metrics."""
 import numpy as np
 import pytest
 
-from mvm.core.affinity import epipolar_distance
 from mvm.core.config import Config
-from mvm.core.geometry import fundamental_matrices
+from mvm.core.pipeline import match
+from mvm.core.scene import Poses2D
 from mvm.eval.metrics import match_persons, pose_errors
 from mvm.eval.mocap import COCO_PCP_LIMBS, average_precision, limbs_correct, pcp
-from mvm.rig.instants import Detections, batched_epipolar_distance, pad_by_camera, reconstruct_instants
+from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.tracking import link_tracks, smooth_series
 from mvm.sim.rig import DetectorErrors, detect_views, pose_scores, ring_cameras, walking_people
 
@@ -21,29 +21,24 @@ def _capture(cameras, T=12, people=4, seed=0, errors=DetectorErrors()):
         k, c, _ = detect_views(cameras, truth[t], rng, errors)
         kps.append(k), cams.append(c), inst.append(np.full(len(c), t))
     kp = np.concatenate(kps)
-    return truth, Detections(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
+    return truth, rig_poses(kp, np.concatenate(inst), np.concatenate(cams), pose_scores(kp))
 
 
-def test_batched_distance_equals_core():
+def test_instants_are_matched_as_separate_scenes():
+    """A batch of instants is one call of the core; its groups are those of each instant alone."""
     cameras = ring_cameras(6)
     _, det = _capture(cameras, T=3)
-    c = Config()
-    T = 3
-    slot, n = pad_by_camera(det.instant, det.camera, T, len(cameras))
-    padded = np.zeros((T * len(cameras) * n, 17, 3))
-    padded[slot] = det.keypoints
-    D = batched_epipolar_distance(fundamental_matrices(cameras.K, cameras.R, cameras.t),
-                                  c.distance_scale * cameras.focal, padded.reshape(T, len(cameras), n, 17, 3),
-                                  c.keypoint_threshold, c.min_common_keypoints)
-    for t in range(T):
+    config = Config()
+    batch = match(cameras, det, config)
+    alone = []
+    for t in range(3):
         rows = np.flatnonzero(det.instant == t)
-        core = epipolar_distance(cameras, det.keypoints[rows], det.camera[rows], c.keypoint_threshold,
-                                 c.distance_scale, c.min_common_keypoints)
-        pos = slot[rows] % (len(cameras) * n)
-        ours = D[t][np.ix_(pos, pos)]
-        assert np.array_equal(np.isnan(core), np.isnan(ours)) and np.array_equal(np.isinf(core), np.isinf(ours))
-        finite = np.isfinite(core)
-        np.testing.assert_allclose(ours[finite], core[finite], rtol=1e-4, atol=1e-4)
+        single = Poses2D(det.keypoints[rows], det.view[rows], det.ids[rows], det.score[rows])
+        alone += [rows[g] for g in match(cameras, single, config)]
+    assert len(batch) >= 3 * 4 - 1
+    assert [g.tolist() for g in batch] == [g.tolist() for g in alone]
+    for g in batch:
+        assert len(np.unique(det.instant[g])) == 1 and len(np.unique(det.view[g])) == len(g)
 
 
 @pytest.mark.parametrize("batch_size", [5, 64])
@@ -64,7 +59,7 @@ def test_reconstruction_matches_truth(batch_size):
     assert len(np.unique(used)) == len(used)
     q, v = np.nonzero(persons.members >= 0)
     assert (det.instant[persons.members[q, v]] == persons.instant[q]).all()
-    assert (det.camera[persons.members[q, v]] == v).all()
+    assert (det.view[persons.members[q, v]] == v).all()
 
 
 def test_tracks_survive_gaps_and_split_far_jumps():

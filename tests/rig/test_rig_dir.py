@@ -56,7 +56,7 @@ def test_read_rig_undistorts(tmp_path):
     # undistorted keypoints lie close to the pinhole projection of the truth (noise 0.4 %)
     det = data.detections
     v = 2
-    rows = (det.instant == 0) & (det.camera == v)
+    rows = (det.instant == 0) & (det.view == v)
     x = np.concatenate([truth[0], np.ones((2, 17, 1))], -1) @ cameras.P[v].T
     uv = x[..., :2] / x[..., 2:]
     kp = det.keypoints[rows]

@@ -1,12 +1,16 @@
 """The simulator's ground truth is self-consistent; its features do what they say."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from mvm.errors import InputError
+from mvm.io.ground_truth import read_ground_truth, write_simulation
 from mvm.io.trajectory import parse_trajectory, read_trajectory
-from mvm.sim.simulate import SimConfig, project_people, read_ground_truth, simulate, write_simulation
+from mvm.sim.projection import project_people
+from mvm.sim.simulate import SimConfig, simulate
 
 from helpers import SHARED_DATA, STANDING, standing_poses
 
@@ -45,7 +49,7 @@ def test_clean_detections_are_exact_projections_of_the_truth():
 
 
 def _points_on_limbs(pose, samples=25):
-    from mvm.sim.simulate import _OCCLUDER_LIMBS
+    from mvm.sim.projection import OCCLUDER_LIMBS as _OCCLUDER_LIMBS
 
     t = np.linspace(0, 1, samples)[:, None, None]
     return (pose[_OCCLUDER_LIMBS[:, 0]] * (1 - t) + pose[_OCCLUDER_LIMBS[:, 1]] * t).reshape(-1, 3)
@@ -94,10 +98,12 @@ def test_people_cut_by_the_frame_are_detected_with_their_visible_joints():
 
 def test_defaults_and_presets():
     default = SimConfig()
-    assert (default.people, default.frames, default.noise, default.dropout, default.false_pose_rate) == (6, 100, 0.008, 0.03, 0.1)
-    assert default.postures is None and default.close_pairs == 0 and default.merge_prob == 0.0
+    detector = default.detector
+    assert (default.people, default.frames, detector.noise, detector.dropout, detector.false_pose_rate) == (6, 100, 0.008, 0.03, 0.1)
+    assert default.postures is None and default.close_pairs == 0 and detector.merge_prob == 0.0
     hard, clean = SimConfig.preset("hard", people=4), SimConfig.preset("clean")
-    assert hard.people == 4 and hard.noise > SimConfig.preset("realistic").noise > clean.noise == 0
+    assert hard.people == 4 and hard.detector.noise > SimConfig.preset("realistic").detector.noise > clean.detector.noise == 0
+    assert default.replace(noise=0.02, people=3).detector == dataclasses.replace(detector, noise=0.02)
     with pytest.raises(ValueError, match="known: clean, realistic, hard"):
         SimConfig.preset("medium")
 

@@ -61,14 +61,14 @@ def test_pool_features_averages_along_limbs():
 
 def _matching(bank_poses, identical: bool, use_appearance: bool) -> tuple[float, float]:
     from mvm.core.config import Config
-    from mvm.core.reconstruct import match
+    from mvm.core.pipeline import match
     from mvm.eval.metrics import matching_precision_recall
     from mvm.sim.simulate import SimConfig, simulate
 
     sim = SimConfig(people=8, frames=30, crowd_radius=1.4, min_separation=0.6, identical_clothes=identical,
                     seed=5, image_width=960, image_height=540, focal_px=750.0)
     scene, truth = simulate(sim, bank_poses)
-    groups = match(scene, Config(use_appearance=use_appearance, tau=0.15))
+    groups = match(scene.cameras, scene.poses, Config(use_appearance=use_appearance, tau=0.15))
     return matching_precision_recall(groups, truth.person)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mvm.errors import InputError
-from mvm.sim.video import STANDING
+from mvm.sim.people import STANDING
 from mvm.video.frames import FrameOptions, extract_frames, read_frame_index, sample_indices, sharp_mask
 from mvm.video.scale import people_scale
 

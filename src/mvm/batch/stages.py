@@ -175,7 +175,7 @@ def _detect(clip: Clip, options: BatchOptions) -> None:
 
 
 def _reconstruct(clip: Clip, options: BatchOptions) -> None:
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     reconstruct_dir(clip.scene, options.config, options.output)
 

@@ -92,7 +92,7 @@ def reconstruct(scenes, config_path, sets, refine, output):
     written to SCENE/<output>/poses3d.json. A scene with bad input is reported and skipped;
     the exit status is 2 if any scene failed.
     """
-    from mvm.core.reconstruct import reconstruct_dir
+    from mvm.scenes import reconstruct_dir
 
     try:
         config = _config(config_path, sets, refine=refine)

@@ -33,7 +33,8 @@ class _InputErrorExit(click.ClickException):
 def simulate_cmd(scene_dir, preset, people, frames, arc_deg, trajectory, seed):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
     (SCENE_DIR.groundtruth.json)."""
-    from mvm.sim.simulate import SimConfig, simulate, write_simulation
+    from mvm.io.ground_truth import write_simulation
+    from mvm.sim.simulate import SimConfig, simulate
 
     try:
         sim = SimConfig.preset(preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,

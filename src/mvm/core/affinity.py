@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.config import Config
 from mvm.core.geometry import skew
-from mvm.core.scene import Cameras
+from mvm.core.scene import Cameras, Poses2D
 
 #: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
 #: of a block of pose pairs, ``17 × rows × columns`` numbers.
@@ -22,7 +23,7 @@ BLOCK_BYTES = 64 * 2**20
 
 
 def affinity_bytes(n_poses: int, appearance: bool, dtype=np.float32) -> int:
-    """Peak memory of the affinity of ``n_poses`` 2D poses (:func:`mvm.core.reconstruct.match`).
+    """Peak memory of the affinity of ``n_poses`` 2D poses (:func:`pose_affinity`).
 
     The ``N × N`` distance matrix becomes the affinity matrix in place (``N² · 4`` bytes in
     float32); with appearance descriptors the ``N × N`` similarity S adds as much again. The
@@ -40,7 +41,7 @@ def _block_rows(columns: int, row_bytes_per_column: int, block_bytes: int) -> in
 def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
                       keypoint_threshold: float, distance_scale: float,
                       min_common_keypoints: int = 1, dtype=np.float32,
-                      block_bytes: int = BLOCK_BYTES) -> np.ndarray:
+                      block_bytes: int = BLOCK_BYTES, instant: np.ndarray | None = None) -> np.ndarray:
     """Geometric distance D (Eq. 2) of every pair of 2D poses.
 
     Args:
@@ -51,6 +52,8 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
         distance_scale: the unit of D as a fraction of the focal length.
         min_common_keypoints: pairs sharing fewer keypoints get D = inf.
         block_bytes: working memory of one block (see below).
+        instant: ``(N,)`` instant of each pose (a rig), or None: poses of different instants
+            are never compared (D = inf), as poses of one view.
     Returns:
         ``D: (N, N)`` symmetric; ``inf`` for poses of the same view and for pairs whose
         distance overflows; NaN (undefined) for pairs of views with no baseline (no epipolar
@@ -74,57 +77,89 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
 
     used = np.unique(view)
     centers = cameras.centers
-    baseline = np.linalg.norm(centers[used][:, None] - centers[used][None], axis=-1)
-    scale = np.median(baseline) if len(used) > 1 else 1.0
-    no_baseline = np.zeros((len(cameras), len(cameras)), dtype=bool)
-    no_baseline[np.ix_(used, used)] = baseline <= 1e-9 * max(scale, 1e-12)
+    no_baseline = _no_baseline(centers, used)
 
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        # Every keypoint as a world ray in Plücker coordinates (moment m = C × b, direction b):
-        # the epipolar line of that keypoint in view i is K_i^-T R_i (m − C_i × b) = M_i [m; b].
-        K_inv = np.linalg.inv(cameras.K)
-        b = np.einsum("nba,nbc,njc->nja", cameras.R[view], K_inv[view], homogeneous)   # R^T K^-1 x
-        plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
-        M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
-                      np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
+        plucker, M = _plucker_rays(cameras, homogeneous, view)
         unit = distance_scale * cameras.focal
         plucker = np.ascontiguousarray(plucker.transpose(1, 2, 0), dtype=dtype)         # (J, 6, N)
         M = M.astype(dtype)
         points = homogeneous.transpose(1, 0, 2).astype(dtype)                      # (J, N, 3)
 
-        # sums[u, n]: Σ_joints distance of x_u to the epipolar line of x_n, in view(u)'s unit,
-        # for poses of different views, one view against all others, in row blocks.
-        for v in used:
-            rows = np.flatnonzero(view == v)
-            cols = np.flatnonzero(view != v)
-            if len(cols) == 0:
-                continue
-            lines = np.matmul(M[v], plucker[:, :, cols])                            # (J, 3, n_c) in view v
-            # Normalize so that x · l is a distance in view v's unit; l = 0 stays 0.
-            lines *= (1.0 / unit[v]) / (np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2) + 1e-30)[:, None]
-            step = _block_rows(len(cols), J * item, block_bytes)
-            for r0 in range(0, len(rows), step):
-                chunk = rows[r0:r0 + step]
-                d = np.matmul(points[:, chunk], lines)                              # (J, r, n_c)
-                sums[chunk[:, None], cols] = np.abs(d, out=d).sum(axis=0)
-
-        # Symmetrize in place, block pair by block pair: D = (s + sᵀ) / (2 · common).
-        visible_f = visible.astype(dtype)
-        step = max(1, int(np.sqrt(block_bytes / (4 * item))))
-        min_common = max(min_common_keypoints, 1)
-        for i0 in range(0, N, step):
-            i = slice(i0, min(i0 + step, N))
-            for j0 in range(i0, N, step):
-                j = slice(j0, min(j0 + step, N))
-                total = sums[i, j] + sums[j, i].T
-                common = visible_f[i] @ visible_f[j].T
-                D = total / (2 * common)
-                D[~np.isfinite(total)] = np.inf                                       # overflow: no match
-                D[(common < min_common) | no_baseline[view[i][:, None], view[j][None, :]]] = np.nan
-                D[view[i][:, None] == view[j][None, :]] = np.inf
-                sums[i, j] = D
-                sums[j, i] = D.T
+        _one_sided_sums(sums, points, plucker, M, unit, view, used, block_bytes)
+        _symmetrize(sums, visible.astype(dtype), view, instant, no_baseline, max(min_common_keypoints, 1),
+                    max(1, int(np.sqrt(block_bytes / (4 * item)))))
     return sums
+
+
+def _one_sided_sums(sums: np.ndarray, points: np.ndarray, plucker: np.ndarray, M: np.ndarray, unit: np.ndarray,
+                    view: np.ndarray, used: np.ndarray, block_bytes: int) -> None:
+    """In place, ``sums[u, n]``: Σ_joints distance of x_u to the epipolar line of x_n, in
+    view(u)'s unit, for poses of different views, one view against all others, in row blocks of
+    at most ``block_bytes``. ``points: (J, N, 3)``, ``plucker: (J, 6, N)``, ``M: (V, 3, 6)``."""
+    J = len(points)
+    item = sums.dtype.itemsize
+    for v in used:
+        rows = np.flatnonzero(view == v)
+        cols = np.flatnonzero(view != v)
+        if len(cols) == 0:
+            continue
+        lines = np.matmul(M[v], plucker[:, :, cols])                            # (J, 3, n_c) in view v
+        # Normalize so that x · l is a distance in view v's unit; l = 0 stays 0.
+        lines *= (1.0 / unit[v]) / (np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2) + 1e-30)[:, None]
+        step = _block_rows(len(cols), J * item, block_bytes)
+        for r0 in range(0, len(rows), step):
+            chunk = rows[r0:r0 + step]
+            d = np.matmul(points[:, chunk], lines)                              # (J, r, n_c)
+            sums[chunk[:, None], cols] = np.abs(d, out=d).sum(axis=0)
+
+
+def _plucker_rays(cameras: Cameras, homogeneous: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every keypoint as a world ray in Plücker coordinates (moment m = C × b, direction b), and
+    the matrices that map a ray to its epipolar line in a view: the line in view i is
+    ``K_i^-T R_i (m − C_i × b) = M_i [m; b]``. ``homogeneous: (N, J, 3)``, ``view: (N,)`` ->
+    ``plucker: (N, J, 6)``, ``M: (V, 3, 6)``."""
+    centers = cameras.centers
+    K_inv = np.linalg.inv(cameras.K)
+    to_world = np.einsum("vba,vbc->vac", cameras.R, K_inv)                        # R^T K^-1: (V, 3, 3)
+    b = np.einsum("nac,njc->nja", to_world[view], homogeneous)                      # R^T K^-1 x
+    plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
+    M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
+                  np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
+    return plucker, M
+
+
+def _no_baseline(centers: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """``(V, V)`` bool: pairs of the ``used`` views whose centres coincide (no epipolar geometry),
+    relative to the median distance between the used centres. ``centers: (V, 3)``."""
+    baseline = np.linalg.norm(centers[used][:, None] - centers[used][None], axis=-1)
+    scale = np.median(baseline) if len(used) > 1 else 1.0
+    no_baseline = np.zeros((len(centers), len(centers)), dtype=bool)
+    no_baseline[np.ix_(used, used)] = baseline <= 1e-9 * max(scale, 1e-12)
+    return no_baseline
+
+
+def _symmetrize(sums: np.ndarray, visible: np.ndarray, view: np.ndarray, instant: np.ndarray | None,
+                no_baseline: np.ndarray,
+                min_common: int, step: int) -> None:
+    """In place, ``step × step`` block pair by block pair: ``D = (s + sᵀ) / (2 · common)`` from the
+    one-sided sums ``sums: (N, N)``; ``inf`` on overflow, within a view and across instants, NaN where fewer than
+    ``min_common`` keypoints are shared or the views have no baseline. ``visible: (N, J)``."""
+    N = len(sums)
+    for i0 in range(0, N, step):
+        i = slice(i0, min(i0 + step, N))
+        for j0 in range(i0, N, step):
+            j = slice(j0, min(j0 + step, N))
+            total = sums[i, j] + sums[j, i].T
+            common = visible[i] @ visible[j].T
+            D = total / (2 * common)
+            D[~np.isfinite(total)] = np.inf                                       # overflow: no match
+            D[(common < min_common) | no_baseline[view[i][:, None], view[j][None, :]]] = np.nan
+            D[view[i][:, None] == view[j][None, :]] = np.inf
+            if instant is not None:
+                D[instant[i][:, None] != instant[j][None, :]] = np.inf
+            sums[i, j] = D
+            sums[j, i] = D.T
 
 
 def appearance_similarity(appearance: np.ndarray | None, n: int, dtype=np.float32) -> np.ndarray | float:
@@ -162,6 +197,20 @@ def affinity(D: np.ndarray, gamma: float, S: np.ndarray | float = 1.0,
         return A
     A *= S
     return A
+
+
+def pose_affinity(cameras: Cameras, poses: Poses2D, config: Config, appearance: bool | None = None) -> np.ndarray:
+    """Eq. 1 and 2 for every pair of ``poses`` (a scene, or instants of a rig).
+
+    ``A: (N, N)`` float32 in [0, 0.5], NaN where D is undefined, 0 across instants. ``appearance``: multiply by
+    the appearance similarity S (default ``config.use_appearance``; ignored without descriptors).
+    Memory: see :func:`affinity_bytes` (D becomes A in place).
+    """
+    use_appearance = config.use_appearance if appearance is None else appearance
+    D = epipolar_distance(cameras, poses.keypoints, poses.view, config.keypoint_threshold,
+                          config.distance_scale, config.min_common_keypoints, instant=poses.instant)
+    S = appearance_similarity(poses.appearance if use_appearance else None, len(poses))
+    return affinity(D, config.gamma, S, out=D)
 
 
 def mse_distance(keypoints: np.ndarray, view: np.ndarray, keypoint_threshold: float,

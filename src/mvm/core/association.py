@@ -304,7 +304,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             away): the cost is the smaller of the reprojection's and that mix.
         triangulated: the ``triangulate(groups)`` result when already computed.
     Returns:
-        ``(groups, result)``: the new groups (pose indices, sorted) and ``triangulate(groups)``.
+        ``(groups, result)``: the new groups (pose indices, sorted; groups ordered by scene as
+        they came) and ``triangulate(groups)``.
     """
     keypoints = np.asarray(keypoints, dtype=float)
     N = len(keypoints)
@@ -382,6 +383,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             if found:
                 new += found
                 initial = np.concatenate([initial, np.full((len(found),) + X.shape[1:], np.nan)])
+                order = np.argsort([pose_scene[g[0]] for g in new], kind="stable")      # scene by scene
+                new, initial = [new[i] for i in order], initial[order]
         first = False
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             if stale:

@@ -20,6 +20,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.special import logsumexp
 
+from mvm.core.config import Config
 from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.errors import InputError
 
@@ -219,6 +220,25 @@ class PosePrior:
         mean.setflags(write=False)
         w.setflags(write=False)
         return mean, w, c
+
+
+@functools.lru_cache(maxsize=1)
+def shipped_prior() -> PosePrior:
+    """The prior that ships with mvm (``mvm/data/pose_prior.npz``), read once per process."""
+    return PosePrior.load()
+
+
+def load_prior(config: Config, prior: PosePrior | None = None) -> PosePrior | None:
+    """The pose prior of the refinement, the same rule for a scene and for a rig.
+
+    Returns ``prior`` when one is given; None when the refinement does not use a prior
+    (``config.refine`` off or ``config.prior_weight <= 0``); otherwise :func:`shipped_prior`.
+    Raises :class:`~mvm.errors.InputError` naming the file when the shipped prior cannot be
+    read: a broken installation fails loudly rather than refining without the prior.
+    """
+    if prior is not None or not config.refine or config.prior_weight <= 0:
+        return prior
+    return shipped_prior()
 
 
 def fit_pose_prior(canonical: np.ndarray, components: int = COMPONENTS, reg_covar: float = REG_COVAR,

@@ -5,7 +5,8 @@
 with ρ the soft-L1 robust loss of scale ``f`` pixels, ``c_u`` the keypoint confidences, X̃
 the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`) and λ the
 prior weight. It is solved with ``scipy.optimize.least_squares`` (trust region, LSMR) on an
-analytic sparse Jacobian whose pattern is built once per outer iteration:
+analytic sparse Jacobian whose pattern is built once per outer iteration
+(residuals and Jacobian are pure functions of the parameter vector):
 
 - each 2D keypoint gives two rows that depend on the 3 coordinates of its joint only;
 - each person's prior rows depend on that person's coordinates only (a dense block).
@@ -113,6 +114,107 @@ def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior
     return blocks
 
 
+@dataclass(frozen=True)
+class FittedKeypoints:
+    """The ``K`` 2D keypoints the refinement fits, flattened.
+
+    ``param: (K,)`` parameter joint (row of ``x.reshape(-1, 3)``) each keypoint observes;
+    ``person: (K,)`` its person; ``P: (K, 3, 4)`` its view's projection; ``xy: (K, 2)`` pixels;
+    ``conf: (K,)`` confidences."""
+
+    param: np.ndarray
+    person: np.ndarray
+    P: np.ndarray
+    xy: np.ndarray
+    conf: np.ndarray
+
+
+@dataclass(frozen=True)
+class SparsityPattern:
+    """The Jacobian's non-zero entries (``rows``, ``cols``: 3 per reprojection row, a dense
+    block per person's prior rows), the constant prior values and the ``shape``."""
+
+    rows: np.ndarray
+    cols: np.ndarray
+    prior_values: np.ndarray
+    shape: tuple[int, int]
+
+
+def reprojection(x: np.ndarray, fitted: FittedKeypoints) -> tuple[np.ndarray, np.ndarray]:
+    """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints at ``x: (3 n,)``."""
+    uv, depth = project(x.reshape(-1, 3)[fitted.param], fitted.P)
+    return uv - fitted.xy, depth
+
+
+def objective(x: np.ndarray, fitted: FittedKeypoints, blocks: list[PriorBlock], robust_scale_px: float) -> float:
+    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) at ``x: (3 n,)``."""
+    e, _ = reprojection(x, fitted)
+    f2 = robust_scale_px**2
+    total = (fitted.conf * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+    return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in blocks))
+
+
+def residuals(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
+              pattern: SparsityPattern) -> np.ndarray:
+    """The inner least-squares residuals ``(2 K + prior rows,)``: weighted reprojection errors
+    (``sqrt_w: (2 K,)``, the IRLS weights of ρ) and the linearized prior rows."""
+    e, _ = reprojection(x, fitted)
+    return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in blocks])
+
+
+def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
+             pattern: SparsityPattern) -> sp.csr_matrix:
+    """The analytic Jacobian of :func:`residuals` at ``x``, sparse as ``pattern``."""
+    K = len(fitted.param)
+    homogeneous = np.concatenate([x.reshape(-1, 3)[fitted.param], np.ones((K, 1))], axis=1)
+    proj = np.einsum("kab,kb->ka", fitted.P, homogeneous)
+    z = proj[:, 2:3]
+    uv = proj[:, :2] / z
+    d = (fitted.P[:, :2, :3] - uv[:, :, None] * fitted.P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
+    values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
+    return sp.csr_matrix((np.concatenate([values, pattern.prior_values]), (pattern.rows, pattern.cols)),
+                         shape=pattern.shape)
+
+
+def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int) -> SparsityPattern:
+    """Where :func:`jacobian` is non-zero: 3 entries per reprojection row (the coordinates of the
+    keypoint's joint), a dense block per person's prior rows."""
+    K = len(fitted.param)
+    rows_reproj = np.repeat(np.arange(2 * K), 3)
+    cols_reproj = (3 * np.repeat(fitted.param, 2)[:, None] + np.arange(3)).reshape(-1)
+    sizes = [b.G.shape[0] * b.G.shape[1] for b in blocks]
+    starts = 2 * K + np.cumsum([0] + sizes)
+    rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
+                                           for a, n, b in zip(starts, sizes, blocks)])
+    cols = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
+                                           for b in blocks])
+    prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in blocks])
+    return SparsityPattern(rows, cols, prior_values, (int(starts[-1]), n_params))
+
+
+def irls_weights(x: np.ndarray, fitted: FittedKeypoints, robust_scale_px: float) -> np.ndarray:
+    """``sqrt(2 ρ'(e²) c)`` of soft-L1 at ``x``, repeated for the two rows of each keypoint: ``(2 K,)``."""
+    e, _ = reprojection(x, fitted)
+    robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)
+    return np.repeat(np.sqrt(2.0 * robust_w * fitted.conf), 2)
+
+
+def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, fitted: FittedKeypoints,
+                     robust_scale_px: float) -> np.ndarray:
+    """``(P,)`` bool: observed persons whose refinement is not finite, has a median
+    reprojection error above twice the triangulation's plus ``robust_scale_px``, or puts a
+    fitted joint behind a camera."""
+    Pn = len(X0)
+    e0, _ = reprojection(X0[present].reshape(-1), fitted)
+    e1, depth1 = reprojection(X[present].reshape(-1), fitted)
+    observed = np.bincount(fitted.person, minlength=Pn) > 0
+    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
+    worse = (_median_by(np.linalg.norm(e1, axis=-1), fitted.person, Pn)
+             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), fitted.person, Pn) + robust_scale_px)
+    behind = np.bincount(fitted.person, weights=depth1 <= 0, minlength=Pn) > 0
+    return observed & (~finite | worse | behind)
+
+
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
                  prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
                  max_iterations: int = 30, outer_iterations: int = 3) -> RefineResult:
@@ -135,18 +237,11 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     param_of = -np.ones((Pn, J), dtype=int)
     param_of[present] = np.arange(present.sum())
     n_params = 3 * int(present.sum())
-    use = inliers & present[:, None, :]
-    p_idx, m_idx, j_idx = np.nonzero(use)
+    p_idx, m_idx, j_idx = np.nonzero(inliers & present[:, None, :])
     if n_params == 0 or len(p_idx) == 0:
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
-    obs_param = param_of[p_idx, j_idx]                                   # (K,)
-    obs_P = P[p_idx, m_idx]                                              # (K, 3, 4)
-    obs_xy = xy[p_idx, m_idx, j_idx]                                     # (K, 2)
-    obs_c = conf[p_idx, m_idx, j_idx]
-    K = len(obs_param)
-    rows_reproj = np.repeat(np.arange(2 * K), 3)
-    cols_reproj = (3 * np.repeat(obs_param, 2)[:, None] + np.arange(3)).reshape(-1)
-
+    fitted = FittedKeypoints(param_of[p_idx, j_idx], p_idx, P[p_idx, m_idx], xy[p_idx, m_idx, j_idx],
+                             conf[p_idx, m_idx, j_idx])
     use_prior = prior is not None and prior_weight > 0
 
     def unpack(x):
@@ -154,68 +249,22 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         X[present] = x.reshape(-1, 3)
         return X
 
-    def reprojection(x):
-        """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints."""
-        uv, depth = project(x.reshape(-1, 3)[obs_param], obs_P)
-        return uv - obs_xy, depth
-
-    def prior_terms(X):
-        """Linearized prior of every person (already scaled by sqrt(λ))."""
+    def linearized_prior(X):
         return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
 
-    def objective(x, terms):
-        """Σ c ρ(e²) + λ E_P (up to the mixture's constants)."""
-        e, _ = reprojection(x)
-        f2 = robust_scale_px**2
-        total = (obs_c * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-        return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in terms))
-
     x = X0[present].reshape(-1).copy()
-    cost_before = objective(x, prior_terms(X0))
-
+    cost_before = objective(x, fitted, linearized_prior(X0), robust_scale_px)
     for _ in range(outer_iterations):
-        e, _ = reprojection(x)
-        robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)   # ρ'(e²) of soft-L1
-        sqrt_w = np.repeat(np.sqrt(2.0 * robust_w * obs_c), 2)                 # (2K,)
-        terms = prior_terms(unpack(x))
-        # The Jacobian's sparsity pattern: 3 entries per reprojection row, a dense block per
-        # person's prior rows.
-        sizes = [b.G.shape[0] * b.G.shape[1] for b in terms]
-        starts = 2 * K + np.cumsum([0] + sizes)
-        rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
-                                               for a, n, b in zip(starts, sizes, terms)])
-        cols_all = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
-                                                   for b in terms])
-        prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in terms])
-        shape = (int(starts[-1]), n_params)
-
-        def residuals(x):
-            e, _ = reprojection(x)
-            return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in terms])
-
-        def jacobian(x):
-            homogeneous = np.concatenate([x.reshape(-1, 3)[obs_param], np.ones((K, 1))], axis=1)
-            proj = np.einsum("kab,kb->ka", obs_P, homogeneous)
-            z = proj[:, 2:3]
-            uv = proj[:, :2] / z
-            d = (obs_P[:, :2, :3] - uv[:, :, None] * obs_P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
-            values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-            return sp.csr_matrix((np.concatenate([values, prior_values]), (rows, cols_all)), shape=shape)
-
-        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr",
-                          x_scale="jac", max_nfev=max_iterations).x
+        sqrt_w = irls_weights(x, fitted, robust_scale_px)
+        blocks = linearized_prior(unpack(x))
+        pattern = sparsity_pattern(fitted, blocks, n_params)
+        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
+                          max_nfev=max_iterations, args=(fitted, sqrt_w, blocks, pattern)).x
 
     X = unpack(x)
-    e0, _ = reprojection(X0[present].reshape(-1))
-    e1, depth1 = reprojection(x)
-    observed = np.bincount(p_idx, minlength=Pn) > 0
-    finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
-    worse = (_median_by(np.linalg.norm(e1, axis=-1), p_idx, Pn)
-             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), p_idx, Pn) + robust_scale_px)
-    behind = np.bincount(p_idx, weights=depth1 <= 0, minlength=Pn) > 0
-    fallback = observed & (~finite | worse | behind)
+    fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-    x_final = X[present].reshape(-1)
-    return RefineResult(X, fallback, cost_before, objective(x_final, prior_terms(X)))
+    cost_after = objective(X[present].reshape(-1), fitted, linearized_prior(X), robust_scale_px)
+    return RefineResult(X, fallback, cost_before, cost_after)

@@ -79,6 +79,9 @@ class Poses2D:
         ids: ``(N,)`` annotation ids as in ``poses2d.json``.
         score: ``(N,)`` pose confidence w in [0, 1].
         appearance: ``(N, D)`` appearance descriptors, or ``None`` when absent.
+        instant: ``(N,)`` time instant of each pose, or ``None`` for one static scene. With a
+            synchronized rig every instant is a scene of its own whose views are the cameras:
+            poses of different instants are never matched together.
     """
 
     keypoints: np.ndarray
@@ -86,6 +89,7 @@ class Poses2D:
     ids: np.ndarray
     score: np.ndarray
     appearance: np.ndarray | None = None
+    instant: np.ndarray | None = None
 
     def __post_init__(self):
         kp = np.asarray(self.keypoints, dtype=float).reshape(-1, NUM_JOINTS, 3)
@@ -101,6 +105,11 @@ class Poses2D:
             if app.ndim != 2 or len(app) != N:
                 raise ValueError(f"Poses2D.appearance: expected shape ({N}, D), got {app.shape}")
             object.__setattr__(self, "appearance", app)
+        if self.instant is not None:
+            instant = np.asarray(self.instant, dtype=np.int64).reshape(-1)
+            if len(instant) != N:
+                raise ValueError(f"Poses2D.instant: expected {N} entries, got {len(instant)}")
+            object.__setattr__(self, "instant", instant)
 
     def __len__(self) -> int:
         return len(self.keypoints)
@@ -108,8 +117,18 @@ class Poses2D:
     def subset(self, index: np.ndarray) -> "Poses2D":
         index = np.asarray(index)
         app = None if self.appearance is None else self.appearance[index]
+        instant = None if self.instant is None else self.instant[index]
         return Poses2D(self.keypoints[index], self.view[index], self.ids[index],
-                       self.score[index], app)
+                       self.score[index], app, instant)
+
+    def blocks(self) -> list[np.ndarray]:
+        """Pose indices of each independent block: one block of every pose for a scene, one
+        per instant (in increasing order) for a rig. Matching never crosses blocks."""
+        if self.instant is None:
+            return [np.arange(len(self))]
+        order = np.argsort(self.instant, kind="stable")
+        bounds = np.flatnonzero(np.diff(self.instant[order])) + 1
+        return np.split(order, bounds) if len(order) else []
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,8 @@ class GroupObservations:
     Attributes:
         xy: ``(P, M, J, 2)`` pixels; conf: ``(P, M, J)`` (0 where missing or padding).
         P: ``(P, M, 3, 4)`` projection matrices (zeros for padding).
-        KRt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
+        normalized_xy: ``(P, M, J, 2)`` keypoints in normalized image coordinates ``K⁻¹ x``.
+        Rt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
         centers: ``(P, M, 3)`` camera centres (world).
         members: ``(P, M)`` pose index, -1 for padding.
         world_scale, world_offset: ``X_world = scale · X_normalized + offset``.

@@ -21,13 +21,11 @@ from mvm.core.config import Config
 from mvm.core.matching.baselines import BaselineConfig
 from mvm.core.matching.registry import affinity_matrix, get_matcher
 from mvm.core.reconstruct import reconstruct
-from mvm.eval.metrics import match_persons, matching_precision_recall, pose_errors
+from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
 from mvm.sim.simulate import SimConfig, simulate
 
 log = logging.getLogger(__name__)
 
-#: An estimated person is a recovered true person when their MPJPE is below this. [m]
-RECOVERED_DISTANCE_M = 0.5
 #: Dong et al.'s method runs only on clips shorter than this, as in the paper. [frames]
 DONG_MAX_FRAMES = 50
 
@@ -90,7 +88,7 @@ def evaluate_groups(scene, truth, groups: list[np.ndarray], config: Config) -> d
     with_ransac = reconstruct(scene, config.replace(ransac=True), groups=groups)
     without = reconstruct(scene, config.replace(ransac=False), groups=groups)
     X = with_ransac.persons.keypoints3d
-    pairs = match_persons(X, truth.poses3d, RECOVERED_DISTANCE_M)
+    pairs = match_persons(X, truth.poses3d, MATCH_DISTANCE_M)
     errors = pose_errors(X, truth.poses3d, pairs)
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
     return {

@@ -75,3 +75,34 @@ def write_bench_report(result: BenchResult, out: str | Path, command: str, secon
     atomic_write_text(out / "sweeps.csv", _csv(result.sweep_rows))
     atomic_write_bytes(out / "matching_time.png", plot_times(result))
     return out / "paper_tables.md"
+
+
+def crowd_markdown(result, command: str, seconds: float) -> str:
+    """The crowd benchmark's tables (``result``: :class:`mvm.eval.crowd.CrowdResult`)."""
+    from mvm.eval.crowd import COLUMNS as CROWD_COLUMNS
+    from mvm.eval.crowd import PAPER_E_R_PX, SUMMARY_COLUMNS, SWEEP_COLUMNS, summary, table_rows
+
+    parts = [f"Regenerate with `{command}` ({seconds:.0f} s). Oracle: the true grouping, RANSAC/DLT "
+             f"triangulation, no refinement. The paper's E_R on real videos: {PAPER_E_R_PX} px. "
+             "Persons: estimated / found (MPJPE within 0.5 m of a true person) / true.\n",
+             "### Frozen crowds: summary\n", markdown_table(summary(result.rows), SUMMARY_COLUMNS),
+             "\n### Frozen crowds: every scene\n", markdown_table(table_rows(result.rows), CROWD_COLUMNS)]
+    for axis in dict.fromkeys(r["axis"] for r in result.sweep_rows):
+        rows = [r for r in result.sweep_rows if r["axis"] == axis]
+        parts += [f"\n### Sweep of {axis} (geometry only)\n", markdown_table(table_rows(rows), SWEEP_COLUMNS)]
+    return "\n".join(parts)
+
+
+def write_crowd_report(result, out: str | Path, command: str, seconds: float) -> Path:
+    """Write ``crowd.md``, ``crowd.csv``, ``crowd_sweeps.csv`` and ``crowd.json`` to ``out``;
+    returns the Markdown file's path."""
+    from mvm.io.files import atomic_write_json
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "crowd.md", crowd_markdown(result, command, seconds))
+    atomic_write_text(out / "crowd.csv", _csv(result.rows))
+    atomic_write_text(out / "crowd_sweeps.csv", _csv(result.sweep_rows))
+    atomic_write_json(out / "crowd.json", {"command": command, "seconds": seconds, "rows": result.rows,
+                                           "sweep_rows": result.sweep_rows}, indent=1)
+    return out / "crowd.md"

@@ -6,12 +6,10 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.core.reconstruct import reconstruct_dir
-from mvm.eval.metrics import match_persons, matching_precision_recall, pose_errors
-from mvm.sim.simulate import SimConfig, simulate, write_simulation
-
-#: An estimated person matches a true one when their MPJPE is below this (metres).
-MATCH_DISTANCE_M = 0.5
+from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
+from mvm.io.ground_truth import write_simulation
+from mvm.scenes import reconstruct_dir
+from mvm.sim.simulate import SimConfig, simulate
 
 
 def evaluate(result, truth) -> dict:

@@ -1,11 +1,16 @@
 """Metrics: the paper's proxies (E_R, outliers, |G_k|) and ground-truth ones (matching
-precision/recall, persons found, MPJPE, PA-MPJPE). Pure numpy/scipy, no I/O."""
+precision/recall, persons found, MPJPE, PA-MPJPE). Pure numpy/scipy, no I/O. The
+motion-capture field's PCP and AP are in :mod:`mvm.eval.mocap`."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from mvm.core.geometry import project
+
+#: An estimated person is a true person found when their MPJPE is below this (the demo, the
+#: benchmarks and the Panoptic evaluation alike). [m]
+MATCH_DISTANCE_M = 0.5
 
 
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -94,8 +99,9 @@ def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float =
     return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] <= max_distance]
 
 
-def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:
-    """MPJPE and PA-MPJPE (in the units of the inputs) over matched pairs, averaged per person."""
+def person_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """MPJPE and PA-MPJPE (in the units of the inputs) of every matched pair ``(p, g)`` with at
+    least 3 joints finite in both: ``(K,)`` each."""
     mpjpe, pa = [], []
     for p, g in pairs:
         e, t = estimate[p], truth[g]
@@ -105,15 +111,12 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, 
         mpjpe.append(np.linalg.norm(e[ok] - t[ok], axis=-1).mean())
         aligned = procrustes_align(e, t)
         pa.append(np.linalg.norm(aligned[ok] - t[ok], axis=-1).mean())
-    return {"mpjpe": float(np.mean(mpjpe)) if mpjpe else float("nan"),
-            "pa_mpjpe": float(np.mean(pa)) if pa else float("nan"),
+    return np.array(mpjpe, dtype=float), np.array(pa, dtype=float)
+
+
+def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:
+    """MPJPE and PA-MPJPE (in the units of the inputs) over matched pairs, averaged per person."""
+    mpjpe, pa = person_errors(estimate, truth, pairs)
+    return {"mpjpe": float(np.mean(mpjpe)) if len(mpjpe) else float("nan"),
+            "pa_mpjpe": float(np.mean(pa)) if len(pa) else float("nan"),
             "evaluated_persons": len(mpjpe)}
-
-
-# The motion-capture field's metrics (PCP as on Shelf/Campus, AP at 25-150 mm as on Panoptic),
-# kept in their own module and offered here with the others.
-from mvm.eval.mocap import COCO_PCP_LIMBS, SHELF_PCP_LIMBS, average_precision, limbs_correct, pcp  # noqa: E402
-
-__all__ = ["reprojection_errors", "scene_quality", "matching_precision_recall", "procrustes_align",
-           "match_persons", "pose_errors", "pcp", "limbs_correct", "average_precision",
-           "COCO_PCP_LIMBS", "SHELF_PCP_LIMBS"]

@@ -1,10 +1,9 @@
 """Evaluation on the real CMU Panoptic sample: real cameras and real 3D poses, 2D detections
 simulated from them with a detector's errors (:mod:`mvm.sim.rig`), reconstructed with a
 subset of the HD cameras and scored with MPJPE, PA-MPJPE, PCP, AP and the fraction of persons
-found. World in metres (the files' centimetres / 100)."""
+found. World in metres (the files' centimetres / 100, read by :mod:`mvm.io.mocap`)."""
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,38 +11,16 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.core.scene import Cameras
+from mvm.core.scene import Cameras, Poses2D
 from mvm.errors import InputError
-from mvm.eval.metrics import match_persons, pose_errors
+from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, pose_errors
 from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
+from mvm.io.mocap import read_panoptic_coco19, read_panoptic_ids
 from mvm.io.panoptic_calib import read_panoptic_calibration
-from mvm.rig.instants import Detections, reconstruct_instants
-from mvm.sim.rig import DetectorErrors, detect_views, pose_scores
-
-#: Index of each COCO-17 keypoint in Panoptic's ``joints19``.
-JOINTS19_TO_COCO17 = np.array([1, 15, 17, 16, 18, 3, 9, 4, 10, 5, 11, 6, 12, 7, 13, 8, 14])
-
-
-def read_panoptic_bodies(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """One ``body3DScene_*.json`` -> ``(G, 17, 3)`` COCO joints in centimetres (NaN where the
-    confidence is negative) and ``(G,)`` body ids."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read JSON: {e}") from None
-    poses, ids = [], []
-    for i, body in enumerate(data.get("bodies", [])):
-        try:
-            joints = np.asarray(body["joints19"], dtype=float).reshape(19, 4)
-        except (KeyError, ValueError, TypeError):
-            raise InputError(path, f"bodies[{i}].joints19", "expected 76 numbers") from None
-        xyz = joints[JOINTS19_TO_COCO17, :3].copy()
-        xyz[joints[JOINTS19_TO_COCO17, 3] < 0] = np.nan
-        poses.append(xyz)
-        ids.append(int(body.get("id", i)))
-    return np.array(poses).reshape(-1, 17, 3), np.array(ids, dtype=int)
+from mvm.rig.instants import reconstruct_instants, rig_poses
+from mvm.sim.detector import DetectorErrors, pose_scores
+from mvm.sim.rig import detect_views
 
 
 def metric_calibration(calibration: RigCalibration) -> RigCalibration:
@@ -84,14 +61,13 @@ def load_sample(sequence_dir: str | Path) -> PanopticSample:
                    key=lambda p: int(p.stem.split("_")[-1]))
     poses, ids = [], []
     for f in files:
-        X, i = read_panoptic_bodies(f)
-        poses.append(X / 100.0)
-        ids.append(i)
+        poses.append(read_panoptic_coco19(f))
+        ids.append(np.array(read_panoptic_ids(f), dtype=int))
     return PanopticSample(calibration, poses, ids)
 
 
 def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed: int,
-                        errors: DetectorErrors = DetectorErrors()) -> Detections:
+                        errors: DetectorErrors = DetectorErrors()) -> Poses2D:
     """Distorted 2D detections of every instant in the chosen cameras, then undistorted with
     the calibration (as a real pipeline does)."""
     from mvm.rig.rigdir import subset_calibration, undistort
@@ -107,13 +83,14 @@ def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed:
     keypoints = np.concatenate(kps)
     camera = np.concatenate(cams)
     keypoints = undistort(calibration, keypoints, camera)
-    return Detections(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
+    return rig_poses(keypoints, np.concatenate(inst), camera, pose_scores(keypoints))
 
 
 def evaluate(sample: PanopticSample, n_cameras: int, config: Config, seeds: int = 3,
-             errors: DetectorErrors = DetectorErrors(), found_mm: float = 150.0) -> dict:
+             errors: DetectorErrors = DetectorErrors(), match_distance_m: float = MATCH_DISTANCE_M) -> dict:
     """Reconstruct the sample with ``n_cameras`` spread cameras, ``seeds`` detector draws.
-    Returns MPJPE / PA-MPJPE (mm), PCP, AP, persons found (MPJPE <= ``found_mm``), instants/s."""
+    Returns MPJPE / PA-MPJPE (mm) of the persons found (MPJPE <= ``match_distance_m``), PCP,
+    AP, the fraction of persons found, instants/s."""
     index = spread_cameras(sample.calibration.cameras, n_cameras)
     cameras = sample.calibration.cameras.subset(index)
     estimates, truths, ids, scores = [], [], [], []
@@ -125,7 +102,7 @@ def evaluate(sample: PanopticSample, n_cameras: int, config: Config, seeds: int 
         seconds += time.perf_counter() - t0
         for t, X_true in enumerate(sample.poses):
             X = persons.X[persons.instant == t]
-            pairs = match_persons(X, X_true, found_mm / 1000.0)
+            pairs = match_persons(X, X_true, match_distance_m)
             e = pose_errors(X, X_true, pairs)
             if e["evaluated_persons"]:
                 mpjpe += [e["mpjpe"]] * e["evaluated_persons"]

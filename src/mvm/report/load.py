@@ -11,8 +11,8 @@ import numpy as np
 
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
+from mvm.io.ground_truth import GroundTruth
 from mvm.io.scene_dir import read_poses3d, read_scene
-from mvm.sim.simulate import GroundTruth
 
 log = logging.getLogger(__name__)
 

@@ -69,7 +69,7 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
     """Members as the pose's index within its camera and frame (as in the input files)."""
     det = rig.detections
-    key = det.instant * (det.camera.max() + 1 if len(det) else 1) + det.camera
+    key = det.instant * (det.view.max() + 1 if len(det) else 1) + det.view
     order = np.argsort(key, kind="stable")
     rank = np.empty(len(key), dtype=int)
     starts = np.searchsorted(key[order], key[order])

@@ -22,11 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_files, frame_number, read_openpose_frame
-from mvm.rig.instants import Detections
+from mvm.rig.instants import rig_poses
 
 log = logging.getLogger(__name__)
 
@@ -41,14 +42,14 @@ class RigData:
     Attributes:
         calibration: the cameras (only those with poses, in calibration order).
         frames: ``(T,)`` frame numbers of the instants, increasing.
-        detections: the 2D poses, undistorted; ``instant`` indexes ``frames``.
+        detections: the 2D poses, undistorted; ``view`` is the camera, ``instant`` indexes ``frames``.
         sources: camera name -> the folder or file its poses came from.
         pose_format: "openpose", "openpifpaf" or "coco".
     """
 
     calibration: RigCalibration
     frames: np.ndarray
-    detections: Detections
+    detections: Poses2D
     sources: dict
     pose_format: str
 
@@ -248,7 +249,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         model = ColmapModel(colmap_model.cameras.subset(np.array(used)),
                             tuple(colmap_model.colmap_cameras[c] for c in used), colmap_model.points3d, ())
     keypoints = undistort(calibration, keypoints, cam_of, model)
-    detections = Detections(keypoints, instant, cam_of, score)
+    detections = rig_poses(keypoints, instant, cam_of, score)
     log.info("%s: %d cameras, %d instants, %d 2D poses (%s)", rig_dir, len(used), len(all_frames),
              len(detections), fmt)
     return RigData(calibration, all_frames, detections,

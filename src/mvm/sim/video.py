@@ -15,14 +15,8 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
-from mvm.sim.simulate import look_at
-
-#: A standing adult in the pose bank's frame (metres, z up, feet on z = 0, facing +y).
-STANDING = np.array([
-    [0, 0.10, 1.62], [-0.03, 0.08, 1.66], [0.03, 0.08, 1.66], [-0.07, 0.0, 1.64], [0.07, 0.0, 1.64],
-    [-0.18, 0, 1.42], [0.18, 0, 1.42], [-0.22, 0.02, 1.13], [0.22, 0.02, 1.13], [-0.24, 0.08, 0.88],
-    [0.24, 0.08, 0.88], [-0.10, 0, 0.95], [0.10, 0, 0.95], [-0.11, 0.02, 0.52], [0.11, 0.02, 0.52],
-    [-0.11, 0, 0.08], [0.11, 0, 0.08]])
+from mvm.sim.people import STANDING
+from mvm.sim.tours import cameras_looking_at
 
 #: Body parts drawn as capsules: (joint a, joint b, radius in metres, clothing part).
 #: Parts: 0 shirt (torso and upper arms), 1 trousers (legs), 2 skin (forearms).
@@ -153,12 +147,8 @@ def tour_cameras(config: RenderConfig, rng: np.random.Generator) -> Cameras:
     centers = np.stack([config.radius * np.cos(angles), config.radius * np.sin(angles),
                         np.full(V, config.camera_height)], axis=1)
     centers += rng.normal(0, config.shake_m, (V, 3))
-    R = look_at(centers, np.broadcast_to([0.0, 0.0, 1.0], (V, 3)))
-    t = -np.einsum("vij,vj->vi", R, centers)
-    K = np.array([[config.focal_px, 0, config.width / 2], [0, config.focal_px, config.height / 2], [0, 0, 1]])
-    names = tuple(f"frame_{i:05d}.jpg" for i in range(V))
-    return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t,
-                   np.broadcast_to([float(config.width), float(config.height)], (V, 2)).copy(), names)
+    return cameras_looking_at(centers, [0.0, 0.0, 1.0], (config.focal_px, config.focal_px),
+                              (config.width, config.height))
 
 
 def default_people(rng: np.random.Generator, count: int = 3, spacing: float = 0.9) -> np.ndarray:

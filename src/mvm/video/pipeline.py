@@ -81,14 +81,14 @@ def scale_model(scene: str | Path, s: float) -> None:
 
 def reconstruct_scene(scene: str | Path, config: Config | None = None, output: str = "mvm",
                       metric_scale: bool = True, force: bool = False) -> ReconstructReport:
-    """Reconstruct ``scene`` (``mvm.core.reconstruct.reconstruct_dir``) and give it a metric scale
+    """Reconstruct ``scene`` (``mvm.scenes.reconstruct_dir``) and give it a metric scale
     from the people's bone lengths, recorded under ``"scale"`` in ``poses3d.json``.
 
     With ``metric_scale`` the model in ``sparse/`` and the 3D poses are multiplied by s*, so
     that the world is in metres; otherwise s* is only recorded.
     """
-    from mvm.core.reconstruct import reconstruct_dir
     from mvm.io.scene_dir import poses3d_document, write_poses3d
+    from mvm.scenes import reconstruct_dir
 
     scene = Path(scene)
     out = scene / output / "poses3d.json"

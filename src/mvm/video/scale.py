@@ -18,7 +18,7 @@ def people_scale(poses3d: np.ndarray, min_persons: int = 1) -> tuple[float, int]
     ``poses3d: (P, 17, 3)`` model units (NaN: missing) -> ``(s*, bones used)``; ``s*`` is NaN
     when no bone is measured by at least ``min_persons`` persons.
 
-    >>> from mvm.sim.video import STANDING
+    >>> from mvm.sim.people import STANDING
     >>> round(people_scale(STANDING[None] / 2.0)[0], 1)
     2.0
     """

@@ -44,41 +44,49 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
     w = np.asarray(score, dtype=float)
     w = np.where(np.isfinite(w), w, 0.0)
     available = w >= min_score
-
-    def row(x: int, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Affinities of pose ``x`` to ``columns`` (undefined -> 0) and where they are defined.
-        Each pose's row is read once (as seed or as member): no ``N × N`` temporary."""
-        a = np.asarray(A[x, columns], dtype=np.float32)
-        defined = ~np.isnan(a)
-        return np.where(defined, a, np.float32(0)), defined.astype(np.float32)
-
     groups: list[np.ndarray] = []
     for seed in np.argsort(-w, kind="stable"):
         if not available[seed]:
             continue
         available[seed] = False
-        # Candidates of this group: still available, from another view than the seed's.
-        candidates = np.flatnonzero(available & (view != view[seed]))
-        a, defined = row(seed, candidates)
-        weighted_sum = w[seed] * a                                       # Σ_p w_p A(x, p)
-        total_weight = w[seed] * defined                                 # Σ_p w_p [A defined]
-        members = [seed]
-        open_ = np.ones(len(candidates), dtype=bool)
-        cand_w = w[candidates]
-        cand_view = view[candidates]
-        while open_.any():
-            gain = np.where(open_, cand_w * weighted_sum, -np.inf)    # the paper's sum
-            best = int(np.argmax(gain))
-            if not weighted_sum[best] >= tau * total_weight[best] or total_weight[best] == 0:
-                break
-            x = candidates[best]
-            members.append(x)
-            open_ &= cand_view != cand_view[best]
-            a, defined = row(x, candidates)
-            weighted_sum += w[x] * a
-            total_weight += w[x] * defined
-        members = np.array(members)
+        members = grow_group(A, w, view, available, int(seed), tau)
         available[members] = False
         if len(members) >= min_group_size:
             groups.append(members)
     return groups
+
+
+def _affinity_row(A: np.ndarray, x: int, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Affinities of pose ``x`` to ``columns`` (undefined -> 0) and where they are defined,
+    ``(C,)`` float32 each. Each pose's row is read once (as seed or as member): no ``N × N`` temporary."""
+    a = np.asarray(A[x, columns], dtype=np.float32)
+    defined = ~np.isnan(a)
+    return np.where(defined, a, np.float32(0)), defined.astype(np.float32)
+
+
+def grow_group(A: np.ndarray, w: np.ndarray, view: np.ndarray, available: np.ndarray, seed: int,
+               tau: float) -> np.ndarray:
+    """One group of Algorithm 1 grown from ``seed``: candidates are the ``available: (N,)``
+    poses of other views; the one with the largest weighted sum of affinities joins while
+    its weighted mean affinity ā is >= ``tau``. ``w: (N,)`` confidences. Returns the members
+    (seed first)."""
+    candidates = np.flatnonzero(available & (view != view[seed]))
+    a, defined = _affinity_row(A, seed, candidates)
+    weighted_sum = w[seed] * a                                       # Σ_p w_p A(x, p)
+    total_weight = w[seed] * defined                                 # Σ_p w_p [A defined]
+    members = [seed]
+    open_ = np.ones(len(candidates), dtype=bool)
+    cand_w = w[candidates]
+    cand_view = view[candidates]
+    while open_.any():
+        gain = np.where(open_, cand_w * weighted_sum, -np.inf)    # the paper's sum
+        best = int(np.argmax(gain))
+        if not weighted_sum[best] >= tau * total_weight[best] or total_weight[best] == 0:
+            break
+        x = candidates[best]
+        members.append(x)
+        open_ &= cand_view != cand_view[best]
+        a, defined = _affinity_row(A, x, candidates)
+        weighted_sum += w[x] * a
+        total_weight += w[x] * defined
+    return np.array(members)

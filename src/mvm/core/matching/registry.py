@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from mvm.core.affinity import affinity, appearance_similarity, epipolar_distance, mse_distance
+from mvm.core.affinity import affinity, mse_distance, pose_affinity
 from mvm.core.config import Config
 from mvm.core.matching.baselines import BaselineConfig, dong_groups, hungarian_groups, shortest_path_groups
 from mvm.core.matching.greedy import greedy_groups
@@ -47,10 +47,6 @@ MATCHERS: dict[str, Matcher] = {
 }
 
 
-def _appearance(scene: Scene, config: Config):
-    return appearance_similarity(scene.poses.appearance if config.use_appearance else None, len(scene.poses))
-
-
 def _mse(scene: Scene, config: Config) -> np.ndarray:
     poses = scene.poses
     D = mse_distance(poses.keypoints, poses.view, config.keypoint_threshold, scene.cameras.focal,
@@ -59,14 +55,11 @@ def _mse(scene: Scene, config: Config) -> np.ndarray:
 
 
 def _geometric(scene: Scene, config: Config) -> np.ndarray:
-    poses = scene.poses
-    D = epipolar_distance(scene.cameras, poses.keypoints, poses.view, config.keypoint_threshold,
-                          config.distance_scale, config.min_common_keypoints)
-    return affinity(D, config.gamma)
+    return pose_affinity(scene.cameras, scene.poses, config, appearance=False)
 
 
 def _geometric_appearance(scene: Scene, config: Config) -> np.ndarray:
-    return _geometric(scene, config) * _appearance(scene, config)
+    return pose_affinity(scene.cameras, scene.poses, config)
 
 
 #: Affinities of Table 2: 2D MSE, the epipolar distance D (Eq. 2), and D with appearance (Eq. 1).

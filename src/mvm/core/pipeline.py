@@ -1,0 +1,285 @@
+"""The reconstruction pipeline, once for every driver: match -> triangulate -> merge ->
+refine (with a fallback) -> summarize.
+
+Arrays in, arrays out, no I/O. The 2D poses are split into independent *blocks*
+(:meth:`mvm.core.scene.Poses2D.blocks`): a scene of one moving camera is one block, a batch of
+rig instants has one block per instant. Matching and merging stay within a block;
+triangulation and refinement treat the persons of every block as one set (they are
+independent), so a batch of instants costs one vectorized solve.
+
+Each step is a function of the previous step's arrays, so that a step can be added between
+two others with one call: a 3D-consistent association of the poses goes after
+:func:`merge_groups` (it changes ``groups``, then the groups are triangulated again), the
+completion of missing joints after :func:`refine_with_fallback`.
+"""
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from mvm.core.affinity import pose_affinity
+from mvm.core.association import associate, frame_sequence
+from mvm.core.config import Config
+from mvm.core.geometry import project
+from mvm.core.matching import greedy_groups
+from mvm.core.prior import load_prior
+from mvm.core.refine import refine_poses
+from mvm.core.scene import Cameras, Poses2D
+from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate
+
+log = logging.getLogger(__name__)
+
+
+#: Rig instants are matched a few at a time in one affinity of at most this many poses: one
+#: call per instant would cost more in overhead than the pairs across instants (never grouped).
+MATCH_BATCH_POSES = 64
+
+
+def _batches(blocks: list[np.ndarray], max_poses: int) -> list[list[np.ndarray]]:
+    """Consecutive blocks in batches of at most ``max_poses`` poses (a larger block alone)."""
+    batches: list[list[np.ndarray]] = []
+    size = 0
+    for rows in blocks:
+        if not batches or size + len(rows) > max_poses:
+            batches.append([])
+            size = 0
+        batches[-1].append(rows)
+        size += len(rows)
+    return batches
+
+
+def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
+    """Affinity (Eq. 1, 2) and greedy grouping (Algorithm 1) within each block of ``poses``.
+
+    Returns groups of pose indices (each within one block), block by block. Memory: one
+    ``(n, n)`` float32 matrix for a scene of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`),
+    at most ``MATCH_BATCH_POSES²`` for a rig with small instants.
+    """
+    groups: list[np.ndarray] = []
+    for batch in _batches(poses.blocks(), MATCH_BATCH_POSES):
+        rows_all = np.concatenate(batch)
+        sub = poses if len(batch) == 1 and len(rows_all) == len(poses) else poses.subset(rows_all)
+        A = pose_affinity(cameras, sub, config)
+        start = 0
+        for rows in batch:
+            part = slice(start, start + len(rows))
+            start += len(rows)
+            groups += [rows[g] for g in greedy_groups(A[part, part], sub.score[part], sub.view[part], config.tau,
+                                                      config.min_pose_score, config.min_group_size)]
+    return groups
+
+
+def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
+                       config: Config, initial: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+    """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
+    ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
+    ``association_hypotheses`` of the random hypotheses."""
+    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
+    rng = np.random.default_rng(config.seed)
+    hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
+                                                                       config.association_hypotheses)
+    with np.errstate(all="ignore"):
+        return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
+                                       config.min_parallax_deg, rng, use_ransac=config.ransac, initial=initial)
+
+
+def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
+                     max_relative_distance: float) -> list[np.ndarray] | None:
+    """Merge groups whose triangulated poses coincide (a person split into two groups).
+
+    Two persons are duplicates when their mean joint distance, over the joints both have, is
+    below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
+    keeps the test free of the model's unknown scale; also when one is the mirror of the other
+    (left and right exchanged: a group of left-right swapped detections). The smaller group's
+    poses join the larger one, except those from views the larger group already has;
+    triangulation then treats a swapped keypoint as any other outlier.
+
+    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
+    when nothing merges.
+    """
+    from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+
+    P = len(X)
+    if P < 2:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
+                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                      # all-NaN rows
+        diff = np.linalg.norm(X[:, None] - X[None], axis=-1)                 # (P, P, J)
+        mirrored = np.linalg.norm(X[:, None] - X[None][:, :, FLIP_PERMUTATION], axis=-1)
+        mean = np.fmin(np.nanmean(diff, axis=-1), np.nanmean(mirrored, axis=-1))
+        scale = np.fmax(torso[:, None], torso[None])
+        close = (mean < max_relative_distance * scale) & ~np.eye(P, dtype=bool)
+    if not close.any():
+        return None
+    order = np.argsort([-len(g) for g in groups], kind="stable")
+    absorbed = np.zeros(P, dtype=bool)
+    merged = {int(p): list(groups[p]) for p in range(P)}
+    for p in order:
+        if absorbed[p]:
+            continue
+        for q in order:
+            if q == p or absorbed[q] or not close[p, q] or len(groups[q]) > len(merged[p]):
+                continue
+            views = set(view[merged[p]].tolist())
+            merged[p] += [m for m in groups[q] if view[m] not in views]
+            absorbed[q] = True
+    return [np.array(merged[p]) for p in range(P) if not absorbed[p]]
+
+
+def group_blocks(poses: Poses2D, groups: list[np.ndarray]) -> np.ndarray:
+    """``(P,)`` block (instant) of each group, 0 for every group of a scene."""
+    if poses.instant is None or not groups:
+        return np.zeros(len(groups), dtype=np.int64)
+    return poses.instant[[g[0] for g in groups]]
+
+
+def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
+                 config: Config) -> list[np.ndarray] | None:
+    """:func:`merge_duplicates` within each block (groups come block by block, as from
+    :func:`match`). ``X: (P, J, 3)``. Returns the new groups, or None when nothing merges."""
+    if config.merge_distance <= 0:
+        return None
+    changed = False
+    out: list[np.ndarray] = []
+    bounds = np.flatnonzero(np.diff(group_blocks(poses, groups))) + 1
+    for rows in np.split(np.arange(len(groups)), bounds):
+        part = [groups[i] for i in rows]
+        merged = merge_duplicates(X[rows], part, poses.view, config.merge_distance)
+        if merged is not None:
+            changed = True
+            part = merged
+        out += part
+    return out if changed else None
+
+
+def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config: Config,
+                         prior=None) -> tuple[np.ndarray, np.ndarray]:
+    """Refinement (Eq. bundle) with a fallback: a person whose refined pose is worse, not
+    finite or lost a joint, or every person when the solve fails outright, keeps its
+    triangulation. ``X: (P, J, 3)``; ``prior`` as :func:`mvm.core.prior.load_prior` resolves it.
+    Returns the poses and ``fallback: (P,)`` bool."""
+    has_obs = tri.inliers.any(axis=(1, 2))
+    try:
+        with np.errstate(all="ignore"):
+            refined = refine_poses(X, obs.xy, obs.conf, obs.P, tri.inliers, load_prior(config, prior),
+                                   config.prior_weight, config.robust_scale_px, config.refine_max_iterations)
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError) as e:
+        log.warning("refinement failed (%s); kept the triangulation of every person", e)
+        return X, has_obs
+    broken = (np.isfinite(X).all(-1) & ~np.isfinite(refined.X).all(-1)).any(-1)     # a joint lost or inf
+    fallback = refined.fallback | broken
+    return np.where(fallback[:, None, None], X, refined.X), fallback
+
+
+@dataclass
+class PersonStats:
+    """Per-person statistics of ``P`` groups (all of them; ``keep`` marks the persons).
+
+    Attributes:
+        X: ``(P, J, 3)`` joints, NaN (never inf) where not reconstructed.
+        keep: ``(P,)`` bool, at least ``min_person_joints`` joints reconstructed.
+        errors: ``(P, M, J)`` reprojection error of each group slot's keypoint, px.
+        scores: ``(P, J)`` mean confidence of the inlier keypoints.
+        reprojection_error_px: ``(P,)`` mean error over the inlier keypoints, NaN without any.
+    """
+
+    X: np.ndarray
+    keep: np.ndarray
+    errors: np.ndarray
+    scores: np.ndarray
+    reprojection_error_px: np.ndarray
+
+
+def summarize(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config: Config) -> PersonStats:
+    """:class:`PersonStats` of the poses ``X: (P, J, 3)`` against the groups' keypoints."""
+    X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)
+    if len(X):
+        uv, _ = project(X[:, None], obs.P[:, :, None])
+        errors = np.linalg.norm(uv - obs.xy, axis=-1)                       # (P, M, J)
+    else:
+        errors = np.zeros((0, 0, X.shape[1] if X.ndim == 3 else 17))
+    keep = np.isfinite(X).all(-1).sum(-1) >= config.min_person_joints
+    inliers = tri.inliers
+    scores = np.where(inliers, obs.conf, 0).sum(1) / np.maximum(inliers.sum(1), 1)
+    per_person = np.where(inliers, errors, 0).sum((1, 2)) / np.maximum(inliers.sum((1, 2)), 1)
+    usable = inliers.any((1, 2)) & np.isfinite(per_person)
+    return PersonStats(X, keep, errors, scores, np.where(usable, per_person, np.nan))
+
+
+@dataclass
+class Reconstruction:
+    """What the pipeline made of ``P`` groups of 2D poses (drivers pick ``stats.keep``).
+
+    Attributes:
+        groups: ``P`` arrays of pose indices, block by block.
+        obs, tri: the groups' padded keypoints and their triangulation.
+        stats: :class:`PersonStats` of the final poses.
+        fallback: ``(P,)`` bool, persons that kept their triangulation (refinement diverged).
+        timings: seconds per stage (``matching_s``, ``triangulation_s``, ``refinement_s``).
+    """
+
+    groups: list[np.ndarray]
+    obs: GroupObservations
+    tri: Triangulation
+    stats: PersonStats
+    fallback: np.ndarray
+    timings: dict = field(default_factory=dict)
+
+
+def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], triangulated,
+                    config: Config) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+    """:func:`mvm.core.association.associate` with the settings of ``config``: every 2D pose to
+    the triangulated person that explains it, within its block; the order of the frames is a
+    cue for a scene (``video_order``), never for the cameras of a rig."""
+    sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
+    return associate(
+        poses.keypoints, poses.view, cameras.P, cameras.size, groups,
+        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial),
+        lambda X, g: merge_groups(X, g, poses, config),
+        lambda rest: match(cameras, poses.subset(rest), config),
+        gate=config.association_gate, max_iterations=config.association_iterations,
+        min_group_size=config.min_group_size, min_support=config.association_min_support,
+        max_proportion_deviation=config.association_max_proportion_deviation,
+        min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
+        min_common_keypoints=config.min_common_keypoints, eligible=poses.score >= config.min_pose_score,
+        pose_scene=poses.instant, sequence=sequence, triangulated=triangulated)
+
+
+def reconstruct_poses(cameras: Cameras, poses: Poses2D, config: Config, prior=None,
+                      groups: list[np.ndarray] | None = None) -> Reconstruction:
+    """The pipeline on ``poses`` seen by ``cameras``: groups (``groups``, else :func:`match`),
+    triangulation, merging of duplicates, the association consistent in 3D (``association =
+    "3d"``, not for given groups), refinement with its fallback, per-person statistics."""
+    timings = {}
+    t = time.perf_counter()
+    given = groups is not None
+    if groups is None:
+        groups = match(cameras, poses, config)
+    timings["matching_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    obs, tri = triangulate_groups(cameras, poses, groups, config)
+    associate_3d = config.association == "3d" and not given              # merges duplicates itself
+    merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
+    if merged is not None:
+        log.info("merged %d duplicate group(s)", len(groups) - len(merged))
+        groups = merged
+        obs, tri = triangulate_groups(cameras, poses, groups, config)
+    timings["triangulation_s"] = time.perf_counter() - t
+    if associate_3d:
+        t = time.perf_counter()
+        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config)
+        timings["association_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    X, fallback = tri.X, np.zeros(len(groups), dtype=bool)
+    if config.refine and len(X):
+        X, fallback = refine_with_fallback(X, obs, tri, config, prior)
+    timings["refinement_s"] = time.perf_counter() - t
+    return Reconstruction(groups, obs, tri, summarize(X, obs, tri, config), fallback, timings)
