@@ -101,9 +101,9 @@ def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.
         common = seen & (kp[..., 2] >= keypoint_threshold)
         with np.errstate(invalid="ignore"):
             d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
-        d = np.sort(np.where(common, d, np.inf), axis=1)
+        d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
         n = common.sum(1)
-        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
+        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0].astype(float)
         return np.where(n >= min_common_keypoints, value, np.inf)
 
     cost = median(kp, uv, seen, size)
