@@ -59,8 +59,8 @@ def test_small_parallax_is_left_unreconstructed():
 @pytest.mark.parametrize("noise", [1.0, 3.0])
 def test_refinement_lowers_error_and_stays_near_triangulation(noise):
     from mvm.core.prior import PosePrior
+    from mvm.core.quality import reprojection_errors
     from mvm.core.refine import refine_poses
-    from mvm.eval.metrics import reprojection_errors
 
     rng = np.random.default_rng(2)
     cams = random_cameras(rng, 40, arc_deg=60)

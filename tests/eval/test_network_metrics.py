@@ -136,3 +136,59 @@ def test_relative_depth_error_ignores_scale():
     gt = np.array([[1.0, 1.1, 0.9, np.nan]])
     assert metrics.relative_depth_error(3 * gt, gt)[0] == pytest.approx(0.0)
     assert metrics.relative_depth_error(np.array([[1.0, 1.0, 1.0, 1.0]]), gt)[0] == pytest.approx(0.2 / 3)
+
+
+def test_oks_ap_equals_pycocotools_on_files(tmp_path):
+    """oks_ap against pycocotools' own evaluation of the same ground truth and results files."""
+    import contextlib
+    import io
+    import json
+
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    rng = np.random.default_rng(5)
+    images, annotations, detections = [], [], []
+    for image_id in range(1, 7):
+        images.append({"id": image_id, "file_name": f"{image_id}.jpg", "width": 640, "height": 480})
+        for p in range(int(rng.integers(1, 4))):
+            kp = np.zeros((17, 3))
+            kp[:, :2] = rng.uniform(50, 400, size=2) + rng.normal(scale=40, size=(17, 2))
+            kp[:, 2] = np.where(rng.uniform(size=17) < 0.8, 2, 0)
+            kp[kp[:, 2] == 0, :2] = 0
+            vis = kp[:, 2] > 0
+            x0, y0 = kp[vis, :2].min(0)
+            x1, y1 = kp[vis, :2].max(0)
+            annotations.append({"id": len(annotations) + 1, "image_id": image_id, "category_id": 1, "iscrowd": 0,
+                                "keypoints": kp.reshape(-1).tolist(), "num_keypoints": int(vis.sum()),
+                                "bbox": [x0, y0, x1 - x0, y1 - y0], "area": float((x1 - x0) * (y1 - y0))})
+            for noise in (3.0, 15.0):                                 # a good and a poor detection
+                det = kp.copy()
+                det[:, :2] += rng.normal(scale=noise, size=(17, 2))
+                det[:, 2] = rng.uniform(0.2, 1.0, 17)
+                detections.append({"image_id": image_id, "category_id": 1, "keypoints": det.reshape(-1).tolist(),
+                                   "score": float(rng.uniform())})
+    gt = {"images": images, "annotations": annotations, "categories": [{"id": 1, "name": "person"}]}
+    (tmp_path / "gt.json").write_text(json.dumps(gt))
+    (tmp_path / "dt.json").write_text(json.dumps(detections))
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco = COCO(str(tmp_path / "gt.json"))
+        ev = COCOeval(coco, coco.loadRes(str(tmp_path / "dt.json")), iouType="keypoints")
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    ours = metrics.oks_ap(gt, detections)
+    assert 0.05 < ev.stats[0] < 0.95                                   # neither trivial nor perfect
+    assert ours["AP"] == pytest.approx(ev.stats[0], abs=1e-12) and ours["AP50"] == pytest.approx(ev.stats[1], abs=1e-12)
+
+
+def test_match_poses_2d_is_one_to_one_and_rejects_far_detections():
+    rng = np.random.default_rng(6)
+    gt = np.concatenate([rng.uniform(0, 100, (3, 14, 2)) + np.arange(3)[:, None, None] * 300, np.ones((3, 14, 1))], -1)
+    pred = gt[[2, 0]].copy()
+    pred[:, :, :2] += 2.0
+    far = gt[1:2].copy()
+    far[:, :, :2] += 1000
+    match = metrics.match_poses_2d(np.concatenate([pred, far]), gt)
+    assert list(match) == [1, -1, 0]
+    assert list(metrics.match_poses_2d(np.zeros((0, 14, 3)), gt)) == [-1, -1, -1]

@@ -80,3 +80,28 @@ def test_unknown_backbone_lists_the_known_ones():
         build_model("vgg16")
     with pytest.raises(ValueError, match="stride"):
         build_model("resnet18", stride=4)
+
+
+@pytest.mark.parametrize("size", [(64, 96), (65, 97), (385, 385)])
+def test_upsampling_head_gives_stride_8_fields_from_a_stride_16_backbone(size):
+    model = build_model("resnet18", stride=8, width=8, upsample=2).eval()
+    assert model.backbone.stride == 16 and model.spec.backbone_stride == 16
+    with torch.no_grad():
+        out = model(torch.zeros(1, 3, *size))
+    h, w = -(-size[0] // 8), -(-size[1] // 8)                       # as the encoder's field_shape
+    assert out["pif"].shape == (1, 17, 5, h, w) and out["pdf"].shape == (1, 17, 2, h, w)
+    # every upsampled cell starts at the prior confidence, as without upsampling
+    assert torch.allclose(out["pif"][0, :, 0], torch.full((17, h, w), out["pif"][0, 0, 0, 0, 0].item()), atol=1e-3)
+
+
+def test_upsampling_costs_less_than_dilation():
+    """Stride 8 by a stride 16 backbone + upsampling head against a backbone dilated to stride 8."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    flops = {}
+    for upsample, stride in ((1, 8), (2, 8)):
+        model = build_model("resnet50", stride=stride, width=16, upsample=upsample).eval()
+        with FlopCounterMode(display=False) as counter, torch.no_grad():
+            model(torch.zeros(1, 3, 129, 129))
+        flops[upsample] = counter.get_total_flops()
+    assert flops[2] < 0.5 * flops[1]

@@ -4,6 +4,7 @@ import os
 
 import numpy as np
 import pytest
+import torch
 
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
@@ -47,10 +48,14 @@ def test_project_persons_labels_and_relative_depth():
     assert kp[1, 4, 2] == 0 and kp[1, 5, 2] == 0
     ok = kp[..., 2] > 0
     np.testing.assert_allclose(kp[0, 0, :2], K[:2, :2] @ (X[0, 0, :2] / X[0, 0, 2]) + K[:2, 2])
+    z_all = X[..., 2][ok]
+    for p in range(2):                     # one reference per image: the people's depth order is kept
+        np.testing.assert_allclose(dep[p, ok[p]], X[p, ok[p], 2] / np.median(z_all))
+    assert np.median(dep[ok]) == pytest.approx(1.0)
+    _, per_person = project_persons(persons.keypoints3d, K, np.eye(3), np.zeros(3), (160, 120), reference="person")
     for p in range(2):
         z = X[p, ok[p], 2]
-        np.testing.assert_allclose(dep[p, ok[p]], z / np.median(z))
-        assert np.median(dep[p, ok[p]]) == pytest.approx(1.0)
+        np.testing.assert_allclose(per_person[p, ok[p]], z / np.median(z))
 
 
 @pytest.mark.parametrize("link", ["symlink", "copy", "none"])
@@ -96,3 +101,30 @@ def test_export_bad_inputs(tmp_path):
         export_supervision([(_scene("s"), _persons(), tmp_path / "missing")], tmp_path / "o", link="copy")
     with pytest.raises(InputError, match="expected"):
         export_supervision([("scene", "persons")], tmp_path / "o")
+
+
+def test_unreconstructed_people_are_ignored_not_background(tmp_path):
+    from mvm.net.data import AugmentConfig, KeypointDataset
+
+    scene = _scene("s", n_views=2)
+    kp = np.zeros((3, 17, 3))
+    kp[:, :, 0], kp[:, :, 1], kp[:, :, 2] = np.linspace(100, 140, 17), np.linspace(20, 100, 17), 0.9
+    # annotation 7 is held by person 0; 8 (view 0) and 9 (view 1) were not reconstructed
+    poses = Poses2D(kp, np.array([0, 0, 1]), np.array([7, 8, 9]), np.ones(3))
+    scene = Scene("s", scene.cameras, poses)
+    persons = _persons()
+    persons = Persons3D(persons.keypoints3d, persons.scores, [np.array([7]), np.zeros(0, int)],
+                        persons.views_per_joint, persons.outliers_per_joint, persons.reprojection_error_px)
+    path = export_supervision([(scene, persons, _frames(tmp_path / "f", scene))], tmp_path / "d", "copy")
+    data = json.loads(path.read_text())
+    ignored = [a for a in data["annotations"] if a["num_keypoints"] == 0]
+    assert [a["image_id"] for a in ignored] == [1, 2]
+    x, y, w, h = ignored[0]["bbox"]
+    assert x < 100 and x + w > 140 and y < 20 and y + h > 100
+    parsed = read_annotations(path)
+    assert [len(b) for b in parsed.ignore] == [1, 1] and [len(k) for k in parsed.keypoints] == [2, 2]
+    augment = AugmentConfig(input_size=120, crop_min=1.0, flip=0.0)
+    item = KeypointDataset(parsed, 8, augment).sample(0, 0)
+    without = KeypointDataset(parsed.__class__(**{**parsed.__dict__, "ignore": ()}), 8, augment).sample(0, 0)
+    ignored_cells = torch.isnan(item["pif"][:, 0]).all(0).sum() - torch.isnan(without["pif"][:, 0]).all(0).sum()
+    assert ignored_cells >= 20                         # the unreconstructed person's box: about 6 x 13 cells

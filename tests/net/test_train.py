@@ -10,7 +10,20 @@ from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.errors import InputError
 from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.predict import load_model, predict
-from mvm.net.train import EMA, MixtureSampler, config_from_dict, learning_rate, load_config, read_checkpoint, train
+from mvm.net.train import (
+    EMA,
+    MixtureSampler,
+    config_from_dict,
+    finite_or_none,
+    latest_checkpoint,
+    learning_rate,
+    list_checkpoints,
+    load_config,
+    prune_checkpoints,
+    read_checkpoint,
+    read_metrics_log,
+    train,
+)
 from mvm.sim import images
 
 from helpers import REPO
@@ -27,7 +40,8 @@ def _config(data, out, **kw):
            "data": {"input_size": 64, "train": [{"annotations": str(data)}]},
            "optim": {"lr": 0.01, "batch_size": 2, "steps": 3, "ema_decay": 0.1},
            "output": {"out_dir": str(out), "checkpoint_every": 2, "log_every": 1, "device": "cpu"}}
-    doc["optim"].update(kw)
+    for key, value in kw.items():
+        doc["output" if key in ("val_every", "checkpoint_every", "keep_last", "keep_best") else "optim"][key] = value
     return config_from_dict(doc)
 
 
@@ -35,7 +49,10 @@ def test_config_files_parse(tmp_path):
     root = REPO / "configs"
     paper = load_config(root / "train_paper.toml")
     assert (paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay) == (1e-3, 0.95, 8, 0.0, 1e-3)
-    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride) == (0.95, 1.0, "resnet152", 8)
+    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride, paper.upsample) == (0.95, 1.0, "resnet152", 8, 2)
+    assert paper.model_spec.backbone_stride == 16 and paper.depth_loss == "image" and paper.keep_last > 0
+    baseline = load_config(root / "train_paper_coco.toml")
+    assert baseline.train == paper.train[:1] and baseline.model_spec == paper.model_spec and baseline.lr == paper.lr
     assert paper.train[0].start_step == 0 and paper.train[1].start_step > 0
     tiny = load_config(root / "train_cpu_tiny.toml", {"steps": 5})
     assert tiny.steps == 5 and tiny.backbone == "resnet18"
@@ -92,7 +109,7 @@ def test_train_checkpoints_resume_and_predict(tiny_data, tmp_path):
     assert path.name == "checkpoint-0000003.pt"
     assert (out / "checkpoint-0000002.pt").is_file() and (out / "checkpoint-0000002.json").is_file()
     meta = json.loads(path.with_suffix(".json").read_text())
-    assert meta["step"] == 3 and meta["model"] == {"backbone": "resnet18", "stride": 16, "width": 8}
+    assert meta["step"] == 3 and meta["model"] == {"backbone": "resnet18", "stride": 16, "width": 8, "upsample": 1}
     assert meta["images_per_second"] > 0 and set(meta["losses"]) >= {"L_PIF", "L_PAF", "L_PDF", "total"}
     state = torch.load(path, weights_only=True)  # tensors only: no pickled module
     assert set(state) >= {"model", "ema", "optimizer"}
@@ -153,3 +170,191 @@ def test_time_limit_stops_training_and_adamw_trains(tiny_data, tmp_path):
     assert 0 < meta["step"] < 100_000 and path.name == f"checkpoint-{meta['step']:07d}.pt"
     state, _ = read_checkpoint(path)
     assert "exp_avg" in state["optimizer"]["state"][0]                      # AdamW moments were kept
+
+
+def _two_d_only(data, root):
+    """The annotation file ``data`` without its depths: a 2D-only validation set (as COCO val2017)."""
+    doc = json.loads(data.read_text())
+    for ann in doc["annotations"]:
+        ann.pop("keypoint_depths", None)
+        ann.pop("has_3d", None)
+    path = root / "val2d.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_two_d_only_validation_trains_and_checkpoints(tiny_data, tmp_path):
+    val = _two_d_only(tiny_data, tiny_data.parent)
+    cfg = _config(tiny_data, tmp_path / "run", steps=4, val_every=2, checkpoint_every=100)
+    cfg = cfg.replace(val=config_from_dict({"data": {"val": {"annotations": str(val)}}}).val)
+    path = train(cfg)
+    assert path.name == "checkpoint-0000004.pt"
+    for step in (2, 4):                                                   # periodic validation
+        meta = json.loads((tmp_path / "run" / f"checkpoint-{step:07d}.json").read_text())
+        v = meta["validation"]
+        assert v["metrics"]["depth_error"] is None and "2D-only" in v["missing"]["depth_error"]
+        assert v["metrics"]["AP"] is not None and v["metrics"]["persons"] == 0.0
+    records = read_metrics_log(tmp_path / "run" / "metrics.jsonl")
+    assert [r["step"] for r in records if "losses" in r] == [1, 2, 3, 4]
+    assert [r["step"] for r in records if "validation" in r] == [2, 4]
+    assert train(cfg, resume="auto") == path                              # nothing left to do
+
+
+def test_resume_after_a_kill_between_the_weights_and_the_metadata(tiny_data, tmp_path, monkeypatch):
+    out = tmp_path / "run"
+    train(_config(tiny_data, out, steps=2))
+    import mvm.net.train as train_module
+
+    real = train_module.atomic_write_json
+
+    def killed(path, obj, indent=None):
+        if "0000004" in str(path):
+            raise KeyboardInterrupt("killed")
+        real(path, obj, indent)
+
+    monkeypatch.setattr(train_module, "atomic_write_json", killed)
+    with pytest.raises(KeyboardInterrupt):
+        train(_config(tiny_data, out, steps=4), resume="auto")
+    monkeypatch.undo()
+    assert (out / "checkpoint-0000004.pt").is_file() and not (out / "checkpoint-0000004.json").exists()
+    assert latest_checkpoint(out).name == "checkpoint-0000002.pt"
+    # a .json whose recorded size does not match its .pt (a .pt rewritten by a killed run) is skipped too
+    meta = json.loads((out / "checkpoint-0000002.json").read_text())
+    (out / "checkpoint-0000003.pt").write_bytes(b"partial")
+    (out / "checkpoint-0000003.json").write_text(json.dumps(meta))
+    assert latest_checkpoint(out).name == "checkpoint-0000002.pt"
+    (out / "checkpoint-0000003.pt").unlink()
+    (out / "checkpoint-0000003.json").unlink()
+    path = train(_config(tiny_data, out, steps=4), resume="auto")
+    assert path.name == "checkpoint-0000004.pt" and latest_checkpoint(out) == path
+    state, meta = read_checkpoint(path)
+    assert meta["step"] == 4 and meta["weights_bytes"] == path.stat().st_size
+
+
+def test_keep_last_and_keep_best(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    for step, ap in zip(range(1, 6), (0.1, 0.5, 0.2, 0.3, 0.4)):
+        pt = out / f"checkpoint-{step:07d}.pt"
+        pt.write_bytes(b"x" * step)
+        pt.with_suffix(".json").write_text(json.dumps({"format": "mvm.net.checkpoint/1", "weights_bytes": step,
+                                                      "validation": {"metrics": {"AP": ap}}}))
+    deleted = prune_checkpoints(out, keep_last=2, keep_best="AP")
+    assert [p.name[11:18] for p in deleted] == ["0000001", "0000003"]
+    assert [p.name[11:18] for p in list_checkpoints(out)] == ["0000002", "0000004", "0000005"]
+    assert not (out / "checkpoint-0000001.json").exists()
+    assert prune_checkpoints(out, keep_last=0) == []                      # 0: keep all
+    prune_checkpoints(out, keep_last=1)
+    assert [p.name for p in list_checkpoints(out)] == ["checkpoint-0000005.pt"]
+
+
+def test_metadata_with_nan_is_written_as_null(tmp_path):
+    assert finite_or_none({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"}) == {"a": None, "b": [1.0, None], "c": "x"}
+
+
+def test_coco_as_pifpaf_people_only_crowds_and_unlabelled_people_masked(tmp_path):
+    import cv2
+
+    from mvm.net.encoder import encode
+
+    kp = np.zeros((17, 3))
+    kp[:, 0], kp[:, 1], kp[:, 2] = np.linspace(10, 40, 17), np.linspace(10, 50, 17), 2
+    doc = {"images": [{"id": i, "file_name": f"{i}.png"} for i in (1, 2, 3)],
+           "annotations": [
+               {"id": 1, "image_id": 1, "category_id": 1, "keypoints": kp.reshape(-1).tolist()},
+               {"id": 2, "image_id": 1, "category_id": 1, "iscrowd": 1, "bbox": [70, 70, 20, 20]},
+               {"id": 3, "image_id": 2, "category_id": 1, "num_keypoints": 0, "keypoints": [0] * 51,
+                "bbox": [40, 0, 30, 30]}]}                                  # image 3: nobody
+    (tmp_path / "a.json").write_text(json.dumps(doc))
+    for i in (1, 2, 3):
+        cv2.imwrite(str(tmp_path / f"{i}.png"), np.zeros((96, 96, 3), np.uint8))
+    everything = read_annotations(tmp_path / "a.json")
+    people = read_annotations(tmp_path / "a.json", people_only=True)
+    assert len(everything.paths) == 3 and list(people.image_ids) == [1, 2]
+    assert [len(k) for k in people.keypoints] == [1, 0]
+    np.testing.assert_allclose(people.ignore[0], [[70, 70, 90, 90]])
+    np.testing.assert_allclose(people.ignore[1], [[40, 0, 70, 30]])
+    # inside the crowd box the background has no target; elsewhere it is background (0)
+    t = encode(people.keypoints[0], (96, 96), 8, ignore_boxes=people.ignore[0])
+    assert np.isnan(t["pif"][:, 0, 10, 10]).all() and np.isnan(t["paf"][:, 0, 10, 10]).all()
+    assert (t["pif"][:, 0, 5, 10] == 0).all() and np.nanmax(t["pif"][:, 0]) == 1.0
+    ds = KeypointDataset(people, 8, AugmentConfig(input_size=96, flip=0.0))
+    item = ds[1]
+    assert torch.isnan(item["pif"][:, 0, 1, 6]).all() and (item["pif"][:, 0, 10, 10] == 0).all()
+
+
+def test_scale_augmentation_moves_keypoints_and_boxes_with_the_image():
+    image = np.zeros((80, 100, 3), np.uint8)
+    kp = np.zeros((1, 17, 3))
+    kp[0, :, :2], kp[0, :, 2] = (50, 40), 2
+    kp[0, 5, :2] = (55, 20)
+    image[19:22, 54:57] = 255                                            # a marker on the left shoulder
+    sides = []
+    for seed in range(20):
+        cfg = AugmentConfig(input_size=80, flip=0.5, scale_min=0.5, scale_max=2.0)
+        crop, k, d, boxes = random_crop_flip(image, kp, np.arange(17.0)[None], cfg, np.random.default_rng(seed),
+                                             np.array([[54.0, 19.0, 57.0, 22.0]]))
+        if crop.max() == 0:
+            continue                                                     # the marker left the crop
+        y, x = np.unravel_index(np.argmax(crop[:, :, 0]), crop.shape[:2])
+        j = 6 if d[0, 6] == 5 else 5                                     # after a flip: the right shoulder
+        assert k[0, j, 2] > 0 and abs(k[0, j, 0] - x) <= 2.0 and abs(k[0, j, 1] - y) <= 2.0
+        x0, y0, x1, y1 = boxes[0]
+        assert x0 - 1 <= x <= x1 + 1 and y0 - 1 <= y <= y1 + 1
+        sides.append(x1 - x0)
+    assert len(sides) >= 8 and min(sides) < 0.8 * 3 and max(sides) > 1.25 * 3   # the 3 px marker shrank and grew
+
+
+def test_sampler_ranks_split_one_stream():
+    one = iter(MixtureSampler([10, 5], [1.0, 2.0], [0, 1], batch_size=4, seed=3, start=8))
+    ranks = [iter(MixtureSampler([10, 5], [1.0, 2.0], [0, 1], batch_size=4, seed=3, start=8, rank=r, world=2))
+             for r in range(2)]
+    stream = [next(one) for _ in range(40)]
+    assert [next(ranks[i % 2]) for i in range(40)] == stream
+
+
+def _ddp_worker(rank, world, port, cfg):
+    import os
+
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), WORLD_SIZE=str(world), RANK=str(rank),
+                      LOCAL_RANK=str(rank))
+    train(cfg)
+
+
+def test_data_parallel_on_cpu_with_gloo(tiny_data, tmp_path):
+    """Two processes (torchrun's environment, the gloo backend): one run, written once by rank 0."""
+    import socket
+
+    import torch.multiprocessing as mp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = _config(tiny_data, tmp_path / "run", steps=2).replace(threads=1)
+    mp.spawn(_ddp_worker, args=(2, port, cfg), nprocs=2, join=True)
+    meta = json.loads((tmp_path / "run" / "checkpoint-0000002.json").read_text())
+    assert meta["step"] == 2 and meta["images_per_second"] > 0
+    records = read_metrics_log(tmp_path / "run" / "metrics.jsonl")
+    assert [r["step"] for r in records] == [1, 2]                         # one log, not one per process
+
+
+def test_plot_draws_the_curves(tiny_data, tmp_path):
+    from click.testing import CliRunner
+
+    from mvm.cli.net import train_cmd
+    from mvm.net.curves import curves
+
+    val = _two_d_only(tiny_data, tiny_data.parent)
+    out = tmp_path / "run"
+    config = tmp_path / "c.toml"
+    config.write_text(f"""[model]\nbackbone = "resnet18"\nstride = 16\nwidth = 8\n[data]\ninput_size = 64
+[[data.train]]\nannotations = "{tiny_data}"\n[data.val]\nannotations = "{val}"
+[optim]\nsteps = 2\nbatch_size = 2\nlr = 0.01\n[output]\nout_dir = "{out}"\nval_every = 1\nlog_every = 1\nthreads = 1\n""")
+    result = CliRunner().invoke(train_cmd, [str(config), "--device", "cpu"])
+    assert result.exit_code == 0, result.output
+    assert "depth_error: missing (no person with depth" in result.output
+    data = curves(read_metrics_log(out / "metrics.jsonl"))
+    assert data["total"][0] == [1, 2] and data["val/AP"][0] == [1, 2] and "val/depth_error" not in data
+    result = CliRunner().invoke(train_cmd, [str(config), "--plot"])
+    assert result.exit_code == 0, result.output
+    assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"

@@ -179,6 +179,7 @@ def _register_optional_commands() -> None:
         ("mvm.cli.video", ("run_cmd", "frames_cmd", "sfm_cmd", "detect_cmd")),
         ("mvm.cli.rig", ("rig",)),
         ("mvm.cli.net", ("export_cmd", "train_cmd", "predict_cmd")),
+        ("mvm.cli.evaluate", ("evaluate",)),
         ("mvm.cli.report", ("report_cmd", "overlay_cmd")),
         ("mvm.cli.batch", ("batch_cmd", "status_cmd")),
     ):

@@ -64,18 +64,35 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a setting, e.g. --set steps=1000 --set backbone=resnet18 (repeatable).")
 @click.option("--resume", default=None, metavar="PATH|auto",
-              help="Continue from a checkpoint .pt, or 'auto' for the latest one in out_dir.")
-def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
-    """Train the monocular 3D pose network with the settings of CONFIG (TOML)."""
+              help="Continue from a checkpoint .pt, or 'auto' for the latest complete one in out_dir.")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default=None,
+              help="Override the configuration's device.")
+@click.option("--plot", is_flag=True, help="Only draw the curves of out_dir/metrics.jsonl into out_dir/curves.png.")
+def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: str | None, plot: bool) -> None:
+    """Train the monocular 3D pose network with the settings of CONFIG (TOML).
+
+    Several GPUs: torchrun --nproc-per-node N -m mvm.cli.main train CONFIG (batch_size per GPU).
+    """
     from mvm.net.train import load_config, train
 
-    cfg = load_config(config, _parse_sets(sets))
+    cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
+    if plot:
+        from mvm.net.curves import plot_metrics
+
+        click.echo(f"{plot_metrics(Path(cfg.out_dir) / 'metrics.jsonl', Path(cfg.out_dir) / 'curves.png')}")
+        return
     path = train(cfg, resume=resume)
     import json
 
     meta = json.loads(path.with_suffix(".json").read_text())
     click.echo(f"{path}: step {meta['step']}, {meta.get('images_per_second', float('nan')):.1f} images/s "
                f"on {meta.get('device', '?')}")
+    validation = meta.get("validation")
+    if validation:
+        shown = {k: v for k, v in validation["metrics"].items() if k in ("AP", "AP50", "depth_error")}
+        click.echo("validation: " + ", ".join(f"{k} {'-' if v is None else f'{v:.4f}'}" for k, v in shown.items()))
+        for name, reason in validation["missing"].items():
+            click.echo(f"  {name}: missing ({reason})")
 
 
 @click.command("predict")
@@ -86,12 +103,14 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None) -> None:
               help="Where predictions.json and the overlays go.")
 @click.option("--focal", "focal_px", default=None, type=float, help="Focal length in pixels (default: the long edge).")
 @click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
+              help="Where the network runs (auto: a GPU when there is one).")
 def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal_px: float | None,
-                input_size: int | None) -> None:
+                input_size: int | None, device: str) -> None:
     """Multi-person 2D poses, relative depths and calibrated 3D poses of IMAGES."""
     from mvm.net.predict import predict
 
-    results = predict(list(images), checkpoint, out_dir, input_size=input_size, focal_px=focal_px)
+    results = predict(list(images), checkpoint, out_dir, input_size=input_size, focal_px=focal_px, device=device)
     for r in results:
         click.echo(f"{r['image']}: {len(r['persons'])} people")
     click.echo(f"{out_dir / 'predictions.json'}")

@@ -30,7 +30,8 @@ class _InputErrorExit(click.ClickException):
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")
 @click.option("--seed", default=0, show_default=True, help="Random seed.")
-def simulate_cmd(scene_dir, preset, people, frames, arc_deg, trajectory, seed):
+@click.option("--render", is_flag=True, help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
+def simulate_cmd(scene_dir, preset, people, frames, arc_deg, trajectory, seed, render):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
     (SCENE_DIR.groundtruth.json)."""
     from mvm.io.ground_truth import write_simulation
@@ -41,6 +42,12 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, trajectory, seed):
                                trajectory=trajectory)
         scene, truth = simulate(sim)
         truth_path = write_simulation(scene_dir, scene, truth, sim)
+        if render:
+            from pathlib import Path
+
+            from mvm.sim.video import render_frames
+
+            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, seed)
     except (InputError, ValueError) as e:
         raise _InputErrorExit(str(e)) from None
     table = Table(title=f"mvm simulate ({preset})")
@@ -50,7 +57,8 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, trajectory, seed):
     for row in (("people", f"{len(truth.poses3d)} ({labels})"), ("frames", str(len(scene.cameras))),
                 ("2D poses", str(len(scene.poses))), ("false positives", str(int((truth.person < 0).sum()))),
                 ("merged poses", str(int((truth.merged_with >= 0).sum()))),
-                ("scene", str(scene_dir)), ("ground truth", str(truth_path))):
+                ("scene", str(scene_dir)), ("ground truth", str(truth_path))) + (
+                    (("rendered frames", f"{scene_dir}/frames"),) if render else ()):
         table.add_row(*row)
     out.print(table)
 

@@ -24,9 +24,9 @@ import numpy as np
 from mvm.core.affinity import pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
-from mvm.core.geometry import project
 from mvm.core.matching import greedy_groups
 from mvm.core.prior import load_prior
+from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.scene import Cameras, Poses2D
 from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate
@@ -202,8 +202,7 @@ def summarize(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config:
     """:class:`PersonStats` of the poses ``X: (P, J, 3)`` against the groups' keypoints."""
     X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)
     if len(X):
-        uv, _ = project(X[:, None], obs.P[:, :, None])
-        errors = np.linalg.norm(uv - obs.xy, axis=-1)                       # (P, M, J)
+        errors = reprojection_errors(X, obs.xy, obs.P)                      # (P, M, J)
     else:
         errors = np.zeros((0, 0, X.shape[1] if X.ndim == 3 else 17))
     keep = np.isfinite(X).all(-1).sum(-1) >= config.min_person_joints

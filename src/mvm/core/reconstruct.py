@@ -12,9 +12,9 @@ from threadpoolctl import threadpool_limits
 from mvm.core.affinity import affinity_bytes
 from mvm.core.config import Config
 from mvm.core.pipeline import Reconstruction, reconstruct_poses
+from mvm.core.quality import scene_quality
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
-from mvm.eval.metrics import scene_quality
 
 log = logging.getLogger(__name__)
 

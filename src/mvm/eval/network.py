@@ -92,6 +92,41 @@ def threedpw_pa_mpjpe(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray, cli
     return (float(np.mean(list(per_track.values()))) if per_track else float("nan")), per_track
 
 
+def match_poses_2d(pred: np.ndarray, gt: np.ndarray, max_distance: float = 0.5) -> np.ndarray:
+    """One-to-one matching of detected to true people of an image by their 2D joints.
+
+    The cost of a pair is the mean pixel distance over the joints visible in ``gt`` and
+    present in ``pred``, divided by the diagonal of the true person's visible-joint box;
+    pairs above ``max_distance`` are excluded, the others assigned by minimum total cost (Hungarian).
+
+    Args:
+        pred: ``(P, J, 3)`` x, y, confidence (≤ 0: absent); gt: ``(G, J, 3)`` x, y, visibility.
+    Returns:
+        ``(G,)`` index of the matched detection of each true person, -1: none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    pred, gt = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
+    out = np.full(len(gt), -1)
+    if len(pred) == 0 or len(gt) == 0:
+        return out
+    if pred.shape[1:] != gt.shape[1:]:
+        raise ValueError(f"match_poses_2d: expected (P, J, 3) and (G, J, 3), got {pred.shape} and {gt.shape}")
+    both = (gt[None, :, :, 2] > 0) & (pred[:, None, :, 2] > 0)                       # (P, G, J)
+    dist = np.linalg.norm(pred[:, None, :, :2] - gt[None, :, :, :2], axis=-1)
+    vis = gt[..., 2] > 0
+    lo = np.where(vis[..., None], gt[..., :2], np.inf).min(1)
+    hi = np.where(vis[..., None], gt[..., :2], -np.inf).max(1)
+    diag = np.where(vis.any(1), np.linalg.norm(hi - lo, axis=-1), np.inf)            # (G,)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cost = (dist * both).sum(-1) / both.sum(-1) / np.maximum(diag, 1.0)
+    allowed = (both.sum(-1) > 0) & (cost < max_distance)                                # gate before assigning
+    rows, cols = linear_sum_assignment(np.where(allowed, cost, 1e9))
+    ok = allowed[rows, cols]
+    out[cols[ok]] = rows[ok]
+    return out
+
+
 def oks_ap(ground_truth: dict, detections: list[dict]) -> dict[str, float]:
     """COCO keypoint AP of ``detections`` against a COCO keypoints ``ground_truth`` dict (pycocotools).
 
@@ -177,6 +212,28 @@ def c_var(projections: np.ndarray, keypoints: np.ndarray, tau: float) -> float:
     views = ok.sum(1).reshape(-1)[np.unique(group)]                      # views per (person, joint)
     keep = views >= 3
     return float(var[keep].mean()) if keep.any() else float("nan")
+
+
+def keypoints_per_view(keypoints: np.ndarray, view: np.ndarray, score: np.ndarray, members: list[np.ndarray],
+                       n_views: int) -> np.ndarray:
+    """The 2D poses grouped into each reconstructed person, laid out by view, for :func:`c_var`.
+
+    Args:
+        keypoints: ``(N, J, 3)`` the 2D poses of a scene; view: ``(N,)`` their view index;
+        score: ``(N,)`` (the best-scoring pose is kept where a person has two in one view);
+        members: per person, the indices into the ``N`` poses grouped into it.
+    Returns:
+        ``(P, V, J, 3)``; zeros where a person has no pose in a view.
+    """
+    kp = np.asarray(keypoints, dtype=float)
+    out = np.zeros((len(members), n_views) + kp.shape[1:])
+    if not members:
+        return out
+    person = np.concatenate([np.full(len(m), p) for p, m in enumerate(members)]).astype(int)
+    pose = np.concatenate([np.asarray(m, dtype=int) for m in members])
+    order = np.argsort(np.asarray(score, dtype=float)[pose], kind="stable")      # the best is written last
+    out[person[order], np.asarray(view)[pose[order]]] = kp[pose[order]]
+    return out
 
 
 def relative_depth_error(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:

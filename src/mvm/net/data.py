@@ -6,7 +6,14 @@ the PDF gets no target (the paper's 2D-only pretraining).
 
 Augmentations (Section 5 of the paper): a square crop whose side is ``crop_min``–``crop_max``
 of the image's short edge at a random position, a horizontal flip that swaps left and right
-keypoints (``FLIP_PERMUTATION``), and a resize to ``input_size``.
+keypoints (``FLIP_PERMUTATION``), and a resize to ``input_size``; optionally a random rescale
+(``scale_min``–``scale_max``, as PifPaf trains on COCO: the crop side is divided by it, so
+people appear larger or smaller, with zero padding where the crop leaves the image).
+
+COCO as PifPaf treats it: crowd regions (``iscrowd``) and people annotated without keypoints
+are not background but *ignored* (their boxes carry no confidence target); with
+``people_only`` images without any person annotation are dropped (COCO 2017 train: 64,115
+images). An MVM export marks the people it did not reconstruct the same way.
 """
 from __future__ import annotations
 
@@ -32,27 +39,41 @@ class AugmentConfig:
         input_size: side of the square network input. [px]
         crop_min, crop_max: side of the random square crop as a fraction of the short edge. [1]
         flip: probability of a horizontal flip. [0-1]
+        scale_min, scale_max: range of the random rescale, drawn log-uniformly (1, 1: none;
+            > 1 magnifies the people). [1]
     """
 
     input_size: int = 385
     crop_min: float = 0.95
     crop_max: float = 1.0
     flip: float = 0.5
+    scale_min: float = 1.0
+    scale_max: float = 1.0
 
 
 @dataclass(frozen=True)
 class Annotations:
-    """A COCO keypoints file. ``keypoints[i]: (N_i, 17, 3)``, ``depths[i]: (N_i, 17)`` (NaN: none)."""
+    """A COCO keypoints file. ``keypoints[i]: (N_i, 17, 3)``, ``depths[i]: (N_i, 17)`` (NaN: none),
+    ``ignore[i]: (M_i, 4)`` boxes ``x0, y0, x1, y1`` of crowds and people without keypoints."""
 
     image_ids: np.ndarray
     paths: tuple[Path, ...]
     keypoints: tuple[np.ndarray, ...]
     depths: tuple[np.ndarray, ...]
     document: dict
+    ignore: tuple[np.ndarray, ...] = ()
+
+    def box_of(self, i: int) -> np.ndarray:
+        return self.ignore[i] if self.ignore else np.zeros((0, 4))
 
 
-def read_annotations(path: str | Path, images_dir: str | Path | None = None, min_keypoints: int = 1) -> Annotations:
-    """Read a COCO keypoints file; images are found under ``images_dir`` (default: the file's directory)."""
+def read_annotations(path: str | Path, images_dir: str | Path | None = None, min_keypoints: int = 1,
+                     people_only: bool = False) -> Annotations:
+    """Read a COCO keypoints file; images are found under ``images_dir`` (default: the file's directory).
+
+    Persons with fewer than ``min_keypoints`` visible joints, and crowds, become ignore boxes
+    (from their ``bbox``); ``people_only`` drops the images without any person annotation.
+    """
     path = Path(path)
     try:
         doc = json.loads(path.read_text())
@@ -71,17 +92,27 @@ def read_annotations(path: str | Path, images_dir: str | Path | None = None, min
         index[im["id"]] = i
     kps = [[] for _ in doc["images"]]
     deps = [[] for _ in doc["images"]]
+    ignore = [[] for _ in doc["images"]]
+    people = np.zeros(len(doc["images"]), bool)
     for i, ann in enumerate(doc["annotations"]):
         field = f"annotations[{i}]"
-        if ann.get("category_id", 1) != 1 or ann.get("iscrowd", 0):
+        if not isinstance(ann, dict) or ann.get("category_id", 1) != 1:
             continue
         if ann.get("image_id") not in index:
             raise InputError(path, f"{field}.image_id", f"no image with id {ann.get('image_id')!r}")
-        kp = np.asarray(ann.get("keypoints", []), dtype=float)
+        people[index[ann["image_id"]]] = True
+        box = _box(ann.get("bbox"))
+        if ann.get("iscrowd", 0):
+            if box is not None:
+                ignore[index[ann["image_id"]]].append(box)
+            continue
+        kp = np.asarray(ann.get("keypoints", [0.0] * 3 * NUM_JOINTS), dtype=float)
         if kp.shape != (3 * NUM_JOINTS,) or not np.isfinite(kp).all():
             raise InputError(path, f"{field}.keypoints", f"expected {3 * NUM_JOINTS} finite numbers")
         kp = kp.reshape(NUM_JOINTS, 3)
         if (kp[:, 2] > 0).sum() < min_keypoints:
+            if box is not None:
+                ignore[index[ann["image_id"]]].append(box)
             continue
         d = np.full(NUM_JOINTS, np.nan)
         if "keypoint_depths" in ann:
@@ -92,13 +123,28 @@ def read_annotations(path: str | Path, images_dir: str | Path | None = None, min
             d = np.where(has & (d > 0) & (kp[:, 2] > 0), d, np.nan)
         kps[index[ann["image_id"]]].append(kp)
         deps[index[ann["image_id"]]].append(d)
+    keep = np.nonzero(people)[0] if people_only else np.arange(len(doc["images"]))
+    if people_only:
+        LOG.info("%s: %d of %d images show people", path, len(keep), len(doc["images"]))
     return Annotations(
-        image_ids=np.array([im["id"] for im in doc["images"]]),
-        paths=tuple(root / im["file_name"] for im in doc["images"]),
-        keypoints=tuple(np.array(k, dtype=float).reshape(-1, NUM_JOINTS, 3) for k in kps),
-        depths=tuple(np.array(d, dtype=float).reshape(-1, NUM_JOINTS) for d in deps),
+        image_ids=np.array([doc["images"][i]["id"] for i in keep]),
+        paths=tuple(root / doc["images"][i]["file_name"] for i in keep),
+        keypoints=tuple(np.array(kps[i], dtype=float).reshape(-1, NUM_JOINTS, 3) for i in keep),
+        depths=tuple(np.array(deps[i], dtype=float).reshape(-1, NUM_JOINTS) for i in keep),
         document=doc,
+        ignore=tuple(np.array(ignore[i], dtype=float).reshape(-1, 4) for i in keep),
     )
+
+
+def _box(bbox) -> np.ndarray | None:
+    """COCO ``[x, y, w, h]`` -> ``[x0, y0, x1, y1]``, None when absent or degenerate."""
+    try:
+        x, y, w, h = (float(v) for v in bbox)
+    except (TypeError, ValueError):
+        return None
+    if not (np.isfinite([x, y, w, h]).all() and w > 0 and h > 0):
+        return None
+    return np.array([x, y, x + w, y + h])
 
 
 def load_image(path: Path) -> np.ndarray:
@@ -112,33 +158,49 @@ def load_image(path: Path) -> np.ndarray:
 
 
 def random_crop_flip(image: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,
-                     config: AugmentConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Square crop of 95–100 % of the short edge at a random place, resize, random flip.
+                     config: AugmentConfig, rng: np.random.Generator,
+                     boxes: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """Square crop of 95–100 % of the short edge (divided by a random rescale) at a random
+    place, resize, random flip.
 
     ``image: (H, W, 3)``, ``keypoints: (N, 17, 3)``, ``depths: (N, 17)`` -> the same for the
-    ``input_size²`` result; keypoints that leave the crop get ``v = 0`` and no depth.
+    ``input_size²`` result; keypoints that leave the crop get ``v = 0`` and no depth. With
+    ``boxes: (M, 4)`` (``x0, y0, x1, y1``), their transformed boxes are returned fourth.
     """
     import cv2
 
     H, W = image.shape[:2]
-    side = max(1, int(round(rng.uniform(config.crop_min, config.crop_max) * min(H, W))))
-    x0, y0 = int(rng.integers(0, W - side + 1)), int(rng.integers(0, H - side + 1))
+    side = rng.uniform(config.crop_min, config.crop_max) * min(H, W)
+    if config.scale_min != 1.0 or config.scale_max != 1.0:
+        side /= float(np.exp(rng.uniform(np.log(config.scale_min), np.log(config.scale_max))))
+    side = max(1, int(round(side)))
+    x0 = int(rng.integers(min(0, W - side), max(0, W - side) + 1))
+    y0 = int(rng.integers(min(0, H - side), max(0, H - side) + 1))
     S = config.input_size
-    crop = cv2.resize(np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side]), (S, S),
-                      interpolation=cv2.INTER_AREA if side > S else cv2.INTER_LINEAR)
+    if 0 <= x0 and 0 <= y0 and x0 + side <= W and y0 + side <= H:
+        crop = cv2.resize(np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side]), (S, S),
+                          interpolation=cv2.INTER_AREA if side > S else cv2.INTER_LINEAR)
+    else:                                                     # the crop leaves the image: zero padding
+        k = S / side
+        A = np.array([[k, 0, (0.5 - x0) * k - 0.5], [0, k, (0.5 - y0) * k - 0.5]])
+        crop = cv2.warpAffine(np.ascontiguousarray(image), A, (S, S), flags=cv2.INTER_LINEAR,
+                              borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     kp = keypoints.copy()
     kp[..., 0] = (kp[..., 0] - x0 + 0.5) * S / side - 0.5
     kp[..., 1] = (kp[..., 1] - y0 + 0.5) * S / side - 0.5
+    b = None if boxes is None else (np.asarray(boxes, dtype=float).reshape(-1, 4) - [x0, y0, x0, y0]) * S / side
     d = depths.copy()
     if rng.uniform() < config.flip:
         crop = np.ascontiguousarray(crop[:, ::-1])
         kp[..., 0] = S - 1 - kp[..., 0]
         kp, d = kp[:, FLIP_PERMUTATION], d[:, FLIP_PERMUTATION]
+        if b is not None:
+            b = np.stack([S - 1 - b[:, 2], b[:, 1], S - 1 - b[:, 0], b[:, 3]], -1)
     out = (kp[..., 0] < 0) | (kp[..., 0] > S - 1) | (kp[..., 1] < 0) | (kp[..., 1] > S - 1)
     kp[out, 2] = 0
     kp[kp[..., 2] <= 0, :2] = 0
     d[kp[..., 2] <= 0] = np.nan
-    return crop, kp, d
+    return (crop, kp, d) if b is None else (crop, kp, d, b)
 
 
 def letterbox(image: np.ndarray, size: int, stride: int) -> tuple[np.ndarray, float]:
@@ -193,9 +255,10 @@ class KeypointDataset(torch.utils.data.Dataset):
         rng = np.random.default_rng([self.seed, draw, i])
         image = load_image(self.ann.paths[i])
         depths = self.ann.depths[i] if self.use_depth else np.full(self.ann.depths[i].shape, np.nan)
-        crop, kp, d = random_crop_flip(image, self.ann.keypoints[i], depths, self.augment, rng)
+        crop, kp, d, boxes = random_crop_flip(image, self.ann.keypoints[i], depths, self.augment, rng,
+                                              self.ann.box_of(i))
         S = self.augment.input_size
-        targets = encode(kp, (S, S), self.stride, d, self.encoder)
+        targets = encode(kp, (S, S), self.stride, d, self.encoder, ignore_boxes=boxes)
         out = {k: torch.from_numpy(v) for k, v in targets.items()}
         out["image"] = to_tensor(crop)
         return out

@@ -311,7 +311,8 @@ def _read_depth(kp: np.ndarray, votes, pdf: np.ndarray) -> np.ndarray:
     """Relative depth at every decoded keypoint. ``kp: (P, 17, 3)`` in cells -> ``(P, 17)``.
 
     The Gaussian of each cell is narrowed to at most a third of the distance between the
-    keypoint and the nearest same joint of another pose, so neighbours do not blend.
+    keypoint and the nearest same joint of another pose, and a cell is read only for the
+    keypoint its regressed position is nearest to, so neighbours (at other depths) do not blend.
     """
     pdf = np.asarray(pdf, dtype=float)
     depth = np.full(kp.shape[:2], np.nan)
@@ -331,6 +332,9 @@ def _read_depth(kp: np.ndarray, votes, pdf: np.ndarray) -> np.ndarray:
         width = np.minimum(gamma[None], gap.min(axis=1, keepdims=True) / 3)  # (P_j, M)
         d2 = ((x[:, None] - p[None]) ** 2).sum(-1)                      # (P_j, M)
         logw = np.log(c)[None] - 0.5 * d2 / np.maximum(width, 1e-3) ** 2
+        own = d2 <= d2.min(axis=0, keepdims=True)                       # each vote reads for its nearest keypoint
+        own[~own.any(axis=1)] = True                                     # a keypoint without votes of its own: all
+        logw = np.where(own, logw, -np.inf)
         w = np.exp(logw - logw.max(axis=1, keepdims=True))
         depth[have, j] = (w * d[None]).sum(1) / w.sum(1)
     return depth

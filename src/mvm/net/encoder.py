@@ -72,7 +72,8 @@ def person_scale(keypoints: np.ndarray) -> np.ndarray:
 
 def encode(keypoints: np.ndarray, image_size: tuple[int, int], stride: int,
            depths: np.ndarray | None = None, config: EncoderConfig = EncoderConfig(),
-           connections: tuple[tuple[int, int], ...] = PAF_CONNECTIONS) -> dict[str, np.ndarray]:
+           connections: tuple[tuple[int, int], ...] = PAF_CONNECTIONS,
+           ignore_boxes: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Field targets of one image.
 
     Args:
@@ -81,6 +82,8 @@ def encode(keypoints: np.ndarray, image_size: tuple[int, int], stride: int,
         image_size: ``(width, height)`` of the image in pixels.
         stride: pixels per cell.
         depths: ``(N, 17)`` relative depths (> 0), NaN or 0 where unknown; ``None``: no depth.
+        ignore_boxes: ``(M, 4)`` pixel boxes ``x0, y0, x1, y1`` whose background is not a
+            target (crowds, people without keypoints, people that were not reconstructed).
     Returns:
         ``{"pif": (17, 5, H, W), "paf": (C, 7, H, W), "pdf": (17, 2, H, W),
         "pdf_group": (17, H, W)}`` float32 targets (int64 groups), NaN where there is no target.
@@ -103,6 +106,8 @@ def encode(keypoints: np.ndarray, image_size: tuple[int, int], stride: int,
     pif, pdf, group = _encode_pif(xy, vis, sigma, dep, cells, config)
     paf = _encode_paf(xy, vis, cells, connections, config)
     _ignore_missing(pif, paf, xy, vis, cells, connections, config)
+    if ignore_boxes is not None and len(ignore_boxes):
+        _ignore_boxes(pif, paf, np.asarray(ignore_boxes, dtype=float) / stride, cells)
     return {
         "pif": pif.reshape(NUM_JOINTS, 5, H, W).astype(np.float32),
         "paf": paf.reshape(len(connections), 7, H, W).astype(np.float32),
@@ -187,6 +192,14 @@ def _ignore_missing(pif, paf, xy, vis, cells, connections, config):
     miss_c = missing[:, a_idx] | missing[:, b_idx]                              # (N, C)
     ignore_c = (miss_c.T[:, :, None] & inside[None]).any(axis=1)                # (C, HW)
     paf[:, 0][ignore_c & (paf[:, 0] == 0)] = np.nan
+
+
+def _ignore_boxes(pif, paf, boxes, cells):
+    """Set the background ``c`` of PIF and PAF to NaN inside ``boxes (M, 4)`` (cells; x0, y0, x1, y1)."""
+    inside = ((cells[None, :, 0] >= boxes[:, None, 0]) & (cells[None, :, 0] <= boxes[:, None, 2])
+              & (cells[None, :, 1] >= boxes[:, None, 1]) & (cells[None, :, 1] <= boxes[:, None, 3])).any(0)  # (HW,)
+    pif[:, 0][inside[None] & (pif[:, 0] == 0)] = np.nan
+    paf[:, 0][inside[None] & (paf[:, 0] == 0)] = np.nan
 
 
 @contextmanager

@@ -8,9 +8,18 @@ import numpy as np
 import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
-from mvm.eval.network import oks_ap, relative_depth_error
+from mvm.errors import InputError
+from mvm.eval.network import (
+    c_var,
+    coco_to_common14,
+    keypoints_per_view,
+    match_poses_2d,
+    oks_ap,
+    relative_depth_error,
+    threedpw_pa_mpjpe,
+)
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
-from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at
+from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth
 from mvm.net.model import PoseNet, fields_from_raw
 
 LOG = logging.getLogger(__name__)
@@ -25,7 +34,7 @@ def run_model(model: PoseNet, image: np.ndarray, input_size: int,
     letterboxed input (``{"pif": (17, 5, h, w), …}``) and the letterbox scale.
     """
     stride = model.spec.stride
-    boxed, scale = letterbox(image, input_size, stride)
+    boxed, scale = letterbox(image, input_size, model.spec.backbone_stride)
     device = next(model.parameters()).device
     raw = model(to_tensor(boxed)[None].to(device))
     fields = {k: v[0].float().cpu().numpy() for k, v in fields_from_raw(raw).items()}
@@ -46,6 +55,41 @@ def oks(a: np.ndarray, b: np.ndarray, area: float) -> float:
     e = d2 / (2 * max(area, 1.0) * k2)
     present = a[:, 2] > 0
     return float(np.where(vis & present, np.exp(-e), 0.0).sum() / vis.sum())
+
+
+def evaluate_detections(annotations: str | Path, detections: str | Path) -> dict[str, float]:
+    """OKS AP of a COCO results file (``[{"image_id", "keypoints", "score"}]``) on a COCO keypoints file."""
+    import json
+
+    ann = read_annotations(annotations)
+    path = Path(detections)
+    try:
+        dets = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except (OSError, ValueError) as e:
+        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    if not isinstance(dets, list):
+        raise InputError(path, None, "expected a list of detections")
+    for i, d in enumerate(dets):
+        if not isinstance(d, dict) or len(d.get("keypoints", ())) != 51 or "image_id" not in d or "score" not in d:
+            raise InputError(path, f"[{i}]", "expected {image_id, keypoints: 51 numbers, score}")
+    return oks_ap(ann.document, dets)
+
+
+def missing_reasons(result: dict[str, float]) -> dict[str, str]:
+    """Why each NaN metric of :func:`evaluate`'s ``result`` could not be computed: ``{name: reason}``."""
+    reasons = {}
+    for name, value in result.items():
+        if np.isfinite(value):
+            continue
+        if name.startswith("depth_error") and not result.get("persons"):
+            reasons[name] = "no person with depth in the validation set (2D-only data)"
+        elif name in ("depth_error", "depth_error_flat_matched") and not result.get("matched"):
+            reasons[name] = "no detection matched a person with depth at OKS >= 0.5"
+        else:
+            reasons[name] = "no joint with a depth in both prediction and ground truth"
+    return reasons
 
 
 def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None = None, input_size: int = 385,
@@ -105,3 +149,102 @@ def evaluate(model: PoseNet, annotations: str | Path, images: str | Path | None 
             "depth_error_gt2d": mean(oracle_err), "depth_error_flat": mean(flat_err),
             "depth_error_flat_matched": mean(matched_flat),
             "matched": float(len(matched_err)), "persons": float(n_persons)}
+
+
+def predict_3d(model: PoseNet, image: np.ndarray, K: np.ndarray, input_size: int,
+               decoder: DecoderConfig = DecoderConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """People of one image: 2D joints ``(P, 17, 3)`` and camera-frame 3D joints ``(P, 17, 3)``
+    (relative depths back-projected through ``K (3, 3)``, scaled by the bone lengths s*)."""
+    from mvm.net.scale import calibrate, lift
+
+    poses, _, _ = run_model(model, image, input_size, decoder)
+    if len(poses) == 0:
+        return np.zeros((0, 17, 3)), np.zeros((0, 17, 3))
+    metric, _ = calibrate(lift(poses.keypoints, normalize_depth(poses.depth), K))
+    return poses.keypoints, metric
+
+
+def evaluate_3dpw(model: PoseNet, data, input_size: int = 385, decoder: DecoderConfig = DecoderConfig(),
+                  min_visible: int = 7, max_images: int | None = None, progress=None) -> dict:
+    """PA-MPJPE of ``model`` on 3DPW poses (the paper's Table 3 protocol).
+
+    Each image is run once; its detections are matched to the true people by their 2D
+    joints (:func:`mvm.eval.network.match_poses_2d`); the 14 common joints of each matched
+    pose are Procrustes-aligned to the truth; errors are averaged per tracked person per
+    clip, then over the data set (:func:`mvm.eval.network.threedpw_pa_mpjpe`). Subjects with
+    fewer than ``min_visible`` visible joints are ignored; a true person without a matching
+    detection is counted in ``missed`` (and gets no error).
+
+    Args:
+        data: :class:`mvm.net.threedpw.ThreeDPWPoses`.
+        progress: optional ``progress(done, total)`` callback per image.
+    Returns:
+        ``{"PA_MPJPE_mm", "tracks", "poses", "missed", "ignored", "images", "per_track_mm"}``.
+    """
+    was_training = model.training
+    model.eval()
+    eligible = data.visible.sum(1) >= min_visible
+    images = list(dict.fromkeys(p for p, e in zip(data.images, eligible) if e))
+    if max_images is not None:
+        images = images[:max_images]
+    rows_of: dict = {}
+    for i, (path, e) in enumerate(zip(data.images, eligible)):
+        if e:
+            rows_of.setdefault(path, []).append(i)
+    pred = np.full((len(data), 14, 3), np.nan)
+    found = np.zeros(len(data), bool)
+    for n, path in enumerate(images):
+        rows = np.array(rows_of[path])
+        kp2d, kp3d = predict_3d(model, load_image(path), data.intrinsics[rows[0]], input_size, decoder)
+        match = match_poses_2d(coco_to_common14(kp2d), data.joints2d[rows])
+        hit = match >= 0
+        pred[rows[hit]] = coco_to_common14(kp3d[match[hit]])
+        found[rows[hit]] = True
+        if progress is not None:
+            progress(n + 1, len(images))
+    model.train(was_training)
+    used = found & eligible
+    error, per_track = threedpw_pa_mpjpe(pred[used], data.joints3d[used], data.visible[used], data.clip[used],
+                                         data.track[used], min_visible)
+    evaluated = np.isin(np.array([str(p) for p in data.images], dtype=object), [str(p) for p in images])
+    return {"PA_MPJPE_mm": 1000.0 * error, "tracks": len(per_track), "poses": int(used.sum()),
+            "missed": int((evaluated & eligible & ~found).sum()), "ignored": int((evaluated & ~eligible).sum()),
+            "images": len(images), "per_track_mm": {f"{c}/{t}": 1000.0 * e for (c, t), e in per_track.items()}}
+
+
+def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 0.9),
+                  output_name: str = "mvm") -> dict:
+    """The paper's Table 5: C_var of the 2D poses of reconstructed scenes.
+
+    For each scene, the 2D poses that the reconstruction grouped into each person
+    (``<scene>/<output_name>/poses3d.json``) are triangulated pairwise per joint
+    (:func:`mvm.eval.network.c_var`); the table value is the mean over scenes, in squared
+    units of each scene's model. Run it on scenes whose ``poses2d.json`` came from the
+    detector under test.
+
+    Returns:
+        ``{"C_var": {tau: mean or None}, "scenes": {name: {tau: value or None}}, "missing": {…}}``.
+    """
+    from mvm.io.scene_dir import read_poses3d, read_scene
+
+    per_scene, missing = {}, {}
+    for scene_dir in map(Path, scene_dirs):
+        poses3d = scene_dir / output_name / "poses3d.json"
+        if not poses3d.is_file():
+            raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+        scene = read_scene(scene_dir)
+        persons = read_poses3d(poses3d, scene.poses)
+        kp = keypoints_per_view(scene.poses.keypoints, scene.poses.view, scene.poses.score, persons.members,
+                                len(scene.cameras))
+        values = {}
+        for tau in taus:
+            v = c_var(scene.cameras.P, kp, tau)
+            values[str(tau)] = float(v) if np.isfinite(v) else None
+            if values[str(tau)] is None:
+                missing[f"{scene_dir.name}@{tau}"] = "no joint of any person seen in three views above tau"
+        per_scene[scene_dir.name] = values
+    table = {}
+    for tau in map(str, taus):
+        vals = [v[tau] for v in per_scene.values() if v[tau] is not None]
+        table[tau] = float(np.mean(vals)) if vals else None
+    return {"C_var": table, "scenes": per_scene, "missing": missing}

@@ -1,4 +1,5 @@
-"""The PIF, PAF and PDF heads: one 1×1 convolution each on the backbone features.
+"""The PIF, PAF and PDF heads: one 1×1 convolution each on the backbone features, optionally
+followed by a sub-pixel upsampling (``PixelShuffle``) to a finer field stride.
 
 A head returns its *raw* output ``(B, K, C, H, W)``; :func:`activate` turns it into field
 values. Raw channels: confidences are logits, offsets are in cells, and every positive
@@ -23,22 +24,24 @@ PRIOR_CONFIDENCE = 0.01
 
 
 class FieldHead(nn.Module):
-    """``features: (B, F, H, W)`` -> raw field ``(B, K, C, H, W)``."""
+    """``features: (B, F, H, W)`` -> raw field ``(B, K, C, u·H, u·W)``, ``u = upsample``."""
 
-    def __init__(self, meta: PifMeta | PafMeta | PdfMeta, in_channels: int):
+    def __init__(self, meta: PifMeta | PafMeta | PdfMeta, in_channels: int, upsample: int = 1):
         super().__init__()
         self.meta = meta
         self.n_fields, self.n_components = meta.n_fields, len(meta.components)
-        self.conv = nn.Conv2d(in_channels, self.n_fields * self.n_components, 1)
+        u2 = upsample * upsample
+        self.conv = nn.Conv2d(in_channels, self.n_fields * self.n_components * u2, 1)
+        self.upsample = nn.PixelShuffle(upsample) if upsample > 1 else nn.Identity()
         nn.init.normal_(self.conv.weight, std=0.01)
         bias = torch.zeros(self.n_fields, self.n_components)
         for k in LOGIT_COMPONENTS[meta.name]:
             bias[:, k] = math.log(PRIOR_CONFIDENCE / (1 - PRIOR_CONFIDENCE))
         with torch.no_grad():
-            self.conv.bias.copy_(bias.reshape(-1))
+            self.conv.bias.copy_(bias.reshape(-1).repeat_interleave(u2))
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
-        x = self.conv(features)
+        x = self.upsample(self.conv(features))
         B, _, H, W = x.shape
         return x.reshape(B, self.n_fields, self.n_components, H, W)
 

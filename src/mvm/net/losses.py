@@ -7,9 +7,11 @@ carry zero weight, so 2D-only data leave the PDF untouched and missing joints ar
   (``‖Δ‖ / b + log b``, ``b`` the predicted spread) + L1 on ``log σ``;
 - ``L_PAF`` = confidence + Laplace regression of both end points;
 - ``L_PDF`` = the scale-invariant depth loss of the paper, the variance of the log depth ratios
-  ``Var[log d_pred − log d_true] = 1/N Σ r² − 1/N² (Σ r)²`` over the cells of one person
-  (relative depths carry no scale, so the variance ignores a common factor), averaged over the
-  persons of the batch; plus L1 on ``log γ``. The log-depth residuals may be divided by a
+  ``Var[log d_pred − log d_true] = 1/N Σ r² − 1/N² (Σ r)²`` over all labelled cells of one
+  image (relative depths carry no scale, so the variance ignores a factor common to the image,
+  but not the order of its people in depth), averaged over the images of the batch; plus L1
+  on ``log γ``. The ``'person'`` variant takes one variance per person instead (each person's
+  depth profile only, blind to who stands in front of whom). The log-depth residuals may be divided by a
   ``depth_log_scale`` first: relative depths within a person vary by a few per cent, so the
   raw variance is of order 1e-3 and its gradient is tiny beside the other terms; dividing by
   the typical spread of relative log depths (e.g. 0.1) brings it to order 1.
@@ -35,6 +37,11 @@ class LossWeights:
     pdf: float = 1.0
     background: float = 1.0
     depth_log_scale: float = 1.0
+    depth_loss: str = "image"
+
+
+#: Groups of cells over which the depth loss takes one variance: 'image' (the paper) or 'person'.
+DEPTH_LOSSES = ("image", "person")
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -78,24 +85,31 @@ def log_l1_loss(raw_log: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 def scale_invariant_depth_loss(raw_log_d: torch.Tensor, target: torch.Tensor, groups: torch.Tensor,
-                               log_scale: float = 1.0) -> torch.Tensor:
+                               log_scale: float = 1.0, per: str = "image") -> torch.Tensor:
     """The paper's ``L_PDF``: mean over groups of ``Var[(log d_pred − log d_true) / log_scale]``.
 
     Args:
         raw_log_d: ``(B, K, H, W)`` predicted log depth.
-        target: ``(B, K, H, W)`` relative depth, NaN (or ≤ 0) where unknown.
+        target: ``(B, K, H, W)`` relative depth, NaN (or ≤ 0) where unknown; the depths of one
+            image share one reference (see :mod:`mvm.net.supervision`).
         groups: ``(B, K, H, W)`` integer group of each cell within its image (the person), -1: none.
         log_scale: unit of the log-depth residuals (1: the paper's loss as written).
+        per: ``'image'``: one variance over all labelled cells of an image (the paper);
+            ``'person'``: one variance per person.
     Returns:
         scalar; 0 when no cell has a depth.
     """
+    if per not in DEPTH_LOSSES:
+        raise ValueError(f"per: expected one of {', '.join(DEPTH_LOSSES)}, got {per!r}")
     mask = torch.isfinite(target) & (torch.nan_to_num(target, nan=0.0) > 0) & (groups >= 0)
     if not mask.any():
         return raw_log_d.sum() * 0.0
     B = raw_log_d.shape[0]
     batch = torch.arange(B, device=groups.device).view(B, 1, 1, 1).expand_as(groups)
-    n_groups = int(groups.max().item()) + 1
-    key = (batch * n_groups + groups)[mask]
+    if per == "image":
+        key = batch[mask]
+    else:
+        key = (batch * (int(groups.max().item()) + 1) + groups)[mask]
     _, inverse = torch.unique(key, return_inverse=True)
     r = (raw_log_d[mask] - torch.log(target[mask])) / log_scale
     G = int(inverse.max().item()) + 1
@@ -121,9 +135,9 @@ def paf_loss(raw: torch.Tensor, target: torch.Tensor, background_weight: float =
 
 
 def pdf_loss(raw: torch.Tensor, target: torch.Tensor, groups: torch.Tensor,
-             depth_log_scale: float = 1.0) -> dict[str, torch.Tensor]:
+             depth_log_scale: float = 1.0, per: str = "image") -> dict[str, torch.Tensor]:
     """``raw, target: (B, 17, 2, H, W)``, ``groups: (B, 17, H, W)`` -> ``{"pdf_depth", "pdf_gamma"}``."""
-    return {"pdf_depth": scale_invariant_depth_loss(raw[:, :, 0], target[:, :, 0], groups, depth_log_scale),
+    return {"pdf_depth": scale_invariant_depth_loss(raw[:, :, 0], target[:, :, 0], groups, depth_log_scale, per),
             "pdf_gamma": log_l1_loss(raw[:, :, 1], target[:, :, 1])}
 
 
@@ -132,7 +146,8 @@ def total_loss(raw: dict[str, torch.Tensor], targets: dict[str, torch.Tensor],
     """``L = λ1·L_PIF + λ2·L_PAF + λ3·L_PDF``; returns the total and every component (floats)."""
     parts = {**pif_loss(raw["pif"], targets["pif"], weights.background),
              **paf_loss(raw["paf"], targets["paf"], weights.background),
-             **pdf_loss(raw["pdf"], targets["pdf"], targets["pdf_group"], weights.depth_log_scale)}
+             **pdf_loss(raw["pdf"], targets["pdf"], targets["pdf_group"], weights.depth_log_scale,
+                       weights.depth_loss)}
     l_pif = parts["pif_c"] + parts["pif_reg"] + parts["pif_scale"]
     l_paf = parts["paf_c"] + parts["paf_reg"]
     l_pdf = parts["pdf_depth"] + parts["pdf_gamma"]

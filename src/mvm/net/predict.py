@@ -23,7 +23,7 @@ from mvm.net.evaluate import run_model
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
 from mvm.net.model import ModelSpec, PoseNet
 from mvm.net.scale import calibrate, lift
-from mvm.net.train import read_checkpoint
+from mvm.net.train import read_checkpoint, select_device
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"
@@ -102,7 +102,7 @@ def overlay(image: np.ndarray, result: dict) -> np.ndarray:
 
 def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Path | None = None,
             input_size: int | None = None, focal_px: float | None = None,
-            decoder: DecoderConfig = DecoderConfig(), device: str = "cpu") -> list[dict]:
+            decoder: DecoderConfig = DecoderConfig(), device: str = "auto") -> list[dict]:
     """Detect people in images with a trained checkpoint.
 
     Args:
@@ -111,6 +111,7 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
         out_dir: when given, writes ``predictions.json`` and ``<image stem>.overlay.jpg`` there.
         input_size: long edge of the network input (default: the training ``input_size``).
         focal_px: focal length of the images for the 3D output (default: the long edge).
+        device: 'auto' (a GPU when there is one), 'cpu' or 'cuda'.
     Returns:
         one dict per image: ``{"image", "width", "height", "focal_px", "persons": [{"score",
         "keypoints" (17 × [x, y, score]), "depth_relative" (17), "scale_m",
@@ -118,7 +119,7 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
     """
     if not images:
         raise InputError(None, "images", "no image given")
-    model, meta = load_model(checkpoint, device=device)
+    model, meta = load_model(checkpoint, device=str(select_device(device)))
     size = int(input_size or meta.get("config", {}).get("input_size", 385))
     results = []
     out = Path(out_dir) if out_dir is not None else None

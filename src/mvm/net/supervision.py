@@ -1,9 +1,10 @@
 """Supervision for the monocular network: refined 3D poses projected into every frame.
 
 Every person's 3D joints are projected into every view of its scene, giving 2D keypoints and
-each keypoint's *relative* depth: its camera z divided by the median camera z of the person's
-labelled joints in that view (an SfM reconstruction has no metric scale, so only depth ratios
-are meaningful, Section 5 of the paper). The result is a COCO keypoints dataset with two extra
+each keypoint's *relative* depth: its camera z divided by the median camera z of all labelled
+joints of that view (an SfM reconstruction has no metric scale, so only depth ratios are
+meaningful, Section 5 of the paper). One reference per image keeps who stands in front of whom,
+which the paper's image-level depth loss learns. The result is a COCO keypoints dataset with two extra
 per-keypoint fields, ``keypoint_depths`` (17 floats, 0 where missing) and ``has_3d`` (17 flags),
 that many scenes merge into.
 """
@@ -31,19 +32,22 @@ ANNOTATIONS_FILE = "annotations.json"
 
 
 def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                    size: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+                    size: tuple[float, float], reference: str = "image") -> tuple[np.ndarray, np.ndarray]:
     """Project persons into one view.
 
     Args:
         keypoints3d: ``(P, 17, 3)`` world coordinates, NaN where missing.
         K, R, t: ``(3, 3)``, ``(3, 3)``, ``(3,)`` pinhole camera, ``x_cam = R X + t``.
         size: ``(width, height)`` of the image in pixels.
+        reference: ``'image'``: depths relative to the median camera z of all labelled joints
+            of the view; ``'person'``: of each person's own labelled joints.
     Returns:
         keypoints ``(P, 17, 3)``: x, y and v = 2 where the joint exists, lies in front of the
         camera and inside the image, else 0 (and x = y = 0);
-        depths ``(P, 17)``: camera z over the median camera z of the person's labelled joints,
-        0 where the joint is not labelled.
+        depths ``(P, 17)``: camera z over the reference camera z, 0 where the joint is not labelled.
     """
+    if reference not in ("image", "person"):
+        raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
     X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
     cam = X @ np.asarray(R, dtype=float).T + np.asarray(t, dtype=float)    # (P, 17, 3)
     z = cam[..., 2]
@@ -60,7 +64,7 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
     zz = np.where(ok, z, np.nan)
     has = ok.any(axis=1)
     if has.any():
-        med = np.nanmedian(zz[has], axis=1, keepdims=True)
+        med = np.nanmedian(zz[has], axis=1, keepdims=True) if reference == "person" else np.nanmedian(zz[has])
         depths[has] = np.nan_to_num(zz[has] / med, nan=0.0)
     return keypoints, depths
 
@@ -86,9 +90,34 @@ def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths:
     return rec
 
 
+def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:
+    """Boxes ``(M, 4)`` (``x0, y0, x1, y1``) of the 2D poses of ``view`` that no reconstructed
+    person holds (``persons.members``: annotation ids): people MVM saw but did not reconstruct,
+    which training must ignore rather than learn as background."""
+    poses = scene.poses
+    held = np.concatenate([np.asarray(m, dtype=int).reshape(-1) for m in persons.members] + [np.zeros(0, int)])
+    rows = np.nonzero((poses.view == view) & ~np.isin(poses.ids, held))[0]
+    kp = poses.keypoints[rows]
+    vis = kp[..., 2] > 0
+    rows, kp, vis = rows[vis.sum(1) >= 2], kp[vis.sum(1) >= 2], vis[vis.sum(1) >= 2]
+    lo = np.where(vis[..., None], kp[..., :2], np.inf).min(1)
+    hi = np.where(vis[..., None], kp[..., :2], -np.inf).max(1)
+    margin = 0.1 * (hi - lo)                                  # joints span less than the body
+    return np.concatenate([lo - margin, hi + margin], axis=1).reshape(-1, 4)
+
+
+def ignore_record(ann_id: int, image_id: int, box: np.ndarray) -> dict:
+    """A person without keypoints (COCO's ``num_keypoints: 0``): its box is ignored in training
+    and in OKS evaluation. ``box: (4,)`` ``x0, y0, x1, y1``."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return {"id": int(ann_id), "image_id": int(image_id), "category_id": 1, "keypoints": [0] * (3 * NUM_JOINTS),
+            "num_keypoints": 0, "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
+            "area": round((x1 - x0) * (y1 - y0), 2), "iscrowd": 0}
+
+
 def empty_dataset(description: str) -> dict:
     return {"info": {"format": FORMAT, "description": description,
-                     "keypoint_depths": "camera z of the joint / median camera z of the person's labelled joints; 0: missing"},
+                     "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; 0: missing"},
             "images": [], "annotations": [], "categories": [COCO_PERSON_CATEGORY]}
 
 
@@ -141,6 +170,9 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
                 ann_id += 1
                 data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
                 n_ann += 1
+            for box in unreconstructed_boxes(scene, persons, v):
+                ann_id += 1
+                data["annotations"].append(ignore_record(ann_id, image_id, box))
         LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
     path = out_dir / ANNOTATIONS_FILE
     atomic_write_json(path, data)

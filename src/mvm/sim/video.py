@@ -188,3 +188,31 @@ def render_video(path: str | Path, config: RenderConfig = RenderConfig(),
     finally:
         writer.release()
     return RenderedScene(cameras, poses3d, shirts, trousers)
+
+
+def render_frames(out_dir: str | Path, cameras: Cameras, poses3d: np.ndarray, seed: int = 0,
+                  config: RenderConfig = RenderConfig()) -> list[Path]:
+    """Render the frame of every camera of a scene into ``out_dir`` under its camera name.
+
+    ``poses3d: (G, 17, 3)`` in the cameras' world (metres, z up); the room of ``config``
+    surrounds them. Frames are written atomically; returns their paths.
+    """
+    from mvm.io.files import atomic_write_bytes
+
+    rng = np.random.default_rng(seed)
+    textures = [noise_texture(rng) for _ in range(6)]
+    poses3d = np.asarray(poses3d, dtype=float)
+    shirts, trousers = rng.uniform(40, 230, (len(poses3d), 3)), rng.uniform(20, 120, (len(poses3d), 3))
+    out_dir = Path(out_dir)
+    paths = []
+    for v in range(len(cameras)):
+        size = (int(cameras.size[v, 0]), int(cameras.size[v, 1]))
+        image = render_room(cameras.K[v], cameras.R[v], cameras.centers[v], size, textures, config)
+        draw_people(image, cameras.P[v], np.nan_to_num(poses3d), shirts, trousers, float(cameras.K[v, 0, 0]))
+        ok, data = cv2.imencode(Path(cameras.names[v]).suffix or ".jpg", image)
+        if not ok:
+            raise ValueError(f"{cameras.names[v]}: OpenCV cannot encode this image type")
+        path = out_dir / cameras.names[v]
+        atomic_write_bytes(path, data.tobytes())
+        paths.append(path)
+    return paths

@@ -1,0 +1,41 @@
+"""The paper's quality metrics of a reconstruction, which need no ground truth (Table 1):
+E_R (reprojection error of the inlier keypoints), outliers per 3D pose, |G_k| (inlier keypoints
+per reconstructed joint). Pure numpy, no I/O."""
+from __future__ import annotations
+
+import numpy as np
+
+from mvm.core.geometry import project
+
+
+def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px."""
+    uv, _ = project(X[:, None], P[:, :, None])
+    return np.linalg.norm(uv - xy, axis=-1)
+
+
+def scene_quality(X: np.ndarray, errors: np.ndarray, inliers: np.ndarray, valid: np.ndarray,
+                  n_poses: int, n_matched: int) -> dict:
+    """The paper's Table-1 metrics of one scene.
+
+    Args:
+        X: ``(P, J, 3)`` (NaN: not reconstructed); errors: ``(P, M, J)`` reprojection errors;
+        inliers, valid: ``(P, M, J)`` keypoints used / available; n_poses: 2D poses in the
+        scene; n_matched: 2D poses in a reconstructed person.
+    Returns:
+        ``E_R_px`` mean error over the inlier keypoints; ``G_k`` mean inliers per reconstructed
+        joint; ``outliers`` mean rejected keypoints per 3D pose; counts.
+    """
+    reconstructed = np.isfinite(X).all(-1)                               # (P, J)
+    used = inliers & reconstructed[:, None, :]
+    rejected = valid & ~inliers & reconstructed[:, None, :]
+    P = len(X)
+    return {
+        "E_R_px": float(errors[used].mean()) if used.any() else float("nan"),
+        "outliers": float(rejected.sum() / P) if P else float("nan"),
+        "G_k": float(used.sum() / reconstructed.sum()) if reconstructed.any() else float("nan"),
+        "persons": int(P),
+        "matched_poses": int(n_matched),
+        "unmatched_poses": int(n_poses - n_matched),
+        "reconstructed_joints": int(reconstructed.sum()),
+    }
