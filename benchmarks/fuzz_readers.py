@@ -1,11 +1,11 @@
 """Fuzz every reader with hypothesis and print, per reader, the cases tried and their outcomes.
 
-The cases are those of ``tests/test_fuzz_readers.py`` (valid files made by the project's
+The cases are those of ``tests/io/test_fuzz_readers.py`` (valid files made by the project's
 writers, then mutated). A case ends in a valid object or one ``InputError`` line; anything
 else is a crash, listed at the end with the exception and written to ``--crashes`` for
 replay. Exit status 1 if any crash was found.
 
-    python benchmarks/fuzz_readers.py                 # 1,000 cases per reader (11 readers)
+    python benchmarks/fuzz_readers.py                 # 1,000 cases per reader (15 readers)
     python benchmarks/fuzz_readers.py --cases 200 --seed 3
 """
 from __future__ import annotations
@@ -18,7 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+sys.path[:0] = [str(TESTS), str(TESTS / "io")]                  # helpers, test_fuzz_readers
 
 from hypothesis import HealthCheck, Phase, given, seed, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402

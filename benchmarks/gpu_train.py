@@ -70,7 +70,6 @@ def throughput(spec: ModelSpec, batch: dict, device: torch.device, precision: st
     sync()
     seconds = time.perf_counter() - t
     peak = torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else float("nan")
-    del model, optimizer, ema
     return {"images_per_second": steps * len(batch["image"]) / seconds, "peak_memory_gib": peak,
             "step_ms": 1000 * seconds / steps}
 

@@ -7,4 +7,4 @@ python3 -m venv .venv
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
 python -m pip install -q torch==2.13.0
-python -m pip install -q -c constraints.txt -e ".[net,video,eval,dev,bench,report,ray]"
+python -m pip install -q -c constraints.txt -e ".[net,video,detect,eval,dev,bench,report,ray]"

@@ -41,3 +41,22 @@ def random_cameras(rng: np.random.Generator, V: int, radius: float = 5.0, arc_de
     return Cameras(np.broadcast_to(K, (V, 3, 3)).copy(), R, t,
                    np.broadcast_to([float(width), float(height)], (V, 2)).copy(),
                    tuple(f"f{i:04d}.jpg" for i in range(V)))
+
+
+def cmu_walk(z_up: bool = True):
+    """Real walking motion: CMU motion capture subject 02, trial 01, at 30 Hz, ``(T, 17, 3)``
+    metres (z up, centred sideways; or the file's y up). Skips the calling test where the data
+    are absent."""
+    import pytest
+
+    folder = SHARED_DATA / "cmu_mocap" / "02"
+    if not (folder / "02_01.amc").is_file():
+        pytest.skip(f"CMU motion capture absent: {folder}")
+    from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf
+
+    skeleton = read_asf(folder / "02.asf")
+    positions, rotations = forward_kinematics(skeleton, read_amc(folder / "02_01.amc"))
+    walk = asf_to_coco17(positions[::4], rotations[::4], skeleton)             # 120 Hz -> 30 Hz
+    if not z_up:
+        return walk
+    return np.stack([walk[..., 0] - walk[..., 0].mean(), -walk[..., 2], walk[..., 1]], -1)

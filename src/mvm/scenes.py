@@ -10,7 +10,7 @@ from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct, validate_scene
 from mvm.errors import InputError
 from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
-from mvm.io.scene_dir import poses3d_document, read_scene, write_poses3d
+from mvm.io.scene_dir import output_dir, poses3d_document, read_scene, write_poses3d
 
 
 def reconstruct_dir(path: str | Path, config: Config | None = None, output: str = "mvm",
@@ -23,6 +23,7 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
     path = Path(path)
     t = time.perf_counter()
     scene = read_scene(path)
+    out_dir = output_dir(path, output)
     read_s = time.perf_counter() - t
     validate_scene(scene, str(path))
     check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
@@ -33,7 +34,6 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
                                 {"warnings": list(result.warnings),
                                  "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
                                  "config": asdict(config)})
-    out_dir = path / output
     # Runs on the same scene may compute at once; writing is one at a time, and the temporary
     # files of a killed run are removed by the next one.
     try:

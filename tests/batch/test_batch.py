@@ -212,19 +212,22 @@ def test_rerun_does_only_what_is_not_done(finished_root, tmp_path):
     assert {c for c, _, _ in summary.failed} == set(BROKEN)            # failures are tried again on a rerun
 
 
-def test_transient_failures_are_retried_with_a_bound(tmp_path):
+def test_an_output_that_cannot_be_written_fails_once_in_one_line(tmp_path):
+    """A file where the output folder goes is the clip's fault, not the machine's: refused in
+    one line naming it, and not retried (transient faults are: test_killed_worker_is_retried)."""
     scene, truth = simulate(SimConfig(people=2, frames=12, seed=3))
     write_simulation(tmp_path / "a", scene, truth)
     write_simulation(tmp_path / "b", scene, truth)
-    (tmp_path / "b" / "mvm").write_text("a file where the output folder goes")   # an OS error at every write
+    (tmp_path / "b" / "mvm").write_text("a file where the output folder goes")
     summary = run_batch(tmp_path, stages=("reconstruct",), workers=1, retries=2)
     assert summary.done == 1 and [c for c, _, _ in summary.failed] == ["b"]
+    assert summary.failed[0][2].endswith("b/mvm: cannot write: exists and is not a folder")
     manifest = Manifest(tmp_path, create=False)
     events = [h["event"] for h in manifest.history() if h["clip"] == "b"]
     row = {(r["clip"], r["stage"]): r for r in manifest.stages()}["b", "reconstruct"]
     manifest.close()
-    assert events == ["claim", "retry", "claim", "retry", "claim", "fail"]
-    assert row["attempts"] == 3 and row["state"] == "failed"
+    assert events == ["claim", "fail"]
+    assert row["attempts"] == 1 and row["state"] == "failed"
 
 
 # -------------------------------------------------------------------------------- manifest

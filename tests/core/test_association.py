@@ -160,7 +160,7 @@ def test_the_method_is_a_setting_with_its_choices_listed():
     from mvm.errors import InputError
 
     assert load_config(None, {"association": "paper"}).association == "paper"
-    with pytest.raises(InputError, match="known: paper, 3d"):
+    with pytest.raises(InputError, match="'paper', '3d'"):
         load_config(None, {"association": "hungarian"})
     with pytest.raises(InputError, match="association_gate"):
         load_config(None, {"association_gate": "0"})

@@ -127,7 +127,28 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
     seeds["poses3d"] = {"poses3d.json": json.dumps(poses3d_document(persons, poses, {"persons": 2})).encode()}
     seeds["config"] = {"config.toml": b"[reconstruct]\ntau = 0.25\nrefine = false\nmin_views = 3\n"
                                       b"ransac_threshold_px = 12.5\nseed = 4\n"}
+    # a reconstructed scene: what `mvm report` and the batch statistics read
+    seeds["report"] = {**seeds["scene"], "mvm/poses3d.json": seeds["poses3d"]["poses3d.json"]}
+    seeds["batch"] = dict(seeds["report"])
+    seeds["rig"] = _rig_seeds()
     return seeds
+
+
+def _rig_seeds() -> dict[str, bytes]:
+    """A rig directory: Calib.toml of two cameras and one COCO pose file per camera."""
+    from mvm.io.calib_toml import RigCalibration, calib_toml_text
+    from mvm.io.coco import coco_keypoints_document
+
+    names = ("cam_1", "cam_2")
+    cams = random_cameras(np.random.default_rng(1), 2)
+    cams = type(cams)(cams.K, cams.R, cams.t, cams.size, names)
+    kp = _projected_keypoints(cams, 2)
+    files = {"Calib.toml": calib_toml_text(RigCalibration(cams, (np.zeros(4), np.zeros(4)), np.zeros(2, bool))).encode()}
+    for v, name in enumerate(names):
+        doc = coco_keypoints_document([f"{name}_000001.jpg", f"{name}_000002.jpg"], np.repeat(cams.size[v:v + 1], 2, 0),
+                                      np.array([0, 1]), np.stack([kp[v], kp[v]]), np.full(2, 0.9))
+        files[f"pose/{name}.json"] = json.dumps(doc).encode()
+    return files
 
 
 # --- the readers and what a returned object must satisfy ---------------------------------------
@@ -239,10 +260,41 @@ def _config(root: Path):
     assert all(math.isfinite(v) for v in vars(config).values() if isinstance(v, float))
 
 
+def _report(root: Path):
+    from mvm.report.analysis import reproject
+    from mvm.report.load import load_result
+
+    result = load_result(root)
+    _check_cameras(result.scene.cameras)
+    assert not np.isinf(result.persons.keypoints3d).any()
+    uv, ok = reproject(result.persons.keypoints3d, result.scene.cameras.P)
+    assert not np.isinf(uv[ok]).any()
+    assert all(v is None or isinstance(v, str) or np.isfinite(np.asarray(v, dtype=float)).all()
+               for v in result.metrics.values() if not isinstance(v, dict))
+
+
+def _batch(root: Path):
+    from mvm.batch.stages import clip_stats
+
+    stats = clip_stats(root)
+    assert stats["frames"] >= 1 and stats["poses2d"] >= 0
+    for value in stats.values():
+        assert value is None or isinstance(value, str) or np.isfinite(np.asarray(value, dtype=float)).all()
+
+
+def _rig(root: Path):
+    from mvm.rig.rigdir import read_rig
+
+    rig = read_rig(root)
+    _check_cameras(rig.calibration.cameras)
+    assert (rig.frames >= 0).all() and (rig.frames <= 10 ** 9).all()
+    _finite(rig.detections.keypoints[..., :2][rig.detections.keypoints[..., 2] > 0])
+
+
 READERS = {"coco": _coco, "colmap_bin": _colmap, "colmap_txt": _colmap, "scene": _scene,
            "openpose": _openpose, "openpifpaf": _openpifpaf, "calib_toml": _calib,
            "trajectory": _trajectory, "panoptic_calib": _panoptic, "trc": _trc, "config": _config,
-           "poses3d": _poses3d}
+           "poses3d": _poses3d, "report": _report, "batch": _batch, "rig": _rig}
 
 
 # --- mutations ----------------------------------------------------------------------------------

@@ -8,9 +8,10 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 from mvm.core.scene import Persons3D
 from mvm.errors import InputError
+from mvm.io.ground_truth import write_simulation
 from mvm.io.scene_dir import poses3d_document, write_poses3d
 from mvm.net.evaluate import evaluate_cvar
-from mvm.sim.simulate import SimConfig, simulate, write_simulation
+from mvm.sim.simulate import SimConfig, simulate
 
 
 def _scene_with_true_groups(root, preset, seed=0):

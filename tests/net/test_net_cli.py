@@ -60,8 +60,9 @@ def test_export_command(tmp_path):
 def test_export_without_poses3d_is_an_input_error(tmp_path):
     (tmp_path / "empty").mkdir()
     result = CliRunner().invoke(export_cmd, [str(tmp_path / "empty"), "--out", str(tmp_path / "ds")])
-    assert isinstance(result.exception, InputError)
-    assert "poses3d.json: not found" in str(result.exception)
+    assert result.exit_code == 2
+    assert result.stderr.splitlines()[0] == f"mvm: error: {tmp_path / 'empty' / 'mvm' / 'poses3d.json'}: not found: " \
+                                            "reconstruct the scene first (mvm reconstruct)"
 
 
 def test_train_and_predict_commands(tmp_path):
@@ -92,7 +93,7 @@ device = "cpu"
     assert result.exit_code == 0, result.output
     assert (tmp_path / "p" / "predictions.json").is_file()
     result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(tmp_path / "missing.pt")])
-    assert isinstance(result.exception, InputError)
+    assert result.exit_code == 2 and "missing.json: checkpoint metadata not found" in result.output
 
 
 def test_parse_sets():

@@ -152,7 +152,7 @@ def test_network_checkpoint_detects_and_pools_features(scene, tmp_path_factory, 
 
     monkeypatch.setattr(evaluate, "run_model", run_model)
     d = detect_scene(scene_dir, checkpoint=checkpoint, options=DetectOptions(input_size=161))
-    assert d.source.startswith("network:")
+    assert d.source.startswith("mvm:")
     assert d.appearance is not None and d.appearance.shape == (6, 8 * 8)   # resnet18 width 8: 64 channels
     assert np.allclose(np.linalg.norm(d.appearance, axis=1), 1)
     _check(scene_dir, kp)

@@ -58,6 +58,32 @@ def test_extract_frames_skips_blurred_and_keeps_timestamps(video, tmp_path):
     assert len(extract_frames(video, scene, FrameOptions(rate=1.0, blur_ratio=0), force=True).names) == 3
 
 
+def test_streaming_writes_what_decoding_everything_in_memory_gives(video, tmp_path):
+    """The frames written one at a time are those of the whole clip decoded into memory, resized
+    and encoded the same way; blurred ones are not left on disk."""
+    capture = cv2.VideoCapture(str(video))
+    decoded = []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            break
+        decoded.append(cv2.resize(image, (200, 112), interpolation=cv2.INTER_AREA))
+    capture.release()
+    scene = tmp_path / "scene"
+    index = extract_frames(video, scene, FrameOptions(rate=5.0, width=200))
+    assert sorted(p.name for p in (scene / "frames").iterdir()) == sorted(index.names)
+    for name, k in zip(index.names, index.numbers):
+        ok, data = cv2.imencode(".jpg", decoded[k], [cv2.IMWRITE_JPEG_QUALITY, 95])
+        assert (scene / "frames" / name).read_bytes() == data.tobytes()
+    sampled = np.arange(0, 30, 2)
+    from mvm.video.frames import sharpness
+
+    want_sharp = np.array([sharpness(decoded[k]) for k in sampled])
+    keep = sharp_mask(want_sharp, 0.35)
+    assert index.numbers.tolist() == sampled[keep].tolist()
+    assert np.allclose(index.sharpness, want_sharp[keep])
+
+
 def test_bad_video_is_one_line(tmp_path):
     bad = tmp_path / "broken.mp4"
     bad.write_bytes(b"not a video")

@@ -2,7 +2,8 @@
 
 ``ROOT/.mvm/manifest.sqlite`` (WAL journal, every change one ``BEGIN IMMEDIATE`` transaction):
 
-- ``clips``: id, sequence, scene directory, video.
+- ``clips``: id, sequence, scene directory, video (paths relative to the root, so that the
+  root can be moved; manifests written with absolute paths are still read).
 - ``stages``: one row per (clip, stage): ``state`` (``pending``, ``running``, ``done``,
   ``failed``, ``skipped``), attempts, the owning run and its lease, seconds, the error line,
   the sha256 of the committed files, the clip's statistics (JSON).
@@ -16,6 +17,7 @@ died (its process is gone, or its lease expired on another host) go back to ``pe
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import sqlite3
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Iterable
 
 from mvm.batch.clips import Clip
-from mvm.batch.stages import StageResult
+from mvm.batch.stages import STAGES, StageResult
 from mvm.errors import InputError
 
 MANIFEST = Path(".mvm") / "manifest.sqlite"
@@ -50,6 +52,16 @@ CREATE TABLE IF NOT EXISTS history (
     stage TEXT NOT NULL, event TEXT NOT NULL, detail TEXT);
 CREATE INDEX IF NOT EXISTS history_clip ON history (clip, stage);
 """
+#: Statistics of a clip (:func:`mvm.batch.stages.clip_stats`) that are counts.
+_COUNTS = ("frames", "poses2d", "matched", "unmatched", "persons", "joints")
+#: The columns each table must have (a table of another program with the same name is refused).
+_COLUMNS = {
+    "clips": ("id", "sequence", "scene", "video"),
+    "runs": ("id", "host", "pid", "engine", "workers", "stages", "started", "heartbeat", "finished", "outcome"),
+    "stages": ("clip", "stage", "state", "attempts", "run", "lease_until", "started", "finished", "seconds", "error",
+               "checksum", "files", "worker", "stats", "detail"),
+    "history": ("id", "time", "run", "clip", "stage", "event", "detail"),
+}
 
 
 def _alive(pid: int) -> bool:
@@ -66,18 +78,60 @@ class Manifest:
     """The manifest database of ``root`` (created on first use)."""
 
     def __init__(self, root: str | Path, create: bool = True):
-        self.path = Path(root) / MANIFEST
+        """Open (with ``create``: create) the manifest of ``root``. Without ``create`` nothing is
+        written: a missing manifest, a file that is not an SQLite database or tables of another
+        program raise an :class:`InputError` naming the file."""
+        self.root = Path(root)
+        self.path = self.root / MANIFEST
         if not create and not self.path.is_file():
             raise InputError(self.path, None, "no manifest: run `mvm batch` on this directory first")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if create:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.db = sqlite3.connect(self.path, timeout=60.0, isolation_level=None)
-            self.db.execute("PRAGMA journal_mode=WAL")
-            self.db.execute("PRAGMA synchronous=FULL")
-            self.db.executescript(_SCHEMA)
+            if create:
+                self.db.execute("PRAGMA journal_mode=WAL")
+                self.db.execute("PRAGMA synchronous=FULL")
+                self.db.executescript(f"BEGIN IMMEDIATE;\n{_SCHEMA}\nCOMMIT;")      # readers see all tables or none
+            self._check_schema()
         except sqlite3.DatabaseError as e:
-            raise InputError(self.path, None, f"not a readable manifest: {e}") from None
+            raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
         self.db.row_factory = sqlite3.Row
+
+    def _check_schema(self) -> None:
+        """Refuse tables of another program. A database without any table yet (a run is
+        creating it) reads as an empty manifest."""
+        self.empty = self.db.execute("SELECT count(*) FROM sqlite_master").fetchone()[0] == 0
+        if self.empty:
+            return
+        for table, columns in _COLUMNS.items():
+            have = {row[1] for row in self.db.execute(f"PRAGMA table_info({table})")}
+            if not have:
+                raise InputError(self.path, table, "no such table: not a manifest of `mvm batch`")
+            missing = [c for c in columns if c not in have]
+            if missing:
+                raise InputError(self.path, table, f"not the table of `mvm batch`: no column {', '.join(missing)}")
+
+    def _stored(self, path: str | None) -> str | None:
+        """A clip's path as stored: relative to the root when it lies inside it."""
+        if path is None:
+            return None
+        try:
+            return Path(path).resolve().relative_to(self.root.resolve()).as_posix()
+        except ValueError:
+            return str(path)
+
+    def _resolved(self, stored: str | None, fallback: Path | None = None) -> str | None:
+        """A stored path made absolute: relative ones are under the root; an absolute one that
+        no longer exists (the root was moved) is replaced by ``fallback``."""
+        if stored is None:
+            return None
+        path = Path(stored)
+        if not path.is_absolute():
+            return str((self.root / path).absolute())
+        if fallback is not None and not path.exists():
+            return str(fallback.absolute())
+        return stored
 
     def close(self) -> None:
         self.db.close()
@@ -132,7 +186,7 @@ class Manifest:
             for clip in clips:
                 db.execute("INSERT INTO clips (id, sequence, scene, video) VALUES (?, ?, ?, ?) ON CONFLICT(id) "
                            "DO UPDATE SET sequence = excluded.sequence, scene = excluded.scene, video = excluded.video",
-                           (clip.id, clip.sequence, clip.scene, clip.video))
+                           (clip.id, clip.sequence, self._stored(clip.scene), self._stored(clip.video)))
                 db.executemany("INSERT OR IGNORE INTO stages (clip, stage, state) VALUES (?, ?, 'pending')",
                                [(clip.id, s) for s in stages])
 
@@ -162,6 +216,8 @@ class Manifest:
     # ---------------------------------------------------------------------------- stages
 
     def state(self, clip: str, stage: str) -> str | None:
+        if self.empty:
+            return None
         row = self.db.execute("SELECT state FROM stages WHERE clip = ? AND stage = ?", (clip, stage)).fetchone()
         return None if row is None else row["state"]
 
@@ -223,19 +279,69 @@ class Manifest:
     # ------------------------------------------------------------------------------ read
 
     def clips(self) -> list[dict]:
-        return [dict(r) for r in self.db.execute("SELECT * FROM clips ORDER BY id")]
-
-    def stages(self) -> list[dict]:
+        """Every clip: id, sequence, and its scene and video as absolute paths (under the root
+        where it is now). A corrupt cell raises an InputError naming its table, row and column."""
         rows = []
-        for r in self.db.execute("SELECT * FROM stages ORDER BY clip, stage"):
-            row = dict(r)
-            row["stats"] = json.loads(row["stats"]) if row["stats"] else None
+        for r in self._select("SELECT rowid, * FROM clips ORDER BY id"):
+            for column in ("id", "sequence", "scene"):
+                self._expect(r, "clips", column, isinstance(r[column], str) and r[column] != "", "expected text")
+            self._expect(r, "clips", "video", r["video"] is None or isinstance(r["video"], str), "expected text")
+            row = {k: r[k] for k in r.keys() if k != "rowid"}
+            row["scene"] = self._resolved(r["scene"], self.root / r["id"])
+            row["video"] = self._resolved(r["video"])
             rows.append(row)
         return rows
 
+    def stages(self) -> list[dict]:
+        """Every (clip, stage) row, ``stats`` decoded. A corrupt cell (an unknown stage or
+        state, a non-numeric time, statistics that are not a JSON object of numbers) raises an
+        InputError naming its table, row and column."""
+        rows = []
+        for r in self._select("SELECT rowid, * FROM stages ORDER BY clip, stage"):
+            self._expect(r, "stages", "clip", isinstance(r["clip"], str), "expected text")
+            self._expect(r, "stages", "stage", r["stage"] in STAGES, f"expected one of {', '.join(STAGES)}")
+            self._expect(r, "stages", "state", r["state"] in STATES, f"expected one of {', '.join(STATES)}")
+            for column in ("seconds", "started", "finished", "lease_until"):
+                value = r[column]
+                ok = value is None or (isinstance(value, (int, float)) and math.isfinite(value))
+                self._expect(r, "stages", column, ok, "expected a finite number or null")
+            for column in ("error", "checksum", "detail", "worker"):
+                self._expect(r, "stages", column, r[column] is None or isinstance(r[column], str), "expected text")
+            row = {k: r[k] for k in r.keys() if k != "rowid"}
+            row["stats"] = self._stats(r)
+            rows.append(row)
+        return rows
+
+    def _select(self, query: str, parameters: tuple = ()) -> list[sqlite3.Row]:
+        if self.empty:
+            return []
+        try:
+            return self.db.execute(query, parameters).fetchall()
+        except sqlite3.DatabaseError as e:
+            raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
+
+    def _expect(self, row: sqlite3.Row, table: str, column: str, ok: bool, problem: str) -> None:
+        if not ok:
+            shown = repr(row[column]) if len(repr(row[column])) <= 40 else repr(row[column])[:39] + "…"
+            raise InputError(self.path, f"{table}[rowid {row['rowid']}].{column}", f"{problem}, got {shown}")
+
+    def _stats(self, row: sqlite3.Row) -> dict | None:
+        if not row["stats"]:
+            return None
+        try:
+            stats = json.loads(row["stats"]) if isinstance(row["stats"], str) else None
+        except ValueError:
+            stats = None
+        ok = isinstance(stats, dict) and all(
+            v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0) if k in _COUNTS else
+            v is None or (isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isinf(v))
+            for k, v in stats.items())
+        self._expect(row, "stages", "stats", ok, "expected a JSON object of counts and numbers")
+        return stats
+
     def history(self, event: str | None = None) -> list[dict]:
         query = "SELECT * FROM history" + (" WHERE event = ?" if event else "") + " ORDER BY id"
-        return [dict(r) for r in self.db.execute(query, (event,) if event else ())]
+        return [dict(r) for r in self._select(query, (event,) if event else ())]
 
     def runs(self) -> list[dict]:
-        return [dict(r) for r in self.db.execute("SELECT * FROM runs ORDER BY id")]
+        return [dict(r) for r in self._select("SELECT * FROM runs ORDER BY id")]

@@ -10,6 +10,8 @@ failed work, so two drivers share the clips instead of doing them twice.
 from __future__ import annotations
 
 import logging
+import os
+import socket
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -27,6 +29,7 @@ from mvm.batch.stages import (
     clip_stats,
     is_present,
     not_applicable,
+    one_line,
     output_files,
 )
 from mvm.errors import InputError
@@ -114,7 +117,28 @@ class _Driver:
                            checksum(clip.scene, files) if files else None, len(files))
 
     def next_stage(self, cid: str) -> str | None:
-        """Claim the clip's next stage to run; None when the clip is finished (or held elsewhere)."""
+        """Claim the clip's next stage to run; None when the clip is finished, failed (or held
+        elsewhere). Any error while looking at the clip's files (a corrupt ``poses3d.json``
+        beside its outputs, a link that leads out) is the clip's failure, never the run's."""
+        try:
+            return self._next_stage(cid)
+        except Exception as e:  # noqa: BLE001 - the clip fails, the others go on
+            stage = self.stages[self.cursor[cid]] if self.cursor[cid] < len(self.stages) else self.stages[-1]
+            self._fail_clip(cid, stage, e)
+            return None
+
+    def _fail_clip(self, cid: str, stage: str, error: BaseException) -> None:
+        """Record ``error`` as the failure of (clip, stage) found by the driver itself."""
+        result = StageResult(cid, stage, ok=False, error=one_line(error), pid=os.getpid(), host=socket.gethostname())
+        if self.manifest.state(cid, stage) != "running":
+            self.manifest.claim(self.run, cid, stage)
+        self.manifest.fail(self.run, result, retry=False)
+        self.failed.append((cid, stage, result.error))
+        self.progress.failed += 1
+        self.progress.last = cid
+        log.warning("%s: %s: %s", cid, stage, result.error)
+
+    def _next_stage(self, cid: str) -> str | None:
         clip = self.clips[cid]
         while self.cursor[cid] < len(self.stages):
             stage = self.stages[self.cursor[cid]]
@@ -188,20 +212,29 @@ class _Driver:
                 self.on_progress(self.progress)
 
 
-def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm") -> Path | None:
-    """Merge every exported clip's supervision into ``ROOT/.mvm/training/annotations.json``."""
+def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm",
+                       on_bad_clip: Callable[[str, InputError], None] | None = None) -> Path | None:
+    """Merge every exported clip's supervision into ``ROOT/.mvm/training/annotations.json``.
+    A clip whose supervision cannot be read or is inconsistent is left out and reported to
+    ``on_bad_clip`` (clip id, the error); the others are merged."""
     from mvm.net.supervision import merge_datasets
 
     root = Path(root)
     done = {r["clip"] for r in manifest.stages() if r["stage"] == "export" and r["state"] in ("done", "skipped")}
-    paths = []
+    clip_of = {}
     for clip in manifest.clips():
         path = Path(clip["scene"]) / output / "supervision" / "annotations.json"
         if clip["id"] in done and path.is_file():
-            paths.append(path)
-    if not paths:
+            clip_of[path] = clip["id"]
+    if not clip_of:
         return None
-    return merge_datasets(paths, root / TRAINING_SET)
+
+    def bad(path: Path, error: InputError) -> None:
+        log.warning("%s: left out of the training set: %s", clip_of[path], error)
+        if on_bad_clip is not None:
+            on_bad_clip(clip_of[path], error)
+
+    return merge_datasets(list(clip_of), root / TRAINING_SET, on_bad_source=bad)
 
 
 def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = "local", workers: int | None = None,
@@ -241,8 +274,11 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
     finally:
         eng.close(wait=outcome == "finished")
         manifest.end_run(run, outcome)
-    training = merge_training_set(root, manifest, options.output) if "export" in stages else None
+    left_out: list[tuple[str, str, str]] = []
+    training = (merge_training_set(root, manifest, options.output,
+                                   lambda cid, e: left_out.append((cid, "export", f"left out of the training set: {e}")))
+                if "export" in stages else None)
     manifest.close()
-    return BatchSummary(run, engine, eng.capacity, len(clips), driver.progress.done, driver.failed,
+    return BatchSummary(run, engine, eng.capacity, len(clips), driver.progress.done, driver.failed + left_out,
                         driver.progress.elsewhere, time.perf_counter() - started, driver.committed,
                         driver.retried, len(recovered), driver.stage_seconds, training)

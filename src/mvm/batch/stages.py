@@ -8,7 +8,6 @@ error's one line), so a bad clip never stops the others.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import socket
 import sys
@@ -21,6 +20,8 @@ from threadpoolctl import threadpool_limits
 from mvm.batch.clips import Clip
 from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.coco import read_coco_keypoints
+from mvm.io.scene_dir import load_poses3d_document, parse_poses3d
 
 #: The stages in pipeline order.
 STAGES = ("frames", "sfm", "detect", "reconstruct", "export")
@@ -39,6 +40,8 @@ class BatchOptions:
         config: the reconstruction's settings.
         output: folder of each scene directory receiving ``poses3d.json`` and the supervision.
         checkpoint: the pose network's checkpoint for ``detect`` (None: imported detections).
+        detector: ``rtmo`` or ``rtmpose`` to detect every clip's frames with (None: ``checkpoint``
+            or the imported detections).
         max_frames / rate / width: frame sampling of ``frames`` (see ``mvm frames``).
         focal_px / max_features: ``sfm`` settings (see ``mvm sfm``); SfM runs on one thread.
         device: torch device of the network in ``detect`` (``cpu``, ``cuda``).
@@ -48,6 +51,7 @@ class BatchOptions:
     config: Config = field(default_factory=Config)
     output: str = "mvm"
     checkpoint: str | None = None
+    detector: str | None = None
     max_frames: int | None = None
     rate: float | None = None
     width: int | None = None
@@ -83,9 +87,11 @@ def output_files(scene: str | Path, stage: str, output: str = "mvm") -> list[Pat
         index = scene / "frames.json"
         if not index.is_file():
             return []
+        from mvm.video.frames import read_frame_index
+
         try:
-            names = [f["file_name"] for f in json.loads(index.read_text())["frames"]]
-        except (OSError, ValueError, KeyError, TypeError):
+            names = list(read_frame_index(scene).names)
+        except InputError:
             return [index]
         return [index] + [scene / "frames" / n for n in sorted(names)]
     if stage == "sfm":
@@ -132,17 +138,22 @@ def checksum(scene: str | Path, files: list[Path]) -> str:
 def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
     """The clip's row of the data set statistics, from ``poses2d.json`` and ``poses3d.json``:
     frames, 2D poses, matched and unmatched 2D poses, 3D poses (persons), G_k (2D joints per
-    triangulated joint), reconstructed joints, E_R."""
+    triangulated joint), reconstructed joints, E_R.
+
+    Both files are read by the guarded readers: a corrupt one raises :class:`InputError`
+    naming it (the clip's failure, never the batch's)."""
     scene = Path(scene)
     stats: dict = {}
     poses2d = scene / "poses2d.json"
-    if poses2d.is_file():
-        data = json.loads(poses2d.read_text())
-        stats["frames"] = len(data.get("images", []))
-        stats["poses2d"] = len(data.get("annotations", []))
+    if poses2d.exists():
+        coco = read_coco_keypoints(poses2d, root=scene)
+        stats["frames"] = len(coco.file_names)
+        stats["poses2d"] = len(coco.ann_ids)
     poses3d = scene / output / "poses3d.json"
-    if poses3d.is_file():
-        metrics = json.loads(poses3d.read_text()).get("metrics", {})
+    if poses3d.exists():
+        document = load_poses3d_document(poses3d, root=scene)
+        parse_poses3d(document, poses3d)
+        metrics = document.get("metrics", {})
         stats.update(matched=metrics.get("matched_poses"), unmatched=metrics.get("unmatched_poses"),
                      persons=metrics.get("persons"), G_k=metrics.get("G_k"),
                      joints=metrics.get("reconstructed_joints"), E_R_px=metrics.get("E_R_px"))
@@ -165,6 +176,9 @@ def _sfm(clip: Clip, options: BatchOptions) -> None:
 def _detect(clip: Clip, options: BatchOptions) -> None:
     from mvm.video.detect import DetectOptions, detect_scene
 
+    if options.detector is not None:
+        detect_scene(clip.scene, options=DetectOptions(detector=options.detector, device=options.device))
+        return
     if options.checkpoint is None and clip.detections is None:
         raise InputError(clip.scene, "detect", "no 2D poses: give --checkpoint, or put detections.json or "
                                                "detections/ in the scene directory")
@@ -181,7 +195,7 @@ def _reconstruct(clip: Clip, options: BatchOptions) -> None:
 
 
 def _export(clip: Clip, options: BatchOptions) -> None:
-    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.io.scene_dir import output_dir, read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
 
     scene = Path(clip.scene)
@@ -189,15 +203,15 @@ def _export(clip: Clip, options: BatchOptions) -> None:
     if not poses3d.is_file():
         raise InputError(poses3d, None, "not found: the clip is not reconstructed")
     frames = scene / "frames"
-    item = (read_scene(scene), read_poses3d(poses3d), frames if frames.is_dir() else None)
-    export_supervision([item], scene / options.output / SUPERVISION_DIR, link="none",
+    item = (read_scene(scene), read_poses3d(poses3d, root=scene), frames if frames.is_dir() else None)
+    export_supervision([item], output_dir(scene, options.output) / SUPERVISION_DIR, link="none",
                        min_keypoints=options.min_keypoints)
 
 
 _RUN = {"frames": _frames, "sfm": _sfm, "detect": _detect, "reconstruct": _reconstruct, "export": _export}
 
 
-def _one_line(error: BaseException) -> str:
+def one_line(error: BaseException) -> str:
     if isinstance(error, InputError):
         return str(error)
     text = str(error).strip().splitlines()
@@ -222,7 +236,7 @@ def run_stage(clip: Clip, stage: str, options: BatchOptions) -> StageResult:
                 result.stats = clip_stats(clip.scene, options.output)
         result.ok = True
     except Exception as e:  # noqa: BLE001 - every failure is recorded with its clip, the others go on
-        result.error = _one_line(e)
+        result.error = one_line(e)
         result.transient = isinstance(e, TRANSIENT) and not isinstance(e, InputError)
     result.seconds = time.perf_counter() - t
     return result

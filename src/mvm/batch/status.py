@@ -10,6 +10,7 @@ from mvm.batch.clips import discover_clips
 from mvm.batch.manifest import STATES, Manifest
 from mvm.batch.runner import TRAINING_SET
 from mvm.batch.stages import STAGES, checksum, output_files
+from mvm.errors import InputError
 
 
 def dataset_statistics(rows: list[tuple[str, dict]]) -> dict:
@@ -76,9 +77,21 @@ def clip_state(states: list[str]) -> str:
     return "pending"
 
 
+def _matches(scene: str, row: dict) -> bool:
+    """Whether the committed files of a stage row still hash to its checksum (unreadable or
+    missing files do not)."""
+    try:
+        files = output_files(scene, row["stage"])
+        return bool(files) and checksum(scene, files) == row["checksum"]
+    except OSError:
+        return False
+
+
 def batch_status(root: str | Path, verify: bool = False) -> Status:
     """The state of ``root``'s manifest (:class:`Status`). With ``verify``, the files of every
-    committed stage are hashed again and compared with the recorded checksum."""
+    committed stage are hashed again and compared with the recorded checksum (found under the
+    root where it is now, even when the root was moved). Reads only: nothing is written. A
+    manifest that is not one, or a corrupt cell, raises an InputError naming the file."""
     root = Path(root)
     manifest = Manifest(root, create=False)
     try:
@@ -101,13 +114,12 @@ def batch_status(root: str | Path, verify: bool = False) -> Status:
             failed.append((r["clip"], r["stage"], r["error"] or ""))
         if r["state"] == "done" and r["seconds"] is not None:
             seconds[r["stage"]] = seconds.get(r["stage"], 0.0) + r["seconds"]
+        if r["clip"] not in clips:
+            raise InputError(manifest.path, f"stages[{r['clip']!r}, {r['stage']!r}].clip", "not in the clips table")
         if r["stage"] == "reconstruct" and r["state"] in ("done", "skipped") and r["stats"]:
             stats_rows.append((clips[r["clip"]]["sequence"], r["stats"]))
-        if verify and r["state"] == "done" and r["checksum"]:
-            scene = clips[r["clip"]]["scene"]
-            files = output_files(scene, r["stage"])
-            if not files or checksum(scene, files) != r["checksum"]:
-                mismatched.append((r["clip"], r["stage"]))
+        if verify and r["state"] == "done" and r["checksum"] and not _matches(clips[r["clip"]]["scene"], r):
+            mismatched.append((r["clip"], r["stage"]))
     counts = {"total": 0, "done": 0, "failed": 0, "running": 0, "pending": 0}
     for states in per_clip.values():
         counts[clip_state(states)] += 1

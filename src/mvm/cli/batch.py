@@ -2,42 +2,31 @@
 resumable, with a manifest of every clip and stage (:mod:`mvm.batch`)."""
 from __future__ import annotations
 
-import json
 import sys
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
-from mvm.errors import InputError
-
-console = Console(stderr=True)
-out = Console()
-
-
-def _fail(error: Exception) -> None:
-    click.echo(f"mvm: error: {error}", err=True)
-    sys.exit(2)
-
-
-def _sets(pairs: tuple[str, ...]) -> dict:
-    values = {}
-    for pair in pairs:
-        if "=" not in pair:
-            raise InputError("--set", pair, "expected KEY=VALUE")
-        key, value = pair.split("=", 1)
-        values[key.strip()] = value.strip()
-    return values
+from mvm.cli.common import (
+    FOCAL,
+    MAX_FRAMES,
+    RATE,
+    WIDTH,
+    command,
+    err,
+    fmt,
+    measure_table,
+    out,
+    print_line,
+    progress,
+    read_config,
+)
 
 
-def _f(value, digits: int = 1) -> str:
-    if value is None or (isinstance(value, float) and value != value):
-        return "–"
-    return f"{value:,.{digits}f}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else str(value)
+def _f(value) -> str:
+    return fmt(value, 1, thousands=True)
 
 
-@click.command("batch")
+@command("batch")
 @click.argument("root", type=click.Path(file_okay=False))
 @click.option("--stages", default=None, metavar="LIST",
               help="Comma-separated stages to run: frames,sfm,detect,reconstruct,export (default: all).")
@@ -50,15 +39,18 @@ def _f(value, digits: int = 1) -> str:
               help="Further attempts of a stage after a transient failure (a lost worker, an OS error).")
 @click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
               help="The pose network for detect (default: each clip's imported detections).")
-@click.option("--max-frames", type=int, default=None, help="frames: keep at most this many frames per clip.")
-@click.option("--rate", type=float, default=None, help="frames: frames per second to keep.")
-@click.option("--width", type=int, default=None, help="frames: resize to this width (px).")
-@click.option("--focal", "focal_px", type=float, default=None, help="sfm: known focal length (px).")
+@click.option("--detector", type=click.Choice(["rtmo", "rtmpose"]), default=None,
+              help="detect: run this 2D pose detector on every clip's frames (default: --checkpoint, or "
+                   "each clip's imported detections).")
+@click.option("--max-frames", type=MAX_FRAMES, default=None, help="frames: keep at most this many frames per clip.")
+@click.option("--rate", type=RATE, default=None, help="frames: frames per second to keep.")
+@click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
+@click.option("--focal", "focal_px", type=FOCAL, default=None, help="sfm: known focal length (px).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings of the reconstruction.")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
-def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_frames, rate, width, focal_px,
-              config_path, sets):
+def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
+              focal_px, config_path, sets):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
@@ -66,16 +58,15 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_f
     training set of all exported clips is written to ROOT/.mvm/training/annotations.json.
     Exit status 2 when a clip failed.
     """
-    from mvm.batch import BatchOptions, parse_stages, run_batch
-    from mvm.core.config import load_config
+    from rich.progress import TextColumn
 
+    from mvm.batch import BatchOptions, parse_stages, run_batch
+
+    chosen = parse_stages(stages)
+    options = BatchOptions(config=read_config(config_path, sets), checkpoint=checkpoint, detector=detector,
+                           max_frames=max_frames, rate=rate, width=width, focal_px=focal_px)
     try:
-        chosen = parse_stages(stages)
-        options = BatchOptions(config=load_config(config_path, _sets(sets)), checkpoint=checkpoint,
-                               max_frames=max_frames, rate=rate, width=width, focal_px=focal_px)
-        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                      TextColumn("{task.fields[info]}"), TimeElapsedColumn(), console=console,
-                      transient=True) as bar:
+        with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")
 
             def update(p):
@@ -83,14 +74,9 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_f
                            info=f"{p.done} done, {p.failed} failed, {p.running} running, {p.per_second:.2f} clips/s")
 
             summary = run_batch(root, chosen, engine, workers, address, retries, options, update)
-    except InputError as e:
-        _fail(e)
     except KeyboardInterrupt:
-        console.print(f"interrupted: finished stages are recorded; `mvm batch {root}` continues", style="yellow")
+        err().print(f"interrupted: finished stages are recorded; `mvm batch {root}` continues", style="yellow")
         sys.exit(130)
-    table = Table(title=f"mvm batch: {root} (run {summary.run}, {summary.engine}, {summary.workers} workers)")
-    table.add_column("measure")
-    table.add_column("value", justify="right")
     rows = [("clips", str(summary.clips)), ("done", str(summary.done)), ("failed", str(len(summary.failed))),
             ("held by another run", str(summary.elsewhere)),
             ("stages committed (retried)", f"{summary.committed} ({summary.retried})"),
@@ -99,32 +85,31 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, max_f
     rows += [(f"worker seconds: {k}", f"{v:.1f}") for k, v in summary.stage_seconds.items() if v > 0]
     if summary.training_set:
         rows.append(("training set", str(summary.training_set)))
-    for row in rows:
-        table.add_row(*row)
-    out.print(table)
+    measure_table(f"mvm batch: {root} (run {summary.run}, {summary.engine}, {summary.workers} workers)", rows)
     for clip, stage, error in summary.failed[:20]:
-        console.print(f"failed: {clip}: {stage}: {error}", markup=False, highlight=False, soft_wrap=True)
+        print_line(f"failed: {clip}: {stage}: {error}")
     if len(summary.failed) > 20:
-        console.print(f"… and {len(summary.failed) - 20} more (mvm status {root})")
+        err().print(f"… and {len(summary.failed) - 20} more (mvm status {root})")
     if summary.failed:
         sys.exit(2)
 
 
-@click.command("status")
+@command("status")
 @click.argument("root", type=click.Path(file_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the status as one JSON document.")
 @click.option("--verify", is_flag=True, help="Hash every committed stage's files again and compare.")
 def status_cmd(root, as_json, verify):
     """What is done, failed and pending in ROOT, and the data set's statistics."""
+    from rich.table import Table
+
     from mvm.batch import batch_status
 
-    try:
-        status = batch_status(root, verify=verify)
-    except InputError as e:
-        _fail(e)
+    status = batch_status(root, verify=verify)
     if as_json:
+        import json
+
         click.echo(json.dumps(status.to_json(), indent=1))
-        return
+        sys.exit(1 if status.mismatched else 0)
     c = status.clips
     stages = Table(title=f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
                          f"{c['running']} running, {c['pending']} pending ({status.runs} runs)")
@@ -135,7 +120,7 @@ def status_cmd(root, as_json, verify):
     for stage, counts in status.stages.items():
         stages.add_row(stage, *(str(counts[s]) for s in ("done", "skipped", "failed", "running", "pending")),
                        _f(status.seconds.get(stage)))
-    out.print(stages)
+    out().print(stages)
     s = status.statistics
     data = Table(title="data set")
     data.add_column("statistic")
@@ -146,12 +131,12 @@ def status_cmd(root, as_json, verify):
                        ("avg. frames per clip", "frames_per_clip"),
                        ("avg. 2D joints per triangulation", "joints2d_per_triangulation")):
         data.add_row(label, _f(s[key]))
-    out.print(data)
+    out().print(data)
     for clip, stage, error in status.failed[:20]:
-        out.print(f"failed: {clip}: {stage}: {error}", markup=False, highlight=False, soft_wrap=True)
+        print_line(f"failed: {clip}: {stage}: {error}", out())
     if status.training_set:
-        out.print(f"training set: {status.training_set}")
+        out().print(f"training set: {status.training_set}")
     for clip, stage in status.mismatched:
-        out.print(f"checksum mismatch: {clip}: {stage}", style="red")
+        out().print(f"checksum mismatch: {clip}: {stage}", style="red")
     if status.mismatched:
         sys.exit(1)

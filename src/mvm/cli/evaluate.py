@@ -10,11 +10,12 @@ from pathlib import Path
 
 import click
 
-from mvm.io.files import atomic_write_json
+from mvm.cli.common import Group
 
 
 def _write(out: Path | None, result: dict) -> None:
     if out is not None:
+        from mvm.io.files import atomic_write_json
         from mvm.net.train import finite_or_none
 
         atomic_write_json(out, finite_or_none(result), indent=1)
@@ -25,7 +26,7 @@ def _number(value, scale: float = 1.0, digits: int = 1) -> str:
     return "-" if value is None or value != value else f"{scale * value:.{digits}f}"
 
 
-@click.group("evaluate")
+@click.group("evaluate", cls=Group)
 def evaluate() -> None:
     """The paper's evaluations: 3DPW PA-MPJPE (Table 3), COCO OKS AP (Table 4), C_var (Table 5)."""
 

@@ -8,27 +8,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-import tomllib
 
+from mvm.cli.common import FOCAL, Number, command, each_isolated, report_failures
+from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
 
-def _parse_sets(pairs: tuple[str, ...]) -> dict:
-    """``("lr=0.01", "backbone='resnet18'")`` -> ``{"lr": 0.01, "backbone": "resnet18"}`` (TOML values;
-    a bare word is taken as a string)."""
-    out = {}
-    for pair in pairs:
-        if "=" not in pair:
-            raise InputError("--set", pair, "expected KEY=VALUE")
-        key, value = (s.strip() for s in pair.split("=", 1))
-        try:
-            out[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
-            out[key] = value
-    return out
-
-
-@click.command("export")
+@command("export")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Dataset directory to write (annotations.json, images/).")
@@ -36,30 +22,41 @@ def _parse_sets(pairs: tuple[str, ...]) -> dict:
               help="How the frames get into the dataset.")
 @click.option("--output-name", default="mvm", show_default=True,
               help="Directory of each scene holding poses3d.json.")
-@click.option("--min-keypoints", default=3, show_default=True, type=int,
+@click.option("--min-keypoints", default=3, show_default=True, type=Number(int, ge=0, le=17),
               help="Persons with fewer labelled joints in a frame get no annotation there.")
-def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int) -> None:
+@click.option("--complete", is_flag=True,
+              help="Infer the joints a person lacks from the pose prior before projecting; every "
+                   "annotation then says per keypoint whether it was observed or inferred (keypoint_flags).")
+def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int,
+               complete: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
     from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
 
-    def items():
-        for scene_dir in scenes:
-            poses3d = scene_dir / output_name / "poses3d.json"
-            if not poses3d.is_file():
-                raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
-            frames = scene_dir / "frames"
-            yield read_scene(scene_dir), read_poses3d(poses3d), (frames if frames.is_dir() else None)
+    def read(scene_dir):
+        poses3d = scene_dir / output_name / "poses3d.json"
+        if not poses3d.is_file():
+            raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+        frames = scene_dir / "frames"
+        return read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 
-    path = export_supervision(items(), out_dir, link=link, min_keypoints=min_keypoints)
-    import json
+    prior = None
+    if complete:
+        from mvm.core.prior import shipped_prior
 
-    data = json.loads(path.read_text())
+        prior = shipped_prior()
+    failed: list = []
+    items = (item for _, item in each_isolated(scenes, read, failed))
+    path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints, prior=prior)
+    from mvm.io.checks import load_json
+
+    data = load_json(path)
     click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
-               f"from {len(scenes)} scene(s)")
+               f"from {len(scenes) - len(failed)} scene(s)")
+    report_failures(failed, len(scenes))
 
 
-@click.command("train")
+@command("train")
 @click.argument("config", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
               help="Override a setting, e.g. --set steps=1000 --set backbone=resnet18 (repeatable).")
@@ -82,9 +79,9 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
         click.echo(f"{plot_metrics(Path(cfg.out_dir) / 'metrics.jsonl', Path(cfg.out_dir) / 'curves.png')}")
         return
     path = train(cfg, resume=resume)
-    import json
+    from mvm.io.checks import load_json_object
 
-    meta = json.loads(path.with_suffix(".json").read_text())
+    meta = load_json_object(path.with_suffix(".json"))
     click.echo(f"{path}: step {meta['step']}, {meta.get('images_per_second', float('nan')):.1f} images/s "
                f"on {meta.get('device', '?')}")
     validation = meta.get("validation")
@@ -95,13 +92,13 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
             click.echo(f"  {name}: missing ({reason})")
 
 
-@click.command("predict")
+@command("predict")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="A checkpoint .pt written by mvm train (its .json beside it).")
 @click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Where predictions.json and the overlays go.")
-@click.option("--focal", "focal_px", default=None, type=float, help="Focal length in pixels (default: the long edge).")
+@click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
 @click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Where the network runs (auto: a GPU when there is one).")

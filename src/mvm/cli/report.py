@@ -1,22 +1,14 @@
 """``mvm report`` and ``mvm overlay``: see a reconstruction (thin calls of :mod:`mvm.report`)."""
 from __future__ import annotations
 
-import webbrowser
 from pathlib import Path
 
 import click
 
-from mvm.errors import InputError
+from mvm.cli.common import Number, command
 
 
-class _InputErrorExit(click.ClickException):
-    exit_code = 2
-
-    def show(self, file=None):
-        click.echo(f"mvm: error: {self.message}", err=True)
-
-
-@click.command("report")
+@command("report")
 @click.argument("scene", type=click.Path(file_okay=False))
 @click.option("--output", default="mvm", show_default=True, help="The scene's output folder name.")
 @click.option("--frames", default=8, show_default=True, type=click.IntRange(0), help="Frames in the overlay strip.")
@@ -25,33 +17,29 @@ def report_cmd(scene, output, frames, open_page):
     """Write SCENE/<output>/report.html: metrics, 3D view, overlays and plots in one offline page."""
     from mvm.report import write_report
 
-    try:
-        path = write_report(Path(scene), output=output, frames=frames)
-    except InputError as e:
-        raise _InputErrorExit(str(e)) from None
+    path = write_report(Path(scene), output=output, frames=frames)
     click.echo(f"report: {path} ({path.stat().st_size / 1e6:.2f} MB)")
     if open_page:
+        import webbrowser
+
         webbrowser.open(path.resolve().as_uri())
 
 
-@click.command("overlay")
+@command("overlay")
 @click.argument("scene", type=click.Path(file_okay=False))
 @click.option("-o", "--out", type=click.Path(), default=None,
               help="A .mp4 file, or a folder for one image per frame [default: SCENE/<output>/overlay/].")
 @click.option("--output", default="mvm", show_default=True, help="The scene's output folder name.")
 @click.option("--every", "step", default=1, show_default=True, type=click.IntRange(1), help="Draw every n-th frame.")
 @click.option("--max-width", default=None, type=click.IntRange(16), help="Downscale wider frames to this width (px).")
-@click.option("--fps", default=10.0, show_default=True, type=click.FloatRange(min=0.1), help="Frame rate of a video.")
+@click.option("--fps", default=10.0, show_default=True, type=Number(float, ge=0.1, le=1000), help="Frame rate of a video.")
 @click.option("--format", "image_format", type=click.Choice([".jpg", ".png"]), default=".jpg", show_default=True,
               help="Image format in a folder.")
 def overlay_cmd(scene, out, output, step, max_width, fps, image_format):
     """Draw every frame's 2D poses in the colour of their person and the reprojected 3D poses."""
     from mvm.report import write_overlays
 
-    try:
-        summary = write_overlays(Path(scene), out, output=output, step=step, max_width=max_width,
-                                 fps=fps, image_format=image_format)
-    except InputError as e:
-        raise _InputErrorExit(str(e)) from None
+    summary = write_overlays(Path(scene), out, output=output, step=step, max_width=max_width,
+                             fps=fps, image_format=image_format)
     background = "on the frames" if summary.on_frames else "on a neutral background (no frames/ folder)"
     click.echo(f"overlay: {summary.frames} frames drawn {background} -> {summary.path}")

@@ -4,75 +4,61 @@ Each command is a thin call of one library function in :mod:`mvm.video` and prin
 """
 from __future__ import annotations
 
-import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
 
+from mvm.cli.common import (
+    FOCAL,
+    MAX_FRAMES,
+    RATE,
+    WIDTH,
+    Number,
+    command,
+    err,
+    measure_table,
+    out,
+    rate_column,
+    read_config,
+    refused,
+    stage_progress,
+)
+from mvm.cli.common import fmt as _f
 from mvm.errors import InputError
 
-console = Console(stderr=True)
-out = Console()
-
-
-def _fail(error: Exception) -> None:
-    click.echo(f"mvm: error: {error}", err=True)
-    sys.exit(2)
-
-
-@contextmanager
-def _progress():
-    """A rich progress bar; yields ``update(stage, done, total)``."""
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=console, transient=True) as progress:
-        tasks: dict[str, int] = {}
-
-        def update(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = progress.add_task(stage, total=total)
-            progress.update(tasks[stage], completed=done, total=total)
-
-        yield update
-
-
-def _table(title: str, rows) -> None:
-    table = Table(title=title)
-    table.add_column("measure")
-    table.add_column("value", justify="right")
-    for key, value in rows:
-        table.add_row(key, value)
-    out.print(table)
-
-
-def _f(value, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and value != value):
-        return "–"
-    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
-
-
 frame_options = [
-    click.option("--rate", type=float, default=None, help="Frames per second to keep (default: all)."),
-    click.option("--max-frames", type=int, default=None, help="Keep at most this many frames, evenly spread."),
-    click.option("--width", type=int, default=None, help="Resize frames to this width (px)."),
-    click.option("--blur-ratio", type=float, default=0.35, show_default=True,
+    click.option("--rate", type=RATE, default=None, help="Frames per second to keep (default: all)."),
+    click.option("--max-frames", type=MAX_FRAMES, default=None, help="Keep at most this many frames, evenly spread."),
+    click.option("--width", type=WIDTH, default=None, help="Resize frames to this width (px)."),
+    click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=0.35, show_default=True,
                  help="Skip frames sharper than less than this fraction of the median (0: keep all)."),
 ]
 sfm_options = [
     click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
                  help="COLMAP camera model shared by all frames."),
-    click.option("--focal", "focal_px", type=float, default=None, help="Known focal length (px)."),
+    click.option("--focal", "focal_px", type=FOCAL, default=None, help="Known focal length (px)."),
     click.option("--fix-focal", is_flag=True, help="Keep the known focal length fixed in bundle adjustment."),
-    click.option("--max-features", type=int, default=4096, show_default=True, help="SIFT features per frame."),
+    click.option("--max-features", type=Number(int, ge=64, le=1_000_000), default=4096, show_default=True, help="SIFT features per frame."),
     click.option("--vocab-tree", type=click.Path(dir_okay=False), default=None,
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
 detect_options = [
+    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "mvm"]), default=None,
+                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), mvm (the "
+                      "project's network, --checkpoint). Default: rtmo when ONNX Runtime is installed."),
+    click.option("--model", type=click.Path(dir_okay=False), default=None,
+                 help="The detector's ONNX model (.onnx or the published .zip; default: the published model, "
+                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
+    click.option("--person-model", type=click.Path(dir_okay=False), default=None,
+                 help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
+    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default="balanced",
+                 show_default=True, help="Size of the published models."),
+    click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
+                 help="Where the detector runs (cuda: onnxruntime-gpu or a CUDA torch)."),
+    click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
+                 help="Frames given to the detector at once."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
-                 help="Checkpoint of mvm's pose network (local file)."),
+                 help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
@@ -96,6 +82,29 @@ def _frame_options(rate, max_frames, width, blur_ratio):
     return FrameOptions(rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio)
 
 
+def _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance):
+    """The detection settings; when no detector is named, the installed one (rtmo)."""
+    from mvm.video.detect import DetectOptions, available_detector
+
+    if source is not None and (detector or checkpoint):
+        raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
+    if checkpoint is not None and detector not in (None, "mvm"):
+        raise InputError(None, "--checkpoint", f"goes with --detector mvm, not {detector}")
+    if detector == "mvm" and checkpoint is None:
+        raise InputError(None, "--detector mvm", "give the network's --checkpoint")
+    if source is not None:
+        detector = "import"
+    elif checkpoint is not None:
+        detector = "mvm"
+    elif detector is None:
+        detector = available_detector()
+        if detector is None:
+            raise InputError(None, "--detector", 'no 2D pose detector is installed: pip install "mvm[detect]" '
+                                                 "(RTMO through ONNX Runtime), or give --import or --checkpoint")
+    return DetectOptions(detector=detector, model=model, person_model=person_model, mode=mode, device=device,
+                         batch_size=batch_size, appearance=appearance)
+
+
 def _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree):
     from mvm.video.sfm import SfmOptions
 
@@ -110,7 +119,7 @@ def _sfm_rows(report):
             ("3D points", str(report.points))]
 
 
-@click.command("frames")
+@command("frames")
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options)
@@ -119,17 +128,14 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
     """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
     from mvm.video.frames import extract_frames
 
-    try:
-        with _progress() as update:
-            index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
-                                   lambda d, t: update("frames", d, t))
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
-                          ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
+                               lambda d, t: update("frames", d, t))
+    measure_table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
+                             ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
 
 
-@click.command("sfm")
+@command("sfm")
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(sfm_options)
 @click.option("--cameras", type=click.Path(), default=None,
@@ -140,42 +146,39 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
 
-    try:
+    with refused(ValueError):
         if cameras is None:
             report = sfm.run_sfm(scene, _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree), force)
         elif Path(cameras).is_dir():
             report = sfm.import_colmap(cameras, scene)
         else:
             report = sfm.import_trajectory(cameras, scene)
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm sfm", _sfm_rows(report))
+    measure_table("mvm sfm", _sfm_rows(report))
     if report.unregistered:
-        console.print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
+        err().print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
 
 
-@click.command("detect")
+@command("detect")
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
-def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
+def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+               force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
-    from mvm.video.detect import DetectOptions, detect_scene
+    from mvm.video.detect import detect_scene
 
-    if (checkpoint is None) == (source is None):
-        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
-    try:
-        with _progress() as update:
-            d = detect_scene(scene, source, checkpoint, fmt, DetectOptions(appearance=appearance), force,
-                             lambda done, total: update("detecting", done, total))
-    except (InputError, ValueError) as e:
-        _fail(e)
-    _table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
-                          ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
-
+    with refused(ValueError):
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        d = detect_scene(scene, source, checkpoint, fmt, options, force,
+                         lambda done, total: update("detecting", done, total))
+    measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
+                                 ("frames skipped (unreadable)", str(len(d.skipped))),
+                                 ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
 
 
-@click.command("run")
+@command("run")
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options + sfm_options + detect_options)
@@ -188,24 +191,22 @@ def detect_cmd(scene, checkpoint, source, fmt, appearance, force):
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, checkpoint, source, fmt, appearance, cameras, config_path, metric, force):
+            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
+            cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
-    from mvm.core.config import load_config
-    from mvm.video.detect import DetectOptions
     from mvm.video.pipeline import run_video
 
-    if (checkpoint is None) == (source is None):
-        _fail(InputError(None, "--checkpoint/--import", "give exactly one of them"))
-    try:
-        config = load_config(config_path)
-        with _progress() as update:
+    with refused(ValueError):
+        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                                  appearance)
+    with refused(ValueError):
+        config = read_config(config_path, ())
+        with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
                           sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
-                          detect_options=DetectOptions(appearance=appearance), config=config,
+                          detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
-    except (InputError, ValueError) as e:
-        _fail(e)
     rec = r.reconstruction
     scale = rec.scale.to_json()
     rows = [("frames", str(len(r.frames.names)))] + _sfm_rows(r.sfm) + [
@@ -215,5 +216,5 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
         ("time: frames / sfm / detect / reconstruct (s)", " / ".join(_f(r.seconds[k], 1) for k in
                                                                    ("frames", "sfm", "detect", "reconstruct"))),
     ]
-    _table(f"mvm run: {scene}", rows)
-    out.print(f"result: {rec.path}")
+    measure_table(f"mvm run: {scene}", rows)
+    out().print(f"result: {rec.path}")

@@ -7,143 +7,258 @@ command line with ``--set key=value``.
 from __future__ import annotations
 
 import dataclasses
+import math
+import operator
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 from mvm.errors import InputError
 
 
-#: The ways 2D poses become persons (``Config.association``).
-ASSOCIATIONS: tuple[str, ...] = ("paper", "3d")
+@dataclass(frozen=True)
+class Bounds:
+    """The allowed values of one setting. A float must be finite (unless ``finite=False``);
+    ``ge``/``gt``/``le``/``lt`` bound a number, ``choices`` lists the allowed values, ``odd``
+    asks for an odd integer."""
+
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    choices: tuple | None = None
+    odd: bool = False
+    finite: bool = True
+
+    def problem(self, value) -> str | None:
+        """What is wrong with ``value``, or None when it is allowed."""
+        if self.choices is not None:
+            if value not in self.choices:
+                return f"expected one of {', '.join(map(repr, self.choices))}, got {_shown(value)}"
+            return None
+        if isinstance(value, float) and value != value:
+            return "expected float, got nan"
+        if self.finite and isinstance(value, float) and value in (math.inf, -math.inf):
+            return f"must be finite, got {value}"
+        for limit, ok, op in ((self.ge, operator.ge, ">="), (self.gt, operator.gt, ">"),
+                              (self.le, operator.le, "<="), (self.lt, operator.lt, "<")):
+            if limit is not None and not ok(value, limit):
+                return f"must be {op} {limit:g}, got {_shown(value)}" if isinstance(limit, float) \
+                    else f"must be {op} {limit}, got {_shown(value)}"
+        if self.odd and value % 2 == 0:
+            return f"must be odd, got {value}"
+        return None
+
+
+def setting(default, **bounds):
+    """A settings dataclass field with :class:`Bounds`, checked by :func:`check_settings`:
+    ``tau: float = setting(0.2, ge=0)``."""
+    return dataclasses.field(default=default, metadata={"bounds": Bounds(**bounds)})
+
+
+def _shown(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:39] + "…"
+
+
+def _kind(field: dataclasses.Field) -> tuple[str | None, bool]:
+    """(``"bool"``, ``"int"``, ``"float"``, ``"str"`` or None for other types, whether None is allowed)."""
+    annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
+    parts = [part.strip() for part in annotation.split("|")]
+    optional = "None" in parts
+    kinds = [part for part in parts if part in ("bool", "int", "float", "str")]
+    return (kinds[0] if len(kinds) == 1 and len(parts) - optional == 1 else None), optional
+
+
+def _type_problem(kind: str | None, value) -> str | None:
+    if kind == "bool":
+        ok = isinstance(value, bool)
+    elif kind == "int":
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif kind == "float":
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+    elif kind == "str":
+        ok = isinstance(value, str)
+    else:
+        return None
+    return None if ok else f"expected {kind}, got {_shown(value)}"
+
+
+def check_settings(settings) -> None:
+    """Check every field of a settings dataclass: its type, its :class:`Bounds` (a float must be
+    finite even without bounds) and what the settings imply together (the class's
+    ``implied_problems()``, when it has one: ``[(name, problem), ...]``).
+
+    Raises the first problem as an :class:`InputError` naming the setting (no file: whoever
+    read the settings adds it, see :func:`settings_from`). Call it from ``__post_init__``.
+    """
+    for field in fields(settings):
+        value = getattr(settings, field.name)
+        kind, optional = _kind(field)
+        if value is None and optional:
+            continue
+        problem = _type_problem(kind, value)
+        if problem is None and kind in ("int", "float"):
+            problem = field.metadata.get("bounds", Bounds()).problem(value)
+        elif problem is None and "bounds" in field.metadata:
+            problem = field.metadata["bounds"].problem(value)
+        if problem:
+            raise InputError(None, field.name, problem)
+    for name, problem in getattr(settings, "implied_problems", list)():
+        raise InputError(None, name, problem)
+
+
+def coerce_setting(cls, name: str, value, source: str | Path | None):
+    """``value`` (a TOML value, or the text of ``--set``) as the type of field ``name`` of the
+    settings dataclass ``cls``; an unknown name or a wrong type raises an InputError naming
+    ``source`` and the setting."""
+    by_name = {f.name: f for f in fields(cls)}
+    if name not in by_name:
+        raise InputError(source, name, f"unknown setting (known: {', '.join(sorted(by_name))})")
+    kind, optional = _kind(by_name[name])
+    if optional and (value is None or (isinstance(value, str) and value.lower() in ("none", "null", ""))):
+        return None
+    try:
+        if kind == "bool":
+            if isinstance(value, str) and value.lower() in _BOOLS:
+                return _BOOLS[value.lower()]
+            if not isinstance(value, bool):
+                raise ValueError
+            return value
+        if kind in ("int", "float") and isinstance(value, bool):
+            raise ValueError
+        if kind == "int":
+            if isinstance(value, float):
+                if not value.is_integer():
+                    raise ValueError
+                return int(value)
+            return int(value) if isinstance(value, int) else int(str(value).strip(), 10)
+        if kind == "float":
+            return float(value)
+        if kind == "str" and not isinstance(value, str):
+            raise ValueError
+        return value
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(source, name, f"expected {kind}, got {_shown(value)}") from None
+
+
+_BOOLS = {"true": True, "false": False, "1": True, "0": False, "yes": True, "no": False}
+
+
+def settings_from(cls, values: dict, source: str | Path | None, base=None, sources: dict | None = None):
+    """A settings dataclass ``cls`` (or ``base`` with changes) from ``values`` read from
+    ``source`` (a file, or an option such as ``--set``): every value is coerced and checked
+    before any work, and a bad one raises an InputError naming the source and the setting.
+    ``sources`` gives another source for some names (e.g. ``--set`` over a file)."""
+    sources = sources or {}
+    coerced = {k: coerce_setting(cls, k, v, sources.get(k, source)) for k, v in values.items()}
+    try:
+        return dataclasses.replace(base, **coerced) if base is not None else cls(**coerced)
+    except InputError as e:
+        if e.path is not None:
+            raise
+        raise InputError(sources.get(e.field, source), e.field, e.problem) from None
+
 
 
 @dataclass(frozen=True)
 class Config:
     # --- affinity (Eq. 1, 2) -------------------------------------------------------------
     #: Keypoints with confidence below this are treated as missing everywhere. [0-1]
-    keypoint_threshold: float = 0.2
+    keypoint_threshold: float = setting(0.2, ge=0, le=1)
     #: γ of Eq. 1, applied to D expressed in the unit ``distance_scale``. [1]
-    gamma: float = 1.0
+    gamma: float = setting(1.0, gt=0)
     #: The unit of the epipolar distance D, as a fraction of the focal length: D is divided
     #: by ``distance_scale · f`` pixels, so the same γ works at every image resolution. [focal]
-    distance_scale: float = 0.01
+    distance_scale: float = setting(0.01, gt=0)
     #: Poses sharing fewer keypoints than this have affinity 0. [keypoints]
-    min_common_keypoints: int = 3
+    min_common_keypoints: int = setting(3, ge=1, le=17)
     #: Use the annotations' appearance descriptors (cosine similarity S) when present. [bool]
     use_appearance: bool = True
     # --- grouping (Algorithm 1) ----------------------------------------------------------
     #: A candidate joins a group while its confidence-weighted mean affinity to the group's
     #: members is at least τ. Affinities lie in [0, 0.5] (0.5 at D = 0). [affinity]
-    tau: float = 0.2
+    tau: float = setting(0.2, ge=0)
     #: Poses with a score below this never seed nor join a group. [0-1]
-    min_pose_score: float = 0.05
+    min_pose_score: float = setting(0.05, ge=0, le=1)
     #: Groups with fewer 2D poses than this are discarded (their poses stay unmatched). [poses]
-    min_group_size: int = 3
+    min_group_size: int = setting(3, ge=1)
     #: Persons with fewer reconstructed joints than this are discarded. [joints]
-    min_person_joints: int = 5
+    min_person_joints: int = setting(5, ge=1, le=17)
     # --- triangulation -------------------------------------------------------------------
     #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this. [px]
-    ransac_threshold_px: float = 15.0
+    ransac_threshold_px: float = setting(15.0, gt=0)
     #: Number of RANSAC hypotheses (two-view triangulations) per joint. [1]
-    ransac_hypotheses: int = 48
+    ransac_hypotheses: int = setting(48, ge=1, le=10_000)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True
     #: Two persons whose joints are on average closer than this fraction of the torso length
     #: are one person split into two groups, and are merged; 0 disables. [torso lengths]
-    merge_distance: float = 0.3
+    merge_distance: float = setting(0.3, ge=0)
     # --- association consistent in 3D ----------------------------------------------------
     #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
     #: "3d" then reassigns every 2D pose to the triangulated person whose reprojection explains
     #: it, one pose per person per view, and re-triangulates until nothing changes. [name]
-    association: str = "3d"
-    #: A 2D pose joins a person only when its keypoints lie, on average, closer than this to
-    #: the person's reprojection, in person sizes (sqrt of its image box area, as OKS); lower
-    #: refuses noisy poses, higher lets neighbours' poses in. [person sizes]
-    association_gate: float = 0.15
+    association: str = setting("3d", choices=("paper", "3d"))
+    #: A 2D pose joins a person only when its keypoints lie (median over joints) closer than
+    #: this to the person's reprojection, in person sizes (sqrt of its image box area, as OKS);
+    #: lower refuses noisy poses, higher lets neighbours' poses in. [person sizes]
+    association_gate: float = setting(0.15, gt=0)
     #: Rounds of assignment and re-triangulation at most (most scenes settle in 2-3). [1]
-    association_iterations: int = 4
+    association_iterations: int = setting(4, ge=1)
     #: Random RANSAC hypotheses per joint when re-triangulating a person during the
     #: association, besides its previous 3D joint (which is nearly always the best). [1]
-    association_hypotheses: int = 8
+    association_hypotheses: int = setting(8, ge=1)
     #: The frames of a scene are a video (in the order of their names, numbers as numbers): a
     #: pose close to a person's pose in a neighbouring frame (at most 3 frames away) may join
     #: it although its distance to the reprojection is up to twice the gate. Off for unordered
-    #: photos. [bool]
+    #: photos; never used for the cameras of a rig. [bool]
     video_order: bool = True
     #: A person must explain at least this fraction of the views it projects into, else it is
     #: refused (false positives that happen to agree in a few views). [0-1]
-    association_min_support: float = 0.2
+    association_min_support: float = setting(0.2, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
     #: arcs) is refused unless it explains half the views it projects into: false positives
     #: that agree in a few close views triangulate to no body. [fraction]
-    association_max_proportion_deviation: float = 0.4
+    association_max_proportion_deviation: float = setting(0.4, gt=0)
     #: Minimum number of inlier views to reconstruct a joint. [views]
-    min_views: int = 2
+    min_views: int = setting(2, ge=2)
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]
-    min_parallax_deg: float = 3.0
+    min_parallax_deg: float = setting(3.0, ge=0, lt=180)
     # --- refinement (Eq. bundle) ---------------------------------------------------------
     #: Run the refinement (reprojection + λ·pose prior). [bool]
     refine: bool = True
     #: λ, the weight of the pose prior's negative log-likelihood against the robust
     #: reprojection error (summed squared pixels). [px² per nat]
-    prior_weight: float = 10.0
+    prior_weight: float = setting(10.0, ge=0)
     #: Scale of the robust (soft-L1) loss on reprojection residuals. [px]
-    robust_scale_px: float = 5.0
+    robust_scale_px: float = setting(5.0, gt=0)
     #: Iterations of the solver (function evaluations ≈ 50 × this). [1]
-    refine_max_iterations: int = 30
+    refine_max_iterations: int = setting(30, ge=1, le=10_000)
+    #: Complete every person: joints not reconstructed are inferred from the pose prior given the
+    #: others (flagged "inferred" in poses3d.json); off leaves them null. [bool]
+    complete: bool = False
     # --- random numbers ------------------------------------------------------------------
     #: Seed of RANSAC's sampling: a scene gives the same result every run. [1]
-    seed: int = 0
+    seed: int = setting(0, ge=0, le=2**63 - 1)
     # --- resources -----------------------------------------------------------------------
     #: Largest memory the affinity of a scene may take: ``4 N²`` bytes for N 2D poses
     #: (``8 N²`` with appearance descriptors). A larger scene is refused before any work,
     #: with a message giving the amount needed. [bytes]
-    max_affinity_bytes: int = 4 * 2**30
+    max_affinity_bytes: int = setting(4 * 2**30, ge=1)
     #: How long a run waits for another run writing the same scene's output. [s]
-    lock_timeout_s: float = 600.0
+    lock_timeout_s: float = setting(600.0, ge=0)
 
-    def replace(self, **changes) -> "Config":
+    def __post_init__(self):
+        check_settings(self)
+
+    def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)
 
 
-def _coerce(name: str, value, source: str) -> object:
-    """Convert ``value`` to the type of field ``name``; raise an InputError naming ``source``."""
-    types = {f.name: f.type for f in fields(Config)}
-    if name not in types:
-        known = ", ".join(sorted(types))
-        raise InputError(source, name, f"unknown setting (known: {known})")
-    kind = types[name]
-    try:
-        if kind == "bool":
-            if isinstance(value, str):
-                if value.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                    raise ValueError
-                return value.lower() in ("true", "1", "yes")
-            if not isinstance(value, bool):
-                raise ValueError
-            return value
-        if kind == "str":
-            if not isinstance(value, str):
-                raise ValueError
-            return value
-        if kind == "int":
-            if isinstance(value, bool) or (isinstance(value, float) and not value.is_integer()):
-                raise ValueError
-            return int(value)
-        if isinstance(value, bool):
-            raise ValueError
-        number = float(value)
-        if number != number or number in (float("inf"), float("-inf")):
-            raise ValueError
-        return number
-    except (TypeError, ValueError, OverflowError):
-        shown = repr(value) if len(repr(value)) <= 40 else repr(value)[:39] + "…"
-        raise InputError(source, name, f"expected {kind}, got {shown}") from None
-
-
 def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
-    """Read a TOML config (flat, or under ``[reconstruct]``) and apply ``overrides``."""
+    """Read a TOML config (flat, or under ``[reconstruct]``) and apply ``overrides`` (from
+    ``--set``); every setting is checked here, with the file or ``--set`` in the message."""
     values: dict = {}
     if path is not None:
         path = Path(path)
@@ -153,35 +268,8 @@ def load_config(path: str | Path | None = None, overrides: dict | None = None) -
         data = data.get("reconstruct", data)
         if not isinstance(data, dict):
             raise InputError(path, "reconstruct", "expected a table of settings")
-        values.update({k: _coerce(k, v, str(path)) for k, v in data.items()})
-    for k, v in (overrides or {}).items():
-        values[k] = _coerce(k, v, "--set")
-    config = Config(**values)
-    _validate(config, str(path) if path else "--set")
-    return config
-
-
-def _validate(config: Config, source: str) -> None:
-    positive = ("gamma", "distance_scale", "ransac_threshold_px", "robust_scale_px")
-    for name in positive:
-        if getattr(config, name) <= 0:
-            raise InputError(source, name, f"must be > 0, got {getattr(config, name)}")
-    for name in ("prior_weight", "tau", "merge_distance", "keypoint_threshold", "min_pose_score", "min_parallax_deg",
-                 "lock_timeout_s"):
-        if getattr(config, name) < 0:
-            raise InputError(source, name, f"must be >= 0, got {getattr(config, name)}")
-    if config.association not in ASSOCIATIONS:
-        raise InputError(source, "association", f"unknown method {config.association!r} (known: {', '.join(ASSOCIATIONS)})")
-    if config.association_max_proportion_deviation <= 0:
-        raise InputError(source, "association_max_proportion_deviation",
-                         f"must be > 0, got {config.association_max_proportion_deviation}")
-    if not 0 < config.association_gate:
-        raise InputError(source, "association_gate", f"must be > 0, got {config.association_gate}")
-    if not 0 <= config.association_min_support <= 1:
-        raise InputError(source, "association_min_support", f"must be in [0, 1], got {config.association_min_support}")
-    if config.min_views < 2:
-        raise InputError(source, "min_views", f"must be >= 2, got {config.min_views}")
-    for name in ("ransac_hypotheses", "association_iterations", "association_hypotheses", "min_group_size", "min_person_joints", "min_common_keypoints", "refine_max_iterations",
-                 "max_affinity_bytes"):
-        if getattr(config, name) < 1:
-            raise InputError(source, name, f"must be >= 1, got {getattr(config, name)}")
+        values.update(data)
+    overrides = overrides or {}
+    values.update(overrides)
+    return settings_from(Config, values, str(path) if path is not None else "--set",
+                         sources={k: "--set" for k in overrides})

@@ -104,7 +104,15 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
                           config, scene.name)
     # The hot paths are many small products: BLAS threads only contend with each other.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _scene_result(scene, config, reconstruct_poses(scene.cameras, scene.poses, config, prior, groups))
+        result = _scene_result(scene, config, reconstruct_poses(scene.cameras, scene.poses, config, prior, groups))
+    if config.complete and len(result.persons):
+        from mvm.core.completion import complete_persons
+        from mvm.core.prior import shipped_prior
+
+        persons = result.persons
+        persons.keypoints3d, persons.flags = complete_persons(persons.keypoints3d, prior or shipped_prior(),
+                                                              config.min_person_joints)
+    return result
 
 
 def _scene_warnings(scene: Scene, config: Config) -> list[str]:

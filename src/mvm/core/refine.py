@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 from mvm.core.geometry import project
-from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
 
 log = logging.getLogger(__name__)
@@ -140,30 +140,68 @@ class SparsityPattern:
     shape: tuple[int, int]
 
 
+@dataclass(frozen=True)
+class BoneTerms:
+    """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` (a relative error, weight ``w`` in
+    pixels²). ``ends: (N, 2)`` parameter joints of each bone; ``target: (N,)`` lengths ``L``."""
+
+    ends: np.ndarray
+    target: np.ndarray
+    root_weight: float
+
+    @staticmethod
+    def build(lengths, weight: float, present: np.ndarray, param_of: np.ndarray) -> "BoneTerms":
+        """Terms for the :data:`mvm.core.keypoints.BONES` of ``lengths: (P, B)`` (NaN: none)
+        whose two joints are present."""
+        bones = np.array(BONES)
+        target = np.asarray(lengths, dtype=float).reshape(len(present), len(bones))
+        ok = present[:, bones[:, 0]] & present[:, bones[:, 1]] & np.isfinite(target) & (target > 0)
+        p, b = np.nonzero(ok)
+        ends = np.stack([param_of[p, bones[b, 0]], param_of[p, bones[b, 1]]], axis=1)
+        return BoneTerms(ends, target[p, b], float(np.sqrt(weight)))
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """``(N,)``."""
+        points = x.reshape(-1, 3)
+        length = np.linalg.norm(points[self.ends[:, 0]] - points[self.ends[:, 1]], axis=-1)
+        return self.root_weight * (length - self.target) / self.target
+
+    def jacobian_values(self, x: np.ndarray) -> np.ndarray:
+        """``(N, 2, 3)``: derivatives by the coordinates of each bone's two joints."""
+        points = x.reshape(-1, 3)
+        d = points[self.ends[:, 0]] - points[self.ends[:, 1]]
+        u = d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[:, None] * (self.root_weight / self.target)[:, None]
+        return np.stack([u, -u], axis=1)
+
+
 def reprojection(x: np.ndarray, fitted: FittedKeypoints) -> tuple[np.ndarray, np.ndarray]:
     """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints at ``x: (3 n,)``."""
     uv, depth = project(x.reshape(-1, 3)[fitted.param], fitted.P)
     return uv - fitted.xy, depth
 
 
-def objective(x: np.ndarray, fitted: FittedKeypoints, blocks: list[PriorBlock], robust_scale_px: float) -> float:
-    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) at ``x: (3 n,)``."""
+def objective(x: np.ndarray, fitted: FittedKeypoints, blocks: list[PriorBlock], robust_scale_px: float,
+              bones: BoneTerms | None = None) -> float:
+    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``x: (3 n,)``."""
     e, _ = reprojection(x, fitted)
     f2 = robust_scale_px**2
     total = (fitted.conf * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+    total += 0.5 * np.sum(bones.residuals(x) ** 2) if bones is not None else 0.0
     return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in blocks))
 
 
 def residuals(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
-              pattern: SparsityPattern) -> np.ndarray:
-    """The inner least-squares residuals ``(2 K + prior rows,)``: weighted reprojection errors
-    (``sqrt_w: (2 K,)``, the IRLS weights of ρ) and the linearized prior rows."""
+              pattern: SparsityPattern, bones: BoneTerms | None = None) -> np.ndarray:
+    """The inner least-squares residuals ``(2 K + prior rows [+ bone rows],)``: weighted
+    reprojection errors (``sqrt_w: (2 K,)``, the IRLS weights of ρ), the linearized prior rows
+    and the bone terms."""
     e, _ = reprojection(x, fitted)
-    return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in blocks])
+    extra = [bones.residuals(x)] if bones is not None else []
+    return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in blocks] + extra)
 
 
 def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
-             pattern: SparsityPattern) -> sp.csr_matrix:
+             pattern: SparsityPattern, bones: BoneTerms | None = None) -> sp.csr_matrix:
     """The analytic Jacobian of :func:`residuals` at ``x``, sparse as ``pattern``."""
     K = len(fitted.param)
     homogeneous = np.concatenate([x.reshape(-1, 3)[fitted.param], np.ones((K, 1))], axis=1)
@@ -172,13 +210,15 @@ def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks:
     uv = proj[:, :2] / z
     d = (fitted.P[:, :2, :3] - uv[:, :, None] * fitted.P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
     values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-    return sp.csr_matrix((np.concatenate([values, pattern.prior_values]), (pattern.rows, pattern.cols)),
+    extra = [bones.jacobian_values(x).reshape(-1)] if bones is not None else []
+    return sp.csr_matrix((np.concatenate([values, pattern.prior_values] + extra), (pattern.rows, pattern.cols)),
                          shape=pattern.shape)
 
 
-def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int) -> SparsityPattern:
+def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int,
+                     bones: BoneTerms | None = None) -> SparsityPattern:
     """Where :func:`jacobian` is non-zero: 3 entries per reprojection row (the coordinates of the
-    keypoint's joint), a dense block per person's prior rows."""
+    keypoint's joint), a dense block per person's prior rows, 6 per bone row (its two joints)."""
     K = len(fitted.param)
     rows_reproj = np.repeat(np.arange(2 * K), 3)
     cols_reproj = (3 * np.repeat(fitted.param, 2)[:, None] + np.arange(3)).reshape(-1)
@@ -189,7 +229,12 @@ def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params
     cols = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
                                            for b in blocks])
     prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in blocks])
-    return SparsityPattern(rows, cols, prior_values, (int(starts[-1]), n_params))
+    n_rows = int(starts[-1])
+    if bones is not None:
+        rows = np.concatenate([rows, n_rows + np.repeat(np.arange(len(bones.target)), 6)])
+        cols = np.concatenate([cols, (3 * bones.ends[:, :, None] + np.arange(3)).reshape(-1)])
+        n_rows += len(bones.target)
+    return SparsityPattern(rows, cols, prior_values, (n_rows, n_params))
 
 
 def irls_weights(x: np.ndarray, fitted: FittedKeypoints, robust_scale_px: float) -> np.ndarray:
@@ -217,7 +262,8 @@ def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, fitted:
 
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
                  prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
-                 max_iterations: int = 30, outer_iterations: int = 3) -> RefineResult:
+                 max_iterations: int = 30, outer_iterations: int = 3,
+                 bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0) -> RefineResult:
     """Refine ``P`` persons' 3D joints.
 
     Args:
@@ -228,6 +274,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
         prior_weight: λ, pixels² per nat.
         robust_scale_px: scale ``f`` of the soft-L1 loss.
+        bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
+            are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
+            relative length error (0: no bone term).
     Returns:
         :class:`RefineResult`.
     """
@@ -252,19 +301,21 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     def linearized_prior(X):
         return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
 
+    bones = (BoneTerms.build(bone_lengths, bone_weight, present, param_of)
+             if bone_lengths is not None and bone_weight > 0 else None)
     x = X0[present].reshape(-1).copy()
-    cost_before = objective(x, fitted, linearized_prior(X0), robust_scale_px)
+    cost_before = objective(x, fitted, linearized_prior(X0), robust_scale_px, bones)
     for _ in range(outer_iterations):
         sqrt_w = irls_weights(x, fitted, robust_scale_px)
         blocks = linearized_prior(unpack(x))
-        pattern = sparsity_pattern(fitted, blocks, n_params)
+        pattern = sparsity_pattern(fitted, blocks, n_params, bones)
         x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
-                          max_nfev=max_iterations, args=(fitted, sqrt_w, blocks, pattern)).x
+                          max_nfev=max_iterations, args=(fitted, sqrt_w, blocks, pattern, bones)).x
 
     X = unpack(x)
     fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-    cost_after = objective(X[present].reshape(-1), fitted, linearized_prior(X), robust_scale_px)
+    cost_after = objective(X[present].reshape(-1), fitted, linearized_prior(X), robust_scale_px, bones)
     return RefineResult(X, fallback, cost_before, cost_after)

@@ -159,6 +159,8 @@ class Persons3D:
         views_per_joint: ``(P, 17)`` inlier 2D keypoints used per joint.
         outliers_per_joint: ``(P, 17)`` 2D keypoints RANSAC rejected per joint.
         reprojection_error_px: ``(P,)`` mean reprojection error over the inlier keypoints.
+        flags: ``(P, 17)`` how each joint was obtained (:mod:`mvm.core.completion`: observed,
+            interpolated, inferred, missing); None: observed wherever ``keypoints3d`` is finite.
     """
 
     keypoints3d: np.ndarray
@@ -167,6 +169,7 @@ class Persons3D:
     views_per_joint: np.ndarray
     outliers_per_joint: np.ndarray
     reprojection_error_px: np.ndarray
+    flags: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.keypoints3d)

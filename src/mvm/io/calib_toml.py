@@ -77,6 +77,10 @@ def _check_camera(K: np.ndarray, R: np.ndarray, size: np.ndarray, path, section:
         raise InputError(path, f"[{section}].size", f"width and height must be > 0, got {size[0]:g}, {size[1]:g}")
 
 
+CAMERA_KEYS = frozenset(("matrix", "rotation", "translation", "size", "distortions"))
+"""The keys that make a table of a Calib.toml a camera."""
+
+
 def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
     """Build a :class:`RigCalibration` from a parsed Calib.toml document (``path`` names it in errors)."""
     K, R, t, size, names, dist, fisheye = [], [], [], [], [], [], []
@@ -85,8 +89,12 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
         if section == "metadata":
             metadata = dict(table) if isinstance(table, dict) else {}
             continue
-        if not isinstance(table, dict) or "matrix" not in table:
-            continue
+        if not isinstance(table, dict) or not CAMERA_KEYS & set(table):
+            continue                                   # not a camera: another tool's table
+        if "matrix" not in table:
+            present = ", ".join(sorted(CAMERA_KEYS & set(table)))
+            raise InputError(path, f"[{section}].matrix", f"missing: a camera table (it has {present}) "
+                                                          "needs matrix, rotation, translation and size")
         name = table.get("name", section)
         if not isinstance(name, str) or not name:
             raise InputError(path, f"[{section}].name", f"expected a string, got {name!r}")

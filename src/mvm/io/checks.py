@@ -1,9 +1,19 @@
-"""Checks shared by the readers: load a text or JSON file, and turn JSON/TOML values into
-numbers, with every problem raised as one :class:`~mvm.errors.InputError` line."""
+"""Checks shared by the readers: open an input file the one guarded way, load a text, JSON or
+TOML file, and turn JSON/TOML values into numbers, with every problem raised as one
+:class:`~mvm.errors.InputError` line.
+
+Every read of an input file goes through :func:`read_bytes`: the path must name a regular file
+(a FIFO, a device such as ``/dev/zero`` or a folder is refused before anything is read, so a
+read never blocks or runs away), its size is bounded (:data:`MAX_INPUT_BYTES`, set by the
+``MVM_MAX_INPUT_MB`` environment variable), and with ``root`` the path, every symbolic link
+resolved, must stay inside that folder (the scene directory).
+"""
 from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -11,25 +21,130 @@ import numpy as np
 from mvm.errors import InputError
 
 
-def read_text(path: str | Path) -> str:
-    """The UTF-8 text of ``path``; a missing, unreadable or non-UTF-8 file raises InputError."""
+def _limit_from_env() -> int:
+    try:
+        megabytes = float(os.environ.get("MVM_MAX_INPUT_MB", "2048"))
+    except ValueError:
+        megabytes = 2048.0
+    return int(megabytes * 2 ** 20) if math.isfinite(megabytes) and megabytes > 0 else 2048 * 2 ** 20
+
+
+MAX_COORDINATE = 1e12
+"""The largest coordinate magnitude (model units) a reader accepts, in a COLMAP model or a
+``poses3d.json``: beyond it a squared distance or a projection could overflow, and no scene
+measures that much in any unit."""
+
+MAX_INPUT_BYTES = _limit_from_env()
+"""The largest input file any reader accepts (bytes); ``MVM_MAX_INPUT_MB`` sets it (default 2048)."""
+
+
+def _size_text(n: int) -> str:
+    for unit, scale in (("GiB", 2 ** 30), ("MiB", 2 ** 20), ("KiB", 2 ** 10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n} bytes"
+
+
+_KINDS = ((stat.S_ISDIR, "is a directory, expected a file"),
+          (stat.S_ISFIFO, "is a FIFO (named pipe), expected a regular file"),
+          (stat.S_ISCHR, "is a character device, expected a regular file"),
+          (stat.S_ISBLK, "is a block device, expected a regular file"),
+          (stat.S_ISSOCK, "is a socket, expected a regular file"))
+
+
+def inside_root(path: str | Path, root: str | Path) -> Path:
+    """``path`` when, with every symbolic link resolved, it lies inside ``root`` (resolved
+    too); InputError otherwise (a link that leads out, a loop of links)."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        resolved = path.resolve()
+        base = Path(root).resolve()
+    except (OSError, RuntimeError) as e:               # a loop of symbolic links
+        raise InputError(path, None, f"cannot resolve: {getattr(e, 'strerror', None) or e}") from None
+    if resolved != base and base not in resolved.parents:
+        raise InputError(path, None, f"leads outside {root} through a symbolic link")
+    return path
+
+
+def check_input_file(path: str | Path, root: str | Path | None = None, limit: int | None = None) -> Path:
+    """``path`` when it names a regular file of at most ``limit`` bytes (inside ``root`` when
+    given), for a reader that opens it itself (a link to it, a copy); InputError otherwise."""
+    path = Path(path)
+    if root is not None:
+        inside_root(path, root)
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise InputError(path, None, "file not found") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    _check_kind(path, info, MAX_INPUT_BYTES if limit is None else limit)
+    return path
+
+
+def _check_kind(path: Path, info: os.stat_result, limit: int) -> None:
+    for test, problem in _KINDS:
+        if test(info.st_mode):
+            raise InputError(path, None, problem)
+    if not stat.S_ISREG(info.st_mode):
+        raise InputError(path, None, "not a regular file")
+    if info.st_size > limit:
+        raise InputError(path, None, f"{_size_text(info.st_size)}, more than the "
+                                     f"{_size_text(limit)} limit for an input file (MVM_MAX_INPUT_MB)")
+
+
+def read_bytes(path: str | Path, root: str | Path | None = None, limit: int | None = None) -> bytes:
+    """The content of the regular file ``path``, read the guarded way.
+
+    Refused with :class:`InputError` naming the path: a missing file, a folder, a FIFO, a device
+    or socket (checked on the opened descriptor, without blocking), a file over ``limit`` bytes
+    (default :data:`MAX_INPUT_BYTES`), and with ``root`` a path that leads outside ``root``
+    through a symbolic link.
+    """
+    path = Path(path)
+    limit = MAX_INPUT_BYTES if limit is None else limit
+    if root is not None:
+        inside_root(path, root)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
         raise InputError(path, None, "file not found") from None
     except IsADirectoryError:
         raise InputError(path, None, "is a directory, expected a file") from None
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    try:
+        _check_kind(path, os.fstat(fd), limit)
+        chunks, total = [], 0
+        while True:
+            chunk = os.read(fd, min(1 << 24, limit + 1 - total))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+            if total > limit:
+                raise InputError(path, None, f"grew past the {_size_text(limit)} limit for an input "
+                                             "file while being read (MVM_MAX_INPUT_MB)")
+        return b"".join(chunks)
+    except OSError as e:
+        raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+
+
+def read_text(path: str | Path, root: str | Path | None = None) -> str:
+    """The UTF-8 text of ``path`` (read by :func:`read_bytes`); a non-UTF-8 file raises InputError."""
+    data = read_bytes(path, root)
+    try:
+        return data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise InputError(path, None, f"not UTF-8 text (byte {e.start})") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
 
 
-def load_json(path: str | Path):
-    """Parse the JSON file ``path`` (any problem, including nesting too deep and integers too
-    long to convert, raises InputError)."""
-    text = read_text(path)
+def parse_json(text: str, path: str | Path):
+    """Parse JSON ``text`` read from ``path``: invalid JSON, nesting too deep and integers too
+    long to convert raise InputError; ``NaN`` and ``Infinity`` literals are kept as floats for
+    the value checks (:func:`number`) to refuse where a number is expected."""
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
@@ -40,11 +155,33 @@ def load_json(path: str | Path):
         raise InputError(path, None, "not valid JSON: a number has too many digits") from None
 
 
-def load_toml(path: str | Path) -> dict:
-    """Parse the TOML file ``path``; any problem raises InputError."""
+def load_json(path: str | Path, root: str | Path | None = None):
+    """Parse the JSON file ``path`` (read by :func:`read_bytes`; any problem raises InputError)."""
+    return parse_json(read_text(path, root), path)
+
+
+def load_json_object(path: str | Path, root: str | Path | None = None, what: str = "a JSON object") -> dict:
+    """:func:`load_json` of a file whose top level must be an object."""
+    data = load_json(path, root)
+    if not isinstance(data, dict):
+        raise InputError(path, None, f"expected {what}, got {_json_type(data)}")
+    return data
+
+
+def _json_type(value) -> str:
+    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean",
+            type(None): "null"}.get(type(value), "a number")
+
+
+def load_toml(path: str | Path, root: str | Path | None = None) -> dict:
+    """Parse the TOML file ``path`` (read by :func:`read_bytes`); any problem raises InputError."""
+    return parse_toml(read_text(path, root), path)
+
+
+def parse_toml(text: str, path: str | Path | None) -> dict:
+    """Parse TOML ``text`` read from ``path``; any problem raises InputError."""
     import tomllib
 
-    text = read_text(path)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

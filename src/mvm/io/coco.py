@@ -64,84 +64,30 @@ def _size(image: dict, key: str, path, field) -> float:
     return value
 
 
-def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
+def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> CocoKeypoints:
     """Read and validate a COCO keypoints file; any problem raises one ``InputError`` line.
 
     ``file_name`` must be a relative name that stays below its folder (no absolute path, no
-    ``..`` leading out): see :mod:`mvm.io.paths`.
+    ``..`` leading out): see :mod:`mvm.io.paths`. With ``root``, the file itself must lie
+    inside that folder once its links are resolved (:func:`mvm.io.checks.read_bytes`).
     """
     path = Path(path)
-    data = load_json(path)
+    data = load_json(path, root)
     if not isinstance(data, dict):
         raise InputError(path, None, "expected a JSON object with 'images' and 'annotations'")
     for key in ("images", "annotations"):
         if not isinstance(data.get(key), list):
             raise InputError(path, key, "missing, or not a list")
-
-    image_ids, names, sizes, index = [], [], [], {}
-    for i, image in enumerate(data["images"]):
-        field = f"images[{i}]"
-        if not isinstance(image, dict):
-            raise InputError(path, field, "expected an object")
-        image_id = integer(image.get("id"), path, f"{field}.id")
-        name = image.get("file_name")
-        if not isinstance(name, str) or not name:
-            raise InputError(path, f"{field}.file_name", "missing, or not a string")
-        check_name(name, path, f"{field}.file_name")
-        if image_id in index:
-            raise InputError(path, f"{field}.id", f"duplicate image id {image_id}")
-        index[image_id] = i
-        image_ids.append(image_id)
-        names.append(name)
-        sizes.append((_size(image, "width", path, field), _size(image, "height", path, field)))
-    if len(set(names)) != len(names):
-        first = next(i for i, n in enumerate(names) if names.index(n) != i)
-        raise InputError(path, f"images[{first}].file_name", f"duplicate file_name {names[first]!r}")
-
+    image_ids, names, sizes = _read_images(data["images"], path)
+    index = {image_id: i for i, image_id in enumerate(image_ids)}
     ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
-    seen = set()
+    seen: set[int] = set()
     for i, ann in enumerate(data["annotations"]):
-        field = f"annotations[{i}]"
-        if not isinstance(ann, dict):
-            raise InputError(path, field, "expected an object")
-        ann_id = integer(ann.get("id"), path, f"{field}.id")
-        if ann_id in seen:
-            raise InputError(path, f"{field}.id", f"duplicate annotation id {ann_id}")
-        seen.add(ann_id)
-        image_id = integer(ann.get("image_id"), path, f"{field}.image_id")
-        if image_id not in index:
-            raise InputError(path, f"{field}.image_id", f"no image with id {image_id}")
-        category = ann.get("category_id", 1)
-        if isinstance(category, bool) or not isinstance(category, int):
-            raise InputError(path, f"{field}.category_id", f"expected an integer, got {type(category).__name__}")
-        if category != 1:
+        row = _read_annotation(ann, path, f"annotations[{i}]", index, seen)
+        if row is None:
             continue  # not a person
-        kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
-        present = kp[:, 2] > 0
-        default_score = float(kp[present, 2].mean()) if present.any() else 0.0
-        score = number(ann.get("score", default_score), path, f"{field}.score")
-        if score < 0:
-            raise InputError(path, f"{field}.score", f"negative score {score}")
-        app = ann.get("appearance")
-        if app is not None:
-            if not isinstance(app, list) or not app:
-                raise InputError(path, f"{field}.appearance", "expected a non-empty list of numbers")
-            app = numbers(app, path, f"{field}.appearance")
-        ann_ids.append(ann_id)
-        ann_image.append(index[image_id])
-        kps.append(kp)
-        scores.append(min(score, 1.0))
-        apps.append(app)
-
-    appearance = None
-    with_app = [a for a in apps if a is not None]
-    if with_app:
-        lengths = {len(a) for a in with_app}
-        if len(with_app) != len(apps) or len(lengths) != 1:
-            first_bad = next(i for i, a in enumerate(apps) if a is None or len(a) != len(with_app[0]))
-            raise InputError(path, f"annotations[{first_bad}].appearance",
-                             "every annotation needs an appearance descriptor of the same length, or none")
-        appearance = np.array(apps, dtype=float)
+        for column, value in zip((ann_ids, ann_image, kps, scores, apps), row):
+            column.append(value)
     N = len(ann_ids)
     return CocoKeypoints(
         image_ids=np.array(image_ids, dtype=np.int64),
@@ -151,8 +97,83 @@ def read_coco_keypoints(path: str | Path) -> CocoKeypoints:
         ann_image=np.array(ann_image, dtype=np.int64),
         keypoints=np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3),
         score=np.array(scores, dtype=float),
-        appearance=appearance,
+        appearance=_stack_appearance(apps, path),
     )
+
+
+def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[tuple[float, float]]]:
+    """The ``images`` list -> ids, file names, (width, height); ids and names unique."""
+    image_ids, names, sizes, seen = [], [], [], set()
+    for i, image in enumerate(images):
+        field = f"images[{i}]"
+        if not isinstance(image, dict):
+            raise InputError(path, field, "expected an object")
+        image_id = integer(image.get("id"), path, f"{field}.id")
+        name = image.get("file_name")
+        if not isinstance(name, str) or not name:
+            raise InputError(path, f"{field}.file_name", "missing, or not a string")
+        check_name(name, path, f"{field}.file_name")
+        if image_id in seen:
+            raise InputError(path, f"{field}.id", f"duplicate image id {image_id}")
+        seen.add(image_id)
+        image_ids.append(image_id)
+        names.append(name)
+        sizes.append((_size(image, "width", path, field), _size(image, "height", path, field)))
+    if len(set(names)) != len(names):
+        first = next(i for i, n in enumerate(names) if names.index(n) != i)
+        raise InputError(path, f"images[{first}].file_name", f"duplicate file_name {names[first]!r}")
+    return image_ids, names, sizes
+
+
+def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: set[int]):
+    """One annotation -> ``(id, image index, keypoints (17, 3), score, appearance or None)``,
+    or None when it is not a person. ``seen``: annotation ids so far (updated)."""
+    if not isinstance(ann, dict):
+        raise InputError(path, field, "expected an object")
+    ann_id = integer(ann.get("id"), path, f"{field}.id")
+    if ann_id in seen:
+        raise InputError(path, f"{field}.id", f"duplicate annotation id {ann_id}")
+    seen.add(ann_id)
+    image_id = integer(ann.get("image_id"), path, f"{field}.image_id")
+    if image_id not in index:
+        raise InputError(path, f"{field}.image_id", f"no image with id {image_id}")
+    category = ann.get("category_id", 1)
+    if isinstance(category, bool) or not isinstance(category, int):
+        raise InputError(path, f"{field}.category_id", f"expected an integer, got {type(category).__name__}")
+    if category != 1:
+        return None
+    kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
+    present = kp[:, 2] > 0
+    default_score = float(kp[present, 2].mean()) if present.any() else 0.0
+    score = number(ann.get("score", default_score), path, f"{field}.score")
+    if score < 0:
+        raise InputError(path, f"{field}.score", f"negative score {score}")
+    app = ann.get("appearance")
+    if app is not None:
+        if not isinstance(app, list) or not app:
+            raise InputError(path, f"{field}.appearance", "expected a non-empty list of numbers")
+        app = numbers(app, path, f"{field}.appearance")
+    return ann_id, index[image_id], kp, min(score, 1.0), app
+
+
+def _stack_appearance(apps: list, path: Path) -> np.ndarray | None:
+    """The descriptors ``(N, D)`` (all present with one length, or all absent -> None). A
+    descriptor whose norm could overflow or underflow (a largest value beyond 2**±500) is
+    scaled by a power of two to a largest magnitude in [0.5, 1): exact, so its cosine
+    similarities are unchanged, and 1e308 cannot make every similarity NaN."""
+    with_app = [a for a in apps if a is not None]
+    if not with_app:
+        return None
+    lengths = {len(a) for a in with_app}
+    if len(with_app) != len(apps) or len(lengths) != 1:
+        first_bad = next(i for i, a in enumerate(apps) if a is None or len(a) != len(with_app[0]))
+        raise InputError(path, f"annotations[{first_bad}].appearance",
+                         "every annotation needs an appearance descriptor of the same length, or none")
+    appearance = np.array(apps, dtype=float)
+    _, exponent = np.frexp(np.abs(appearance).max(axis=1))
+    huge = np.abs(exponent) > 500                     # a norm that overflows or underflows
+    appearance[huge] = np.ldexp(appearance[huge], -exponent[huge, None])
+    return appearance
 
 
 def coco_keypoints_document(file_names, sizes, ann_image, keypoints, score, ann_ids=None,

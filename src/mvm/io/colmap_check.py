@@ -21,7 +21,10 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
+
 from mvm.errors import InputError
+from mvm.io.checks import MAX_COORDINATE, read_bytes
 from mvm.io.paths import name_problem
 
 FILES = ("cameras", "images", "points3D")
@@ -61,6 +64,7 @@ class _Model:
     rig_ids: set = field(default_factory=set)
     image_ids: set = field(default_factory=set)
     names: dict = field(default_factory=dict)
+    points2d: dict = field(default_factory=dict)        # image id -> number of 2D points
 
 
 def check_model(model_dir: str | Path) -> str:
@@ -71,13 +75,14 @@ def check_model(model_dir: str | Path) -> str:
     check = _BINARY if ext == "bin" else _TEXT
     for name in OPTIONAL_FILES[:1] + FILES[:1] + OPTIONAL_FILES[1:] + FILES[1:]:
         path = model_dir / f"{name}.{ext}"
-        if name in OPTIONAL_FILES and not path.is_file():
+        if name in OPTIONAL_FILES and not (path.exists() or path.is_symlink()):
             continue
-        try:
-            data = path.read_bytes()
-        except OSError as e:
-            raise InputError(path, None, f"cannot read: {e.strerror}") from None
-        check[name](data, path, model)
+        check[name](read_bytes(path), path, model)
+    rigs, frames = ((model_dir / f"{name}.{ext}").exists() for name in OPTIONAL_FILES)
+    if rigs != frames:
+        have, need = ("rigs", "frames") if rigs else ("frames", "rigs")
+        raise InputError(model_dir / f"{need}.{ext}", None,
+                         f"missing: a model with {have}.{ext} (COLMAP 3.12 layout) needs {need}.{ext} too")
     return ext
 
 
@@ -96,11 +101,20 @@ def _camera(model: _Model, path, where, camera_id, model_id, width, height, para
         raise InputError(path, where, f"camera model {name} takes {n_params} parameters, got {len(params)}")
     if not all(math.isfinite(p) for p in params):
         raise InputError(path, where, "camera parameters are not finite")
+    if any(abs(p) > MAX_COORDINATE for p in params):
+        raise InputError(path, where, f"a camera parameter is beyond ±{MAX_COORDINATE:g}")
     if any(params[i] <= 0 for i in focal):
         raise InputError(path, where, f"focal length must be > 0, got {params[focal[0]]:g}")
     if not (0 < width < 2 ** 31 and 0 < height < 2 ** 31):
         raise InputError(path, where, f"image size must be > 0, got {width} × {height}")
     model.camera_ids.add(camera_id)
+
+
+def _position(path, where, xyz) -> None:
+    if not all(math.isfinite(v) for v in xyz):
+        raise InputError(path, where, "position is not finite")
+    if any(abs(v) > MAX_COORDINATE for v in xyz):
+        raise InputError(path, where, f"position beyond ±{MAX_COORDINATE:g} model units")
 
 
 def _pose(path, where, values) -> None:
@@ -112,6 +126,8 @@ def _pose(path, where, values) -> None:
         raise InputError(path, where, "zero-norm quaternion")
     if not 1e-8 < norm < 1e150:
         raise InputError(path, where, f"quaternion norm {norm:g} is out of range")
+    if any(abs(v) > MAX_COORDINATE for v in values[4:]):
+        raise InputError(path, where, f"translation beyond ±{MAX_COORDINATE:g} model units")
 
 
 def _image(model: _Model, path, where, image_id, pose, camera_id, name) -> None:
@@ -244,6 +260,7 @@ def _images_bin(data, path, model: _Model) -> None:
         _image(model, path, r.record, image_id, pose, camera_id, name)
         (n_points,) = r.take("Q")
         r.skip(n_points, 24, "2D points")
+        model.points2d[image_id] = n_points
     r.done()
 
 
@@ -252,10 +269,24 @@ def _points_bin(data, path, model: _Model) -> None:
     for i in range(r.count(43, "3D points")):
         r.record = f"points3D[{i}]"
         values = r.take("Q3d3BdQ")
-        if not all(math.isfinite(v) for v in values[1:4]):
-            raise InputError(path, f"point {values[0]}", "position is not finite")
+        _position(path, f"point {values[0]}", values[1:4])
+        start = r.offset
         r.skip(values[-1], 8, "track elements")
+        track = np.frombuffer(data, dtype="<u4", count=2 * values[-1], offset=start).reshape(-1, 2)
+        _track(model, path, f"point {values[0]}", track)
     r.done()
+
+
+def _track(model: _Model, path, where, track: np.ndarray) -> None:
+    """A point's track ``(n, 2)`` of (IMAGE_ID, POINT2D_IDX): every image exists and every
+    index is below that image's number of 2D points (pycolmap would stop in a C++ range check)."""
+    for image_id, idx in track.tolist():
+        count = model.points2d.get(image_id)
+        if count is None:
+            raise InputError(path, where, f"track: image {image_id} is not in images")
+        if idx >= count:
+            raise InputError(path, where, f"track: 2D point index {idx} of image {image_id} is out of range "
+                                          f"(the image has {count} 2D points)")
 
 
 _BINARY = {"rigs": _rigs_bin, "cameras": _cameras_bin, "frames": _frames_bin,
@@ -384,11 +415,13 @@ def _images_txt(data, path, model: _Model) -> None:
         pose = _floats(tokens[1:8], path, where)
         camera_id, = _ints(tokens[8:9], path, where)
         _image(model, path, where, image_id, pose, camera_id, tokens[9])
+        model.points2d[image_id] = 0
         if i + 1 < len(lines):                       # the POINTS2D line, possibly empty
             number, points = lines[i + 1]
             if len(points) % 3:
                 raise InputError(path, f"line {number}", f"expected X Y POINT3D_ID triples, got {len(points)} values")
             _floats(points, path, f"line {number}")
+            model.points2d[image_id] = len(points) // 3
         i += 2
 
 
@@ -421,10 +454,11 @@ def _points_txt(data, path, model: _Model) -> None:
             raise InputError(path, where, "expected POINT3D_ID X Y Z R G B ERROR and (IMAGE_ID, POINT2D_IDX) "
                                           f"pairs, got {len(tokens)} values")
         _ints(tokens[:1], path, where, 0, 2 ** 63)
-        _floats(tokens[1:4], path, where)
+        _position(path, where, _floats(tokens[1:4], path, where))
         _ints(tokens[4:7], path, where, 0, 256)
         _floats(tokens[7:8], path, where)
-        _ints(tokens[8:], path, where)
+        track = _ints(tokens[8:], path, where)
+        _track(model, path, where, np.array(track, dtype=np.int64).reshape(-1, 2))
 
 
 _TEXT = {"rigs": _rigs_txt, "cameras": _cameras_txt, "frames": _frames_txt,

@@ -5,10 +5,15 @@ flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
 temporary file, which :func:`remove_stale_temporaries` deletes on the next run.
+
+Every operating-system error of a write (a read-only or immutable folder, a folder on the
+way that is a file, an output name taken by a folder, a full disk) is raised as one
+:class:`OutputError` line naming the path, exit status 2, and leaves no temporary file.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -17,10 +22,43 @@ import tempfile
 import time
 from pathlib import Path
 
+from mvm.errors import InputError
+
 try:
     import fcntl
 except ImportError:                                    # not POSIX: no advisory locks
     fcntl = None
+
+
+class OutputError(InputError):
+    """An output that cannot be written: one line naming the path and the reason, exit 2."""
+
+
+_WRITE_PROBLEMS = {errno.ENOSPC: "no space left on the device", errno.EDQUOT: "disk quota exceeded",
+                   errno.EROFS: "read-only file system", errno.EACCES: "permission denied",
+                   errno.EPERM: "operation not permitted (an immutable or protected folder?)",
+                   errno.EISDIR: "is a directory, expected a file",
+                   errno.ENOTDIR: "a folder on the way is a file",
+                   errno.EEXIST: "a file is in the way of a folder"}
+
+
+def output_error(path: str | Path, error: OSError) -> OutputError:
+    """The one-line :class:`OutputError` for ``error`` while writing ``path``."""
+    problem = _WRITE_PROBLEMS.get(error.errno) or error.strerror or str(error)
+    return OutputError(path, None, f"cannot write: {problem}")
+
+
+def make_dir(path: str | Path) -> Path:
+    """Create the folder ``path`` (and its parents) for outputs; an existing file in the way
+    or any OS error raises :class:`OutputError` naming it."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(path, None, "cannot write: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise output_error(path, e) from None
+    return path
 
 
 def _fsync_dir(directory: Path) -> None:
@@ -37,21 +75,37 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+@contextlib.contextmanager
+def atomic_output(path: str | Path, suffix: str = ".tmp"):
+    """Yield the name of a fresh temporary file beside ``path`` (``.NAME.XXXX<suffix>``) for a
+    writer to fill; when the block ends cleanly it is renamed over ``path``, otherwise removed.
+    Every OS error (the folder, the temporary file, the rename) raises :class:`OutputError`."""
+    path = Path(path)
+    make_dir(path.parent)
+    if path.is_dir():
+        raise OutputError(path, None, "cannot write: is a directory, expected a file")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        os.close(fd)
+    except OSError as e:
+        raise output_error(path, e) from None
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise output_error(path, e) from None
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+    _fsync_dir(path.parent)
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, fsync it, then rename over ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
+    with atomic_output(path) as tmp:
+        with os.fdopen(os.open(tmp, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0)), "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
@@ -74,6 +128,18 @@ def first_non_finite(obj, where: str = "") -> str | None:
             if found:
                 return found
     return None
+
+
+SIGNIFICANT_DIGITS = 10
+"""Significant digits of a number in a JSON output: relative precision 1e-10, whatever the
+unit of the model (a coordinate of 1.234e-7 keeps its digits; fixed decimals would erase it)."""
+
+
+def json_number(value, digits: int = SIGNIFICANT_DIGITS) -> float | None:
+    """The JSON writer policy for one number: finite -> rounded to ``digits`` significant
+    digits; NaN or infinite -> None (``null``)."""
+    value = float(value)
+    return float(f"{value:.{digits}g}") if math.isfinite(value) else None
 
 
 def atomic_write_json(path: str | Path, obj, indent: int | None = None) -> None:
@@ -110,12 +176,14 @@ def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: floa
     needed; no lock file is left behind). Waits up to ``timeout_s`` for another holder, then
     raises :class:`LockTimeout`. The lock is released when the block ends or the process dies.
     Without ``fcntl`` (not POSIX) it does not lock."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    directory = make_dir(directory)
     if fcntl is None:
         yield
         return
-    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError as e:
+        raise output_error(directory, e) from None
     try:
         deadline = time.monotonic() + timeout_s
         while True:
@@ -134,11 +202,21 @@ def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: floa
 def atomic_replace_dir(build, path: str | Path) -> None:
     """Call ``build(tmp_dir)`` to fill a fresh directory, then move it to ``path``.
 
-    An existing ``path`` is replaced only once the new content is complete.
+    An existing ``path`` is replaced only once the new content is complete, so the folder is
+    one output set: a reader sees the previous set or the new one, never a mix, and nothing of
+    an earlier, larger set survives. The leftovers of a killed run (``.NAME.*``) are removed
+    first (call it holding :func:`exclusive_lock` on the parent when runs may overlap). An OS
+    error raises :class:`OutputError` naming ``path``.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    make_dir(path.parent)
+    if path.exists() and not path.is_dir():
+        raise OutputError(path, None, "cannot write: exists and is not a folder")
+    remove_stale_sets(path.parent, path.name)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    except OSError as e:
+        raise output_error(path, e) from None
     try:
         build(tmp)
         if path.exists():
@@ -148,7 +226,21 @@ def atomic_replace_dir(build, path: str | Path) -> None:
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
+    except OSError as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise output_error(path, e) from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     _fsync_dir(path.parent)
+
+
+def remove_stale_sets(directory: str | Path, name: str) -> int:
+    """Delete what a killed :func:`atomic_replace_dir` of ``directory/name`` left behind (its
+    temporary ``.NAME.XXXX`` folder, a ``.NAME.old.PID`` set). Returns how many were deleted."""
+    removed = 0
+    for stale in Path(directory).glob(f".{name}.*"):
+        if stale.is_dir() and not stale.is_symlink():
+            shutil.rmtree(stale, ignore_errors=True)
+            removed += 1
+    return removed

@@ -17,7 +17,6 @@ Everything here returns arrays; no function keeps state between calls.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +25,7 @@ import numpy as np
 
 from mvm.core.keypoints import COCO_KEYPOINTS, INDEX, NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json, read_text
 
 #: Metres per inch; an ASF length of ``v`` file units is ``v * INCH_M / length_unit`` metres.
 INCH_M = 0.0254
@@ -342,14 +342,7 @@ def read_asf(path: str | Path) -> Skeleton:
 
 
 def _read_lines(path: Path) -> list[str]:
-    try:
-        return path.read_text().splitlines()
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except UnicodeDecodeError as e:
-        raise InputError(path, None, f"not a text file: {e}") from None
+    return read_text(path).splitlines()
 
 
 # --- AMC ------------------------------------------------------------------------------------
@@ -539,14 +532,7 @@ def read_panoptic_ids(path: str | Path) -> list[int]:
 
 
 def _panoptic_json(path: Path) -> dict:
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot read: {e.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("bodies"), list):
         raise InputError(path, "bodies", "missing, or not a list")
     return data

@@ -12,11 +12,12 @@ from mvm.io.checks import load_json, number, numbers
 from mvm.io.openpose import frame_files
 
 
-def read_openpifpaf_frame(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+def read_openpifpaf_frame(path: str | Path, root: str | Path | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Read one OpenPifPaf predictions file -> ``(K, 17, 3)`` keypoints (pixels, confidence;
-    a missing joint is 0, 0, 0) and ``(K,)`` pose scores. Non-person categories are skipped."""
+    a missing joint is 0, 0, 0) and ``(K,)`` pose scores. Non-person categories are skipped.
+    With ``root``, the file must lie inside it (:func:`mvm.io.checks.read_bytes`)."""
     path = Path(path)
-    data = load_json(path)
+    data = load_json(path, root)
     if not isinstance(data, list):
         raise InputError(path, None, "expected a JSON list of predictions")
     keypoints, scores = [], []

@@ -22,19 +22,29 @@ _LAYOUTS = {75: BODY25_TO_COCO17, 54: COCO18_TO_COCO17, 51: np.arange(NUM_JOINTS
 _NUMBER = re.compile(r"(\d+)")
 
 
-def frame_number(path: str | Path) -> int:
+MAX_FRAME = 10 ** 9 - 1
+"""The largest frame number a file name may carry (nine digits, leading zeros aside)."""
+
+
+def frame_number(path: str | Path, source: str | Path | None = None, field: str | None = None) -> int:
     """The frame number in a per-frame file name: the last run of digits of the name without
     its ``_keypoints.json`` / ``.predictions.json`` / ``.json`` ending (``cam1_000012_keypoints.json``
-    -> 12). Raises :class:`InputError` when there is none."""
+    -> 12). Raises :class:`InputError` when there is none or it exceeds :data:`MAX_FRAME`,
+    naming ``source`` and ``field`` (the file that lists the name) or else ``path``."""
     name = Path(path).name
     for suffix in ("_keypoints.json", ".predictions.json", ".json"):
         if name.endswith(suffix):
             name = name[: -len(suffix)]
             break
+    where = (path, None) if source is None else (source, field)
     digits = _NUMBER.findall(name)
     if not digits:
-        raise InputError(path, None, "no frame number in the file name")
-    return int(digits[-1])
+        raise InputError(*where, f"no frame number in the file name {Path(path).name!r}")
+    significant = digits[-1].lstrip("0") or "0"
+    if len(significant) > len(str(MAX_FRAME)):
+        shown = significant if len(significant) <= 20 else significant[:12] + f"… ({len(significant)} digits)"
+        raise InputError(*where, f"frame number {shown} in the file name is out of range (at most {MAX_FRAME})")
+    return int(significant)
 
 
 def to_coco17(values, path, field) -> np.ndarray:
@@ -49,11 +59,11 @@ def to_coco17(values, path, field) -> np.ndarray:
 _load_json = load_json
 
 
-def read_openpose_frame(path: str | Path) -> np.ndarray:
-    """Read one OpenPose JSON file -> ``(K, 17, 3)`` keypoints of its ``K`` people (pixels,
-    confidence in [0, 1]; a missing joint is 0, 0, 0)."""
+def read_openpose_frame(path: str | Path, root: str | Path | None = None) -> np.ndarray:
+    """Read one OpenPose JSON file (inside ``root`` when given) -> ``(K, 17, 3)`` keypoints of
+    its ``K`` people (pixels, confidence in [0, 1]; a missing joint is 0, 0, 0)."""
     path = Path(path)
-    data = _load_json(path)
+    data = _load_json(path, root)
     if not isinstance(data, dict) or not isinstance(data.get("people"), list):
         raise InputError(path, "people", "missing, or not a list")
     people = []

@@ -2,19 +2,19 @@
 from __future__ import annotations
 
 import logging
-import math
 from pathlib import Path
 
 import numpy as np
 
+from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED, flag_names, parse_flags
 from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import integer, load_json, number, numbers
+from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
-from mvm.io.files import atomic_replace_dir, atomic_write_json
-from mvm.io.paths import resolve_in
+from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json, json_number
+from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +28,8 @@ def read_scene(path: str | Path) -> Scene:
     """Read a scene directory into a :class:`Scene` (keypoints undistorted, unregistered
     images' poses dropped with a warning).
 
+    ``poses2d.json`` is read the guarded way (a regular file of bounded size inside the scene:
+    a FIFO, ``/dev/zero`` or a link leading out is refused before anything is read).
     Image names (COCO ``file_name``, COLMAP ``NAME``) name files of ``frames/``: a name that is
     absolute, climbs out with ``..``, or resolves through a symbolic link to a place outside
     the scene directory is refused (:func:`mvm.io.paths.resolve_in`).
@@ -37,7 +39,7 @@ def read_scene(path: str | Path) -> Scene:
         raise InputError(path, None, "not a scene directory (expected sparse/ and poses2d.json)")
     model = read_colmap(path / SPARSE)
     coco_path = path / POSES2D
-    coco = read_coco_keypoints(coco_path)
+    coco = read_coco_keypoints(coco_path, root=path)
     view_of_name = model.index()
     unregistered = set(model.unregistered)
     image_view = np.full(len(coco.file_names), -1)
@@ -68,6 +70,24 @@ def read_scene(path: str | Path) -> Scene:
     return Scene(path.name, model.cameras, poses, model.points3d)
 
 
+def output_dir(scene: str | Path, output: str = "mvm") -> Path:
+    """The folder ``scene/output`` that receives a scene's results, checked before any work:
+    ``output`` is a relative name that stays in the scene, and an existing ``scene/output``
+    must be a folder that, every symbolic link resolved, lies inside the scene directory
+    (:class:`~mvm.io.files.OutputError` otherwise). It is created by the first write."""
+    scene = Path(scene)
+    check_name(output, "--output", "output folder name")
+    path = scene / output
+    if path.is_symlink() or path.exists():
+        try:
+            inside_root(path, scene)
+        except InputError as e:
+            raise OutputError(path, None, f"refusing to write: {e.problem}") from None
+        if not path.is_dir():
+            raise OutputError(path, None, "cannot write: exists and is not a folder")
+    return path
+
+
 def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool = True,
                 points3d: np.ndarray | None = None) -> None:
     """Write a scene directory: a COLMAP model of ``cameras`` and ``poses2d.json`` (keypoints in
@@ -81,19 +101,17 @@ def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool
     atomic_write_json(path / POSES2D, document)
 
 
-def _finite_or_none(value: float, digits: int = 5):
-    return round(float(value), digits) if math.isfinite(value) else None
-
-
 def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: dict | None = None) -> dict:
-    """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``."""
+    """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``. Numbers
+    follow the writer policy (:func:`mvm.io.files.json_number`): coordinates keep 10
+    significant digits whatever the model's unit, and a non-finite value is ``null``."""
     out = []
     for p in range(len(persons)):
         kp = []
         for j in range(NUM_JOINTS):
             x = persons.keypoints3d[p, j]
             if np.all(np.isfinite(x)):
-                kp.append([round(float(v), 6) for v in x] + [round(float(persons.scores[p, j]), 4)])
+                kp.append([json_number(v) for v in x] + [round(float(persons.scores[p, j]), 4)])
             else:
                 kp.append([None, None, None, 0.0])
         out.append({
@@ -102,10 +120,12 @@ def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: d
             "members": [int(poses.ids[m]) for m in persons.members[p]],
             "views_per_joint": [int(v) for v in persons.views_per_joint[p]],
             "outliers_per_joint": [int(v) for v in persons.outliers_per_joint[p]],
-            "reprojection_error_px": _finite_or_none(persons.reprojection_error_px[p], 4),
+            "reprojection_error_px": json_number(persons.reprojection_error_px[p], 6),
         })
+        if persons.flags is not None:
+            out[-1]["flags"] = flag_names(persons.flags[p])
     document = {"format": POSES3D_FORMAT, "keypoints": list(COCO_KEYPOINTS), "persons": out,
-                "metrics": {k: (_finite_or_none(v, 4) if isinstance(v, float) else v) for k, v in metrics.items()}}
+                "metrics": {k: (json_number(v, 6) if isinstance(v, float) else v) for k, v in metrics.items()}}
     if extra:
         document.update(extra)
     return document
@@ -115,13 +135,43 @@ def write_poses3d(path: str | Path, document: dict) -> None:
     atomic_write_json(path, document, indent=1)
 
 
-def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
+def load_poses3d_document(path: str | Path, root: str | Path | None = None) -> dict:
+    """The ``mvm.poses3d/1`` document of ``path`` (read by the guarded reader, inside ``root``
+    when given), its format and ``metrics`` checked: every metric is a finite number, null,
+    a string or a list/object of those."""
+    data = load_json(path, root)
+    if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
+        raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
+    metrics = data.get("metrics", {})
+    if not isinstance(metrics, dict):
+        raise InputError(path, "metrics", "expected an object")
+    for key, value in metrics.items():
+        _check_metric(value, path, f"metrics.{key}")
+    return data
+
+
+def _check_metric(value, path, field) -> None:
+    if value is None or isinstance(value, (str, bool)):
+        return
+    if isinstance(value, (int, float)):
+        number(value, path, field)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_metric(v, path, f"{field}[{i}]")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_metric(v, path, f"{field}.{k}")
+
+
+def read_poses3d(path: str | Path, poses: Poses2D | None = None, root: str | Path | None = None) -> Persons3D:
     """Read ``poses3d.json``. With ``poses``, members are mapped back to indices into it;
     otherwise ``members`` hold the annotation ids."""
     path = Path(path)
-    data = load_json(path)
-    if not isinstance(data, dict) or data.get("format") != POSES3D_FORMAT:
-        raise InputError(path, "format", f"expected {POSES3D_FORMAT!r}")
+    return parse_poses3d(load_poses3d_document(path, root), path, poses)
+
+
+def parse_poses3d(data: dict, path: str | Path, poses: Poses2D | None = None) -> Persons3D:
+    """The persons of a document from :func:`load_poses3d_document` (``path`` names it in errors)."""
     persons = data.get("persons")
     if not isinstance(persons, list):
         raise InputError(path, "persons", "missing, or not a list")
@@ -132,6 +182,8 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
     outliers = np.zeros((P, NUM_JOINTS), dtype=int)
     err = np.full(P, np.nan)
     members = []
+    flags = np.where(np.isfinite(X[..., 0]), OBSERVED, MISSING).astype(np.int8)
+    has_flags = False
     index = None if poses is None else {int(a): i for i, a in enumerate(poses.ids)}
     for p, person in enumerate(persons):
         field = f"persons[{p}]"
@@ -146,6 +198,8 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
                 raise InputError(path, where, "expected [x, y, z, score]")
             if entry[0] is not None:
                 X[p, j] = numbers(entry[:3], path, where)
+                if np.abs(X[p, j]).max() > MAX_COORDINATE:
+                    raise InputError(path, where, f"coordinate beyond ±{MAX_COORDINATE:g} model units")
             elif entry[1] is not None or entry[2] is not None:
                 raise InputError(path, where, "x, y and z must all be numbers or all null")
             scores[p, j] = number(entry[3], path, f"{where}[3]")
@@ -156,6 +210,9 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
             target[p] = [integer(v, path, f"{field}.{key}[{j}]") for j, v in enumerate(values)]
         if person.get("reprojection_error_px") is not None:
             err[p] = number(person["reprojection_error_px"], path, f"{field}.reprojection_error_px")
+        if "flags" in person:
+            flags[p] = _flags(person["flags"], X[p], path, f"{field}.flags")
+            has_flags = True
         ids = person.get("members", [])
         if not isinstance(ids, list):
             raise InputError(path, f"{field}.members", "expected a list of annotation ids")
@@ -166,4 +223,18 @@ def read_poses3d(path: str | Path, poses: Poses2D | None = None) -> Persons3D:
                 raise InputError(path, f"{field}.members", f"annotation id {missing[0]} not in poses2d.json")
             ids = [index[a] for a in ids]
         members.append(np.array(ids, dtype=np.int64))
-    return Persons3D(X, scores, members, views, outliers, err)
+    return Persons3D(X, scores, members, views, outliers, err, flags if has_flags else None)
+
+
+def _flags(value, X: np.ndarray, path: Path, field: str) -> np.ndarray:
+    """A person's ``flags`` (17 names) checked against its joints ``X: (17, 3)``."""
+    if not isinstance(value, list) or len(value) != NUM_JOINTS:
+        raise InputError(path, field, f"expected a list of {NUM_JOINTS} names ({', '.join(FLAG_NAMES)})")
+    try:
+        flags = parse_flags(value, field)
+    except ValueError as e:
+        raise InputError(path, field, str(e).split(": ", 1)[1]) from None
+    bad = np.flatnonzero((flags == MISSING) == np.isfinite(X).all(-1))
+    if len(bad):
+        raise InputError(path, f"{field}[{bad[0]}]", "'missing' must go with null coordinates, and only with them")
+    return flags

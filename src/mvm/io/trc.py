@@ -36,7 +36,8 @@ UP_ROTATIONS = {
 @dataclass
 class Trc:
     """The content of a ``.trc`` file: ``points: (T, L, 3)`` (NaN: missing), ``markers``: L names,
-    ``frames: (T,)`` frame numbers, ``times: (T,)`` seconds, ``rate`` Hz, ``units``."""
+    ``frames: (T,)`` frame numbers, ``times: (T,)`` seconds, ``rate`` Hz, ``units``, ``comment``
+    (what follows the file name on the first line)."""
 
     points: np.ndarray
     markers: tuple[str, ...]
@@ -44,6 +45,7 @@ class Trc:
     times: np.ndarray
     rate: float
     units: str
+    comment: str = ""
 
 
 def to_opensim(points: np.ndarray, up: str = "+z", metres_per_unit: float = 1.0) -> np.ndarray:
@@ -57,8 +59,11 @@ def to_opensim(points: np.ndarray, up: str = "+z", metres_per_unit: float = 1.0)
 
 
 def trc_text(points: np.ndarray, markers, rate: float, frames: np.ndarray | None = None,
-             name: str = "markers.trc", units: str = "m", decimals: int = 6) -> str:
-    """The ``.trc`` text of ``points: (T, L, 3)`` for ``L`` marker names at ``rate`` Hz."""
+             name: str = "markers.trc", units: str = "m", decimals: int = 6, comment: str = "") -> str:
+    """The ``.trc`` text of ``points: (T, L, 3)`` for ``L`` marker names at ``rate`` Hz.
+
+    ``comment`` (one line, e.g. how gaps were filled) follows the file name on the first line,
+    after a tab: readers of the layout (OpenSim, Pose2Sim) take only the first fields of that line."""
     points = np.asarray(points, dtype=float)
     markers = list(markers)
     if points.ndim != 3 or points.shape[2] != 3 or points.shape[1] != len(markers):
@@ -68,8 +73,9 @@ def trc_text(points: np.ndarray, markers, rate: float, frames: np.ndarray | None
     T, L, _ = points.shape
     frames = np.arange(1, T + 1) if frames is None else np.asarray(frames, dtype=int)
     first = int(frames[0]) if T else 1
+    comment = " ".join(str(comment).split())
     header = [
-        f"PathFileType\t4\t(X/Y/Z)\t{name}",
+        f"PathFileType\t4\t(X/Y/Z)\t{name}" + (f"\t{comment}" if comment else ""),
         "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
         f"{rate:g}\t{rate:g}\t{T}\t{L}\t{units}\t{rate:g}\t{first}\t{T}",
         "Frame#\tTime\t" + "\t\t\t".join(markers) + "\t\t",
@@ -84,10 +90,10 @@ def trc_text(points: np.ndarray, markers, rate: float, frames: np.ndarray | None
 
 
 def write_trc(path: str | Path, points: np.ndarray, markers, rate: float,
-              frames: np.ndarray | None = None, units: str = "m") -> None:
-    """Write ``points: (T, L, 3)`` as a ``.trc`` file, atomically."""
+              frames: np.ndarray | None = None, units: str = "m", comment: str = "") -> None:
+    """Write ``points: (T, L, 3)`` as a ``.trc`` file, atomically (``comment``: see :func:`trc_text`)."""
     path = Path(path)
-    atomic_write_text(path, trc_text(points, markers, rate, frames, path.name, units))
+    atomic_write_text(path, trc_text(points, markers, rate, frames, path.name, units, comment=comment))
 
 
 def read_trc(path: str | Path) -> Trc:
@@ -137,4 +143,5 @@ def read_trc(path: str | Path) -> Trc:
         times.append(time)
         rows.append(row)
     points = np.array(rows, dtype=float).reshape(len(rows), n_markers, 3)
-    return Trc(points, markers, np.array(frames, dtype=np.int64), np.array(times), rate, units)
+    comment = "\t".join(lines[0].split("\t")[4:]).strip()
+    return Trc(points, markers, np.array(frames, dtype=np.int64), np.array(times), rate, units, comment)

@@ -17,7 +17,6 @@ images). An MVM export marks the people it did not reconstruct the same way.
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,8 @@ import torch
 
 from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
+from mvm.io.images import read_image
 from mvm.net.encoder import EncoderConfig, encode
 from mvm.net.model import IMAGE_MEAN, IMAGE_STD
 
@@ -75,12 +76,7 @@ def read_annotations(path: str | Path, images_dir: str | Path | None = None, min
     (from their ``bbox``); ``people_only`` drops the images without any person annotation.
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    doc = load_json_object(path, what="a COCO keypoints object")
     for key in ("images", "annotations"):
         if not isinstance(doc.get(key), list):
             raise InputError(path, key, "missing, or not a list")
@@ -149,12 +145,7 @@ def _box(bbox) -> np.ndarray | None:
 
 def load_image(path: Path) -> np.ndarray:
     """-> ``(H, W, 3)`` uint8 RGB; a missing or unreadable file raises an InputError."""
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if image is None:
-        raise InputError(path, None, "image not found or not readable")
-    return image[:, :, ::-1]
+    return read_image(path)[:, :, ::-1]
 
 
 def random_crop_flip(image: np.ndarray, keypoints: np.ndarray, depths: np.ndarray,

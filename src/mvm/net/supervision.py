@@ -10,19 +10,20 @@ that many scenes merge into.
 """
 from __future__ import annotations
 
-import json
+import dataclasses
 import logging
 import os
-import shutil
 from pathlib import Path
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
+from mvm.core.completion import INFERRED, MISSING, complete_persons, flag_names
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
-from mvm.io.files import atomic_write_json
+from mvm.io.checks import check_input_file, integer, load_json_object, read_bytes
+from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_bytes, atomic_write_json, make_dir
 
 LOG = logging.getLogger(__name__)
 
@@ -70,8 +71,9 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
 
 
 def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths: np.ndarray | None,
-                      person_id: int | None = None) -> dict:
-    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``."""
+                      person_id: int | None = None, flags: np.ndarray | None = None) -> dict:
+    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``,
+    ``flags: (17,)`` how each 3D joint was obtained (written as ``keypoint_flags`` names)."""
     kp = np.asarray(keypoints, dtype=float)
     vis = kp[:, 2] > 0
     x0, y0 = kp[vis, :2].min(axis=0)
@@ -87,6 +89,8 @@ def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths:
         rec["has_3d"] = [int(v) for v in (d > 0)]
     if person_id is not None:
         rec["person_id"] = int(person_id)
+    if flags is not None:
+        rec["keypoint_flags"] = flag_names(np.where(vis, flags, MISSING))
     return rec
 
 
@@ -133,7 +137,7 @@ def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
 
 
 def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: str = "symlink",
-                       min_keypoints: int = 3) -> Path:
+                       min_keypoints: int = 3, prior=None) -> Path:
     """Write a COCO-style supervision dataset of several scenes; returns the annotation file.
 
     Args:
@@ -145,16 +149,40 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
             where they are (``file_name`` then points at them, relative to ``out_dir`` when a
             ``frames_dir`` is given, else ``<scene>/<frame>``).
         min_keypoints: persons with fewer labelled joints in a view get no annotation there.
+        prior: a :class:`mvm.core.prior.PosePrior`: joints the persons lack are inferred from it
+            first (:func:`mvm.core.completion.complete_persons`). Whenever the persons carry
+            flags (from completion here or in ``poses3d.json``), every annotation carries them as
+            ``keypoint_flags`` ("observed", "interpolated", "inferred"; "missing" where not labelled).
     """
     if link not in LINK_MODES:
         raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    _check_dataset_dir(out_dir)
+    items = [_as_item(item) for item in scenes_and_persons]
+    atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints, prior), out_dir)
+    return out_dir / ANNOTATIONS_FILE
+
+
+def _check_dataset_dir(out_dir: Path) -> None:
+    """An existing dataset folder is replaced as a whole: refuse one that holds anything else."""
+    if out_dir.is_dir():
+        other = sorted(p.name for p in out_dir.iterdir() if p.name not in (ANNOTATIONS_FILE, "images"))
+        if other:
+            raise OutputError(out_dir, None, f"holds {other[0]!r}, not only a dataset (annotations.json, "
+                                             "images/): choose a new or empty folder")
+
+
+def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int, prior=None) -> None:
+    """Fill ``tmp`` (which becomes ``out_dir``) with the dataset of ``items``."""
     data = empty_dataset("mvm supervision: refined 3D poses projected into every frame")
     names_seen: dict[str, int] = {}
     image_id = ann_id = 0
-    for item in scenes_and_persons:
-        scene, persons, frames = _as_item(item)
+    for scene, persons, frames in items:
+        flags = persons.flags
+        if prior is not None and len(persons):
+            X, new = complete_persons(persons.keypoints3d, prior)
+            flags = np.where(new == INFERRED, INFERRED, new if flags is None else flags)
+            persons = dataclasses.replace(persons, keypoints3d=X, flags=flags)
         label = _unique(scene.name or "scene", names_seen)
         cams = scene.cameras
         n_ann = 0
@@ -163,20 +191,19 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
             keep = np.nonzero((kp[:, :, 2] > 0).sum(1) >= min_keypoints)[0]
             name = cams.names[v]
             image_id += 1
-            data["images"].append({"id": image_id, "file_name": _place_frame(name, label, frames, out_dir, link),
+            data["images"].append({"id": image_id, "file_name": _place_frame(name, label, frames, out_dir, tmp, link),
                                    "width": int(cams.size[v, 0]), "height": int(cams.size[v, 1]),
                                    "scene": label, "frame": name})
             for p in keep:
                 ann_id += 1
-                data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p)))
+                data["annotations"].append(annotation_record(ann_id, image_id, kp[p], dep[p], person_id=int(p),
+                                                             flags=None if flags is None else flags[p]))
                 n_ann += 1
             for box in unreconstructed_boxes(scene, persons, v):
                 ann_id += 1
                 data["annotations"].append(ignore_record(ann_id, image_id, box))
         LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
-    path = out_dir / ANNOTATIONS_FILE
-    atomic_write_json(path, data)
-    return path
+    atomic_write_json(tmp / ANNOTATIONS_FILE, data)
 
 
 def _unique(name: str, seen: dict[str, int]) -> str:
@@ -187,8 +214,10 @@ def _unique(name: str, seen: dict[str, int]) -> str:
     return f"{name}_{seen[name]}"
 
 
-def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link: str) -> str:
-    """Link or copy one frame into ``out_dir/images/<scene>/``; returns its ``file_name``."""
+def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, tmp: Path, link: str) -> str:
+    """Link or copy one frame into ``tmp/images/<scene>/`` (``tmp`` becomes ``out_dir``);
+    returns its ``file_name``. The frame must be a regular file inside its scene directory
+    (``frames``' parent) once links are resolved (:func:`mvm.io.checks.check_input_file`)."""
     if link == "none":
         if frames is None:
             return f"{scene}/{name}"
@@ -196,25 +225,53 @@ def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, link
     if frames is None:
         raise InputError(None, "frames_dir", f"scene {scene}: link={link!r} needs the directory of its frames")
     src = frames / name
-    if not src.is_file():
+    if not (src.exists() or src.is_symlink()):
         raise InputError(src, None, "frame not found")
+    check_input_file(src, root=frames.parent)
     rel = Path("images") / scene / name
-    dst = out_dir / rel
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    if dst.is_symlink() or dst.exists():
-        dst.unlink()
+    dst = tmp / rel
+    make_dir(dst.parent)
     if link == "symlink":
-        dst.symlink_to(os.path.relpath(src.resolve(), dst.parent.resolve()))
+        # tmp and out_dir are siblings: the relative link reads the same from either
+        dst.symlink_to(os.path.relpath(src.resolve(), (out_dir / rel).parent.resolve()))
     else:
-        shutil.copy2(src, dst)
+        atomic_write_bytes(dst, read_bytes(src, root=frames.parent))
     return rel.as_posix()
 
 
-def merge_datasets(paths: Iterable[str | Path], out: str | Path) -> Path:
+def _source_dataset(path: Path) -> tuple[list[dict], list[dict]]:
+    """The images and annotations of one supervision file, checked: every image has an integer
+    ``id`` (unique) and a ``file_name``, every annotation names one of those images."""
+    data = load_json_object(path, what="a COCO keypoints object")
+    for key in ("images", "annotations"):
+        if not isinstance(data.get(key), list):
+            raise InputError(path, key, "missing, or not a list")
+    ids = set()
+    for i, image in enumerate(data["images"]):
+        if not isinstance(image, dict):
+            raise InputError(path, f"images[{i}]", "expected an object")
+        image_id = integer(image.get("id"), path, f"images[{i}].id")
+        if image_id in ids:
+            raise InputError(path, f"images[{i}].id", f"duplicate image id {image_id}")
+        ids.add(image_id)
+        if not isinstance(image.get("file_name"), str) or not image["file_name"]:
+            raise InputError(path, f"images[{i}].file_name", "missing, or not a string")
+    for i, ann in enumerate(data["annotations"]):
+        if not isinstance(ann, dict):
+            raise InputError(path, f"annotations[{i}]", "expected an object")
+        if ann.get("image_id") not in ids:
+            raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')!r}")
+    return data["images"], data["annotations"]
+
+
+def merge_datasets(paths: Iterable[str | Path], out: str | Path,
+                   on_bad_source: Callable[[Path, InputError], None] | None = None) -> Path:
     """Merge COCO keypoint files into ``out`` with fresh unique ids.
 
     ``file_name`` of every image is rewritten relative to ``out``'s directory, so the frames
-    are found from the merged file as they were from each source.
+    are found from the merged file as they were from each source. A source that cannot be
+    read or is inconsistent raises :class:`InputError`; with ``on_bad_source`` it is reported
+    to that callback and left out instead, and the others are merged.
     """
     out = Path(out)
     merged = empty_dataset("mvm supervision: merged")
@@ -222,25 +279,21 @@ def merge_datasets(paths: Iterable[str | Path], out: str | Path) -> Path:
     for path in paths:
         path = Path(path)
         try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(path, None, "file not found") from None
-        except json.JSONDecodeError as e:
-            raise InputError(path, None, f"not valid JSON: {e}") from None
-        for key in ("images", "annotations"):
-            if not isinstance(data.get(key), list):
-                raise InputError(path, key, "missing, or not a list")
+            images, annotations = _source_dataset(path)
+        except InputError as e:
+            if on_bad_source is None:
+                raise
+            on_bad_source(path, e)
+            continue
         remap = {}
-        for image in data["images"]:
+        for image in images:
             image_id += 1
             remap[image["id"]] = image_id
             src = Path(image["file_name"])
             full = src if src.is_absolute() else path.parent / src
             merged["images"].append({**image, "id": image_id,
                                      "file_name": Path(os.path.relpath(full, out.parent)).as_posix()})
-        for i, ann in enumerate(data["annotations"]):
-            if ann.get("image_id") not in remap:
-                raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')}")
+        for ann in annotations:
             ann_id += 1
             merged["annotations"].append({**ann, "id": ann_id, "image_id": remap[ann["image_id"]]})
     atomic_write_json(out, merged)

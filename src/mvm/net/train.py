@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-import tomllib
 import torch
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object, load_toml
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.net.data import AugmentConfig, KeypointDataset, collate, read_annotations
 from mvm.net.encoder import EncoderConfig
@@ -237,12 +237,7 @@ def _check(cfg: TrainConfig, source: str) -> None:
 def load_config(path: str | Path, overrides: dict | None = None) -> TrainConfig:
     """Read a TOML training configuration; ``overrides`` (flat keys) replace its values."""
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(path, None, f"not valid TOML: {e}") from None
+    doc = load_toml(path)
     doc.update(overrides or {})
     return config_from_dict(doc, str(path))
 
@@ -331,7 +326,7 @@ def _complete(pt: Path) -> bool:
     """Whether ``pt`` and its ``.json`` form a complete pair: the metadata parses, has the
     checkpoint format and records the byte size the ``.pt`` has."""
     try:
-        meta = json.loads(pt.with_suffix(".json").read_text())
+        meta = load_json_object(pt.with_suffix(".json"))
         return meta.get("format") == CHECKPOINT_FORMAT and meta.get("weights_bytes") in (None, pt.stat().st_size)
     except (OSError, ValueError, AttributeError):
         return False
@@ -410,7 +405,7 @@ def prune_checkpoints(out_dir: str | Path, keep_last: int, keep_best: str = "", 
 def _best_checkpoint(found: list[Path], metric: str, higher_is_better: bool) -> Path | None:
     scored = []
     for pt in found:
-        meta = json.loads(pt.with_suffix(".json").read_text())
+        meta = load_json_object(pt.with_suffix(".json"))
         value = ((meta.get("validation") or {}).get("metrics") or {}).get(metric)
         if isinstance(value, (int, float)):
             scored.append((value if higher_is_better else -value, pt))
@@ -421,12 +416,9 @@ def read_checkpoint(path: str | Path) -> tuple[dict, dict]:
     """-> (state dicts, metadata) of a checkpoint ``.pt`` and its ``.json``; InputError if unusable."""
     path = Path(path)
     js = path.with_suffix(".json")
-    try:
-        meta = json.loads(js.read_text())
-    except FileNotFoundError:
-        raise InputError(js, None, "checkpoint metadata not found (expected beside the .pt)") from None
-    except json.JSONDecodeError as e:
-        raise InputError(js, None, f"not valid JSON: {e}") from None
+    if not js.exists():
+        raise InputError(js, None, "checkpoint metadata not found (expected beside the .pt)")
+    meta = load_json_object(js, what="checkpoint metadata (an object)")
     if meta.get("format") != CHECKPOINT_FORMAT:
         raise InputError(js, "format", f"expected {CHECKPOINT_FORMAT!r}, got {meta.get('format')!r}")
     try:

@@ -2,7 +2,6 @@
 (``<output>/poses3d.json``), the ground truth of a simulated scene and the frames."""
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,8 +10,9 @@ import numpy as np
 
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
 from mvm.io.ground_truth import GroundTruth
-from mvm.io.scene_dir import read_poses3d, read_scene
+from mvm.io.scene_dir import load_poses3d_document, output_dir, parse_poses3d, read_scene
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ class SceneResult:
 
     @property
     def out_dir(self) -> Path:
-        return self.path / self.output
+        return output_dir(self.path, self.output)
 
     @property
     def frames_dir(self) -> Path | None:
@@ -59,9 +59,7 @@ def read_truth(path: Path, annotation_ids: np.ndarray) -> tuple[GroundTruth, np.
     """Read ``<scene>.groundtruth.json``: the truth and the true person ``(N,)`` of the
     annotations ``annotation_ids: (N,)`` (the truth lists annotations by id 1, 2, …)."""
     try:
-        truth = GroundTruth.from_json(json.loads(path.read_text()))
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+        truth = GroundTruth.from_json(load_json_object(path, what="a ground truth object"))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(path, None, f"not a ground truth document: {e}") from None
     if truth.poses3d.ndim != 3 or truth.poses3d.shape[1:] != (17, 3):
@@ -77,11 +75,11 @@ def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
     """Read a reconstructed scene directory (and its ground truth when one lies beside it)."""
     path = Path(scene_dir)
     scene = read_scene(path)
-    poses3d = path / output / "poses3d.json"
-    if not poses3d.is_file():
+    poses3d = output_dir(path, output) / "poses3d.json"
+    if not (poses3d.exists() or poses3d.is_symlink()):
         raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
-    persons = read_poses3d(poses3d, scene.poses)
-    document = json.loads(poses3d.read_text())
+    document = load_poses3d_document(poses3d, root=path)
+    persons = parse_poses3d(document, poses3d, scene.poses)
     metrics = document.get("metrics") or {}
     timings = document.get("timings_s") or {}
     truth = true_person = None

@@ -7,8 +7,6 @@ read frames and write images or an MP4.
 from __future__ import annotations
 
 import logging
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +14,8 @@ import numpy as np
 
 from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
-from mvm.io.files import atomic_write_bytes
+from mvm.io.files import OutputError, atomic_output, atomic_replace_dir, atomic_write_bytes
+from mvm.io.images import read_image
 from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
 from mvm.report.load import SceneResult, load_result
 
@@ -140,13 +139,18 @@ class ViewRenderer:
         W, H = (int(round(s)) for s in self.result.scene.cameras.size[v])
         if self.frames_dir is not None:
             path = self.frames_dir / self.result.scene.cameras.names[v]
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+            try:
+                image = read_image(path, root=self.result.path)
+            except InputError as e:
+                image, problem = None, e.problem
+            else:
+                problem = ""
             if image is not None:
                 if image.shape[:2] != (H, W):
                     image = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA)
                 return image, True
             self.missing_frames += 1
-            log.warning("%s: cannot read the frame; drawing on a neutral background", path)
+            log.warning("%s: %s; drawing on a neutral background", path, problem)
         return np.full((H, W, 3), NEUTRAL_BGR, dtype=np.uint8), False
 
     def render(self, v: int, max_width: int | None = None) -> np.ndarray:
@@ -203,40 +207,49 @@ def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output:
     if out.suffix.lower() == ".mp4":
         _write_video(out, (renderer.render(v, max_width) for v in views), fps)
     else:
-        cv2 = _cv2()
-        for v in views:
-            ok, data = cv2.imencode(image_format, renderer.render(v, max_width))
-            if not ok:
-                raise InputError(out, None, f"cannot encode view {v} as {image_format}")
-            name = Path(result.scene.cameras.names[v]).with_suffix(image_format)
-            atomic_write_bytes(out / name, data.tobytes())
+        _check_overlay_dir(out)
+        atomic_replace_dir(lambda tmp: _write_images(tmp, renderer, views, max_width, image_format), out)
     log.info("%s: %d overlays written", out, len(views))
     return OverlaySummary(out, len(views), renderer.has_frames)
+
+
+def _check_overlay_dir(out: Path) -> None:
+    """The overlay folder is replaced as a whole (one output set): refuse one that holds
+    anything but overlay images."""
+    if out.is_dir():
+        other = sorted(p.name for p in out.iterdir() if p.suffix.lower() not in IMAGE_SUFFIXES)
+        if other:
+            raise OutputError(out, None, f"holds {other[0]!r}, not only overlay images: choose a new or empty folder")
+
+
+def _write_images(folder: Path, renderer: ViewRenderer, views, max_width: int | None, image_format: str) -> None:
+    """One overlay image per view of ``views`` into ``folder``, named as the view."""
+    cv2 = _cv2()
+    for v in views:
+        ok, data = cv2.imencode(image_format, renderer.render(v, max_width))
+        if not ok:
+            raise InputError(folder, None, f"cannot encode view {v} as {image_format}")
+        name = Path(renderer.result.scene.cameras.names[v]).with_suffix(image_format)
+        atomic_write_bytes(folder / name, data.tobytes())
 
 
 def _write_video(path: Path, images, fps: float) -> None:
     """Write BGR images (resized to the first one's size) as an MP4, atomically."""
     cv2 = _cv2()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
-    os.close(fd)
     writer = None
-    try:
-        for image in images:
+    with atomic_output(path, suffix=".mp4") as tmp:
+        try:
+            for image in images:
+                if writer is None:
+                    size = (image.shape[1], image.shape[0])
+                    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
+                    if not writer.isOpened():
+                        raise InputError(path, None, "OpenCV cannot write MP4 video here (no mp4v encoder)")
+                if (image.shape[1], image.shape[0]) != size:
+                    image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+                writer.write(image)
             if writer is None:
-                size = (image.shape[1], image.shape[0])
-                writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, size)
-                if not writer.isOpened():
-                    raise InputError(path, None, "OpenCV cannot write MP4 video here (no mp4v encoder)")
-            if (image.shape[1], image.shape[0]) != size:
-                image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
-            writer.write(image)
-        if writer is None:
-            raise InputError(path, None, "no views to write")
-        writer.release()
-        writer = None
-        os.replace(tmp, path)
-    finally:
-        if writer is not None:
-            writer.release()
-        Path(tmp).unlink(missing_ok=True)
+                raise InputError(path, None, "no views to write")
+        finally:
+            if writer is not None:
+                writer.release()

@@ -2,7 +2,6 @@
 report (when both exist)."""
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -10,6 +9,8 @@ from html import escape
 from pathlib import Path
 from urllib.parse import quote
 
+from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_text
 from mvm.report.page import REPORT_NAME
 
@@ -22,8 +23,9 @@ _COLUMNS = (("persons", "persons", 0), ("matched_poses", "matched", 0), ("unmatc
 
 def _metrics(poses3d: Path) -> dict | None:
     try:
-        document = json.loads(poses3d.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+        document = load_json(poses3d)
+    except InputError as e:
+        log.warning("%s", e)
         return None
     return document.get("metrics") if isinstance(document, dict) else None
 

@@ -4,47 +4,69 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from mvm.core.config import check_settings, setting
+
 
 @dataclass(frozen=True)
 class RigOptions:
     #: Instants reconstructed together (one batched affinity, triangulation and refinement);
     #: larger is faster per instant and uses more memory. [instants]
-    batch_size: int = 64
+    batch_size: int = setting(64, ge=1, le=100_000)
     #: A person links to a track when its mean joint distance to the track's last pose is below
     #: this; raise it for fast motion or low frame rates. [metres]
-    max_link_distance_m: float = 0.5
+    max_link_distance_m: float = setting(0.5, gt=0)
     #: A track not seen for more than this many instants ends; a person seen later gets a new id.
     #: [instants]
-    max_gap: int = 10
+    max_gap: int = setting(10, ge=0)
+    #: A person joins a track only when their distance is measured over at least this many shared
+    #: joints (fewer if the person has fewer); lower lets sparse persons jump between tracks. [joints]
+    min_link_joints: int = setting(4, ge=1, le=17)
     #: Tracks shorter than this are dropped from the .trc output (they stay in the JSON Lines). [instants]
-    min_track_length: int = 1
+    min_track_length: int = setting(1, ge=1)
     #: Temporal smoothing of each track: "none", "butterworth" (zero-phase low-pass) or "savgol". [-]
-    smoothing: str = "none"
-    #: Cut-off of the Butterworth filter; lower smooths more. [Hz]
-    cutoff_hz: float = 6.0
+    smoothing: str = setting("butterworth", choices=("none", "butterworth", "savgol"))
+    #: Cut-off of the Butterworth filter; lower smooths more. None: 6 Hz, or a fifth of the frame
+    #: rate for rigs slower than 30 Hz. Must stay below the Nyquist frequency (half the frame rate). [Hz]
+    cutoff_hz: float | None = setting(None, gt=0)
     #: Order of the Butterworth filter. [1]
-    filter_order: int = 4
+    filter_order: int = setting(4, ge=1, le=16)
     #: Window of the Savitzky-Golay filter (odd); longer smooths more. [instants]
-    savgol_window: int = 9
+    savgol_window: int = setting(9, ge=3, odd=True)
     #: Frame rate of the rig, for times in .trc files and the filter. [Hz]
-    frame_rate: float = 30.0
+    frame_rate: float = setting(30.0, gt=0)
     #: Size of one world unit in metres (Pose2Sim calibrations: 1; anipose in mm: 0.001;
     #: Panoptic: 0.01). [m / unit]
-    metres_per_unit: float = 1.0
+    metres_per_unit: float = setting(1.0, gt=0)
     #: The world's up axis, for the Y-up .trc files: "+z", "-z", "+y" or "-y". [-]
-    up: str = "+z"
+    up: str = setting("+z", choices=("+z", "-z", "+y", "-y"))
+    #: Weight of the soft bone-length term in the refinement: each person's bones are pulled
+    #: to its track's median lengths. A bone 1 % off costs ``bone_weight / 10⁴`` px² (2 px² by
+    #: default); raise it for a more rigid skeleton, 0 turns the term off. [px²]
+    bone_weight: float = setting(20000.0, ge=0)
+    #: Complete every person: missing joints interpolated along the track, then inferred from the
+    #: pose prior; each joint flagged observed / interpolated / inferred. [bool]
+    complete: bool = True
+    #: Longest run of missing instants a joint is interpolated over; longer gaps are left to the
+    #: pose prior. [instants]
+    max_interpolation_gap: int = setting(30, ge=0)
+    #: Write inferred joints into the .trc files too (by default they carry only observed and
+    #: interpolated markers). [bool]
+    trc_inferred: bool = False
 
     def __post_init__(self):
-        if self.smoothing not in ("none", "butterworth", "savgol"):
-            raise ValueError(f"smoothing: expected 'none', 'butterworth' or 'savgol', got {self.smoothing!r}")
-        if self.up not in ("+z", "-z", "+y", "-y"):
-            raise ValueError(f"up: expected '+z', '-z', '+y' or '-y', got {self.up!r}")
-        for name in ("batch_size", "max_gap", "min_track_length", "filter_order", "savgol_window"):
-            if getattr(self, name) < (0 if name == "max_gap" else 1):
-                raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
-        for name in ("max_link_distance_m", "cutoff_hz", "frame_rate", "metres_per_unit"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be > 0, got {getattr(self, name)}")
+        check_settings(self)
 
-    def replace(self, **changes) -> "RigOptions":
+    @property
+    def cutoff(self) -> float:
+        """The Butterworth cut-off in use: ``cutoff_hz``, else 6 Hz capped at a fifth of the frame rate. [Hz]"""
+        return self.cutoff_hz if self.cutoff_hz is not None else min(6.0, self.frame_rate / 5)
+
+    def implied_problems(self) -> list[tuple[str, str]]:
+        """The Butterworth cut-off must lie below the Nyquist frequency of the frame rate."""
+        if self.smoothing == "butterworth" and not self.cutoff < self.frame_rate / 2:
+            return [("cutoff_hz", f"must be below half the frame rate ({self.frame_rate / 2:g} Hz at "
+                                  f"frame_rate {self.frame_rate:g}), got {self.cutoff:g}")]
+        return []
+
+    def replace(self, **changes) -> RigOptions:
         return dataclasses.replace(self, **changes)

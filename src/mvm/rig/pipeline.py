@@ -11,15 +11,19 @@ from typing import Callable
 
 import numpy as np
 
+from mvm.core.completion import FLAG_NAMES, INFERRED, MISSING, OBSERVED, complete_tracks, flag_names, interpolate_series
 from mvm.core.config import Config
 from mvm.core.keypoints import COCO_KEYPOINTS
+from mvm.core.prior import load_prior, shipped_prior
 from mvm.io.files import atomic_write_json, atomic_write_text
 from mvm.io.trc import to_opensim, write_trc
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
+from mvm.rig.outputs import replace_output_set
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
-from mvm.rig.tracking import link_tracks, smooth_tracks, track_series
+from mvm.rig.skeleton import refine_tracks
+from mvm.rig.tracking import smooth_tracks, track_persons, track_series
 
 log = logging.getLogger(__name__)
 
@@ -28,13 +32,15 @@ POSES3D_LINES_FORMAT = "mvm.rig.poses3d/1"
 
 @dataclass
 class RigResult:
-    """``persons`` of every instant with ``track: (Q,)`` ids; ``X: (Q, 17, 3)`` the (smoothed)
-    joints written out; ``recap`` (see :func:`mvm.rig.recap.recap`); paths written; timings."""
+    """``persons`` of every instant with ``track: (Q,)`` ids; ``X: (Q, 17, 3)`` the (smoothed,
+    completed) joints written out with ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); ``recap``
+    (see :func:`mvm.rig.recap.recap`); paths written; timings."""
 
     rig: RigData
     persons: InstantPersons
     track: np.ndarray
     X: np.ndarray
+    flags: np.ndarray
     recap: dict
     outputs: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
@@ -45,19 +51,24 @@ def _number(v, digits=6):
 
 
 def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, track: np.ndarray,
-                  camera_names) -> str:
+                  camera_names, flags: np.ndarray | None = None) -> str:
     """One JSON object per instant: ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
-    [[x, y, z, score] | [null, null, null, 0]], "members" {camera: pose index in that camera's
-    frame}, "views_per_joint", "reprojection_error_px"}]}``."""
+    [[x, y, z, score] | [null, null, null, 0]], "flags" (per joint: "observed", "interpolated",
+    "inferred" or "missing"), "members" {camera: pose index in that camera's frame},
+    "views_per_joint" (inlier 2D keypoints of the observed joints), "reprojection_error_px"}]}``.
+    ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); None: observed where ``X`` is finite."""
     lines = []
     bounds = np.searchsorted(persons.instant, np.arange(len(frames) + 1))
-    views = (persons.inliers & np.isfinite(X).all(-1)[:, None, :]).sum(1)
+    if flags is None:
+        flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING)
+    names = flag_names(flags)
+    views = (persons.inliers & (np.asarray(flags) == OBSERVED)[:, None, :]).sum(1)
     for t, frame in enumerate(frames):
         out = []
         for q in range(bounds[t], bounds[t + 1]):
             kp = [[_number(c) for c in X[q, j]] + [round(float(persons.scores[q, j]), 4)]
                   if np.isfinite(X[q, j]).all() else [None, None, None, 0.0] for j in range(len(COCO_KEYPOINTS))]
-            out.append({"id": int(track[q]), "keypoints3d": kp,
+            out.append({"id": int(track[q]), "keypoints3d": kp, "flags": names[q],
                         "members": {camera_names[v]: int(m) for v, m in enumerate(persons.members[q]) if m >= 0},
                         "views_per_joint": views[q].tolist(),
                         "reprojection_error_px": _number(persons.reprojection_error_px[q], 4)})
@@ -79,26 +90,82 @@ def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
                           persons.valid, persons.errors, persons.reprojection_error_px)
 
 
+def gap_policy(options: RigOptions) -> str:
+    """The sentence written in each ``.trc`` header about the markers it carries."""
+    if not options.complete:
+        return "gaps: markers not reconstructed at a frame are left empty"
+    kinds = "observed, interpolated and inferred (pose prior)" if options.trc_inferred else \
+        "observed and interpolated"
+    return (f"gaps: {kinds} markers; interpolation is cubic (Hermite) along the track over gaps of at most "
+            f"{options.max_interpolation_gap} frames; other missing markers are left empty")
+
+
 def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np.ndarray,
-                 track: np.ndarray, options: RigOptions) -> list[Path]:
-    """One ``track_<id>.trc`` per track of at least ``min_track_length`` instants (Y up, metres)."""
+                 track: np.ndarray, options: RigOptions, flags: np.ndarray | None = None) -> list[Path]:
+    """One ``track_<id>.trc`` per track of at least ``min_track_length`` instants (Y up, metres).
+
+    ``flags: (Q, 17)``: inferred joints are left out unless ``options.trc_inferred``; instants
+    where the track was unseen are interpolated like missing joints (gaps up to
+    ``options.max_interpolation_gap``). The policy is written in the header."""
     paths = []
+    if flags is not None and not options.trc_inferred:
+        X = np.where((np.asarray(flags) == INFERRED)[..., None], np.nan, X)
+    comment = gap_policy(options)
     for k in np.unique(track):
         if (track == k).sum() < options.min_track_length:
             continue
         times, series = track_series(X, instant, track, k)
+        if options.complete:
+            series = interpolate_series(series, options.max_interpolation_gap)[0]
         path = directory / f"track_{int(k)}.trc"
         write_trc(path, to_opensim(series, options.up, options.metres_per_unit), COCO_KEYPOINTS,
-                  options.frame_rate, frames=frames[times])
+                  options.frame_rate, frames=frames[times], comment=comment)
         paths.append(path)
     return paths
+
+
+def completion_prior(config: Config, options: RigOptions, prior=None):
+    """The pose prior for refinement and completion: ``prior``, else the shipped one when either
+    needs it (:func:`mvm.core.prior.load_prior`'s rule, extended to completion)."""
+    if prior is not None or not options.complete:
+        return load_prior(config, prior)
+    return shipped_prior()
+
+
+def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None, config: Config | None = None,
+                       detections=None, cameras=None):
+    """Tracks, the rigid-skeleton refinement, smoothing and completion of reconstructed instants
+    (no I/O).
+
+    With ``config.refine`` (and ``detections``, ``cameras``), every person is refined once its
+    track is known: reprojection, the pose prior and the track's robust bone lengths
+    (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come unrefined from
+    :func:`reconstruct_instants`. Smoothing runs over each track's observed joints, then
+    completion fills what is missing (time, then ``prior``) unless ``options.complete`` is off.
+    Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
+    unit = 1.0 / options.metres_per_unit
+    tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
+                             options.min_link_joints)
+    if config is not None and config.refine and detections is not None and len(persons):
+        persons = refine_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight)
+    X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
+                      cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
+    if options.complete:
+        X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
+    else:
+        flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
+    return tracking, persons, X, flags
 
 
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
                     calib: str | Path | None = None, frames: str | None = None, output: str | Path | None = None,
                     prior=None, progress: Callable[[int, int], None] | None = None) -> RigResult:
-    """Reconstruct, track and write a rig: ``<output>/poses3d.jsonl``, ``<output>/tracks/*.trc``,
-    ``<output>/recap.json`` (``output`` defaults to ``RIG_DIR/mvm``)."""
+    """Reconstruct, track, complete and write a rig: ``<output>/poses3d.jsonl``,
+    ``<output>/tracks/*.trc``, ``<output>/recap.json`` (``output`` defaults to ``RIG_DIR/mvm``).
+
+    The three are one set: written into a temporary folder beside ``output`` and swapped in
+    whole, so a failed or killed run leaves the previous set as it was (or no set), never a mix.
+    """
     config = config or Config()
     options = options or RigOptions()
     timings = {}
@@ -106,26 +173,40 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     rig = read_rig(rig_dir, calib, frames)
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    persons = reconstruct_instants(rig.calibration.cameras, rig.detections, config, prior,
+    prior = completion_prior(config, options, prior)
+    cameras = rig.calibration.cameras
+    persons = reconstruct_instants(cameras, rig.detections, config.replace(refine=False), prior,
                                    options.batch_size, progress)
     timings["reconstruct_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    unit = 1.0 / options.metres_per_unit
-    track = link_tracks(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap)
-    X = smooth_tracks(persons.X, persons.instant, track, options.smoothing, rate=options.frame_rate,
-                      cutoff_hz=options.cutoff_hz, order=options.filter_order, window=options.savgol_window)
-    timings["tracking_s"] = time.perf_counter() - t0
+    tracking, persons, X, flags = track_and_complete(persons, options, prior, config, rig.detections, cameras)
+    track = tracking.track
+    timings["tracking_refinement_s"] = time.perf_counter() - t0
     names = rig.calibration.cameras.names
     summary = recap(persons, names, len(rig.frames), len(rig.detections))
-    summary["tracks"] = int(len(np.unique(track)))
-    summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"], 1e-9), 2)
+    summary["tracks"] = tracking.tracks
+    summary["tracks_resumed"] = tracking.resumed
+    summary["persons_not_linked_few_joints"] = tracking.unlinked
+    counts = np.bincount(np.asarray(flags, dtype=int).ravel(), minlength=len(FLAG_NAMES))
+    summary["joint_flags"] = {n: round(float(c / max(counts.sum(), 1)), 4) for n, c in zip(FLAG_NAMES, counts)}
+    summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"]
+                                                            + timings["tracking_refinement_s"], 1e-9), 2)
     out_dir = Path(output) if output else Path(rig_dir) / "mvm"
-    outputs = {"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"}
-    atomic_write_text(outputs["poses3d"], poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names))
-    outputs["tracks"] = write_tracks(out_dir / "tracks", rig.frames, X, persons.instant, track, options)
-    timings["write_s"] = time.perf_counter() - t0 - timings["tracking_s"]
-    atomic_write_json(outputs["recap"], {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
-                                         "config": asdict(config), "options": asdict(options),
-                                         "calibration": rig.calibration.metadata.get("source"),
-                                         "pose_format": rig.pose_format}, indent=1)
-    return RigResult(rig, persons, track, X, summary, outputs, timings)
+    t0 = time.perf_counter()
+    lines = poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names, flags)
+    outputs = {}
+
+    def build(folder: Path) -> None:
+        atomic_write_text(folder / "poses3d.jsonl", lines)
+        outputs["tracks"] = [out_dir / "tracks" / p.name
+                             for p in write_tracks(folder / "tracks", rig.frames, X, persons.instant, track,
+                                                   options, flags)]
+        timings["write_s"] = time.perf_counter() - t0
+        atomic_write_json(folder / "recap.json", {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
+                                                 "config": asdict(config), "options": asdict(options),
+                                                 "calibration": rig.calibration.metadata.get("source"),
+                                                 "pose_format": rig.pose_format}, indent=1)
+
+    replace_output_set(build, out_dir)
+    outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})
+    return RigResult(rig, persons, track, X, flags, summary, outputs, timings)

@@ -14,7 +14,6 @@ camera number (``cam_01`` and ``cam1_json``) when that number is unique on both 
 """
 from __future__ import annotations
 
-import json
 import logging
 import re
 from dataclasses import dataclass
@@ -25,6 +24,7 @@ import numpy as np
 from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
+from mvm.io.checks import load_json
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_files, frame_number, read_openpose_frame
 from mvm.rig.instants import rig_poses
@@ -153,10 +153,7 @@ def _source_format(path: Path) -> str:
     if path.is_file():
         return "coco"
     first = next(iter(sorted(path.glob("*.json"))))
-    try:
-        data = json.loads(first.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(first, None, f"not valid JSON: {e}") from None
+    data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
         return "openpose"
     if isinstance(data, list):
@@ -164,23 +161,25 @@ def _source_format(path: Path) -> str:
     raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
 
 
-def _read_source(path: Path, fmt: str) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """``[(frame, keypoints (K, 17, 3), scores (K,))]`` of one camera."""
+def _read_source(path: Path, fmt: str, root: Path) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """``[(frame, keypoints (K, 17, 3), scores (K,))]`` of one camera; every file is read the
+    guarded way, inside the rig directory ``root``."""
     if fmt == "coco":
         from mvm.io.coco import read_coco_keypoints
 
-        coco = read_coco_keypoints(path)
-        frame_of_image = np.array([frame_number(Path(n)) for n in coco.file_names], dtype=int)
+        coco = read_coco_keypoints(path, root=root)
+        frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
+                                   for i, n in enumerate(coco.file_names)], dtype=np.int64)
         frames = frame_of_image[coco.ann_image]
         return [(int(f), coco.keypoints[frames == f], coco.score[frames == f]) for f in np.unique(frames)]
     out = []
     for f, file in frame_files(path, "*.json"):
         if fmt == "openpose":
-            kp = read_openpose_frame(file)
+            kp = read_openpose_frame(file, root=root)
             present = kp[..., 2] > 0
             score = np.where(present, kp[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
         else:
-            kp, score = read_openpifpaf_frame(file)
+            kp, score = read_openpifpaf_frame(file, root=root)
         out.append((f, kp, score))
     return out
 
@@ -229,7 +228,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     fmt = formats.pop()
     kps, frame_of, cam_of, scores = [], [], [], []
     for new_index, c in enumerate(used):
-        for f, kp, score in _read_source(sources[entries[matched[c]]], fmt):
+        for f, kp, score in _read_source(sources[entries[matched[c]]], fmt, rig_dir):
             if (start is not None and f < start) or (stop is not None and f >= stop) or not len(kp):
                 continue
             kps.append(kp)

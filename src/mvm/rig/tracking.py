@@ -4,59 +4,136 @@ Pure numpy/scipy, no I/O."""
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.signal import butter, filtfilt, savgol_filter
 
 
-def pose_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def pose_distance(a: np.ndarray, b: np.ndarray, min_joints: int | np.ndarray = 1) -> np.ndarray:
     """Mean joint distance over the joints both poses have. ``a: (P, J, 3)``, ``b: (Q, J, 3)`` ->
-    ``(P, Q)`` (inf where no joint is shared)."""
+    ``(P, Q)``; inf where fewer than ``min_joints`` (an int, or ``(P,)``) joints are shared (a
+    mean over one or two joints says little about who a person is)."""
     diff = np.linalg.norm(a[:, None] - b[None], axis=-1)                          # (P, Q, J)
     ok = np.isfinite(diff)
     count = ok.sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(ok, diff, 0.0).sum(-1) / count
-    return np.where(count > 0, mean, np.inf)
+    need = np.maximum(np.asarray(min_joints), 1)
+    return np.where(count >= (need[:, None] if need.ndim else need), mean, np.inf)
 
 
-def link_tracks(X: np.ndarray, instant: np.ndarray, max_distance: float, max_gap: int) -> np.ndarray:
-    """Track id of every person.
+@dataclass
+class Tracking:
+    """Track ids and what the linking did. ``track: (Q,)`` ids 0, 1, … in order of first
+    appearance; ``resumed``: links made across at least one instant where the track was unseen;
+    ``unlinked``: persons that could have joined a live track by distance but shared too few
+    joints with it (they start a new track)."""
+
+    track: np.ndarray
+    resumed: int = 0
+    unlinked: int = 0
+
+    @property
+    def tracks(self) -> int:
+        return int(len(np.unique(self.track)))
+
+
+def link_tracks(X: np.ndarray, instant: np.ndarray, max_distance: float, max_gap: int,
+                min_joints: int = 4, velocity_weight: float = 0.5) -> np.ndarray:
+    """Track id of every person (see :func:`track_persons`). ``X: (Q, J, 3)`` -> ``(Q,)``."""
+    return track_persons(X, instant, max_distance, max_gap, min_joints, velocity_weight).track
+
+
+def track_persons(X: np.ndarray, instant: np.ndarray, max_distance: float, max_gap: int,
+                  min_joints: int = 4, velocity_weight: float = 0.5) -> Tracking:
+    """Link each instant's persons to the live tracks (Hungarian assignment on 3D distance).
+
+    Each track keeps the last seen position of every joint and a velocity of its body (the mean
+    displacement of its shared joints, smoothed); a person is compared with the track's pose
+    *predicted* at the person's instant, so a track survives a loss of up to ``max_gap`` instants
+    while its person walks on, and two people crossing close are told apart by where each was
+    heading.
 
     Args:
         X: ``(Q, J, 3)`` persons (NaN: missing joint); instant: ``(Q,)`` their instants (integers).
-        max_distance: largest mean joint distance (world units) between a person and the last
-            pose of the track it joins.
+        max_distance: largest mean joint distance (world units) between a person and the
+            prediction of the track it joins.
         max_gap: a track unseen for more than ``max_gap`` instants cannot be joined any more.
+        min_joints: the distance is only trusted over at least this many shared joints (fewer
+            if the person has fewer).
+        velocity_weight: weight of the newest displacement in the track's velocity (0: no motion
+            model, 1: the last displacement only).
     Returns:
-        ``(Q,)`` track ids 0, 1, … in order of first appearance.
+        :class:`Tracking`.
     """
     X = np.asarray(X, dtype=float)
     instant = np.asarray(instant)
+    J = X.shape[1] if X.ndim == 3 else 17
     track = np.full(len(X), -1)
-    last_pose = np.zeros((0,) + X.shape[1:])
+    last_pose = np.zeros((0, J, 3))
+    velocity = np.zeros((0, 3))
     last_seen = np.zeros(0, dtype=np.int64)
+    resumed = unlinked = 0
+    present_count = np.isfinite(X).all(-1).sum(-1) if len(X) else np.zeros(0, int)
     for t in np.unique(instant):
         rows = np.flatnonzero(instant == t)
         alive = np.flatnonzero(t - last_seen <= max_gap + 1)
         assigned = np.full(len(rows), -1)
         if len(alive):
-            cost = pose_distance(X[rows], last_pose[alive])
+            dt = (t - last_seen[alive]).astype(float)
+            predicted = last_pose[alive] + (velocity[alive] * dt[:, None])[:, None, :]
+            need = np.minimum(min_joints, present_count[rows])                         # (R,)
+            cost = pose_distance(X[rows], predicted, need)
             feasible = cost <= max_distance
+            loose = pose_distance(X[rows], predicted, 1) <= max_distance
             r, c = linear_sum_assignment(np.where(feasible, cost, 1e12))
             ok = feasible[r, c]
             assigned[r[ok]] = alive[c[ok]]
+            resumed += int((dt[c[ok]] > 1).sum())
+            unlinked += int((~feasible.any(1) & loose.any(1)).sum())
         new = assigned < 0
-        assigned[new] = len(last_seen) + np.arange(new.sum())
-        last_pose = np.concatenate([last_pose, np.zeros((new.sum(),) + X.shape[1:])])
-        last_seen = np.concatenate([last_seen, np.zeros(new.sum(), dtype=np.int64)])
-        # Keep the last seen position of joints missing now.
+        count_new = int(new.sum())
+        assigned[new] = len(last_seen) + np.arange(count_new)
+        last_pose = np.concatenate([last_pose, np.full((count_new, J, 3), np.nan)])
+        velocity = np.concatenate([velocity, np.zeros((count_new, 3))])
+        last_seen = np.concatenate([last_seen, np.full(count_new, t, dtype=np.int64)])
         previous = last_pose[assigned]
-        last_pose[assigned] = np.where(np.isfinite(X[rows]), X[rows], np.where(new[:, None, None], np.nan, previous))
+        step = X[rows] - previous                                                      # (R, J, 3)
+        shared = np.isfinite(step).all(-1)
+        with np.errstate(invalid="ignore"):
+            move = np.where(shared[..., None], step, 0).sum(1) / np.maximum(shared.sum(1), 1)[:, None]
+        dt = np.maximum(t - last_seen[assigned], 1)[:, None]
+        seen_before = ~new & (shared.sum(1) >= 1)
+        velocity[assigned] = np.where(seen_before[:, None],
+                                      (1 - velocity_weight) * velocity[assigned] + velocity_weight * move / dt,
+                                      velocity[assigned])
+        # Keep the last seen position of joints missing now.
+        last_pose[assigned] = np.where(np.isfinite(X[rows]), X[rows], previous)
         last_seen[assigned] = t
         track[rows] = assigned
-    return track
+    return Tracking(track, resumed, unlinked)
+
+
+def identity_switches(track: np.ndarray, truth: np.ndarray, instant: np.ndarray) -> dict:
+    """Identity errors of ``track: (Q,)`` against the true identity ``truth: (Q,)`` of each
+    person (-1: a person matching no true one), over ``instant: (Q,)``.
+
+    Returns ``{"switches": times a true person's track id differs from its previous one (CLEAR-MOT
+    ID switches), "tracks_per_person": mean number of track ids per true person, "persons": true
+    persons seen}``.
+    """
+    track, truth, instant = (np.asarray(a) for a in (track, truth, instant))
+    keep = truth >= 0
+    track, truth, instant = track[keep], truth[keep], instant[keep]
+    order = np.lexsort((instant, truth))
+    same = truth[order][1:] == truth[order][:-1]
+    switches = int((same & (track[order][1:] != track[order][:-1])).sum())
+    people = np.unique(truth)
+    per_person = [len(np.unique(track[truth == g])) for g in people]
+    return {"switches": switches, "tracks_per_person": float(np.mean(per_person)) if per_person else float("nan"),
+            "persons": int(len(people))}
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

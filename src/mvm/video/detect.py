@@ -1,22 +1,25 @@
 """2D poses of every frame and their appearance -> ``SCENE/poses2d.json`` (docs/architecture.md).
 
-Sources (one interface, :func:`detect_scene`):
+Detectors (one interface, :func:`detect_scene`; :data:`DETECTORS`):
 
-- the project's PifPaf-style network from a local checkpoint (``mvm.net``), whose features
-  give the appearance (pooled along the limbs);
+- ``rtmo``: RTMO, one-stage bottom-up multi-person (:mod:`mvm.video.rtm`, ONNX Runtime);
+- ``rtmpose``: a YOLOX person detector then RTMPose, top-down (same);
+- ``mvm``: the project's PifPaf-style network from a local checkpoint (``mvm.net``), whose
+  features give the appearance (pooled along the limbs);
 - imported detections: OpenPifPaf ``--json-output`` files (one per image), OpenPose JSON
   (BODY_25, COCO-18; one per frame), a COCO results JSON (a list of
   ``{"image_id", "category_id", "keypoints", "score"}``; ``image_id`` a frame's file name, or
   its 1-based position in the scene's frame list) or a COCO keypoints dataset file.
 
-For imported detections the appearance is the colour descriptor of the frame
-(:mod:`mvm.video.appearance`). Keypoints are the 17 COCO keypoints in frame pixels.
+For the RTM detectors and imported detections the appearance is the colour descriptor of the
+frame (:mod:`mvm.video.appearance`). Keypoints are the 17 COCO keypoints in frame pixels.
+``poses2d.json`` records under ``info`` the detector, its model files and their SHA-256.
+A frame that cannot be read is reported and left out; the others are detected.
 """
 from __future__ import annotations
 
-import json
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -25,17 +28,23 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
 from mvm.io.files import atomic_write_json
+from mvm.io.images import NOT_AN_IMAGE, read_image
 from mvm.io.paths import resolve_in
 from mvm.video.appearance import colour_descriptor, pool_features
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
+from mvm.video.models import MODES, RTMO, RTMPOSE, YOLOX, resolve_model, sha256
+from mvm.video.rtm import RtmOptions
 
 log = logging.getLogger(__name__)
 
 POSES2D = "poses2d.json"
 FORMATS = ("coco-results", "coco", "openpifpaf", "openpose")
 APPEARANCE = ("auto", "colour", "network", "none")
+DETECTORS = ("rtmo", "rtmpose", "mvm", "import")
+DEVICES = ("cpu", "cuda")
 
 
 @dataclass(frozen=True)
@@ -43,15 +52,31 @@ class DetectOptions:
     """2D detection.
 
     Attributes:
+        detector: one of :data:`DETECTORS`; None: ``import`` when detections are given, ``mvm``
+            when a checkpoint is.
+        model: the detector's ONNX model (``.onnx`` or the published ``.zip``; for ``rtmpose``
+            the keypoint model); None: the published model of ``mode``, cached on first use.
+        person_model: the person detector of ``rtmpose`` (YOLOX), likewise.
+        mode: model size when no model is given: ``lightweight``, ``balanced``, ``performance``.
+        batch_size: frames given to the model at once. [frames]
+        download: fetch a missing published model (else: an error naming what to fetch).
+        rtm: the RTM detectors' thresholds.
         appearance: ``auto`` (network features when the network runs, else colour), ``colour``,
             ``network`` or ``none``.
         keypoint_threshold: keypoints below this confidence are not used to sample appearance. [0-1]
         min_score: poses with a lower score are dropped. [0-1]
         min_keypoints: poses with fewer keypoints above ``keypoint_threshold`` are dropped. [1]
-        input_size: the network's input (longer side) in pixels. [px]
-        device: torch device of the network (``cpu``, ``cuda``).
+        input_size: the mvm network's input (longer side) in pixels. [px]
+        device: ``cpu`` or ``cuda`` (torch for ``mvm``, ONNX Runtime for the RTM detectors).
     """
 
+    detector: str | None = None
+    model: str | None = None
+    person_model: str | None = None
+    mode: str = "balanced"
+    batch_size: int = 4
+    download: bool = True
+    rtm: RtmOptions = RtmOptions()
     appearance: str = "auto"
     keypoint_threshold: float = 0.2
     min_score: float = 0.0
@@ -60,10 +85,22 @@ class DetectOptions:
     device: str = "cpu"
 
 
+    def __post_init__(self):
+        checks = ((self.detector is None or self.detector in DETECTORS, "detector", DETECTORS),
+                  (self.mode in MODES, "mode", MODES), (self.device in DEVICES, "device", DEVICES),
+                  (self.appearance in APPEARANCE, "appearance", APPEARANCE))
+        for ok, name, known in checks:
+            if not ok:
+                raise ValueError(f"{name} {getattr(self, name)!r}: expected one of {', '.join(known)}")
+        if not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise ValueError(f"batch_size: expected an integer >= 1, got {self.batch_size!r}")
+
+
 @dataclass
-class Detections:
-    """Poses of the frames ``names``: ``keypoints: (N, 17, 3)``, ``image: (N,)`` index into
-    ``names``, ``score: (N,)``, ``appearance: (N, D)`` or None, ``sizes: (I, 2)``."""
+class FramePoses:
+    """The 2D poses detected in the frames ``names``: ``keypoints: (N, 17, 3)``, ``image: (N,)``
+    index into ``names``, ``score: (N,)``, ``appearance: (N, D)`` or None, ``sizes: (I, 2)``;
+    ``source`` says what produced them, ``skipped`` the frames that could not be read."""
 
     names: tuple[str, ...]
     sizes: np.ndarray
@@ -72,6 +109,7 @@ class Detections:
     score: np.ndarray
     appearance: np.ndarray | None = None
     source: str = ""
+    skipped: tuple[str, ...] = ()
 
 
 # --------------------------------------------------------------------------- importers
@@ -88,17 +126,11 @@ def detect_format(path: str | Path) -> str:
         first = next(iter(sorted(path.glob("*.json"))), None)
         if first is None:
             raise InputError(path, None, "no JSON files to import")
-        try:
-            data = json.loads(first.read_text())
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise InputError(first, None, f"not valid JSON: {e}") from None
+        data = load_json(first)
         return "openpose" if isinstance(data, dict) and "people" in data else "openpifpaf"
     if not path.is_file():
         raise InputError(path, None, "file or directory not found")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if isinstance(data, list):
         return "coco-results"
     if isinstance(data, dict) and "annotations" in data:
@@ -142,12 +174,7 @@ def read_coco_results(path: str | Path, names: list[str]) -> tuple[np.ndarray, n
     """A COCO results JSON -> ``keypoints: (N, 17, 3)``, ``image: (N,)`` index into ``names``,
     ``score: (N,)``. ``image_id`` is a file name (or its stem), or a 1-based position."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"not valid JSON: {e}") from None
+    data = load_json(path)
     if not isinstance(data, list):
         raise InputError(path, None, "expected a JSON list of results")
     by_name = {n: i for i, n in enumerate(names)}
@@ -215,13 +242,51 @@ def import_detections(source: str | Path, scene: str | Path, names: list[str],
     return _from_per_frame(read_openpose_dir(source), numbers, source)
 
 
-# --------------------------------------------------------------------------- network
+# --------------------------------------------------------------------------- detectors
 
 
-def _network_detector(checkpoint: str | Path, options: DetectOptions):
-    """``image (H, W, 3) BGR -> (keypoints (K, 17, 3), score (K,), appearance (K, C))``: the
-    network of ``mvm.net`` (imported lazily: torch is an optional dependency). The appearance
-    pools the backbone's last feature map (the paper's "last conv layer") along the limbs."""
+@dataclass
+class FrameDetector:
+    """A detector: ``run(frames)`` -> per frame ``(keypoints (K, 17, 3), score (K,),
+    appearance (K, D) or None)``; ``info`` is recorded in ``poses2d.json``."""
+
+    run: Callable[[list[np.ndarray]], list[tuple]]
+    info: dict
+
+
+def _model_info(path: Path, given: str | Path | None = None, url: str | None = None) -> dict:
+    """What ``poses2d.json`` records of a model: the ONNX file's name and SHA-256, and where it
+    came from (the path given, or the published URL)."""
+    return {"file": path.name, "sha256": sha256(path), "from": str(given) if given is not None else url}
+
+
+def _rtm_detector(options: DetectOptions) -> FrameDetector:
+    from mvm.video.rtm import Rtmo, RtmPose
+
+    if options.detector == "rtmo":
+        spec = RTMO[options.mode]
+        path = resolve_model(spec, options.model, options.download)
+        model = Rtmo(path, options.device, spec.size, options.rtm)
+        models = [_model_info(path, options.model, spec.url)]
+    else:
+        person_spec, pose_spec = YOLOX[options.mode], RTMPOSE[options.mode]
+        person = resolve_model(person_spec, options.person_model, options.download)
+        pose = resolve_model(pose_spec, options.model, options.download)
+        model = RtmPose(person, pose, options.device, person_spec.size, pose_spec.size, pose_spec.mean,
+                        pose_spec.std, options.rtm)
+        models = [_model_info(person, options.person_model, person_spec.url),
+                  _model_info(pose, options.model, pose_spec.url)]
+
+    def run(frames):
+        return [(kp, sc, None) for kp, sc in model(frames)]
+
+    return FrameDetector(run, {"detector": options.detector, "models": models, "device": options.device})
+
+
+def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDetector:
+    """The network of ``mvm.net`` (imported lazily: torch is an optional dependency). The
+    appearance pools the backbone's last feature map (the paper's "last conv layer") along
+    the limbs."""
     try:
         from mvm.net.evaluate import run_model
         from mvm.net.predict import load_model
@@ -231,7 +296,7 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions):
     captured = {}
     model.backbone.register_forward_hook(lambda module, inputs, output: captured.__setitem__("features", output))
 
-    def run(image: np.ndarray):
+    def one(image: np.ndarray):
         rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
         poses, _, scale = run_model(model, rgb, options.input_size)
         kp, score = poses.keypoints, poses.score
@@ -241,7 +306,27 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions):
         app = pool_features(features, boxed, model.spec.stride, options.keypoint_threshold)
         return kp, score, app
 
-    return run
+    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
+    return FrameDetector(lambda frames: [one(f) for f in frames], info)
+
+
+def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:
+    """The detector ``options.detector`` (``rtmo``, ``rtmpose`` or ``mvm`` with ``checkpoint``)."""
+    if options.detector == "mvm":
+        if checkpoint is None:
+            raise InputError(None, "--checkpoint", "the mvm detector needs its checkpoint")
+        return _network_detector(checkpoint, options)
+    if options.detector in ("rtmo", "rtmpose"):
+        return _rtm_detector(options)
+    raise ValueError(f"detector {options.detector!r}: expected rtmo, rtmpose or mvm")
+
+
+def available_detector() -> str | None:
+    """The detector ``mvm run`` uses when none is named: ``rtmo`` when ONNX Runtime is
+    installed, else None."""
+    import importlib.util
+
+    return "rtmo" if importlib.util.find_spec("onnxruntime") is not None else None
 
 
 # --------------------------------------------------------------------------- the stage
@@ -264,100 +349,187 @@ def _registered_names(scene: Path) -> set[str] | None:
     return {image.name for image in rec.images.values() if image.has_pose}
 
 
-def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint: str | Path | None = None,
-                 fmt: str | None = None, options: DetectOptions = DetectOptions(), force: bool = False,
-                 progress: Callable[[int, int], None] | None = None) -> Detections:
-    """2D poses and appearance of every frame of ``scene``, written to ``scene/poses2d.json``.
-
-    Exactly one of ``source`` (imported detections) and ``checkpoint`` (the network) is given.
-    Frames that SfM did not register (when ``scene/sparse`` exists) are left out. Skipped when
-    ``poses2d.json`` exists, unless ``force``.
-    """
-    scene = Path(scene)
-    out = scene / POSES2D
-    if (source is None) == (checkpoint is None):
-        raise ValueError("give exactly one of source (detections to import) and checkpoint (the network)")
-    if options.appearance not in APPEARANCE:
-        raise ValueError(f"appearance {options.appearance!r}: expected one of {', '.join(APPEARANCE)}")
-    if out.is_file() and not force:
-        log.info("%s exists: 2D poses already detected (use force to redo)", out)
-        coco = read_coco_keypoints(out)
-        return Detections(coco.file_names, coco.sizes, coco.keypoints, coco.ann_image, coco.score,
-                          coco.appearance, "existing")
+def _frame_names(scene: Path, registered: set[str] | None) -> list[str]:
     names = list_frames(scene) if (scene / FRAMES_INDEX).is_file() or (scene / FRAMES_DIR).is_dir() else []
-    registered = _registered_names(scene)
     if not names and registered is not None:
         names = sorted(registered)
     if not names:
         raise InputError(scene, None, "no frames and no camera model: nothing to detect in")
-    frames_dir = scene / FRAMES_DIR
-    want_colour = options.appearance in ("colour", "auto")
-    if source is not None:
-        if options.appearance == "network":
-            raise ValueError("appearance 'network' needs the network (a checkpoint), not imported detections")
-        keypoints, image, score = import_detections(source, scene, names, fmt)
-        appearance = None
-        detector = None
-        label = f"import:{fmt or detect_format(source)}:{source}"
-    else:
-        detector = _network_detector(checkpoint, options)
-        keypoints, image, score, appearance = [], [], [], []
-        label = f"network:{checkpoint}"
+    return names
 
-    sizes = np.zeros((len(names), 2))
-    colour = [] if want_colour and source is not None else None
+
+def read_frames(scene: Path, names: list[str], batch_size: int, warn: bool = True):
+    """The frames ``names`` of ``scene`` in batches: yields ``(indices into names, images)``,
+    an image ``(H, W, 3)`` BGR, or None for a frame that cannot be read (reported when ``warn``)."""
+    indices, images = [], []
     for i, name in enumerate(names):
-        file = resolve_in(frames_dir, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
-        frame = cv2.imread(str(file)) if file.is_file() else None
-        if frame is None:
-            if detector is not None or colour is not None:
-                raise InputError(frames_dir / name, None, "cannot read frame image")
-        else:
-            sizes[i] = frame.shape[1], frame.shape[0]
-        if detector is not None:
-            kp, sc, app = detector(frame)
-            if options.appearance == "colour" or (app is None and want_colour):
-                app = colour_descriptor(frame, kp, options.keypoint_threshold)
-            keypoints.append(kp)
-            score.append(sc)
-            image.append(np.full(len(kp), i))
-            appearance.append(app)
-        elif colour is not None:
-            rows = np.flatnonzero(image == i)
-            colour.append((rows, colour_descriptor(frame, keypoints[rows], options.keypoint_threshold)))
-        if progress:
-            progress(i + 1, len(names))
-    if detector is not None:
-        keypoints = np.concatenate(keypoints) if keypoints else np.zeros((0, NUM_JOINTS, 3))
-        score = np.concatenate(score) if score else np.zeros(0)
-        image = np.concatenate(image).astype(np.int64) if image else np.zeros(0, np.int64)
-        appearance = (np.concatenate(appearance) if appearance and all(a is not None for a in appearance)
-                      else None) if options.appearance != "none" else None
-    elif colour is not None:
-        dim = max((c.shape[1] for _, c in colour), default=0)
-        appearance = np.zeros((len(keypoints), dim))
-        for rows, desc in colour:
-            appearance[rows] = desc
+        file = resolve_in(scene / FRAMES_DIR, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
+        try:
+            image = read_image(file, root=scene, missing_ok=True)
+        except InputError as e:
+            if e.problem != NOT_AN_IMAGE:
+                raise
+            image = None
+        if image is None and warn:
+            log.warning("%s: cannot read this frame image; it is skipped", file)
+        indices.append(i)
+        images.append(image)
+        if len(indices) == batch_size or i == len(names) - 1:
+            yield indices, images
+            indices, images = [], []
 
-    keep = (score >= options.min_score) & ((keypoints[:, :, 2] >= options.keypoint_threshold).sum(1) >= options.min_keypoints)
+
+@dataclass
+class _Found:
+    """Detections gathered frame by frame (lists of per-frame arrays)."""
+
+    keypoints: list
+    image: list
+    score: list
+    appearance: list
+    sizes: np.ndarray
+    readable: np.ndarray
+
+    def add(self, i: int, kp, sc, app) -> None:
+        self.keypoints.append(np.asarray(kp, float).reshape(-1, NUM_JOINTS, 3))
+        self.score.append(np.asarray(sc, float).reshape(-1))
+        self.image.append(np.full(len(self.keypoints[-1]), i, dtype=np.int64))
+        self.appearance.append(app)
+
+    def arrays(self):
+        """``keypoints (N, 17, 3)``, ``image (N,)``, ``score (N,)``, ``appearance (N, D)`` or None."""
+        kp = np.concatenate(self.keypoints) if self.keypoints else np.zeros((0, NUM_JOINTS, 3))
+        image = np.concatenate(self.image) if self.image else np.zeros(0, np.int64)
+        score = np.concatenate(self.score) if self.score else np.zeros(0)
+        apps = [a for a, k in zip(self.appearance, self.keypoints) if len(k)]
+        if any(a is None for a in apps) or not self.appearance:
+            return kp, image, score, None
+        dim = max((a.shape[1] for a in apps), default=0)
+        return kp, image, score, (np.concatenate(apps) if apps else np.zeros((0, dim)))
+
+
+def _appearance_of(frame: np.ndarray, kp: np.ndarray, app, options: DetectOptions):
+    if options.appearance == "none":
+        return None
+    if options.appearance == "colour" or (app is None and options.appearance == "auto"):
+        return colour_descriptor(frame, kp, options.keypoint_threshold)
+    return app
+
+
+def _detect_frames(scene: Path, names: list[str], detector: FrameDetector | None, imported, options: DetectOptions,
+                   progress) -> _Found:
+    """Run ``detector`` on every frame (or attach the appearance to ``imported`` poses)."""
+    found = _Found([], [], [], [], np.zeros((len(names), 2)), np.ones(len(names), dtype=bool))
+    need_images = detector is not None or options.appearance != "none"
+    done = 0
+    for indices, images in read_frames(scene, names, options.batch_size if detector else 1, warn=need_images):
+        ok = [k for k, image in enumerate(images) if image is not None or not need_images]
+        for k, image in enumerate(images):
+            if image is not None:
+                found.sizes[indices[k]] = image.shape[1], image.shape[0]
+            elif need_images:
+                found.readable[indices[k]] = False
+        if detector is not None:
+            results = detector.run([images[k] for k in ok]) if ok else []
+        else:
+            results = [_imported_in(imported, indices[k]) for k in ok]
+        for k, (kp, sc, app) in zip(ok, results):
+            kp = np.asarray(kp, float).reshape(-1, NUM_JOINTS, 3)
+            found.add(indices[k], kp, sc, _appearance_of(images[k], kp, app, options) if need_images else None)
+        done += len(indices)
+        if progress:
+            progress(done, len(names))
+    return found
+
+
+def _imported_in(imported, i: int):
+    keypoints, image, score = imported
+    rows = image == i
+    return keypoints[rows], score[rows], None
+
+
+def _keep(found: _Found, names: list[str], registered: set[str] | None, options: DetectOptions, scene: Path):
+    """Drop weak poses and frames that are unreadable or not registered -> the kept frame names,
+    sizes and ``keypoints, image, score, appearance``."""
+    keypoints, image, score, appearance = found.arrays()
+    keep = (score >= options.min_score) & ((keypoints[:, :, 2] >= options.keypoint_threshold).sum(1)
+                                           >= options.min_keypoints)
+    frames = found.readable.copy()
     if registered is not None:
         in_model = np.array([n in registered for n in names], dtype=bool)
         dropped = int((~in_model[image] & keep).sum())
         if dropped:
             log.warning("%s: %d 2D poses are in frames without a camera (not registered) and are left out",
                         scene, dropped)
-        keep &= in_model[image]
-        kept_names = [n for n, ok in zip(names, in_model) if ok]
-        remap = np.cumsum(in_model) - 1
-        image, sizes, names = remap[image], sizes[in_model], kept_names
-    keypoints, image, score = keypoints[keep], image[keep], score[keep]
-    if appearance is not None:
-        appearance = appearance[keep]
-        if appearance.shape[1] == 0:
-            appearance = None
-    detections = Detections(tuple(names), sizes, keypoints, image, score, appearance, label)
+        frames &= in_model
+    keep &= frames[image]
+    remap = np.cumsum(frames) - 1
+    appearance = None if appearance is None or appearance.shape[1] == 0 else appearance[keep]
+    return ([n for n, ok in zip(names, frames) if ok], found.sizes[frames], keypoints[keep], remap[image[keep]],
+            score[keep], appearance)
+
+
+def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint: str | Path | None = None,
+                 fmt: str | None = None, options: DetectOptions = DetectOptions(), force: bool = False,
+                 progress: Callable[[int, int], None] | None = None) -> FramePoses:
+    """2D poses and appearance of every frame of ``scene``, written to ``scene/poses2d.json``.
+
+    The detector is ``options.detector``: ``rtmo`` / ``rtmpose`` (ONNX models), ``mvm`` (the
+    network, ``checkpoint``) or ``import`` (``source``, in format ``fmt``); when None, the one
+    that ``source`` or ``checkpoint`` implies. Frames that SfM did not register (when
+    ``scene/sparse`` exists) and frames that cannot be read are left out. Skipped when
+    ``poses2d.json`` exists, unless ``force``. ``progress(done, total)`` after each batch.
+    """
+    scene = Path(scene)
+    out = scene / POSES2D
+    kind = _detector_kind(options, source, checkpoint)
+    if out.is_file() and not force:
+        log.info("%s exists: 2D poses already detected (use force to redo)", out)
+        coco = read_coco_keypoints(out)
+        return FramePoses(coco.file_names, coco.sizes, coco.keypoints, coco.ann_image, coco.score,
+                          coco.appearance, "existing")
+    registered = _registered_names(scene)
+    names = _frame_names(scene, registered)
+    if kind == "import":
+        imported = import_detections(source, scene, names, fmt)
+        detector, info = None, {"detector": "import", "format": fmt or detect_format(source), "file": str(source)}
+    else:
+        imported, detector = None, make_detector(replace(options, detector=kind), checkpoint)
+        info = detector.info
+    found = _detect_frames(scene, names, detector, imported, options, progress)
+    skipped = tuple(n for n, ok in zip(names, found.readable) if not ok)
+    if skipped:
+        log.warning("%s: %d frames could not be read and were skipped (e.g. %s)", scene, len(skipped), skipped[0])
+    names, sizes, keypoints, image, score, appearance = _keep(found, names, registered, options, scene)
+    label = _label(info)
+    info = {"source": label, **info, "appearance": _appearance_kind(appearance, kind, options),
+            "skipped_frames": list(skipped)}
     document = coco_keypoints_document(names, sizes, image, keypoints, score, None, appearance)
-    document["info"] = {"source": label, "appearance": "none" if appearance is None else
-                        ("network" if detector is not None and options.appearance != "colour" else "colour")}
+    document["info"] = info
     atomic_write_json(out, document)
-    return detections
+    return FramePoses(tuple(names), sizes, keypoints, image, score, appearance, label, skipped)
+
+
+def _detector_kind(options: DetectOptions, source, checkpoint) -> str:
+    kind = options.detector or ("import" if source is not None else "mvm" if checkpoint is not None else None)
+    if kind is None:
+        raise ValueError("no detector: name one (rtmo, rtmpose, mvm) or give detections to import")
+    if (kind == "import") != (source is not None):
+        raise ValueError("detections to import (source) go with the import detector only")
+    if (kind == "mvm") != (checkpoint is not None):
+        raise ValueError("a checkpoint goes with the mvm detector only")
+    if kind != "mvm" and options.appearance == "network":
+        raise ValueError(f"appearance 'network' needs the mvm network, not the {kind} detector")
+    return kind
+
+
+def _label(info: dict) -> str:
+    if info["detector"] == "import":
+        return f"import:{info['format']}:{info['file']}"
+    return f"{info['detector']}:{'+'.join(m['file'] for m in info['models'])}"
+
+
+def _appearance_kind(appearance, kind: str, options: DetectOptions) -> str:
+    if appearance is None:
+        return "none"
+    return "network" if kind == "mvm" and options.appearance != "colour" else "colour"

@@ -3,7 +3,6 @@ keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.jso
 """
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -13,6 +12,7 @@ import cv2
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.paths import check_name
 
@@ -105,66 +105,95 @@ def _resize(image: np.ndarray, width: int | None) -> np.ndarray:
     return cv2.resize(image, (width, height), interpolation=interpolation)
 
 
+def decode_frames(capture, wanted: np.ndarray, width: int | None = None):
+    """The frames numbered ``wanted: (F,)`` (sorted) of an opened ``cv2.VideoCapture``, one at a
+    time: yields ``(number, image (H, W, 3) BGR)`` resized to ``width``. Frames in between are
+    grabbed, not decoded; memory holds one frame whatever the video's length."""
+    wanted_set = set(wanted.tolist())
+    last = wanted[-1] if len(wanted) else -1
+    number = 0
+    while number <= last:
+        if number in wanted_set:
+            ok, image = capture.read()
+            if not ok:
+                return
+            yield number, _resize(image, width)
+        elif not capture.grab():
+            return
+        number += 1
+
+
+def frame_name(number: int) -> str:
+    """The file name of frame ``number`` in ``frames/``."""
+    return f"frame_{number:05d}.jpg"
+
+
+def _write_frame(path: Path, image: np.ndarray, quality: int) -> None:
+    ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise RuntimeError(f"cannot encode {path.name} as JPEG")
+    atomic_write_bytes(path, data.tobytes())
+
+
+def _open_video(video: Path):
+    if not video.is_file():
+        raise InputError(video, None, "video file not found")
+    capture = cv2.VideoCapture(str(video))
+    if not capture.isOpened():
+        raise InputError(video, None, "OpenCV cannot open this video")
+    return capture
+
+
+def _stream_to_disk(video: Path, frames_dir: Path, options: FrameOptions, progress):
+    """Decode the sampled frames and write each at once -> ``numbers (F,)``, ``sharpness (F,)``,
+    the frame size (w, h) and the video's fps."""
+    capture = _open_video(video)
+    numbers, sharp, size = [], [], (0, 0)
+    try:
+        n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
+        wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
+        frames_dir.mkdir(parents=True, exist_ok=True)
+        for number, image in decode_frames(capture, wanted, options.width):
+            _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
+            numbers.append(number)
+            sharp.append(sharpness(image))
+            size = (image.shape[1], image.shape[0])
+            if progress:
+                progress(len(numbers), len(wanted))
+    finally:
+        capture.release()
+    if not numbers:
+        raise InputError(video, None, "no frame could be decoded")
+    return np.array(numbers, dtype=np.int64), np.array(sharp), size, fps
+
+
 def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
                    force: bool = False, progress: Callable[[int, int], None] | None = None) -> FrameIndex:
     """Decode ``video`` into ``scene/frames/frame_NNNNN.jpg`` (NNNNN: the frame number) and
     write ``scene/frames.json``. Skipped when ``frames.json`` exists, unless ``force``.
 
-    ``progress(done, total)`` is called after each decoded candidate frame.
+    Frames are decoded and written one at a time (bounded memory whatever the video's length);
+    blurred ones are removed once the median sharpness is known. ``progress(done, total)`` is
+    called after each decoded candidate frame.
     """
     video, scene = Path(video), Path(scene)
     index_path = scene / FRAMES_INDEX
     if index_path.is_file() and not force:
         log.info("%s exists: frames already extracted (use force to redo)", index_path)
         return read_frame_index(scene)
-    if not video.is_file():
-        raise InputError(video, None, "video file not found")
-    capture = cv2.VideoCapture(str(video))
-    if not capture.isOpened():
-        raise InputError(video, None, "OpenCV cannot open this video")
-    try:
-        n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-        fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
-        wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
-        wanted_set = set(wanted.tolist())
-        images: dict[int, np.ndarray] = {}
-        number = 0
-        while number <= (wanted[-1] if len(wanted) else -1):
-            if number in wanted_set:
-                ok, image = capture.read()
-                if not ok:
-                    break
-                images[number] = _resize(image, options.width)
-                if progress:
-                    progress(len(images), len(wanted))
-            elif not capture.grab():
-                break
-            number += 1
-    finally:
-        capture.release()
-    if not images:
-        raise InputError(video, None, "no frame could be decoded")
-    numbers = np.array(sorted(images), dtype=np.int64)
-    sharp = np.array([sharpness(images[k]) for k in numbers])
+    frames_dir = scene / FRAMES_DIR
+    numbers, sharp, size, fps = _stream_to_disk(video, frames_dir, options, progress)
     keep = sharp_mask(sharp, options.blur_ratio)
     skipped = tuple(int(k) for k in numbers[~keep])
     if skipped:
         log.warning("%s: %d of %d sampled frames are blurred (sharpness below %.2f × median) and "
                     "skipped: %s", video, len(skipped), len(numbers), options.blur_ratio, list(skipped)[:20])
-    frames_dir = scene / FRAMES_DIR
-    frames_dir.mkdir(parents=True, exist_ok=True)
-    names = []
-    for k in numbers[keep]:
-        name = f"frame_{k:05d}.jpg"
-        ok, data = cv2.imencode(".jpg", images[k], [cv2.IMWRITE_JPEG_QUALITY, options.jpeg_quality])
-        if not ok:
-            raise RuntimeError(f"cannot encode frame {k} as JPEG")
-        atomic_write_bytes(frames_dir / name, data.tobytes())
-        names.append(name)
-    h, w = images[numbers[0]].shape[:2]
+    for k in skipped:
+        (frames_dir / frame_name(k)).unlink(missing_ok=True)
     kept = numbers[keep]
-    index = FrameIndex(str(video), fps, (w, h), tuple(names), kept,
-                       kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped)
+    index = FrameIndex(str(video), fps, size, tuple(frame_name(k) for k in kept),
+                       kept, kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped)
     document = index.to_json()
     document["options"] = asdict(options)
     atomic_write_json(index_path, document, indent=1)
@@ -174,12 +203,9 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
 def read_frame_index(scene: str | Path) -> FrameIndex:
     """Read ``scene/frames.json``."""
     path = Path(scene) / FRAMES_INDEX
-    try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (run `mvm frames` first)") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    if not path.exists():
+        raise InputError(path, None, "file not found (run `mvm frames` first)")
+    data = load_json(path, root=scene)
     if not isinstance(data, dict) or data.get("format") != FRAMES_FORMAT:
         raise InputError(path, "format", f"expected {FRAMES_FORMAT!r}")
     try:
@@ -189,7 +215,7 @@ def read_frame_index(scene: str | Path) -> FrameIndex:
             tuple(str(f["file_name"]) for f in frames), np.array([int(f["frame"]) for f in frames], dtype=np.int64),
             np.array([float(f["timestamp_s"]) for f in frames]), np.array([float(f.get("sharpness", 0)) for f in frames]),
             tuple(int(k) for k in data.get("skipped_blurred", [])))
-    except (KeyError, TypeError, ValueError) as e:
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise InputError(path, "frames", f"malformed entry: {e}") from None
     for i, name in enumerate(index.names):
         check_name(name, path, f"frames[{i}].file_name")

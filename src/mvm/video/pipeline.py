@@ -4,7 +4,6 @@ skipped when they exist, unless forced (``force`` names the stages to redo, or `
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 from dataclasses import asdict, dataclass, field
@@ -14,8 +13,10 @@ from typing import Callable
 import numpy as np
 
 from mvm.core.config import Config
+from mvm.errors import InputError
+from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_replace_dir, atomic_write_json
-from mvm.video.detect import Detections, DetectOptions, detect_scene
+from mvm.video.detect import DetectOptions, FramePoses, detect_scene
 from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
 from mvm.video.scale import people_scale
 from mvm.video.sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
@@ -61,9 +62,10 @@ def _read_scale(scene: Path) -> float:
     if not path.is_file():
         return 1.0
     try:
-        return float(json.loads(path.read_text())["sfm_units_per_model_unit"])
-    except (OSError, KeyError, TypeError, ValueError, json.JSONDecodeError):
-        log.warning("%s: unreadable, assuming the model is in SfM units", path)
+        data = load_json_object(path, root=scene)
+        return number(data.get("sfm_units_per_model_unit"), path, "sfm_units_per_model_unit")
+    except InputError as e:
+        log.warning("%s; assuming the model is in SfM units", e)
         return 1.0
 
 
@@ -87,14 +89,14 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
     With ``metric_scale`` the model in ``sparse/`` and the 3D poses are multiplied by s*, so
     that the world is in metres; otherwise s* is only recorded.
     """
-    from mvm.io.scene_dir import poses3d_document, write_poses3d
+    from mvm.io.scene_dir import load_poses3d_document, poses3d_document, write_poses3d
     from mvm.scenes import reconstruct_dir
 
     scene = Path(scene)
     out = scene / output / "poses3d.json"
     if out.is_file() and not force:
         log.info("%s exists: already reconstructed (use force to redo)", out)
-        doc = json.loads(out.read_text())
+        doc = load_poses3d_document(out, root=scene)
         record = ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict) else ScaleRecord("none", None, None, False)
         return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
     config = config or Config()
@@ -124,7 +126,7 @@ class RunReport:
 
     frames: FrameIndex | None = None
     sfm: SfmReport | None = None
-    detections: Detections | None = None
+    detections: FramePoses | None = None
     reconstruction: ReconstructReport | None = None
     seconds: dict = field(default_factory=dict)
 
@@ -146,7 +148,8 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
 
     Args:
         video: the video file; scene: the scene directory to fill.
-        detections / checkpoint: imported 2D poses, or the network's checkpoint (one of them).
+        detections / checkpoint: imported 2D poses, or the mvm network's checkpoint; with
+            neither, ``detect_options.detector`` (``rtmo``, ``rtmpose``) detects them.
         cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
             camera file to use instead of SfM.
         force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;

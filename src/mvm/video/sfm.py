@@ -6,7 +6,6 @@ registered, the reprojection error and the trajectory) and the model in ``SCENE/
 """
 from __future__ import annotations
 
-import json
 import logging
 import tempfile
 from dataclasses import asdict, dataclass, field
@@ -15,7 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.images import check_frames, read_image
 from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
@@ -101,10 +102,64 @@ def _camera_params(model: str, focal: float, width: int, height: int) -> str:
 def _image_size(path: Path) -> tuple[int, int]:
     import cv2
 
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise InputError(path, None, "cannot read image")
+    image = read_image(path, flags=cv2.IMREAD_UNCHANGED)
     return image.shape[1], image.shape[0]
+
+
+def _extract_features(database: Path, frames_dir: Path, names: list[str], options: SfmOptions) -> None:
+    """SIFT features of the frames ``names`` into ``database`` (one camera shared by all)."""
+    import pycolmap
+
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = options.camera_model
+    if options.focal_px is not None:
+        w, h = _image_size(frames_dir / names[0])
+        reader.camera_params = _camera_params(options.camera_model, options.focal_px, w, h)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.use_gpu = False
+    extraction.num_threads = options.threads
+    extraction.max_image_size = options.max_image_size
+    extraction.sift.max_num_features = options.max_features
+    pycolmap.extract_features(database, frames_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+
+
+def _match_features(database: Path, frames: int, options: SfmOptions) -> None:
+    """Exhaustive matching up to ``options.exhaustive_max_frames`` frames, else sequential
+    (with loop detection when a vocabulary tree is given)."""
+    import pycolmap
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.use_gpu = False
+    matching.num_threads = options.threads
+    if frames <= options.exhaustive_max_frames:
+        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
+        return
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = options.overlap
+    if options.vocab_tree:
+        pairing.loop_detection = True
+        pairing.vocab_tree_path = str(options.vocab_tree)
+    pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
+                              device=pycolmap.Device.cpu)
+
+
+def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions):
+    """Incremental mapping -> the model that registers the most frames."""
+    import pycolmap
+
+    mapping = pycolmap.IncrementalPipelineOptions()
+    mapping.num_threads = options.threads
+    mapping.random_seed = options.seed
+    mapping.ba_refine_focal_length = options.refine_focal or options.focal_px is None
+    mapping.ba_refine_extra_params = options.camera_model not in ("SIMPLE_PINHOLE", "PINHOLE")
+    mapping.multiple_models = False
+    with tempfile.TemporaryDirectory(dir=work) as tmp:
+        models = pycolmap.incremental_mapping(database, frames_dir, tmp, mapping)
+    if not models:
+        raise InputError(frames_dir, None, "SfM found no model: too few matched features "
+                                           "(more texture, more frames or a higher max_features)")
+    return max(models.values(), key=lambda r: r.num_reg_images())
 
 
 def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool = False) -> SfmReport:
@@ -126,6 +181,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
         return read_sfm_report(scene)
     names = list_frames(scene)
     frames_dir = scene / FRAMES_DIR
+    check_frames(frames_dir, names, root=scene)
     if len(names) < 2:
         raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
     work = scene / SFM_DIR
@@ -133,52 +189,13 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     database = work / "database.db"
     database.unlink(missing_ok=True)
     seconds = {}
-
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = options.camera_model
-    if options.focal_px is not None:
-        w, h = _image_size(frames_dir / names[0])
-        reader.camera_params = _camera_params(options.camera_model, options.focal_px, w, h)
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.use_gpu = False
-    extraction.num_threads = options.threads
-    extraction.max_image_size = options.max_image_size
-    extraction.sift.max_num_features = options.max_features
     t = time.perf_counter()
-    pycolmap.extract_features(database, frames_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    seconds["features"] = time.perf_counter() - t
-
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.use_gpu = False
-    matching.num_threads = options.threads
-    t = time.perf_counter()
-    if len(names) <= options.exhaustive_max_frames:
-        pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
-    else:
-        pairing = pycolmap.SequentialPairingOptions()
-        pairing.overlap = options.overlap
-        if options.vocab_tree:
-            pairing.loop_detection = True
-            pairing.vocab_tree_path = str(options.vocab_tree)
-        pycolmap.match_sequential(database, matching_options=matching, pairing_options=pairing,
-                                  device=pycolmap.Device.cpu)
-    seconds["matching"] = time.perf_counter() - t
-
-    mapping = pycolmap.IncrementalPipelineOptions()
-    mapping.num_threads = options.threads
-    mapping.random_seed = options.seed
-    mapping.ba_refine_focal_length = options.refine_focal or options.focal_px is None
-    mapping.ba_refine_extra_params = options.camera_model not in ("SIMPLE_PINHOLE", "PINHOLE")
-    mapping.multiple_models = False
-    t = time.perf_counter()
-    with tempfile.TemporaryDirectory(dir=work) as tmp:
-        models = pycolmap.incremental_mapping(database, frames_dir, tmp, mapping)
+    _extract_features(database, frames_dir, names, options)
+    seconds["features"], t = time.perf_counter() - t, time.perf_counter()
+    _match_features(database, len(names), options)
+    seconds["matching"], t = time.perf_counter() - t, time.perf_counter()
+    rec = _map(database, frames_dir, work, options)
     seconds["mapping"] = time.perf_counter() - t
-    if not models:
-        raise InputError(frames_dir, None, "SfM found no model: too few matched features "
-                                           "(more texture, more frames or a higher max_features)")
-    rec = max(models.values(), key=lambda r: r.num_reg_images())
     atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
     report = _report(rec, names, "colmap")
     report.seconds = {k: round(v, 3) for k, v in seconds.items()}
@@ -212,14 +229,14 @@ def _warn_unregistered(report: SfmReport, scene: Path) -> None:
 
 def read_sfm_report(scene: str | Path) -> SfmReport:
     path = Path(scene) / SFM_DIR / SFM_REPORT
+    if not path.exists():
+        raise InputError(path, None, "file not found (run `mvm sfm` first)")
+    data = load_json_object(path, root=scene, what="an SfM report object")
+    data.pop("options", None)
     try:
-        data = json.loads(path.read_text())
-        data.pop("options", None)
         return SfmReport.from_json(data)
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found (run `mvm sfm` first)") from None
-    except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
-        raise InputError(path, None, f"cannot read: {e}") from None
+    except (TypeError, ValueError) as e:
+        raise InputError(path, None, f"not an SfM report: {e}") from None
 
 
 def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:

@@ -116,6 +116,7 @@ def calib_toml() -> None:
     _write("calib_toml/fisheye_string.toml", text.replace("fisheye = false", 'fisheye = "false"', 1))
     _write("calib_toml/matrix_strings.toml", text.replace(first_m, '[ [ "1000", 0.0, 640.0,], [ 0.0, 1000.0, 360.0,], [ 0.0, 0.0, 1.0,],]', 1))
     _write("calib_toml/no_camera.toml", "[metadata]\nadjusted = false\n")
+    _write("calib_toml/camera_without_matrix.toml", text.replace(f"matrix = {first_m}\n", "", 1))
 
 
 def trajectory() -> None:
@@ -244,6 +245,10 @@ def colmap_txt() -> None:
     _colmap_txt("frames_huge_data_count", "frames.txt", " 1 CAMERA 1 1\n", " 4000000000 CAMERA 1 1\n")
     _colmap_txt("points2d_not_triples", "images.txt", "f0000.jpg\n\n", "f0000.jpg\n1.0 2.0\n")
     _colmap_txt("point_not_number", "points3D.txt", "\n2 ", "\n2 x")
+    _colmap_txt("track_index_out_of_range", "points3D.txt", " 0 0 0 -1 \n", " 0 0 0 -1 2 7\n")
+    _colmap_txt("track_unknown_image", "points3D.txt", " 0 0 0 -1 \n", " 0 0 0 -1 9 0\n")
+    _colmap_txt("frames_missing", "frames.txt", "", "")
+    (HERE / "colmap_txt" / "frames_missing" / "frames.txt").unlink()
 
 
 def scene() -> None:
@@ -292,6 +297,8 @@ def poses3d() -> None:
     case("views_short", lambda d: d["persons"][1].update(views_per_joint=[3] * 16))
     case("member_string", lambda d: d["persons"][0]["members"].__setitem__(0, "1"))
     case("wrong_format", lambda d: d.update(format="mvm.poses3d/0"))
+    case("coordinate_huge", lambda d: d["persons"][1]["keypoints3d"][2].__setitem__(0, 1e308))
+    case("metrics_nan", lambda d: d["metrics"].update(E_R_px=float("nan")))
 
 
 def main() -> None:

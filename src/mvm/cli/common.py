@@ -1,0 +1,293 @@
+"""What every ``mvm`` command shares: the one-line error path, consoles, progress bars, recap
+tables, ``--set KEY=VALUE`` parsing and option types whose bounds are checked when read.
+
+Only ``click`` is imported at module level: ``mvm --help`` and ``mvm --version`` must not pay
+for rich, numpy or the pipeline. Everything heavier is imported where it is used.
+"""
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import sys
+from contextlib import contextmanager
+
+import click
+
+from mvm.core.config import Bounds
+from mvm.errors import InputError
+
+
+def refuse(error: Exception) -> None:
+    """Print ``error`` as the one line ``mvm: error: ...`` on stderr and exit with status 2."""
+    click.echo(f"mvm: error: {error}", err=True)
+    sys.exit(2)
+
+
+class _OneLineErrors:
+    """An :class:`~mvm.errors.InputError` escaping a command (its options included) ends in one
+    line and exit status 2, whether the command runs under ``mvm`` or on its own."""
+
+    def main(self, *args, **kwargs):
+        try:
+            return super().main(*args, **kwargs)
+        except InputError as e:
+            refuse(e)
+
+
+class Command(_OneLineErrors, click.Command):
+    pass
+
+
+class Group(_OneLineErrors, click.Group):
+    command_class = Command
+    group_class = type        # subgroups are of this class too
+
+
+def command(name: str | None = None, **kwargs):
+    """``click.command`` with the one-line error path."""
+    return click.command(name, cls=Command, **kwargs)
+
+
+@contextmanager
+def refused(*kinds: type[Exception]):
+    """Report an error of ``kinds`` from a library call as bad input (one line, exit 2)."""
+    try:
+        yield
+    except kinds as e:
+        if isinstance(e, InputError):
+            raise
+        raise InputError(None, None, str(e)) from None
+
+
+@functools.cache
+def out():
+    """The console of results (stdout)."""
+    from rich.console import Console
+
+    return Console()
+
+
+@functools.cache
+def err():
+    """The console of progress, warnings and errors (stderr)."""
+    from rich.console import Console
+
+    return Console(stderr=True)
+
+
+class LogHandler(logging.Handler):
+    """Log records on the stderr console through rich, which is imported at the first record
+    (so that configuring logging costs nothing at start-up)."""
+
+    @functools.cached_property
+    def _rich(self):
+        from rich.logging import RichHandler
+
+        return RichHandler(console=err(), show_time=False, show_path=False)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._rich.emit(record)
+
+
+def progress(*extra_columns):
+    """A transient rich progress bar on stderr: description, bar, done/total, ``extra_columns``, time."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), *extra_columns,
+                    TimeElapsedColumn(), console=err(), transient=True)
+
+
+def rate_column():
+    """A progress column of items (frames) per second."""
+    from rich.progress import ProgressColumn
+    from rich.text import Text
+
+    class Rate(ProgressColumn):
+        def render(self, task) -> Text:
+            return Text(f"{task.speed:.1f}/s" if task.speed else "", style="progress.data.speed")
+
+    return Rate()
+
+
+@contextmanager
+def stage_progress(*extra_columns):
+    """A progress bar with one task per stage; yields ``update(stage, done, total)``."""
+    with progress(*extra_columns) as bar:
+        tasks: dict[str, int] = {}
+
+        def update(stage: str, done: int, total: int | None) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        yield update
+
+
+def fmt(value, digits: int = 2, thousands: bool = False) -> str:
+    """A number for a recap table: ``–`` for None or NaN, ``digits`` decimals for a float."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    sep = "," if thousands else ""
+    if isinstance(value, float):
+        return f"{value:{sep}.{digits}f}"
+    if isinstance(value, int) and not isinstance(value, bool):
+        return f"{value:{sep}}"
+    return str(value)
+
+
+def measure_table(title: str, rows) -> None:
+    """Print a two-column recap (measure, value) of ``rows``: ``[(label, text), ...]``."""
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("measure")
+    table.add_column("value", justify="right")
+    for label, value in rows:
+        table.add_row(label, value)
+    out().print(table)
+
+
+def print_line(text: str, console=None, **style) -> None:
+    """Print ``text`` literally (no rich markup or highlighting), wrapped softly."""
+    (console or err()).print(text, markup=False, highlight=False, soft_wrap=True, **style)
+
+
+def parse_sets(pairs: tuple[str, ...], option: str = "--set") -> dict:
+    """``("tau=0.25", "up=+z", "backbone='resnet18'")`` -> ``{"tau": 0.25, "up": "+z", ...}``.
+
+    A value is read as a TOML value (numbers, booleans, quoted strings, ``inf``, ``nan``); a
+    bare word is a string. The settings' types and bounds are checked by whoever reads them.
+    """
+    import tomllib
+
+    values = {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise InputError(option, pair, "expected KEY=VALUE")
+        key, value = (s.strip() for s in pair.split("=", 1))
+        if not key:
+            raise InputError(option, pair, "expected KEY=VALUE")
+        try:
+            values[key] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError:
+            values[key] = value
+    return values
+
+
+class Number(click.ParamType):
+    """An int or float option whose bounds (:class:`mvm.core.config.Bounds`) are checked when
+    read; a bad value ends in one line naming the option, e.g. ``--width: must be >= 16, got 0``.
+    NaN and infinities are refused unless the bounds allow them."""
+
+    def __init__(self, kind: type = float, **bounds):
+        self.kind = kind
+        self.name = kind.__name__
+        self.bounds = Bounds(**bounds)
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, self.kind) and not isinstance(value, bool):
+            number = value
+        else:
+            try:
+                number = self.kind(value) if self.kind is float else int(str(value), 10)
+            except (TypeError, ValueError):
+                raise InputError(None, _option_name(param), f"expected {self.name}, got {value!r}") from None
+        problem = self.bounds.problem(number)
+        if problem:
+            raise InputError(None, _option_name(param), problem)
+        return number
+
+    def get_metavar(self, param, ctx=None):
+        return self.name.upper()
+
+    def __repr__(self):
+        return f"Number({self.name}, {self.bounds})"
+
+
+def _option_name(param) -> str:
+    if param is None:
+        return "value"
+    longest = max(param.opts, key=len) if getattr(param, "opts", None) else param.name
+    return longest.upper() if not longest.startswith("-") else longest
+
+
+def failure_line(item, error: BaseException) -> str:
+    """One line for ``error`` raised while handling ``item`` (a scene, a clip, an image): an
+    InputError names its file already; any other error is prefixed with the item and its type."""
+    if isinstance(error, InputError):
+        return str(error)
+    text = " ".join(str(error).split()) or "(no message)"
+    return f"{item}: {type(error).__name__}: {text}"
+
+
+def each_isolated(items, work, failed: list, console=None):
+    """Yield ``(item, work(item))`` for every item, each isolated from the others: any exception
+    while handling one item is that item's failure, appended to ``failed`` and printed as one
+    line (the traceback goes to the debug log, ``mvm -vv``), and the next item is done."""
+    for item in items:
+        try:
+            result = work(item)
+        except Exception as e:                      # one item's failure is not the run's
+            if not isinstance(e, InputError):
+                logging.getLogger("mvm").debug("%s failed", item, exc_info=True)
+            failed.append(item)
+            print_line(f"mvm: error: {failure_line(item, e)}", console)
+        else:
+            yield item, result
+
+
+def run_each(items, work, label: str = "") -> tuple[list, list]:
+    """:func:`each_isolated` under a progress bar; returns ``([(item, result)], [failed item])``."""
+    done, failed = [], []
+    items = list(items)
+    with progress() as bar:
+        task = bar.add_task(label, total=len(items))
+
+        def step(item):
+            bar.update(task, description=f"{label} {getattr(item, 'name', item)}".strip())
+            try:
+                return work(item)
+            finally:
+                bar.advance(task)
+
+        done = list(each_isolated(items, step, failed, bar.console))
+    return done, failed
+
+
+def report_failures(failed: list, total: int, kind: str = "scene") -> None:
+    """After a run over several inputs: how many failed, and exit status 2 when any did."""
+    if failed:
+        err().print(f"{len(failed)} of {total} {kind}(s) failed", style="red")
+        sys.exit(2)
+
+
+#: Option types of the frame selection and cameras, shared by ``frames``, ``run`` and ``batch``.
+RATE = Number(float, gt=0, le=1000)
+MAX_FRAMES = Number(int, ge=1)
+WIDTH = Number(int, ge=16, le=16384)
+FOCAL = Number(float, gt=0)
+SEED = Number(int, ge=0, le=2**63 - 1)
+
+
+def config_options(f):
+    """``--config``, ``--set`` and ``--refine/--no-refine`` of the reconstruction settings."""
+    for option in reversed([
+        click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+                     help="TOML file of settings (see the README's configuration reference)."),
+        click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                     help="Override one setting, e.g. --set tau=0.25 (repeatable)."),
+        click.option("--refine/--no-refine", default=None, help="Run the pose-prior refinement."),
+    ]):
+        f = option(f)
+    return f
+
+
+def read_config(config_path: str | None, sets: tuple[str, ...], **flags):
+    """The reconstruction :class:`~mvm.core.config.Config` of a TOML file, ``--set`` pairs and
+    command flags (a flag left at None keeps the file's value); every setting is checked here."""
+    from mvm.core.config import load_config
+
+    config = load_config(config_path, parse_sets(sets))
+    changes = {k: v for k, v in flags.items() if v is not None}
+    return config.replace(**changes) if changes else config

@@ -1,0 +1,37 @@
+"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dir`)."""
+from __future__ import annotations
+
+import click
+
+from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_each
+
+
+@command("reconstruct")
+@click.argument("scenes", nargs=-1, required=True, type=click.Path())
+@config_options
+@click.option("-o", "--output", default="mvm", show_default=True,
+              help="Name of the output folder inside each scene directory.")
+def reconstruct(scenes, config_path, sets, refine, output):
+    """Reconstruct the 3D poses of one or more scene directories.
+
+    Each SCENE holds sparse/ (a COLMAP model) and poses2d.json (COCO keypoints); the result is
+    written to SCENE/<output>/poses3d.json. A scene that fails, for whatever reason, is reported
+    in one line and the others are still done; the exit status is 2 if any scene failed.
+    """
+    from rich.table import Table
+
+    from mvm.scenes import reconstruct_dir
+
+    config = read_config(config_path, sets, refine=refine)
+    rows, failed = run_each(scenes, lambda scene: reconstruct_dir(scene, config, output), "reconstructing")
+    if rows:
+        table = Table(title="mvm reconstruct")
+        for column in ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s"):
+            table.add_column(column, justify="right" if column != "scene" else "left")
+        for scene, r in rows:
+            m = r.metrics
+            table.add_row(str(scene), str(m["persons"]), str(m["matched_poses"]), str(m["unmatched_poses"]),
+                          fmt(m["E_R_px"]), fmt(m["outliers"], 1), fmt(m["G_k"], 1),
+                          fmt(r.timings["read_s"] + r.timings["total_s"]))
+        out().print(table)
+    report_failures(failed, len(scenes))

@@ -1,0 +1,238 @@
+"""Completion of people: every joint of a person reconstructed, observed or not, and flagged.
+
+Two sources, used in this order:
+
+- **time** (:func:`interpolate_series`): a joint missing at some instants of a track is
+  interpolated (cubic Hermite, tangents from the neighbouring observations) between the track's neighbouring instants where it was observed, over gaps of at
+  most ``max_gap`` instants (never extrapolated past a track's ends);
+- **the body** (:func:`infer_missing`): a joint still missing is the conditional expectation of
+  the GMM pose prior (:mod:`mvm.core.prior`) given the person's present joints, computed in the
+  person's own canonical frame (pelvis origin, torso-length scale) and mapped back to the world.
+  A person lacking the joints that define that frame (a hip or a shoulder) is first given them
+  from the prior's component means aligned (similarity transform) to the present joints.
+
+Every joint carries a flag: :data:`OBSERVED`, :data:`INTERPOLATED`, :data:`INFERRED`, or
+:data:`MISSING` (too little of the person to complete). Arrays in, arrays out; no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.special import softmax
+
+from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.prior import body_frame
+
+MISSING, OBSERVED, INTERPOLATED, INFERRED = 0, 1, 2, 3
+#: The names of the flags, as written in ``poses3d.json`` / ``.jsonl`` (index = flag value).
+FLAG_NAMES = ("missing", "observed", "interpolated", "inferred")
+#: Joints that define a person's canonical frame.
+FRAME_JOINTS = np.array([LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER])
+
+
+def flag_names(flags: np.ndarray) -> list:
+    """``flags: (..., 17)`` integers -> nested lists of names (as written in the JSON files)."""
+    return np.asarray(FLAG_NAMES, dtype=object)[np.asarray(flags, dtype=int)].tolist()
+
+
+def parse_flags(names, field: str = "flags") -> np.ndarray:
+    """Flag names -> integers; an unknown name raises ``ValueError`` naming it and the known ones."""
+    lookup = {n: i for i, n in enumerate(FLAG_NAMES)}
+    try:
+        return np.array([lookup[n] for n in names], dtype=np.int8)
+    except (KeyError, TypeError):
+        bad = next((n for n in names if n not in lookup), names)
+        raise ValueError(f"{field}: unknown flag {bad!r} (known: {', '.join(FLAG_NAMES)})") from None
+
+
+def interpolate_series(series: np.ndarray, max_gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolation of one track along time: a cubic Hermite curve between the observations
+    on either side of a gap, with tangents from their neighbouring observations (the secant where
+    there are none), so a swinging limb follows its curve rather than the chord.
+
+    Args:
+        series: ``(L, J, 3)`` consecutive instants of one track, NaN where a joint (or the whole
+            person) is missing.
+        max_gap: the longest run of missing instants that is filled, in instants (0: none).
+    Returns:
+        ``(filled: (L, J, 3), interpolated: (L, J) bool)``. Only gaps with an observation on both
+        sides are filled; the ends of a track are never extrapolated.
+    """
+    series = np.asarray(series, dtype=float)
+    if series.ndim != 3 or series.shape[2] != 3:
+        raise ValueError(f"series: expected (L, J, 3), got {series.shape}")
+    if max_gap < 0:
+        raise ValueError(f"max_gap: must be >= 0, got {max_gap}")
+    L = len(series)
+    observed = np.isfinite(series).all(-1)                                        # (L, J)
+    index = np.arange(L)[:, None]
+    prev = np.maximum.accumulate(np.where(observed, index, -1), axis=0)             # (L, J)
+    nxt = np.minimum.accumulate(np.where(observed, index, L)[::-1], axis=0)[::-1]
+    fill = ~observed & (prev >= 0) & (nxt < L) & (nxt - prev - 1 <= max_gap)
+    out = series.copy()
+    if fill.any():
+        t, j = np.nonzero(fill)
+        p, n = prev[t, j], nxt[t, j]
+        a, b = series[p, j], series[n, j]                                           # (F, 3)
+        secant = (b - a) / (n - p)[:, None]                                          # per instant
+        # Tangents from the neighbouring observations where there are some, else the secant.
+        before = (p >= 1) & observed[np.maximum(p - 1, 0), j]
+        after = (n + 1 < L) & observed[np.minimum(n + 1, L - 1), j]
+        da = np.where(before[:, None], a - series[np.maximum(p - 1, 0), j], secant)
+        db = np.where(after[:, None], series[np.minimum(n + 1, L - 1), j] - b, secant)
+        h = (n - p).astype(float)
+        s = ((t - p) / h)[:, None]
+        # Cubic Hermite between the two observations (tangents in units of the gap).
+        out[t, j] = ((2 * s ** 3 - 3 * s ** 2 + 1) * a + (s ** 3 - 2 * s ** 2 + s) * h[:, None] * da
+                     + (-2 * s ** 3 + 3 * s ** 2) * b + (s ** 3 - s ** 2) * h[:, None] * db)
+    return out, fill
+
+
+def _align(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Similarity transforms (Umeyama) of ``source: (L, K, 3)`` onto ``target: (K, 3)``:
+    ``(s: (L,), R: (L, 3, 3), t: (L, 3))`` with ``target ≈ s R source + t``."""
+    mu_s = source.mean(1, keepdims=True)
+    mu_t = target.mean(0)
+    a, b = source - mu_s, target - mu_t
+    cov = np.einsum("ki,lkj->lij", b, a) / len(target)                            # (L, 3, 3)
+    U, S, Vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(U @ Vt))
+    D = np.ones((len(source), 3))
+    D[:, 2] = d
+    R = (U * D[:, None, :]) @ Vt
+    var = (a ** 2).sum((1, 2)) / len(target)
+    s = (S * D).sum(1) / np.maximum(var, 1e-12)
+    t = mu_t - s[:, None] * np.einsum("lij,lj->li", R, mu_s[:, 0])
+    return s, R, t
+
+
+def _frame_from_means(pose: np.ndarray, means: np.ndarray) -> np.ndarray:
+    """``pose: (17, 3)`` with NaN, ``means: (L, 17, 3)`` canonical -> the pose with its missing
+    joints taken from the component mean that aligns best to its present joints."""
+    present = np.isfinite(pose).all(-1)
+    s, R, t = _align(means[:, present], pose[present])
+    placed = s[:, None, None] * np.einsum("lij,lkj->lki", R, means) + t[:, None]   # (L, 17, 3)
+    residual = np.linalg.norm(placed[:, present] - pose[present], axis=-1).mean(1)
+    best = placed[int(np.argmin(residual))]
+    return np.where(present[:, None], pose, best)
+
+
+def conditional_mean(prior, canonical: np.ndarray) -> np.ndarray:
+    """``E[x_missing | x_present]`` under the GMM prior. ``canonical: (P, 17, 3)`` with NaN for
+    missing joints -> ``(P, 17, 3)`` with the missing joints filled (present ones unchanged).
+
+    Per component ``l``: ``μ_m + Σ_mo Σ_oo⁻¹ (x_o − μ_o)``; the components are weighted by their
+    posterior given the present joints (the marginal likelihoods of :meth:`PosePrior.log_weighted_densities`).
+    Persons without any present joint are returned unchanged.
+    """
+    canonical = np.asarray(canonical, dtype=float)
+    present = np.isfinite(canonical).all(-1)                                      # (P, 17)
+    out = canonical.copy()
+    todo = present.any(1) & ~present.all(1)
+    if not todo.any():
+        return out
+    rows_all = np.flatnonzero(todo)
+    responsibility = softmax(prior.log_weighted_densities(np.where(present[rows_all, :, None],
+                                                                   canonical[rows_all], np.nan)), axis=1)
+    patterns, inverse = np.unique(present[rows_all], axis=0, return_inverse=True)
+    flat = canonical.reshape(len(canonical), 3 * NUM_JOINTS)
+    for k, pattern in enumerate(patterns):
+        sel = np.flatnonzero(inverse.reshape(-1) == k)
+        rows = rows_all[sel]
+        o = np.repeat(pattern, 3)
+        m = ~o
+        x_o = flat[np.ix_(rows, o)]                                                # (n, K)
+        estimate = np.zeros((len(rows), m.sum()))
+        for component in range(prior.components):
+            cov = prior.covariances[component]
+            mean = prior.means[component]
+            gain = cho_solve(cho_factor(cov[np.ix_(o, o)]), cov[np.ix_(o, m)]).T      # (M, K)
+            estimate += responsibility[sel, component, None] * (mean[m] + (x_o - mean[o]) @ gain.T)
+        filled = flat[rows].copy()
+        filled[:, m] = estimate
+        out[rows] = filled.reshape(len(rows), NUM_JOINTS, 3)
+    return out
+
+
+def infer_missing(X: np.ndarray, prior, min_joints: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Joints a person lacks, inferred from the rest of its body with the pose prior.
+
+    Args:
+        X: ``(P, 17, 3)`` world joints, NaN where missing.
+        prior: a :class:`mvm.core.prior.PosePrior`.
+        min_joints: persons with fewer present joints are left as they are.
+    Returns:
+        ``(X_completed: (P, 17, 3), inferred: (P, 17) bool)``.
+    """
+    X = np.asarray(X, dtype=float)
+    if X.ndim != 3 or X.shape[1:] != (NUM_JOINTS, 3):
+        raise ValueError(f"X: expected (P, 17, 3), got {X.shape}")
+    present = np.isfinite(X).all(-1)
+    todo = ~present.all(1) & (present.sum(1) >= max(min_joints, 3))
+    out = X.copy()
+    inferred = np.zeros(present.shape, dtype=bool)
+    if not todo.any():
+        return out, inferred
+    rows = np.flatnonzero(todo)
+    posed = X[rows]
+    rotation, centre, scale = body_frame(posed)
+    no_frame = ~np.isfinite(scale)
+    if no_frame.any():
+        means = prior.means.reshape(-1, NUM_JOINTS, 3)
+        seeded = np.array([_frame_from_means(posed[i], means) for i in np.flatnonzero(no_frame)])
+        r2, c2, s2 = body_frame(seeded)
+        rotation[no_frame], centre[no_frame], scale[no_frame] = r2, c2, s2
+    ok = np.isfinite(scale)
+    rows, rotation, centre, scale, posed = rows[ok], rotation[ok], centre[ok], scale[ok], posed[ok]
+    canonical = np.einsum("pij,pkj->pki", rotation, posed - centre[:, None]) / scale[:, None, None]
+    completed = conditional_mean(prior, canonical)
+    world = np.einsum("pji,pkj->pki", rotation, completed * scale[:, None, None]) + centre[:, None]
+    missing = ~present[rows]
+    out[rows] = np.where(missing[..., None], world, posed)
+    inferred[rows] = missing & np.isfinite(world).all(-1)
+    out[~np.isfinite(out).all(-1)] = np.nan
+    return out, inferred
+
+
+def complete_persons(X: np.ndarray, prior=None, min_joints: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Complete the persons of one scene (no time: the prior only). ``X: (P, 17, 3)`` ->
+    ``(X: (P, 17, 3), flags: (P, 17) int8)``; without a prior only the flags are computed."""
+    X = np.asarray(X, dtype=float)
+    flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
+    if prior is None:
+        return X.copy(), flags
+    out, inferred = infer_missing(X, prior, min_joints)
+    flags[inferred] = INFERRED
+    return out, flags
+
+
+def complete_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, max_gap: int,
+                    prior=None, min_joints: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Complete the persons of a tracked sequence: time first, then the prior.
+
+    Args:
+        X: ``(Q, 17, 3)`` persons, NaN where missing; instant, track: ``(Q,)`` integers.
+        max_gap: longest gap filled by interpolation, in instants.
+        prior: the pose prior for what time cannot fill (None: time only).
+    Returns:
+        ``(X: (Q, 17, 3), flags: (Q, 17) int8)``.
+    """
+    X = np.asarray(X, dtype=float)
+    instant = np.asarray(instant)
+    track = np.asarray(track)
+    out = X.copy()
+    flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
+    if len(X) and max_gap > 0:
+        order = np.lexsort((instant, track))
+        bounds = np.flatnonzero(np.diff(track[order])) + 1
+        for rows in np.split(order, bounds):
+            t0 = instant[rows].min()
+            series = np.full((instant[rows].max() - t0 + 1, NUM_JOINTS, 3), np.nan)
+            series[instant[rows] - t0] = X[rows]
+            filled, interpolated = interpolate_series(series, max_gap)
+            out[rows] = filled[instant[rows] - t0]
+            flags[rows] = np.where(interpolated[instant[rows] - t0], INTERPOLATED, flags[rows])
+    if prior is not None:
+        out, inferred = infer_missing(out, prior, min_joints)
+        flags[inferred] = INFERRED
+    return out, flags

@@ -1,0 +1,41 @@
+"""Frames of a scene read the guarded way (:func:`mvm.io.checks.read_bytes`): a regular file
+inside the scene directory, of bounded size, decoded from memory by OpenCV."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mvm.errors import InputError
+from mvm.io.checks import check_input_file, read_bytes
+
+MAX_IMAGE_BYTES = 512 * 2 ** 20
+"""The largest image file a reader decodes (bytes)."""
+NOT_AN_IMAGE = "not an image OpenCV can decode"
+"""The problem of an :class:`InputError` for a regular file that does not decode (a reader of
+many frames may skip such a frame; every other refusal stands)."""
+
+
+def read_image(path: str | Path, root: str | Path | None = None, flags: int | None = None,
+               missing_ok: bool = False) -> np.ndarray | None:
+    """The image ``path`` (inside ``root`` when given) as OpenCV decodes it, ``(H, W, 3)`` uint8
+    BGR by default (``flags``: a ``cv2.IMREAD_*`` value). A file that is missing (unless
+    ``missing_ok``: None), not regular, outside ``root``, too large or not an image raises
+    :class:`InputError` naming it."""
+    import cv2
+
+    if missing_ok and not (Path(path).exists() or Path(path).is_symlink()):
+        return None
+    data = read_bytes(path, root, limit=MAX_IMAGE_BYTES)
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR if flags is None else flags)
+    if image is None:
+        raise InputError(path, None, NOT_AN_IMAGE)
+    return image
+
+
+def check_frames(frames_dir: str | Path, names, root: str | Path) -> None:
+    """Refuse (:class:`InputError`) the first of the frames ``frames_dir/NAME`` that is not a
+    regular file inside ``root`` of bounded size, before a library that opens them itself
+    (COLMAP's feature extraction) sees them."""
+    for name in names:
+        check_input_file(Path(frames_dir) / name, root, limit=MAX_IMAGE_BYTES)

@@ -1,0 +1,119 @@
+"""One rigid skeleton per track: robust bone lengths over a track's instants, and the rig's
+refinement of every person against its 2D keypoints, the pose prior and its track's bones.
+
+Pure numpy (and the core refinement); no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mvm.core.keypoints import BONES
+from mvm.core.quality import reprojection_errors
+from mvm.core.scene import Cameras, Poses2D
+from mvm.rig.instants import InstantPersons
+
+_BONES = np.array(BONES)
+
+
+def bone_lengths(X: np.ndarray) -> np.ndarray:
+    """``X: (Q, 17, 3)`` -> ``(Q, B)`` lengths of :data:`mvm.core.keypoints.BONES` (NaN where an
+    end is missing)."""
+    X = np.asarray(X, dtype=float)
+    return np.linalg.norm(X[:, _BONES[:, 0]] - X[:, _BONES[:, 1]], axis=-1)
+
+
+def track_bone_lengths(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> np.ndarray:
+    """The median length of every bone over each track's instants, given to each person.
+
+    ``X: (Q, 17, 3)`` (NaN: missing), ``track: (Q,)`` -> ``(Q, B)``; NaN for a bone seen at fewer
+    than ``min_count`` instants of its track. The median ignores the instants where a swap or an
+    outlier bent a bone."""
+    lengths = bone_lengths(X)                                                     # (Q, B)
+    track = np.asarray(track)
+    ids, index = np.unique(track, return_inverse=True)
+    Q, B = lengths.shape
+    key = (index[:, None] * B + np.arange(B)).ravel()                             # (Q B,)
+    values = lengths.ravel()
+    ok = np.isfinite(values)
+    key, values = key[ok], values[ok]
+    n = len(ids) * B
+    order = np.lexsort((values, key))
+    counts = np.bincount(key, minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    median = np.full(n, np.nan)
+    has = counts >= max(min_count, 1)
+    sorted_values = values[order]
+    median[has] = 0.5 * (sorted_values[(starts + (counts - 1) // 2)[has]] + sorted_values[(starts + counts // 2)[has]])
+    return median.reshape(len(ids), B)[index]
+
+
+def bone_length_cv(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> np.ndarray:
+    """Coefficient of variation (std / mean) of every bone within every track: ``(K, B)`` for the
+    ``K`` tracks in id order, NaN where a bone has fewer than ``min_count`` lengths."""
+    lengths = bone_lengths(X)
+    out = []
+    for k in np.unique(track):
+        L = lengths[np.asarray(track) == k]
+        count = np.isfinite(L).sum(0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cv = np.nanstd(L, axis=0) / np.nanmean(L, axis=0) if len(L) else np.full(L.shape[1], np.nan)
+        out.append(np.where(count >= min_count, cv, np.nan))
+    return np.array(out).reshape(-1, len(BONES))
+
+
+def observations(persons: InstantPersons, detections: Poses2D, cameras: Cameras,
+                 keypoint_threshold: float = 0.0):
+    """The 2D keypoints each person was triangulated from, per camera.
+
+    Returns ``xy: (Q, V, 17, 2)``, ``conf: (Q, V, 17)`` (0 where no keypoint),
+    ``P: (Q, V, 3, 4)`` (zeros where the camera has no member) and ``used: (Q, V, 17)`` (the
+    triangulation's inliers)."""
+    members = persons.members                                                     # (Q, V)
+    has = members >= 0
+    kp = detections.keypoints[np.maximum(members, 0)]                             # (Q, V, 17, 3)
+    conf = np.where(has[..., None] & (kp[..., 2] >= keypoint_threshold), kp[..., 2], 0.0)
+    P = np.where(has[..., None, None], cameras.P[None], 0.0)
+    return kp[..., :2], conf, P, persons.inliers & has[..., None] & (conf > 0)
+
+
+def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: Cameras) -> InstantPersons:
+    """``persons`` with joints ``X: (Q, 17, 3)`` and their reprojection errors recomputed."""
+    xy, _, P, used = observations(persons, detections, cameras)
+    errors = np.where(persons.valid, reprojection_errors(X, xy, P), np.nan)
+    used = used & np.isfinite(X).all(-1)[:, None, :]
+    n = used.sum((1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        person_error = np.where(n > 0, np.where(used, errors, 0.0).sum((1, 2)) / n, np.nan)
+    return InstantPersons(X, persons.instant, persons.scores, persons.members, persons.inliers, persons.valid,
+                          errors, person_error)
+
+
+def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
+                  config, prior=None, bone_weight: float = 20000.0, batch_size: int = 16) -> InstantPersons:
+    """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
+    (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
+    ``bone_weight``, px² per squared relative length error). ``config``: a
+    :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Persons are solved
+    ``batch_size`` instants at a time (they are independent once the lengths are fixed; small
+    problems keep the iterative solver's steps few)."""
+    from threadpoolctl import threadpool_limits
+
+    from mvm.core.refine import refine_poses
+
+    if not len(persons):
+        return persons
+    lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
+    xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
+    X = persons.X.copy()
+    bounds = np.searchsorted(persons.instant, np.arange(persons.instant.min(), persons.instant.max() + batch_size,
+                                                        batch_size))
+    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
+        for lo, hi in zip(bounds[:-1], bounds[1:]):
+            if hi <= lo:
+                continue
+            s = slice(lo, hi)
+            X[s] = refine_poses(persons.X[s], xy[s], conf[s], P[s], used[s], prior, config.prior_weight,
+                                config.robust_scale_px, config.refine_max_iterations,
+                                bone_lengths=lengths[s], bone_weight=bone_weight).X
+    X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)
+    return refit(persons, X, detections, cameras)

@@ -1,0 +1,198 @@
+"""Published ONNX models of the 2D pose detectors and the local cache that holds them.
+
+A model is a local file (``--model PATH``: an ``.onnx`` file, or the published ``.zip`` that
+holds one) or the model's published URL, downloaded on first use into the cache folder:
+``$MVM_CACHE/models`` when ``MVM_CACHE`` is set, else ``$XDG_CACHE_HOME/mvm/models`` (by
+default ``~/.cache/mvm/models``). A download is verified against the model's SHA-256 when it is
+known, and its SHA-256 is recorded beside it (``NAME.sha256``) and checked at every later use, so
+a corrupted cache is found; it is written atomically: an interrupted or corrupted download leaves
+no file behind. Offline, the error names the file to fetch and where to put it. (The 8 hex
+digits in OpenMMLab's ONNX file names are those of the PyTorch checkpoint, not of the zip.)
+
+The URLs are the ones RTMLib (``rtmlib.tools.solution.body.Body``) uses.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+from urllib.error import URLError
+from urllib.request import urlopen
+
+from mvm.errors import InputError
+
+log = logging.getLogger(__name__)
+
+_MMPOSE = "https://download.openmmlab.com/mmpose/v1/projects"
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """A published model: ``url`` of its zip (holding one ``.onnx``), the network's input
+    ``size`` (width, height) in pixels, the input normalization (None: raw 0-255 BGR) and the
+    zip's SHA-256 when it is published (None: recorded at the first download, checked after)."""
+
+    name: str
+    url: str
+    size: tuple[int, int]
+    mean: tuple[float, float, float] | None = None
+    std: tuple[float, float, float] | None = None
+    sha256: str | None = None
+
+
+_IMAGENET = {"mean": (123.675, 116.28, 103.53), "std": (58.395, 57.12, 57.375)}
+
+#: RTMLib's three modes: the model sizes each detector uses.
+MODES = ("lightweight", "balanced", "performance")
+
+#: RTMO (one-stage, bottom-up) body models trained on Body7, COCO-17 keypoints.
+RTMO = {
+    "lightweight": ModelSpec("rtmo-s", f"{_MMPOSE}/rtmo/onnx_sdk/rtmo-s_8xb32-600e_body7-640x640-dac2bf74_20231211.zip",
+                   (640, 640)),
+    "balanced": ModelSpec("rtmo-m", f"{_MMPOSE}/rtmo/onnx_sdk/rtmo-m_16xb16-600e_body7-640x640-39e78cc4_20231211.zip",
+                   (640, 640)),
+    "performance": ModelSpec("rtmo-l", f"{_MMPOSE}/rtmo/onnx_sdk/rtmo-l_16xb16-600e_body7-640x640-b37118ce_20231211.zip",
+                   (640, 640)),
+}
+#: RTMPose (top-down) body models trained on Body7, COCO-17 keypoints.
+RTMPOSE = {
+    "lightweight": ModelSpec("rtmpose-s", f"{_MMPOSE}/rtmposev1/onnx_sdk/"
+                   "rtmpose-s_simcc-body7_pt-body7_420e-256x192-acd4a1ef_20230504.zip", (192, 256), **_IMAGENET),
+    "balanced": ModelSpec("rtmpose-m", f"{_MMPOSE}/rtmposev1/onnx_sdk/"
+                   "rtmpose-m_simcc-body7_pt-body7_420e-256x192-e48f03d0_20230504.zip", (192, 256), **_IMAGENET),
+    "performance": ModelSpec("rtmpose-x", f"{_MMPOSE}/rtmposev1/onnx_sdk/"
+                   "rtmpose-x_simcc-body7_pt-body7_700e-384x288-71d7b7e9_20230629.zip", (288, 384), **_IMAGENET),
+}
+#: YOLOX person detectors (trained on HumanArt) that give RTMPose its boxes.
+YOLOX = {
+    "lightweight": ModelSpec("yolox-tiny", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_tiny_8xb8-300e_humanart-6f3252f9.zip",
+                   (416, 416)),
+    "balanced": ModelSpec("yolox-m", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_m_8xb8-300e_humanart-c2c7a14a.zip", (640, 640)),
+    "performance": ModelSpec("yolox-x", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_x_8xb8-300e_humanart-a39d44ed.zip", (640, 640)),
+}
+
+
+def cache_dir() -> Path:
+    """The folder downloaded models are kept in: ``$MVM_CACHE/models``, else
+    ``$XDG_CACHE_HOME/mvm/models`` (``~/.cache/mvm/models``)."""
+    if os.environ.get("MVM_CACHE"):
+        return Path(os.environ["MVM_CACHE"]).expanduser() / "models"
+    base = os.environ.get("XDG_CACHE_HOME") or "~/.cache"
+    return Path(base).expanduser() / "mvm" / "models"
+
+
+def sha256(path: str | Path) -> str:
+    """Hex SHA-256 of a file."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def download(url: str, target: str | Path, expected_sha256: str | None = None,
+             progress: Callable[[int, int], None] | None = None, timeout_s: float = 60.0) -> Path:
+    """Download ``url`` to ``target`` atomically (a temporary file in the same folder, renamed
+    once complete and verified). ``expected_sha256``: the file's SHA-256 (or its leading hex
+    digits); the digest is also written to ``target.sha256``. Raises :class:`InputError` naming the URL and the target when the download fails
+    or the checksum differs; no file is left at ``target`` or beside it then."""
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    digest = hashlib.sha256()
+    try:
+        with os.fdopen(fd, "wb") as out, urlopen(url, timeout=timeout_s) as response:
+            total = int(response.headers.get("Content-Length") or 0)
+            done = 0
+            for block in iter(lambda: response.read(1 << 20), b""):
+                out.write(block)
+                digest.update(block)
+                done += len(block)
+                if progress:
+                    progress(done, total)
+            if total and done != total:
+                raise InputError(url, None, f"download interrupted after {done} of {total} bytes; "
+                                            f"fetch it by hand into {target}")
+            out.flush()
+            os.fsync(out.fileno())
+        if expected_sha256 and not digest.hexdigest().startswith(expected_sha256.lower()):
+            raise InputError(url, None, f"checksum mismatch: SHA-256 {digest.hexdigest()[:16]}… is not "
+                                        f"{expected_sha256[:16]}…; the file was not kept")
+        _sidecar(target).write_text(digest.hexdigest() + "\n")
+        os.replace(tmp, target)
+    except InputError:
+        raise
+    except (URLError, OSError, ValueError) as e:
+        reason = getattr(e, "reason", None) or e
+        raise InputError(url, None, f"cannot download ({reason}): fetch this file and put it at {target}, "
+                                    "or pass its path with --model") from None
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return target
+
+
+def _sidecar(path: Path) -> Path:
+    return path.with_name(path.name + ".sha256")
+
+
+def verify_cached(path: Path, expected_sha256: str | None = None) -> str:
+    """The SHA-256 of a cached file, checked against ``expected_sha256`` and the digest
+    recorded at its download; a mismatch is an :class:`InputError` that says to delete it."""
+    digest = sha256(path)
+    recorded = _sidecar(path).read_text().strip() if _sidecar(path).is_file() else None
+    for want in (expected_sha256, recorded):
+        if want and not digest.startswith(want.lower()):
+            raise InputError(path, None, f"checksum mismatch (SHA-256 {digest[:16]}…, expected {want[:16]}…): "
+                                         "the cached file is corrupt; delete it to download it again")
+    return digest
+
+
+def onnx_in_zip(archive: Path, folder: Path | None = None) -> Path:
+    """The ``.onnx`` file of a published zip, extracted (once) into ``folder`` (default: beside
+    the zip, named as it) -> its path."""
+    folder = folder or archive.with_suffix("")
+    found = sorted(folder.rglob("*.onnx")) if folder.is_dir() else []
+    if found:
+        return found[0]
+    try:
+        with zipfile.ZipFile(archive) as z:
+            members = [m for m in z.namelist() if m.endswith(".onnx")]
+            if not members:
+                raise InputError(archive, None, "the archive holds no .onnx model")
+            with tempfile.TemporaryDirectory(dir=archive.parent) as tmp:
+                z.extract(members[0], tmp)
+                folder.mkdir(parents=True, exist_ok=True)
+                target = folder / Path(members[0]).name
+                os.replace(Path(tmp) / members[0], target)
+    except zipfile.BadZipFile as e:
+        raise InputError(archive, None, f"not a zip archive: {e}") from None
+    return target
+
+
+def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
+                  progress: Callable[[int, int], None] | None = None) -> Path:
+    """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx``, or the published
+    ``.zip``, extracted into the cache), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
+    false, in which case a missing file is an :class:`InputError` naming what to fetch)."""
+    if path is not None:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(path, None, "model file not found")
+        if path.suffix.lower() != ".zip":
+            return path
+        return onnx_in_zip(path, cache_dir() / f"{path.stem}-{sha256(path)[:12]}")
+    archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
+    if not archive.is_file():
+        if not download_ok:
+            raise InputError(archive, None, f"model not in the cache: fetch {spec.url} and put it here")
+        log.info("downloading %s to %s", spec.url, archive)
+        download(spec.url, archive, spec.sha256, progress)
+    else:
+        verify_cached(archive, spec.sha256)
+    return onnx_in_zip(archive)

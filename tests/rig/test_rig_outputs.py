@@ -1,0 +1,154 @@
+"""The rig's outputs: complete people with flags in poses3d.jsonl, .trc files that carry only
+observed and interpolated markers and say so, --no-complete, and the output set as one unit."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from test_rig_dir import _write_rig
+
+from mvm.cli.rig import rig
+from mvm.core.config import Config
+from mvm.errors import InputError
+from mvm.io.trc import read_trc, to_opensim
+from mvm.rig.options import RigOptions
+from mvm.rig.pipeline import reconstruct_rig
+
+
+def _lines(folder):
+    return [json.loads(line) for line in (folder / "poses3d.jsonl").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def rig_dir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rig")
+    cameras, truth = _write_rig(root, T=12)
+    # hide the left wrist of every camera's detections at instants 7..9: no view sees it
+    for path in (root / "pose").glob("*/*_keypoints.json"):
+        frame = int(path.stem.split("_")[-2])
+        if 7 <= frame <= 9:
+            data = json.loads(path.read_text())
+            for person in data["people"]:
+                person["pose_keypoints_2d"][3 * 7:3 * 7 + 3] = [0, 0, 0]   # BODY25 LWrist
+            path.write_text(json.dumps(data))
+    return root, truth
+
+
+def test_complete_people_are_flagged(rig_dir, tmp_path):
+    root, truth = rig_dir
+    result = reconstruct_rig(root, Config(refine=False), output=tmp_path / "out")
+    lines = _lines(tmp_path / "out")
+    persons = [p for line in lines for p in line["persons"]]
+    assert all(None not in sum(p["keypoints3d"], []) for p in persons)     # all 17 joints everywhere
+    wrist = [p["flags"][9] for line in lines[7:10] for p in line["persons"]]
+    assert wrist and set(wrist) == {"interpolated"}
+    assert {f for p in persons for f in p["flags"]} <= {"observed", "interpolated", "inferred"}
+    for p, line in ((p, line) for line in lines[7:10] for p in line["persons"]):
+        views = p["views_per_joint"]
+        assert views[9] == 0                                               # not seen by any camera
+        x = np.array(p["keypoints3d"][9][:3])
+        assert np.linalg.norm(truth[line["frame"], :, 9] - x, axis=-1).min() < 0.05
+    recap = json.loads((tmp_path / "out" / "recap.json").read_text())
+    assert recap["joint_flags"]["interpolated"] > 0 and recap["joint_flags"]["missing"] == 0
+    assert recap["tracks"] == 2 and result.flags.shape == (len(result.persons), 17)
+    for path in sorted((tmp_path / "out" / "tracks").glob("*.trc")):
+        trc = read_trc(path)
+        assert "interpolated" in trc.comment and "30 frames" in trc.comment
+        assert np.isfinite(trc.points).all()                               # every marker at every frame
+        expected = to_opensim(truth, "+z")                                   # (T, G, 17, 3)
+        err = np.linalg.norm(trc.points[:, None] - expected, axis=-1).mean(axis=(0, 2))
+        assert err.min() < 0.05
+
+
+def test_no_complete_keeps_nulls(rig_dir, tmp_path):
+    root, _ = rig_dir
+    out = tmp_path / "plain"
+    result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "--no-complete", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    lines = _lines(out)
+    wrist = [p["keypoints3d"][9] for line in lines[7:10] for p in line["persons"]]
+    assert wrist and all(w == [None, None, None, 0.0] for w in wrist)
+    assert {p["flags"][9] for line in lines[7:10] for p in line["persons"]} == {"missing"}
+    trc = read_trc(next((out / "tracks").glob("*.trc")))
+    assert np.isnan(trc.points[7:10, 9]).all() and "left empty" in trc.comment
+
+
+def test_inferred_joints_stay_out_of_trc_unless_asked(tmp_path):
+    root = tmp_path / "rig"
+    root.mkdir()
+    _write_rig(root, T=6)
+    for path in (root / "pose").glob("*/*_keypoints.json"):                # no camera sees a right ankle
+        data = json.loads(path.read_text())
+        for person in data["people"]:
+            person["pose_keypoints_2d"][3 * 11:3 * 11 + 3] = [0, 0, 0]     # BODY25 RAnkle
+        path.write_text(json.dumps(data))
+    reconstruct_rig(root, Config(refine=False), output=tmp_path / "a")
+    line = _lines(tmp_path / "a")[0]
+    assert {p["flags"][16] for p in line["persons"]} == {"inferred"}
+    trc = read_trc(next((tmp_path / "a" / "tracks").glob("*.trc")))
+    assert np.isnan(trc.points[:, 16]).all() and np.isfinite(trc.points[:, 15]).all()
+    reconstruct_rig(root, Config(refine=False), RigOptions(trc_inferred=True), output=tmp_path / "b")
+    trc = read_trc(next((tmp_path / "b" / "tracks").glob("*.trc")))
+    assert np.isfinite(trc.points[:, 16]).all() and "inferred" in trc.comment
+
+
+def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
+    root, _ = rig_dir
+    out = tmp_path / "set"
+    reconstruct_rig(root, Config(refine=False), output=out)
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    # a run that fails while writing its .trc files leaves the previous set untouched
+    import mvm.rig.pipeline as pipeline
+
+    def broken(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pipeline, "write_tracks", broken)
+    with pytest.raises(InputError, match="no space left"):
+        reconstruct_rig(root, Config(refine=False), output=out)
+    monkeypatch.undo()
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert [p.name for p in tmp_path.iterdir()] == ["set"]                 # no temporary folder left
+    # a killed run's folders are removed by the next run; a shorter run leaves no .trc of the
+    # longer one
+    (tmp_path / ".set.k2j4h_x").mkdir()                                   # as atomic_replace_dir names them
+    (tmp_path / ".set.k2j4h_x" / "poses3d.jsonl").write_text("partial")
+    (tmp_path / ".set.old.12345").mkdir()
+    (out / "tracks" / "track_7.trc").write_text("stale")
+    reconstruct_rig(root, Config(refine=False), frames="0:6", output=out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
+    assert not (out / "tracks" / "track_7.trc").exists()
+    assert len(_lines(out)) == 6 and json.loads((out / "recap.json").read_text())["instants"] == 6
+
+
+def test_output_that_cannot_be_written_is_one_line(rig_dir, tmp_path):
+    root, _ = rig_dir
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        reconstruct_rig(root, Config(refine=False), output=tmp_path / "file")
+    if os.geteuid() != 0:
+        locked = tmp_path / "locked"
+        locked.mkdir()
+        locked.chmod(0o500)
+        try:
+            with pytest.raises(InputError, match="cannot write"):
+                reconstruct_rig(root, Config(refine=False), output=locked / "out")
+        finally:
+            locked.chmod(0o700)
+
+
+def test_cutoff_follows_frame_rate_and_stays_below_nyquist():
+    assert RigOptions().cutoff == 6.0 and RigOptions(frame_rate=10).cutoff == 2.0
+    with pytest.raises(ValueError, match="cutoff_hz.*Nyquist"):
+        RigOptions(frame_rate=10, cutoff_hz=6)
+    with pytest.raises(ValueError, match="cutoff_hz"):
+        RigOptions(cutoff_hz=float("inf"))
+    RigOptions(frame_rate=10, cutoff_hz=6, smoothing="none")               # no filter, no constraint
+    run = subprocess.run([sys.executable, "-c", "from mvm.cli.main import run; run()", "rig", "reconstruct", "nowhere",
+                          "--frame-rate", "10", "--rig-set", "cutoff_hz=6"], capture_output=True, text=True)
+    assert run.returncode == 2 and "cutoff_hz" in run.stderr and "Traceback" not in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1

@@ -1,0 +1,83 @@
+"""Tracks against true identities: an id survives a 10-instant loss, two people crossing close
+keep theirs, a person sharing too few joints with a track does not take its id."""
+import numpy as np
+
+from mvm.rig.tracking import identity_switches, link_tracks, track_persons
+
+from helpers import STANDING
+
+
+def _walk(start, velocity, T, noise, rng):
+    """``(T, 17, 3)`` a standing pose translated along ``velocity`` (metres per instant)."""
+    steps = np.arange(T)[:, None] * np.asarray(velocity, float)
+    return STANDING[None] + np.asarray(start, float) + steps[:, None] + rng.normal(0, noise, (T, 17, 3))
+
+
+def _flatten(people, seen):
+    """people: list of (T, 17, 3); seen: list of (T,) bool -> X, instant, truth."""
+    X, instant, truth = [], [], []
+    for t in range(len(people[0])):
+        for g, (pose, ok) in enumerate(zip(people, seen)):
+            if ok[t]:
+                X.append(pose[t])
+                instant.append(t)
+                truth.append(g)
+    return np.array(X), np.array(instant), np.array(truth)
+
+
+def test_id_survives_a_10_instant_loss():
+    rng = np.random.default_rng(0)
+    T = 40
+    walker = _walk([0, 0, 0], [0.05, 0, 0], T, 0.01, rng)               # 1.5 m/s at 30 Hz
+    other = _walk([0, 3, 0], [-0.03, 0, 0], T, 0.01, rng)
+    seen = np.ones(T, bool)
+    seen[15:25] = False                                                  # unseen for 10 instants
+    X, instant, truth = _flatten([walker, other], [seen, np.ones(T, bool)])
+    result = track_persons(X, instant, 0.5, max_gap=10)
+    assert identity_switches(result.track, truth, instant) == {"switches": 0, "tracks_per_person": 1.0,
+                                                                "persons": 2}
+    assert result.tracks == 2 and result.resumed == 1
+    # the walker moved 0.55 m while unseen: without its motion the track breaks
+    still = track_persons(X, instant, 0.5, max_gap=10, velocity_weight=0.0)
+    assert identity_switches(still.track, truth, instant)["tracks_per_person"] > 1
+
+
+def test_two_people_crossing_close_keep_their_ids():
+    rng = np.random.default_rng(1)
+    T = 40
+    a = _walk([-0.8, 0, 0], [0.04, 0, 0], T, 0.01, rng)
+    b = _walk([0.8, 0.2, 0], [-0.04, 0, 0], T, 0.01, rng)                 # 20 cm apart when they cross
+    seen_b = np.ones(T, bool)
+    seen_b[14:24] = False                                                # hidden behind a while crossing
+    seen_a = np.ones(T, bool)
+    seen_a[22:24] = False
+    X, instant, truth = _flatten([a, b], [seen_a, seen_b])
+    order = rng.permutation(len(X))                                      # input order must not matter
+    track = link_tracks(X[order], instant[order], 0.5, max_gap=10)
+    assert identity_switches(track, truth[order], instant[order])["switches"] == 0
+    assert len(np.unique(track)) == 2
+    still = link_tracks(X, instant, 0.5, max_gap=10, velocity_weight=0.0)
+    assert identity_switches(still, truth, instant)["switches"] > 0    # nearest last pose swaps them
+
+
+def test_gate_needs_enough_shared_joints():
+    """A track known only by its head; a person whose one shared joint (the nose) falls on it but
+    whose body is 1.3 m away is another person."""
+    head = np.full((17, 3), np.nan)
+    head[:5] = STANDING[:5]
+    other = STANDING + [1.3, 0, 0]
+    other[0] = STANDING[0] + 0.01                                        # a wrong nose, near the track's
+    other[1:5] = np.nan
+    X = np.stack([head, other])
+    instant = np.array([0, 1])
+    assert len(np.unique(link_tracks(X, instant, 0.5, max_gap=5))) == 2
+    result = track_persons(X, instant, 0.5, max_gap=5, min_joints=1)
+    assert len(np.unique(result.track)) == 1                             # a one-joint gate is fooled
+    assert track_persons(X, instant, 0.5, max_gap=5).unlinked == 1
+
+
+def test_identity_switches_counts():
+    track = np.array([0, 0, 1, 1, 0, 2])
+    truth = np.array([0, 0, 0, 0, 0, -1])
+    instant = np.arange(6)
+    assert identity_switches(track, truth, instant) == {"switches": 2, "tracks_per_person": 2.0, "persons": 1}
