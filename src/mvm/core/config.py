@@ -194,6 +194,33 @@ class Config:
     #: Two persons whose joints are on average closer than this fraction of the torso length
     #: are one person split into two groups, and are merged; 0 disables. [torso lengths]
     merge_distance: float = setting(0.3, ge=0)
+    # --- association consistent in 3D ----------------------------------------------------
+    #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
+    #: "3d" then reassigns every 2D pose to the triangulated person whose reprojection explains
+    #: it, one pose per person per view, and re-triangulates until nothing changes. [name]
+    association: str = setting("3d", choices=("paper", "3d"))
+    #: A 2D pose joins a person only when its keypoints lie (median over joints) closer than
+    #: this to the person's reprojection, in person sizes (sqrt of its image box area, as OKS);
+    #: lower refuses noisy poses, higher lets neighbours' poses in. [person sizes]
+    association_gate: float = setting(0.15, gt=0)
+    #: Rounds of assignment and re-triangulation at most (most scenes settle in 2-3). [1]
+    association_iterations: int = setting(4, ge=1)
+    #: Random RANSAC hypotheses per joint when re-triangulating a person during the
+    #: association, besides its previous 3D joint (which is nearly always the best). [1]
+    association_hypotheses: int = setting(8, ge=1)
+    #: The frames of a scene are a video (in the order of their names, numbers as numbers): a
+    #: pose close to a person's pose in a neighbouring frame (at most 3 frames away) may join
+    #: it although its distance to the reprojection is up to twice the gate. Off for unordered
+    #: photos; never used for the cameras of a rig. [bool]
+    video_order: bool = True
+    #: A person must explain at least this fraction of the views it projects into, else it is
+    #: refused (false positives that happen to agree in a few views). [0-1]
+    association_min_support: float = setting(0.2, ge=0, le=1)
+    #: A person whose bone lengths deviate from human proportions by more than this (median
+    #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
+    #: arcs) is refused unless it explains half the views it projects into: false positives
+    #: that agree in a few close views triangulate to no body. [fraction]
+    association_max_proportion_deviation: float = setting(0.4, gt=0)
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = setting(2, ge=2)
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import pose_affinity
+from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
 from mvm.core.prior import load_prior
@@ -73,13 +74,17 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
-                       config: Config) -> tuple[GroupObservations, Triangulation]:
-    """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints."""
+                       config: Config, initial: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+    """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
+    ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
+    ``association_hypotheses`` of the random hypotheses."""
     obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
     rng = np.random.default_rng(config.seed)
+    hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
+                                                                       config.association_hypotheses)
     with np.errstate(all="ignore"):
-        return obs, ransac_triangulate(obs, config.ransac_threshold_px, config.ransac_hypotheses,
-                                       config.min_views, config.min_parallax_deg, rng, use_ransac=config.ransac)
+        return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
+                                       config.min_parallax_deg, rng, use_ransac=config.ransac, initial=initial)
 
 
 def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
@@ -228,23 +233,49 @@ class Reconstruction:
     timings: dict = field(default_factory=dict)
 
 
+def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], triangulated,
+                    config: Config) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+    """:func:`mvm.core.association.associate` with the settings of ``config``: every 2D pose to
+    the triangulated person that explains it, within its block; the order of the frames is a
+    cue for a scene (``video_order``), never for the cameras of a rig."""
+    sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
+    return associate(
+        poses.keypoints, poses.view, cameras.P, cameras.size, groups,
+        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial),
+        lambda X, g: merge_groups(X, g, poses, config),
+        lambda rest: match(cameras, poses.subset(rest), config),
+        gate=config.association_gate, max_iterations=config.association_iterations,
+        min_group_size=config.min_group_size, min_support=config.association_min_support,
+        max_proportion_deviation=config.association_max_proportion_deviation,
+        min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
+        min_common_keypoints=config.min_common_keypoints, eligible=poses.score >= config.min_pose_score,
+        pose_scene=poses.instant, sequence=sequence, triangulated=triangulated)
+
+
 def reconstruct_poses(cameras: Cameras, poses: Poses2D, config: Config, prior=None,
                       groups: list[np.ndarray] | None = None) -> Reconstruction:
     """The pipeline on ``poses`` seen by ``cameras``: groups (``groups``, else :func:`match`),
-    triangulation, merging of duplicates, refinement with its fallback, per-person statistics."""
+    triangulation, merging of duplicates, the association consistent in 3D (``association =
+    "3d"``, not for given groups), refinement with its fallback, per-person statistics."""
     timings = {}
     t = time.perf_counter()
+    given = groups is not None
     if groups is None:
         groups = match(cameras, poses, config)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config)
-    merged = merge_groups(tri.X, groups, poses, config)
+    associate_3d = config.association == "3d" and not given              # merges duplicates itself
+    merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
     if merged is not None:
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
         obs, tri = triangulate_groups(cameras, poses, groups, config)
     timings["triangulation_s"] = time.perf_counter() - t
+    if associate_3d:
+        t = time.perf_counter()
+        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config)
+        timings["association_s"] = time.perf_counter() - t
     t = time.perf_counter()
     X, fallback = tri.X, np.zeros(len(groups), dtype=bool)
     if config.refine and len(X):

@@ -95,7 +95,8 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
         scene: cameras and 2D poses.
         config: thresholds (default :class:`Config`).
         prior: a :class:`mvm.core.prior.PosePrior`; default as :func:`mvm.core.prior.load_prior`.
-        groups: precomputed groups of pose indices (skips matching), e.g. from a baseline.
+        groups: precomputed groups of pose indices (skips matching and the association in 3D),
+            e.g. from a baseline or the true grouping.
     """
     config = config or Config()
     validate_scene(scene)

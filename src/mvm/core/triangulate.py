@@ -111,7 +111,8 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
 
 def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
-                       rng: np.random.Generator | None = None, use_ransac: bool = True) -> Triangulation:
+                       rng: np.random.Generator | None = None, use_ransac: bool = True,
+                       initial: np.ndarray | None = None) -> Triangulation:
     """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
 
     Each hypothesis is scored by MSAC, ``Σ min(e², thr²)`` over the available keypoints; the
@@ -119,6 +120,9 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
     rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
+
+    ``initial: (P, J, 3)`` world points (NaN: none) join the random hypotheses, e.g. a previous
+    triangulation of nearly the same groups: few random hypotheses then suffice.
     """
     rng = np.random.default_rng(0) if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
@@ -136,6 +140,8 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
                         xy_n[pj[0][..., None], pj[1][..., None], b]], axis=-2)   # (P, J, H, 2, 2)
         cams = np.stack([Rt[pj[0][..., None], a], Rt[pj[0][..., None], b]], axis=-3)  # (P, J, H, 2, 3, 4)
         X_h = triangulate_dlt(pts, cams)                                     # (P, J, H, 3)
+        if initial is not None:
+            X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
         err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
         ok = valid[..., None] & (depth > 0) & np.isfinite(err)
         cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,

@@ -1,0 +1,416 @@
+"""Association consistent in 3D: every 2D pose to the 3D person that explains it best.
+
+The greedy grouping (Algorithm 1) compares 2D poses only through epipolar lines, which leave a
+whole line of ambiguity: on a nearly horizontal camera arc, two people at similar heights look
+consistent pair by pair. Once a group is triangulated, its 3D pose pins every joint to one
+point in each view. This module uses that: it reprojects the persons into every view, assigns
+each 2D pose (grouped or not) to the person whose reprojection it matches, at most one pose per
+person per view (an optimal assignment per view, with a gate), re-triangulates, and repeats to a
+fixed point. Persons whose 3D poses coincide are merged, members that do not fit their person's
+triangulation are released (a mixed group splits), and persons that explain too few of the
+views they are visible in, or whose bones have no human proportions, are refused. In a video,
+a pose's distance to the same person in a neighbouring frame may lower its cost (an optional
+cue).
+
+Distances are those of OKS: pixels divided by the person's image size, ``s = sqrt(w h)`` of
+the bounding box of its reprojected joints, so one gate serves every distance and resolution.
+
+Arrays: ``N`` 2D poses, ``J = 17`` joints, ``F`` views (frames, or the cameras of a rig),
+``P`` persons. The module is pure: arrays and callables in, groups out.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
+
+#: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
+#: joint weighs like a few ordinary ones, never like the whole pose.
+_CLIP_GATES = 2.0
+
+
+def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.ndarray,
+                      pose: np.ndarray, person: np.ndarray, keypoint_threshold: float,
+                      min_common_keypoints: int, swap_above: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Normalized distance of 2D poses to the reprojection of 3D persons, for candidate pairs.
+
+    The distance of a pose is the median, over the joints both observed and reconstructed, of
+    the keypoint's distance to the reprojected joint divided by the person's image size: a few
+    wrong joints do not move it. A pose detected left-right swapped is measured swapped back
+    (tried where the distance as detected is at least ``swap_above``).
+
+    Args:
+        keypoints: ``(N, J, 3)`` pixels and confidence.
+        frame: ``(N,)`` view of each pose, indexing ``P``.
+        P: ``(F, 3, 4)`` projection matrices.
+        X: ``(Q, J, 3)`` persons, NaN where a joint is not reconstructed.
+        pose, person: ``(K,)`` candidate pairs (indices into ``keypoints`` and ``X``).
+        keypoint_threshold: confidence below which a keypoint is missing.
+        min_common_keypoints: with fewer joints both observed and reconstructed, the cost is inf.
+    Returns:
+        ``cost: (K,)`` in person sizes (inf where undefined), and ``size: (K,)`` the person's
+        image size ``sqrt(w h)`` of its reprojected joints' bounding box, px.
+
+    >>> P = np.hstack([np.eye(3), [[0], [0], [1.0]]])[None]          # one camera at z = -1
+    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.linspace(0, 1, 17); X[0, :, 1] = X[0, :, 0]
+    >>> kp = np.concatenate([X[0, :, :2] + [0.1, 0], np.ones((17, 1))], 1)[None]
+    >>> cost, size = reprojection_cost(kp, np.array([0]), P, X, np.array([0]), np.array([0]), 0.2, 3)
+    >>> round(float(cost[0]), 3), float(size[0])
+    (0.1, 1.0)
+    """
+    K = len(pose)
+    if K == 0:
+        return np.zeros(0), np.zeros(0)
+    # Project every person into every view used (Q·F·J points, far fewer than pairs·J).
+    frames, frame_of_pair = np.unique(frame[pose], return_inverse=True)
+    persons, person_of_pair = np.unique(person, return_inverse=True)
+    Xh = np.concatenate([X[persons], np.ones((len(persons), X.shape[1], 1))], axis=-1)   # (Q', J, 4)
+    x = np.matmul(Xh[:, None], P[frames].transpose(0, 2, 1)[None])                      # (Q', F', J, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv_all = x[..., :2] / x[..., 2:3]
+        seen_all = np.isfinite(uv_all).all(-1) & (x[..., 2] > 0)                          # (Q', F', J)
+        lo = np.where(seen_all[..., None], uv_all, np.inf).min(2)
+        hi = np.where(seen_all[..., None], uv_all, -np.inf).max(2)
+        size_all = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))                   # (Q', F')
+        centre_all = np.where(seen_all[..., None], uv_all, 0).sum(2) / np.maximum(seen_all.sum(2), 1)[..., None]
+    # A pose whose keypoints' centre lies more than 1.5 person sizes from the reprojection's
+    # centre (half a body even when only the upper or lower half is detected) cannot have half
+    # its joints within a fraction of a size of it: such pairs are skipped.
+    observed = keypoints[..., 2] >= keypoint_threshold                                   # (N, J)
+    centre = np.where(observed[..., None], keypoints[..., :2], 0).sum(1) / np.maximum(observed.sum(1), 1)[:, None]
+    size = size_all[person_of_pair, frame_of_pair]
+    near = np.linalg.norm(centre[pose] - centre_all[person_of_pair, frame_of_pair], axis=-1) < 1.5 * size
+    cost = np.full(K, np.inf)
+    cost[near] = _median_distance(keypoints[pose[near]], uv_all[person_of_pair[near], frame_of_pair[near]],
+                                  seen_all[person_of_pair[near], frame_of_pair[near]], size[near],
+                                  keypoint_threshold, min_common_keypoints, swap_above)
+    return cost, np.where(np.isfinite(cost), size, np.nan)
+
+
+def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.ndarray,
+                     keypoint_threshold: float, min_common_keypoints: int, swap_above: float) -> np.ndarray:
+    """Median normalized keypoint distance, the pose as detected or, where that is at least
+    ``swap_above``, left-right swapped back if that is closer.
+    ``kp: (K, J, 3)``, ``uv: (K, J, 2)``, ``seen: (K, J)``, ``size: (K,)`` -> ``(K,)``."""
+    def median(kp, uv, seen, size):
+        common = seen & (kp[..., 2] >= keypoint_threshold)
+        with np.errstate(invalid="ignore"):
+            d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
+        d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
+        n = common.sum(1)
+        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0].astype(float)
+        return np.where(n >= min_common_keypoints, value, np.inf)
+
+    cost = median(kp, uv, seen, size)
+    # Swapped back only where the pose as detected does not fit (a swap then shows).
+    far = np.flatnonzero(cost >= swap_above)
+    cost[far] = np.fmin(cost[far], median(kp[far][:, FLIP_PERMUTATION], uv[far], seen[far], size[far]))
+    return cost
+
+
+def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slot: np.ndarray,
+                     n_poses: int, gate: float) -> np.ndarray:
+    """Each pose to at most one person, each person to at most one pose per slot (a view of
+    one scene), minimizing the summed cost among pairs below ``gate``.
+
+    ``cost, pose, person, slot: (K,)`` candidate pairs; ``slot`` is the view (and scene) of the
+    pair's pose. Returns ``(n_poses,)`` person of each pose, -1 for none.
+
+    Where every pose's best person is claimed by no other pose of its slot, the best persons
+    are the optimum; the other slots are solved with :func:`scipy.optimize.linear_sum_assignment`.
+    """
+    out = np.full(n_poses, -1)
+    ok = cost < gate
+    cost, pose, person, slot = cost[ok], pose[ok], person[ok], slot[ok]
+    if not len(cost):
+        return out
+    order = np.lexsort((cost, pose))                                 # best pair of each pose first
+    first = np.r_[True, pose[order][1:] != pose[order][:-1]]
+    best = order[first]                                              # (n,) the best pair of each pose
+    claim = np.stack([slot[best], person[best]], axis=1)
+    _, inverse, counts = np.unique(claim, axis=0, return_inverse=True, return_counts=True)
+    clash_slot = np.zeros(slot.max() + 1, dtype=bool)
+    clash_slot[slot[best][counts[inverse.reshape(-1)] > 1]] = True
+    easy = best[~clash_slot[slot[best]]]
+    out[pose[easy]] = person[easy]
+    hard = np.flatnonzero(clash_slot[slot])
+    if len(hard):
+        hard = hard[np.argsort(slot[hard], kind="stable")]
+        bounds = np.flatnonzero(np.diff(slot[hard])) + 1
+        for rows in np.split(hard, bounds):
+            poses_u, r = np.unique(pose[rows], return_inverse=True)
+            persons_u, c = np.unique(person[rows], return_inverse=True)
+            matrix = np.full((len(poses_u), len(persons_u)), 1e6)
+            matrix[r, c] = cost[rows]
+            i, j = linear_sum_assignment(matrix)
+            good = matrix[i, j] < gate
+            out[poses_u[i[good]]] = persons_u[j[good]]
+    return out
+
+
+def temporal_cost(keypoints: np.ndarray, frame: np.ndarray, sequence: np.ndarray, assignment: np.ndarray,
+                  pose: np.ndarray, person: np.ndarray, size: np.ndarray, keypoint_threshold: float,
+                  min_common_keypoints: int, clip: float, max_gap: int) -> np.ndarray:
+    """Normalized distance of 2D poses to a person's pose in the nearest frame of a video.
+
+    ``sequence: (F,)`` position of each view in the video; ``assignment: (N,)`` the current
+    person of each pose (-1: none). For each candidate pair ``(pose, person)`` of ``(K,)``, the
+    nearest other frame within ``max_gap`` positions where ``person`` has a pose gives the
+    reference; the distance is the confidence-weighted mean over the joints both poses have of
+    the keypoint distances, each clipped to ``clip``, in person sizes ``size: (K,)`` (px).
+    Returns ``(K,)``, NaN where the person has no pose near that frame.
+    """
+    K = len(pose)
+    out = np.full(K, np.nan)
+    held = np.flatnonzero(assignment >= 0)
+    if K == 0 or not len(held):
+        return out
+    # Persons' poses sorted by (person, position in the video).
+    key_person = assignment[held]
+    key_pos = sequence[frame[held]]
+    order = np.lexsort((key_pos, key_person))
+    held, key_person, key_pos = held[order], key_person[order], key_pos[order]
+    combined = key_person.astype(np.int64) * (int(sequence.max()) + 2) + key_pos
+    here = person.astype(np.int64) * (int(sequence.max()) + 2) + sequence[frame[pose]]
+    right = np.searchsorted(combined, here, side="right")            # first position after this frame
+    left = np.searchsorted(combined, here, side="left") - 1          # last position before it
+    reference = np.full(K, -1)
+    gap = np.full(K, np.inf)
+    for idx in (left, right):
+        inside = (idx >= 0) & (idx < len(held))
+        idx_c = np.clip(idx, 0, len(held) - 1)
+        same = inside & (key_person[idx_c] == person)
+        g = np.where(same, np.abs(key_pos[idx_c] - sequence[frame[pose]]), np.inf)
+        better = (g < gap) & (g <= max_gap) & (g > 0)
+        reference = np.where(better, held[idx_c], reference)
+        gap = np.where(better, g, gap)
+    has = reference >= 0
+    a = keypoints[pose[has]]
+    b = keypoints[reference[has]]
+    conf = np.where((a[..., 2] >= keypoint_threshold) & (b[..., 2] >= keypoint_threshold),
+                    np.sqrt(a[..., 2] * b[..., 2]), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.minimum(np.linalg.norm(a[..., :2] - b[..., :2], axis=-1) / size[has, None], clip)
+        c = (conf * d).sum(1) / conf.sum(1)
+    enough = (conf > 0).sum(1) >= min_common_keypoints
+    out[has] = np.where(enough, c, np.nan)
+    return out
+
+
+def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.ndarray:
+    """Number of views in which each person's reprojection lies mostly inside the image.
+
+    ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
+    at least half its reconstructed joints project in front of the camera and inside the
+    image. Returns ``(Q,)``.
+    """
+    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)
+    x = np.einsum("fab,qjb->qfja", P, Xh)                                            # (Q, F, J, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = x[..., :2] / x[..., 2:3]
+        inside = (x[..., 2] > 0) & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
+    known = np.isfinite(X).all(-1).sum(-1)                                           # (Q,)
+    return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
+
+
+def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
+    """How far each person's bone lengths are from human proportions, whatever the posture
+    and the model's scale: the median over bones of ``|l / (s · l_mean) - 1|`` with ``s`` the
+    median of ``l / l_mean``. About 0.05 for a real person; a cluster of false positives that
+    happens to triangulate gives 0.5 and more.
+
+    ``X: (Q, J, 3)`` -> ``(Q,)``, NaN where fewer than ``min_bones`` bones are reconstructed.
+
+    >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
+    [nan]
+    """
+    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
+    known = np.isfinite(ratio).sum(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)                         # all-NaN rows
+        scale = np.nanmedian(ratio, axis=1)
+        deviation = np.nanmedian(np.abs(ratio / scale[:, None] - 1), axis=1)
+    return np.where(known >= min_bones, deviation, np.nan)
+
+
+def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
+    """Position of each view in a video from its image name, numbers compared as numbers
+    (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
+
+    >>> frame_sequence(["f_10.jpg", "f_2.jpg", "f_1.jpg"]).tolist()
+    [2, 1, 0]
+    """
+    def key(name: str):
+        return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name)]
+
+    order = sorted(range(len(names)), key=lambda i: key(names[i]))
+    sequence = np.empty(len(names), dtype=np.int64)
+    sequence[order] = np.arange(len(names))
+    return sequence
+
+
+def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
+    """Pose indices of each person ``0..count-1`` (sorted)."""
+    held = np.flatnonzero(assignment >= 0)
+    order = np.argsort(assignment[held], kind="stable")
+    held = held[order]
+    bounds = np.searchsorted(assignment[held], np.arange(count + 1))
+    return [held[bounds[p]:bounds[p + 1]] for p in range(count)]
+
+
+def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+              groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None,
+              seed: Callable | None = None, *,
+              gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3,
+              min_support: float = 0.2, max_proportion_deviation: float = 0.25, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
+              min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
+              pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
+              temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
+    """Regroup 2D poses so that every group is the set of poses one 3D person explains.
+
+    Args:
+        keypoints: ``(N, J, 3)`` pixels and confidence.
+        frame: ``(N,)`` view of each pose, indexing ``P`` and ``image_size``.
+        P: ``(F, 3, 4)`` projection matrices; image_size: ``(F, 2)`` width, height (px).
+        groups: initial groups of pose indices (e.g. from Algorithm 1), one pose per view each.
+        triangulate: ``triangulate(groups, initial=None) -> (observations, triangulation)``
+            where ``triangulation.X: (len(groups), J, 3)`` (NaN where not reconstructed);
+            ``initial: (len(groups), J, 3)``, when given, is the persons' previous 3D pose, a
+            hypothesis that spares most of RANSAC's random ones.
+        merge: ``merge(X, groups) -> groups or None``, joining persons whose 3D poses coincide.
+        seed: ``seed(poses) -> groups`` (indices into ``poses``), the grouping run once, after
+            the first assignment, on the eligible poses no person took: persons it missed.
+        gate: a pose joins a person only when its mean keypoint distance to the person's
+            reprojection is below this, in person sizes.
+        max_iterations: rounds of assignment and re-triangulation (stops earlier at a fixed point).
+        min_group_size: persons explaining fewer poses are refused.
+        min_support: persons explaining fewer than this fraction of the views they project
+            into are refused (a cluster of false positives explains a few views only).
+        max_proportion_deviation: persons whose bone lengths deviate more than this from human
+            proportions (:func:`proportion_deviation`) are refused, unless they explain at
+            least half the views they project into.
+        min_person_joints: persons with fewer reconstructed joints explain nothing.
+        eligible: ``(N,)`` bool, poses that may be assigned (default all).
+        pose_scene: ``(N,)`` scene of each pose when ``keypoints`` holds several static scenes
+            (the instants of a rig); a person belongs to the scene of its first member.
+        sequence: ``(F,)`` position of each view in a video, or None for unordered views. When
+            given, a pose's cost may be lowered by mixing in, with ``temporal_weight``, its
+            distance to the person's pose in the nearest frame (at most ``max_gap`` positions
+            away): the cost is the smaller of the reprojection's and that mix.
+        triangulated: the ``triangulate(groups)`` result when already computed.
+    Returns:
+        ``(groups, result)``: the new groups (pose indices, sorted; groups ordered by scene as
+        they came) and ``triangulate(groups)``.
+    """
+    keypoints = np.asarray(keypoints, dtype=float)
+    N = len(keypoints)
+    if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
+        raise ValueError(f"associate: expected keypoints (N, 17, 3) and frame (N,), got {keypoints.shape} "
+                         f"and {frame.shape}")
+    F = len(P)
+    eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
+    pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
+    slot_of = pose_scene * F + frame
+    groups = [np.sort(np.asarray(g)) for g in groups]
+    result = triangulate(groups) if triangulated is None else triangulated
+    clip = _CLIP_GATES * gate
+    first = True
+    for _ in range(max_iterations):
+        X = result[1].X
+        stale = False                                    # ``result`` triangulates ``groups``
+        if merge is not None and len(groups) > 1:
+            merged = merge(X, groups)
+            if merged is not None:
+                # Each merged person keeps the 3D pose of the group it has most poses from,
+                # until the re-triangulation below.
+                owner = np.full(N, -1)
+                for q, g in enumerate(groups):
+                    owner[g] = q
+                survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
+                groups = [np.sort(np.asarray(g)) for g in merged]
+                X = X[survivor]
+                stale = True
+        Q = len(groups)
+        if Q == 0:
+            break
+        group_scene = np.array([pose_scene[g[0]] for g in groups])
+        usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
+        pose, person = _candidate_pairs(pose_scene, group_scene, np.flatnonzero(eligible), usable)
+        cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
+                                       min_common_keypoints, swap_above=gate)
+        if sequence is not None and temporal_weight > 0:
+            current = np.full(N, -1)
+            for q, g in enumerate(groups):
+                current[g] = q
+            # The cue only lowers a cost: a pose that continues the person's track explains
+            # itself where the reprojection is off, and large motion between frames costs
+            # nothing. Pairs it cannot bring under the gate are left out.
+            hope = np.flatnonzero(cost * (1 - temporal_weight) < gate)
+            near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose[hope], person[hope],
+                                 size[hope], keypoint_threshold, min_common_keypoints, clip, max_gap)
+            blend = (1 - temporal_weight) * cost[hope] + temporal_weight * near
+            cost[hope] = np.where(np.isfinite(near), np.fmin(cost[hope], blend), cost[hope])
+        assignment = assign_per_frame(cost, pose, person, slot_of[pose], N, gate)
+        new = _groups_of(assignment, Q)
+        # A person too incomplete to reproject keeps the poses nobody else took (the pipeline
+        # then drops it for want of joints, and says why).
+        for q in np.flatnonzero(~usable):
+            new[q] = groups[q][assignment[groups[q]] < 0]
+        # Refuse persons that explain too few poses, or too few of the views they project into.
+        count = np.array([len(g) for g in new])
+        keep = (count >= min_group_size) | (~usable & (count > 0))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            visible = visible_frames(X, P, image_size)
+        keep &= (count >= min_support * visible) | ~usable
+        # Refuse persons whose body is not one (false positives agreeing in a few close views),
+        # unless they explain most of the views they project into, as no false cluster does.
+        keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+        new = [g for g, k in zip(new, keep) if k]
+        initial = X[keep]
+        if seed is not None and first:
+            # Poses no person explains may be a person the grouping missed: group them once.
+            taken = np.zeros(N, dtype=bool)
+            for g in new:
+                taken[g] = True
+            rest = np.flatnonzero(eligible & ~taken)
+            found = [np.sort(rest[g]) for g in seed(rest)] if len(rest) else []
+            if found:
+                new += found
+                initial = np.concatenate([initial, np.full((len(found),) + X.shape[1:], np.nan)])
+                order = np.argsort([pose_scene[g[0]] for g in new], kind="stable")      # scene by scene
+                new, initial = [new[i] for i in order], initial[order]
+        first = False
+        if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
+            if stale:
+                result = triangulate(groups, X)
+            break
+        groups = new
+        result = triangulate(groups, initial)
+    return groups, result
+
+
+def _candidate_pairs(pose_scene: np.ndarray, group_scene: np.ndarray, poses: np.ndarray,
+                     usable: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every (pose, person) pair of the same scene: two ``(K,)`` index arrays.
+
+    ``pose_scene: (N,)``, ``group_scene: (Q,)``; ``poses``: the eligible pose indices;
+    ``usable: (Q,)`` persons that may take poses.
+    """
+    persons = np.flatnonzero(usable)
+    if not len(persons) or not len(poses):
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    persons = persons[np.argsort(group_scene[persons], kind="stable")]
+    scenes = group_scene[persons]
+    lo = np.searchsorted(scenes, pose_scene[poses], side="left")
+    hi = np.searchsorted(scenes, pose_scene[poses], side="right")
+    counts = hi - lo
+    pose = np.repeat(poses, counts)
+    offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    person = persons[np.repeat(lo, counts) + offset]
+    return pose, person
