@@ -156,7 +156,7 @@ def test_proportions_tell_a_body_from_a_scramble(mixed):
 
 
 def test_the_method_is_a_setting_with_its_choices_listed():
-    from mvm.core.config import load_config
+    from mvm.io.settings import load_config
     from mvm.errors import InputError
 
     assert load_config(None, {"association": "paper"}).association == "paper"
