@@ -263,7 +263,8 @@ def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, fitted:
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
                  prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
                  max_iterations: int = 30, outer_iterations: int = 3,
-                 bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0) -> RefineResult:
+                 bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0,
+                 tolerance: float = 1e-8) -> RefineResult:
     """Refine ``P`` persons' 3D joints.
 
     Args:
@@ -277,6 +278,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
             are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
             relative length error (0: no bone term).
+        tolerance: relative change of the cost and of the parameters at which an inner solve
+            stops (``ftol``, ``xtol`` of ``scipy.optimize.least_squares``).
     Returns:
         :class:`RefineResult`.
     """
@@ -310,7 +313,7 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         blocks = linearized_prior(unpack(x))
         pattern = sparsity_pattern(fitted, blocks, n_params, bones)
         x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
-                          max_nfev=max_iterations, args=(fitted, sqrt_w, blocks, pattern, bones)).x
+                          max_nfev=max_iterations, ftol=tolerance, xtol=tolerance, args=(fitted, sqrt_w, blocks, pattern, bones)).x
 
     X = unpack(x)
     fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)

@@ -220,6 +220,13 @@ def numbers(values, path, field, lengths: tuple[int, ...] | None = None, what: s
     if lengths is not None and len(values) not in lengths:
         expected = what or " or ".join(str(n) for n in lengths) + " numbers"
         raise InputError(path, field, f"expected {expected}, got {len(values)}")
+    if set(map(type, values)) <= {float, int}:                            # the common case, at once
+        try:
+            flat = np.array(values, dtype=float)
+        except OverflowError:
+            flat = None
+        if flat is not None and np.isfinite(flat).all():
+            return flat
     return np.array([number(v, path, f"{field}[{i}]") for i, v in enumerate(values)], dtype=float)
 
 
