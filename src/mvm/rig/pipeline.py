@@ -132,6 +132,12 @@ def completion_prior(config: Config, options: RigOptions, prior=None):
     return shipped_prior()
 
 
+def instants_config(config: Config, options: RigOptions) -> Config:
+    """The settings :func:`reconstruct_instants` runs with in the rig driver: the rig's
+    association, and no per-instant refinement (persons are refined once their track is known)."""
+    return config.replace(refine=False, association=options.association)
+
+
 def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None, config: Config | None = None,
                        detections=None, cameras=None):
     """Tracks, the rigid-skeleton refinement, smoothing and completion of reconstructed instants
@@ -139,8 +145,8 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
 
     With ``config.refine`` (and ``detections``, ``cameras``), every person is refined once its
     track is known: reprojection, the pose prior and the track's robust bone lengths
-    (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come unrefined from
-    :func:`reconstruct_instants`. Smoothing runs over each track's observed joints, then
+    (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come from
+    :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over each track's observed joints, then
     completion fills what is missing (time, then ``prior``) unless ``options.complete`` is off.
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
     unit = 1.0 / options.metres_per_unit
@@ -175,7 +181,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     t0 = time.perf_counter()
     prior = completion_prior(config, options, prior)
     cameras = rig.calibration.cameras
-    persons = reconstruct_instants(cameras, rig.detections, config.replace(refine=False), prior,
+    persons = reconstruct_instants(cameras, rig.detections, instants_config(config, options), prior,
                                    options.batch_size, progress)
     timings["reconstruct_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
