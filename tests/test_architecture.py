@@ -55,3 +55,13 @@ def test_every_package_has_a_layer():
     packages = {p.stem for p in SRC.iterdir() if (p / "__init__.py").exists() or p.suffix == ".py"}
     unplaced = packages - {"cli", "__init__", "__main__"} - set(ALLOWED)
     assert not unplaced, f"add these to docs/architecture.md and ALLOWED: {sorted(unplaced)}"
+
+
+def test_no_function_of_the_core_is_over_60_lines():
+    long = []
+    for path in sorted((SRC / "core").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 60:
+                long.append(f"{path.relative_to(SRC)}:{node.lineno} {node.name} "
+                            f"({node.end_lineno - node.lineno + 1} lines)")
+    assert not long, long

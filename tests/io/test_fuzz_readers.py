@@ -131,7 +131,31 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
     seeds["report"] = {**seeds["scene"], "mvm/poses3d.json": seeds["poses3d"]["poses3d.json"]}
     seeds["batch"] = dict(seeds["report"])
     seeds["rig"] = _rig_seeds()
+    seeds["status"] = _status_seeds(seeds["report"])
     return seeds
+
+
+def _status_seeds(scene: dict[str, bytes]) -> dict[str, bytes]:
+    """A batch root: one reconstructed clip and the manifest that records it as done."""
+    import tempfile
+
+    from mvm.batch.clips import Clip
+    from mvm.batch.manifest import MANIFEST, Manifest
+    from mvm.batch.stages import StageResult
+
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        manifest = Manifest(root)
+        manifest.register([Clip("a", "a", str(root / "a"))], ["reconstruct"])
+        run = manifest.begin_run("local", 1, ["reconstruct"])
+        assert manifest.claim(run, "a", "reconstruct")
+        manifest.commit(run, StageResult("a", "reconstruct", True, 1.5, checksum="0" * 64, files=1,
+                                         stats={"persons": 2, "E_R_px": 1.5}))
+        manifest.end_run(run, "done")
+        manifest.db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        manifest.close()
+        files = {MANIFEST.as_posix(): (root / MANIFEST).read_bytes()}
+    return {**files, **{f"a/{rel}": data for rel, data in scene.items()}}
 
 
 def _rig_seeds() -> dict[str, bytes]:
@@ -283,6 +307,13 @@ def _batch(root: Path):
         assert value is None or isinstance(value, str) or np.isfinite(np.asarray(value, dtype=float)).all()
 
 
+def _status(root: Path):
+    from mvm.batch.status import batch_status
+
+    status = batch_status(root, verify=True)
+    json.dumps(status.to_json(), allow_nan=False)
+
+
 def _rig(root: Path):
     from mvm.rig.rigdir import read_rig
 
@@ -295,7 +326,7 @@ def _rig(root: Path):
 READERS = {"coco": _coco, "colmap_bin": _colmap, "colmap_txt": _colmap, "scene": _scene,
            "openpose": _openpose, "openpifpaf": _openpifpaf, "calib_toml": _calib,
            "trajectory": _trajectory, "panoptic_calib": _panoptic, "trc": _trc, "config": _config,
-           "poses3d": _poses3d, "report": _report, "batch": _batch, "rig": _rig}
+           "poses3d": _poses3d, "report": _report, "batch": _batch, "rig": _rig, "status": _status}
 
 
 # --- mutations ----------------------------------------------------------------------------------
@@ -462,7 +493,8 @@ def cases(draw, reader: str, seeds: dict) -> dict:
             return files
     if reader == "colmap_bin" and draw(st.booleans()):
         return draw(mutate_colmap_field(files))
-    key = draw(st.sampled_from(sorted(files)))
+    manifest = ".mvm/manifest.sqlite"
+    key = manifest if manifest in files and draw(st.booleans()) else draw(st.sampled_from(sorted(files)))
     data = files[key]
     layer = draw(st.sampled_from(["structure", "structure", "structure", "bytes"]))
     if layer == "bytes":
@@ -471,6 +503,8 @@ def cases(draw, reader: str, seeds: dict) -> dict:
         files[key] = draw(mutate_json(data))
     elif key.endswith(".bin"):
         files[key] = draw(mutate_colmap_bin(data))
+    elif key.endswith(".sqlite"):
+        files[key] = draw(mutate_bytes(data))
     else:
         files[key] = draw(mutate_text(data))
     if draw(st.integers(0, 9)) == 0:

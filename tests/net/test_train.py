@@ -358,3 +358,14 @@ def test_plot_draws_the_curves(tiny_data, tmp_path):
     result = CliRunner().invoke(train_cmd, [str(config), "--plot"])
     assert result.exit_code == 0, result.output
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("override, message", [
+    ({"seed": -1}, "--set: seed: must be a finite number >= 0, got -1"),
+    ({"lr": float("nan")}, "--set: lr: must be a finite number >= 0, got nan"),
+    ({"steps": "abc"}, "--set: steps: expected a number, got 'abc'"),
+])
+def test_bad_training_setting_names_its_source(override, message):
+    with pytest.raises(InputError) as e:
+        load_config(REPO / "configs" / "train_cpu_tiny.toml", override)
+    assert str(e.value) == message

@@ -94,9 +94,15 @@ class Manifest:
                 self.db.execute("PRAGMA synchronous=FULL")
                 self.db.executescript(f"BEGIN IMMEDIATE;\n{_SCHEMA}\nCOMMIT;")      # readers see all tables or none
             self._check_schema()
-        except sqlite3.DatabaseError as e:
-            raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as e:
+            raise self._unreadable(e) from None
         self.db.row_factory = sqlite3.Row
+
+    def _unreadable(self, error: Exception) -> InputError:
+        """The one-line refusal of a manifest SQLite cannot read (or whose text is not UTF-8)."""
+        if isinstance(error, UnicodeDecodeError):
+            return InputError(self.path, None, f"not a readable manifest: text that is not UTF-8 (byte {error.start})")
+        return InputError(self.path, None, f"not a readable manifest: {' '.join(str(error).split())}")
 
     def _check_schema(self) -> None:
         """Refuse tables of another program. A database without any table yet (a run is
@@ -317,8 +323,8 @@ class Manifest:
             return []
         try:
             return self.db.execute(query, parameters).fetchall()
-        except sqlite3.DatabaseError as e:
-            raise InputError(self.path, None, f"not a readable manifest: {' '.join(str(e).split())}") from None
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as e:
+            raise self._unreadable(e) from None
 
     def _expect(self, row: sqlite3.Row, table: str, column: str, ok: bool, problem: str) -> None:
         if not ok:

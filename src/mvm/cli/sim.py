@@ -60,8 +60,10 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
 @scene_options
 @click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="mvm-demo",
               show_default=True, help="Where to write the simulated scene and its ground truth.")
+@click.option("--render", is_flag=True,
+              help="Also render the frames into OUT/scene/frames (for mvm report, overlay, export and training).")
 @config_options
-def demo_cmd(people, frames, arc_deg, seed, out_dir, config_path, sets, refine):
+def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, refine):
     """Simulate a mannequin scene, reconstruct it and print accuracy against ground truth."""
     from mvm.eval.demo import run_demo
     from mvm.sim.simulate import SimConfig
@@ -69,7 +71,8 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, config_path, sets, refine):
     config = read_config(config_path, sets, refine=refine)
     t = time.perf_counter()
     with refused(ValueError):
-        report = run_demo(Path(out_dir), SimConfig(people=people, frames=frames, arc_deg=arc_deg, seed=seed), config)
+        report = run_demo(Path(out_dir), SimConfig(people=people, frames=frames, arc_deg=arc_deg, seed=seed), config,
+                          render=render)
     measure_table(f"mvm demo: {people} people, {frames} frames, {arc_deg:g}° tour (seed {seed})", [
         ("persons found / true", f"{report['persons_found']} / {report['persons_true']}"),
         ("2D poses (false positives)", f"{report['poses']} ({report['false_poses']})"),

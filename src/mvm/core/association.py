@@ -266,126 +266,56 @@ def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
 def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None,
               seed: Callable | None = None, *,
-              gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3,
-              min_support: float = 0.2, max_proportion_deviation: float = 0.25, min_person_joints: int = 5, keypoint_threshold: float = 0.2,
-              min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
+              gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3, min_support: float = 0.2,
+              max_proportion_deviation: float = 0.25, min_person_joints: int = 5,
+              keypoint_threshold: float = 0.2, min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
               pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
               temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
     """Regroup 2D poses so that every group is the set of poses one 3D person explains.
 
     Args:
-        keypoints: ``(N, J, 3)`` pixels and confidence.
-        frame: ``(N,)`` view of each pose, indexing ``P`` and ``image_size``.
-        P: ``(F, 3, 4)`` projection matrices; image_size: ``(F, 2)`` width, height (px).
-        groups: initial groups of pose indices (e.g. from Algorithm 1), one pose per view each.
-        triangulate: ``triangulate(groups, initial=None) -> (observations, triangulation)``
-            where ``triangulation.X: (len(groups), J, 3)`` (NaN where not reconstructed);
-            ``initial: (len(groups), J, 3)``, when given, is the persons' previous 3D pose, a
-            hypothesis that spares most of RANSAC's random ones.
-        merge: ``merge(X, groups) -> groups or None``, joining persons whose 3D poses coincide.
-        seed: ``seed(poses) -> groups`` (indices into ``poses``), the grouping run once, after
-            the first assignment, on the eligible poses no person took: persons it missed.
-        gate: a pose joins a person only when its mean keypoint distance to the person's
-            reprojection is below this, in person sizes.
-        max_iterations: rounds of assignment and re-triangulation (stops earlier at a fixed point).
-        min_group_size: persons explaining fewer poses are refused.
-        min_support: persons explaining fewer than this fraction of the views they project
-            into are refused (a cluster of false positives explains a few views only).
-        max_proportion_deviation: persons whose bone lengths deviate more than this from human
-            proportions (:func:`proportion_deviation`) are refused, unless they explain at
-            least half the views they project into.
-        min_person_joints: persons with fewer reconstructed joints explain nothing.
-        eligible: ``(N,)`` bool, poses that may be assigned (default all).
-        pose_scene: ``(N,)`` scene of each pose when ``keypoints`` holds several static scenes
-            (the instants of a rig); a person belongs to the scene of its first member.
-        sequence: ``(F,)`` position of each view in a video, or None for unordered views. When
-            given, a pose's cost may be lowered by mixing in, with ``temporal_weight``, its
-            distance to the person's pose in the nearest frame (at most ``max_gap`` positions
-            away): the cost is the smaller of the reprojection's and that mix.
+        keypoints, frame: ``(N, J, 3)`` px and confidence, ``(N,)`` view; P, image_size: ``(F, 3, 4)``, ``(F, 2)``.
+        groups: initial groups of pose indices (e.g. Algorithm 1's), one pose per view each.
+        triangulate: ``triangulate(groups, initial=None) -> (observations, triangulation)``,
+            ``triangulation.X: (len(groups), J, 3)``; ``initial``, the persons' previous 3D
+            poses, is a hypothesis that spares most of RANSAC's random ones.
+        merge: ``merge(X, groups) -> groups or None`` joins persons whose 3D poses coincide;
+            seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
+        gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
+            min_group_size, min_support, max_proportion_deviation: see :func:`_credible`.
+        eligible: ``(N,)`` poses that may be assigned; pose_scene: ``(N,)`` scene of each pose
+            when several static scenes (rig instants) are associated at once.
+        sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
+            (:func:`temporal_cost`, ``temporal_weight``, ``max_gap``) may lower a cost.
         triangulated: the ``triangulate(groups)`` result when already computed.
-    Returns:
-        ``(groups, result)``: the new groups (pose indices, sorted; groups ordered by scene as
-        they came) and ``triangulate(groups)``.
+    Returns ``(groups, triangulate(groups))``, the groups sorted, scene by scene as they came.
     """
     keypoints = np.asarray(keypoints, dtype=float)
     N = len(keypoints)
     if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
         raise ValueError(f"associate: expected keypoints (N, 17, 3) and frame (N,), got {keypoints.shape} "
                          f"and {frame.shape}")
-    F = len(P)
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
-    slot_of = pose_scene * F + frame
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
-    clip = _CLIP_GATES * gate
-    first = True
-    for _ in range(max_iterations):
-        X = result[1].X
-        stale = False                                    # ``result`` triangulates ``groups``
+    for iteration in range(max_iterations):
+        X, stale = result[1].X, False                    # ``result`` triangulates ``groups``
         if merge is not None and len(groups) > 1:
-            merged = merge(X, groups)
-            if merged is not None:
-                # Each merged person keeps the 3D pose of the group it has most poses from,
-                # until the re-triangulation below.
-                owner = np.full(N, -1)
-                for q, g in enumerate(groups):
-                    owner[g] = q
-                survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
-                groups = [np.sort(np.asarray(g)) for g in merged]
-                X = X[survivor]
-                stale = True
-        Q = len(groups)
-        if Q == 0:
+            groups, X, stale = _merge_persons(merge, X, groups, N)
+        if not groups:
             break
-        group_scene = np.array([pose_scene[g[0]] for g in groups])
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
-        pose, person = _candidate_pairs(pose_scene, group_scene, np.flatnonzero(eligible), usable)
-        cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
-                                       min_common_keypoints, swap_above=gate)
-        if sequence is not None and temporal_weight > 0:
-            current = np.full(N, -1)
-            for q, g in enumerate(groups):
-                current[g] = q
-            # The cue only lowers a cost: a pose that continues the person's track explains
-            # itself where the reprojection is off, and large motion between frames costs
-            # nothing. Pairs it cannot bring under the gate are left out.
-            hope = np.flatnonzero(cost * (1 - temporal_weight) < gate)
-            near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose[hope], person[hope],
-                                 size[hope], keypoint_threshold, min_common_keypoints, clip, max_gap)
-            blend = (1 - temporal_weight) * cost[hope] + temporal_weight * near
-            cost[hope] = np.where(np.isfinite(near), np.fmin(cost[hope], blend), cost[hope])
-        assignment = assign_per_frame(cost, pose, person, slot_of[pose], N, gate)
-        new = _groups_of(assignment, Q)
-        # A person too incomplete to reproject keeps the poses nobody else took (the pipeline
-        # then drops it for want of joints, and says why).
-        for q in np.flatnonzero(~usable):
+        pose, person, cost = _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate,
+                                    keypoint_threshold, min_common_keypoints, sequence, temporal_weight, max_gap)
+        assignment = assign_per_frame(cost, pose, person, (pose_scene * len(P) + frame)[pose], N, gate)
+        new = _groups_of(assignment, len(groups))
+        for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
-        # Refuse persons that explain too few poses, or too few of the views they project into.
-        count = np.array([len(g) for g in new])
-        keep = (count >= min_group_size) | (~usable & (count > 0))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            visible = visible_frames(X, P, image_size)
-        keep &= (count >= min_support * visible) | ~usable
-        # Refuse persons whose body is not one (false positives agreeing in a few close views),
-        # unless they explain most of the views they project into, as no false cluster does.
-        keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
-        new = [g for g, k in zip(new, keep) if k]
-        initial = X[keep]
-        if seed is not None and first:
-            # Poses no person explains may be a person the grouping missed: group them once.
-            taken = np.zeros(N, dtype=bool)
-            for g in new:
-                taken[g] = True
-            rest = np.flatnonzero(eligible & ~taken)
-            found = [np.sort(rest[g]) for g in seed(rest)] if len(rest) else []
-            if found:
-                new += found
-                initial = np.concatenate([initial, np.full((len(found),) + X.shape[1:], np.nan)])
-                order = np.argsort([pose_scene[g[0]] for g in new], kind="stable")      # scene by scene
-                new, initial = [new[i] for i in order], initial[order]
-        first = False
+        keep = _credible(new, X, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
+        new, initial = [g for g, k in zip(new, keep) if k], X[keep]
+        if seed is not None and iteration == 0:
+            new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
         if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
             if stale:
                 result = triangulate(groups, X)
@@ -393,6 +323,74 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         groups = new
         result = triangulate(groups, initial)
     return groups, result
+
+
+def _merge_persons(merge: Callable, X: np.ndarray, groups: list[np.ndarray], N: int):
+    """``merge`` the persons whose 3D poses coincide: ``(groups, X, stale)``. Each merged person
+    keeps the 3D pose of the group it has most poses from until it is re-triangulated
+    (``stale``: ``X`` no longer triangulates ``groups``)."""
+    merged = merge(X, groups)
+    if merged is None:
+        return groups, X, False
+    owner = np.full(N, -1)
+    for q, g in enumerate(groups):
+        owner[g] = q
+    survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
+    return [np.sort(np.asarray(g)) for g in merged], X[survivor], True
+
+
+def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, keypoint_threshold,
+           min_common_keypoints, sequence, temporal_weight, max_gap):
+    """The (pose, person) pairs of one scene and their costs: three ``(K,)`` arrays. With a
+    video ``sequence``, a pose that continues the person's track in a neighbouring frame may
+    get a lower cost (never a higher one), so large motion between frames costs nothing."""
+    group_scene = np.array([pose_scene[g[0]] for g in groups])
+    pose, person = _candidate_pairs(pose_scene, group_scene, np.flatnonzero(eligible), usable)
+    cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
+                                   min_common_keypoints, swap_above=gate)
+    if sequence is not None and temporal_weight > 0:
+        current = np.full(len(keypoints), -1)
+        for q, g in enumerate(groups):
+            current[g] = q
+        hope = np.flatnonzero(cost * (1 - temporal_weight) < gate)         # pairs the cue can bring in
+        near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose[hope], person[hope],
+                             size[hope], keypoint_threshold, min_common_keypoints, _CLIP_GATES * gate, max_gap)
+        blend = (1 - temporal_weight) * cost[hope] + temporal_weight * near
+        cost[hope] = np.where(np.isfinite(near), np.fmin(cost[hope], blend), cost[hope])
+    return pose, person, cost
+
+
+def _credible(groups: list[np.ndarray], X: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+              usable: np.ndarray, min_group_size: int, min_support: float,
+              max_proportion_deviation: float) -> np.ndarray:
+    """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
+    they project into, and whose body is one (false positives agreeing in a few close views
+    triangulate to no body, unless they explain most of their views, as no false cluster does)."""
+    count = np.array([len(g) for g in groups])
+    keep = (count >= min_group_size) | (~usable & (count > 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        visible = visible_frames(X, P, image_size)
+    keep &= (count >= min_support * visible) | ~usable
+    keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+    return keep
+
+
+def _add_missed(groups: list[np.ndarray], initial: np.ndarray, seed: Callable, eligible: np.ndarray,
+                pose_scene: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Group once (``seed``) the eligible poses no person explains: persons the grouping missed,
+    appended with no previous 3D pose and kept in scene order."""
+    taken = np.zeros(len(eligible), dtype=bool)
+    for g in groups:
+        taken[g] = True
+    rest = np.flatnonzero(eligible & ~taken)
+    found = [np.sort(rest[g]) for g in seed(rest)] if len(rest) else []
+    if not found:
+        return groups, initial
+    groups = groups + found
+    initial = np.concatenate([initial, np.full((len(found),) + initial.shape[1:], np.nan)])
+    order = np.argsort([pose_scene[g[0]] for g in groups], kind="stable")
+    return [groups[i] for i in order], initial[order]
 
 
 def _candidate_pairs(pose_scene: np.ndarray, group_scene: np.ndarray, poses: np.ndarray,

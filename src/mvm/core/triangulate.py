@@ -134,21 +134,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     Rt = obs.Rt                                                             # (P, M, 3, 4)
 
     if use_ransac:
-        a, b = _sample_pairs(valid, hypotheses, rng)                        # (P, J, H)
-        pj = np.indices((Pn, J))
-        pts = np.stack([xy_n[pj[0][..., None], pj[1][..., None], a],
-                        xy_n[pj[0][..., None], pj[1][..., None], b]], axis=-2)   # (P, J, H, 2, 2)
-        cams = np.stack([Rt[pj[0][..., None], a], Rt[pj[0][..., None], b]], axis=-3)  # (P, J, H, 2, 3, 4)
-        X_h = triangulate_dlt(pts, cams)                                     # (P, J, H, 3)
-        if initial is not None:
-            X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
-        err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
-        ok = valid[..., None] & (depth > 0) & np.isfinite(err)
-        cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,
-                                                   threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
-        cost[~np.isfinite(X_h).all(-1)] = np.inf
-        best = np.argmin(cost, axis=-1)                                       # (P, J)
-        inliers = np.take_along_axis(ok & (err < threshold_px), best[:, None, :, None], axis=3)[..., 0]
+        inliers = _ransac_inliers(obs, valid, xy_n, Rt, threshold_px, hypotheses, rng, initial)
     else:
         inliers = valid.copy()
 
@@ -172,3 +158,26 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     X[~good] = np.nan
     inliers &= good[:, None, :]
     return Triangulation(X, inliers, valid, parallax)
+
+
+def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, xy_n: np.ndarray, Rt: np.ndarray,
+                    threshold_px: float, hypotheses: int, rng: np.random.Generator,
+                    initial: np.ndarray | None) -> np.ndarray:
+    """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score);
+    ``initial: (P, J, 3)`` world points join the random hypotheses."""
+    Pn, M, J = valid.shape
+    a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
+    pj = np.indices((Pn, J))
+    pts = np.stack([xy_n[pj[0][..., None], pj[1][..., None], a],
+                    xy_n[pj[0][..., None], pj[1][..., None], b]], axis=-2)       # (P, J, H, 2, 2)
+    cams = np.stack([Rt[pj[0][..., None], a], Rt[pj[0][..., None], b]], axis=-3)  # (P, J, H, 2, 3, 4)
+    X_h = triangulate_dlt(pts, cams)                                         # (P, J, H, 3)
+    if initial is not None:
+        X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
+    err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
+    ok = valid[..., None] & (depth > 0) & np.isfinite(err)
+    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,
+                                               threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
+    cost[~np.isfinite(X_h).all(-1)] = np.inf
+    best = np.argmin(cost, axis=-1)                                           # (P, J)
+    return np.take_along_axis(ok & (err < threshold_px), best[:, None, :, None], axis=3)[..., 0]

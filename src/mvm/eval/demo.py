@@ -35,12 +35,19 @@ def evaluate(result, truth) -> dict:
     }
 
 
-def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None = None) -> dict:
-    """Simulate into ``out_dir/scene`` (ground truth beside it), reconstruct, evaluate."""
+def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None = None,
+             render: bool = False) -> dict:
+    """Simulate into ``out_dir/scene`` (ground truth beside it), reconstruct, evaluate. With
+    ``render`` the frames are rendered into ``out_dir/scene/frames`` too (for report, overlay,
+    export and training)."""
     sim = sim or SimConfig()
     scene, truth = simulate(sim)
     scene_dir = Path(out_dir) / "scene"
     truth_path = write_simulation(scene_dir, scene, truth, sim)
+    if render:
+        from mvm.sim.video import render_frames
+
+        render_frames(scene_dir / "frames", scene.cameras, truth.poses3d, sim.seed)
     result = reconstruct_dir(scene_dir, config or Config())
     report = evaluate(result, truth)
     report.update(scene=str(scene_dir), poses3d=str(scene_dir / "mvm" / "poses3d.json"),

@@ -206,6 +206,10 @@ def _source(d, source: str, field_name: str) -> DataSource:
 
 
 def _check(cfg: TrainConfig, source: str) -> None:
+    for f in dataclasses.fields(TrainConfig):                # every number here is a finite count, rate or weight
+        value = getattr(cfg, f.name)
+        if f.type in ("int", "float") and not (math.isfinite(value) and value >= 0):
+            raise InputError(source, f.name, f"must be a finite number >= 0, got {value!r}")
     if cfg.stride not in (8, 16):
         raise InputError(source, "stride", f"expected 8 or 16, got {cfg.stride}")
     if cfg.upsample not in (1, 2):
@@ -239,7 +243,12 @@ def load_config(path: str | Path, overrides: dict | None = None) -> TrainConfig:
     path = Path(path)
     doc = load_toml(path)
     doc.update(overrides or {})
-    return config_from_dict(doc, str(path))
+    try:
+        return config_from_dict(doc, str(path))
+    except InputError as e:
+        if e.field in (overrides or {}):
+            raise InputError("--set", e.field, e.problem) from None
+        raise
 
 
 class MixtureSampler(torch.utils.data.Sampler):
