@@ -268,20 +268,17 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     """Refine ``P`` persons' 3D joints.
 
     Args:
-        X0: ``(P, J, 3)`` triangulated joints (NaN: not reconstructed, stays NaN).
-        xy: ``(P, M, J, 2)`` keypoints; conf: ``(P, M, J)`` confidences.
+        X0: ``(P, J, 3)`` joints (NaN stays NaN); xy, conf: ``(P, M, J, 2)`` keypoints, ``(P, M, J)``.
         P: ``(P, M, 3, 4)`` projection matrices of the views.
         inliers: ``(P, M, J)`` bool, the keypoints to fit.
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
-        prior_weight: λ, pixels² per nat.
-        robust_scale_px: scale ``f`` of the soft-L1 loss.
+        prior_weight: λ, pixels² per nat; robust_scale_px: scale ``f`` of the soft-L1 loss.
         bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
             are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
             relative length error (0: no bone term).
         tolerance: relative change of the cost and of the parameters at which an inner solve
             stops (``ftol``, ``xtol`` of ``scipy.optimize.least_squares``).
-    Returns:
-        :class:`RefineResult`.
+    Returns :class:`RefineResult`.
     """
     X0 = np.asarray(X0, dtype=float)
     Pn, J, _ = X0.shape
@@ -313,7 +310,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         blocks = linearized_prior(unpack(x))
         pattern = sparsity_pattern(fitted, blocks, n_params, bones)
         x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
-                          max_nfev=max_iterations, ftol=tolerance, xtol=tolerance, args=(fitted, sqrt_w, blocks, pattern, bones)).x
+                          max_nfev=max_iterations, ftol=tolerance, xtol=tolerance,
+                          args=(fitted, sqrt_w, blocks, pattern, bones)).x
 
     X = unpack(x)
     fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)
