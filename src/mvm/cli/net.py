@@ -68,7 +68,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
 def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: str | None, plot: bool) -> None:
     """Train the monocular 3D pose network with the settings of CONFIG (TOML).
 
-    Several GPUs: torchrun --nproc-per-node N -m mvm.cli.main train CONFIG (batch_size per GPU).
+    Several GPUs: torchrun --nproc-per-node N -m mvm train CONFIG (batch_size per GPU).
     """
     from mvm.net.train import load_config, train
 
