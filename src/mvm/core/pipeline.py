@@ -1,4 +1,5 @@
-"""The reconstruction pipeline, once for every driver: match -> triangulate -> merge ->
+"""The reconstruction pipeline, once for every driver: match -> triangulate -> merge duplicates
+(or, with ``association = "3d"``, the association consistent in 3D, which merges itself) ->
 refine (with a fallback) -> summarize.
 
 Arrays in, arrays out, no I/O. The 2D poses are split into independent *blocks*
@@ -7,10 +8,9 @@ rig instants has one block per instant. Matching and merging stay within a block
 triangulation and refinement treat the persons of every block as one set (they are
 independent), so a batch of instants costs one vectorized solve.
 
-Each step is a function of the previous step's arrays, so that a step can be added between
-two others with one call: a 3D-consistent association of the poses goes after
-:func:`merge_groups` (it changes ``groups``, then the groups are triangulated again), the
-completion of missing joints after :func:`refine_with_fallback`.
+Each step is a function of the previous step's arrays, so that a step is one call between two
+others: :func:`associate_poses` changes ``groups`` and returns their new triangulation; the
+drivers complete missing joints (:mod:`mvm.core.completion`) after :func:`refine_with_fallback`.
 """
 from __future__ import annotations
 
