@@ -13,22 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.eval.metrics import similarity_transform
 from mvm.sim.video import RenderConfig, default_people, render_video
 from mvm.video.detect import detect_scene
 from mvm.video.frames import FrameOptions, extract_frames
 from mvm.video.pipeline import reconstruct_scene
 from mvm.video.sfm import SfmOptions, run_sfm
-
-
-def umeyama(src, dst):
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    U, S, Vt = np.linalg.svd(b.T @ a / len(src))
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (a**2).sum() * len(src)
-    return s, R, md - s * R @ ms
 
 
 def network_seconds_per_frame(frame_path: Path, n: int = 3) -> float | None:
@@ -97,7 +87,7 @@ def main() -> None:
 
     model = read_colmap(scene / "sparse")
     index = [truth.cameras.names.index(n) for n in model.cameras.names]
-    s, R, tr = umeyama(model.cameras.centers, truth.cameras.centers[index])
+    s, R, tr = similarity_transform(model.cameras.centers, truth.cameras.centers[index])
     err = np.linalg.norm(s * model.cameras.centers @ R.T + tr - truth.cameras.centers[index], axis=1)
     path_length = np.linalg.norm(np.diff(truth.cameras.centers, axis=0), axis=1).sum()
     summary = {

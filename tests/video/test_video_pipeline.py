@@ -8,22 +8,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from mvm.eval.metrics import similarity_transform
 from mvm.io.colmap import read_colmap
 from mvm.sim.video import RenderConfig, render_video
 
 FRAMES = 40
 
-
-def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity ``dst ≈ s R src + t`` by least squares. ``src, dst: (N, 3)``."""
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    U, S, Vt = np.linalg.svd(b.T @ a / len(src))
-    D = np.eye(3)
-    D[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (a**2).sum() * len(src)
-    return s, R, md - s * R @ ms
 
 
 def coco_results(truth, rng, noise_px: float = 0.5) -> list[dict]:
@@ -70,7 +60,7 @@ def test_camera_centres_and_poses_match_truth(run_result, capsys):
     model = read_colmap(scene / "sparse")
     index = [truth.cameras.names.index(n) for n in model.cameras.names]
     true_centres = truth.cameras.centers[index]
-    s, R, t = umeyama(model.cameras.centers, true_centres)
+    s, R, t = similarity_transform(model.cameras.centers, true_centres)
     aligned = s * model.cameras.centers @ R.T + t
     path_length = np.linalg.norm(np.diff(truth.cameras.centers, axis=0), axis=1).sum()
     assert np.linalg.norm(aligned - true_centres, axis=1).max() < 0.02 * path_length

@@ -36,19 +36,25 @@ def matching_precision_recall(groups: list[np.ndarray], true_person: np.ndarray)
     return float(precision), float(recall)
 
 
+def similarity_transform(source: np.ndarray, target: np.ndarray, scale: bool = True
+                         ) -> tuple[float, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama). ``source, target: (N, 3)``
+    -> ``s``, ``R: (3, 3)``, ``t: (3,)`` (``s = 1`` without ``scale``)."""
+    mu_a, mu_b = source.mean(0), target.mean(0)
+    A0, B0 = source - mu_a, target - mu_b
+    U, S, Vt = np.linalg.svd(B0.T @ A0)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    s = (S * np.diag(D)).sum() / (A0**2).sum() if scale else 1.0
+    return s, R, mu_b - s * R @ mu_a
+
+
 def procrustes_align(source: np.ndarray, target: np.ndarray, scale: bool = True) -> np.ndarray:
     """Similarity-align ``source: (J, 3)`` to ``target: (J, 3)`` over joints finite in both;
     returns the aligned source ``(J, 3)``."""
     ok = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
-    A, B = source[ok], target[ok]
-    mu_a, mu_b = A.mean(0), B.mean(0)
-    A0, B0 = A - mu_a, B - mu_b
-    U, S, Vt = np.linalg.svd(A0.T @ B0)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.diag([1.0, 1.0, d])
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (A0**2).sum() if scale else 1.0
-    return s * (source - mu_a) @ R + mu_b
+    s, R, t = similarity_transform(source[ok], target[ok], scale)
+    return s * source @ R.T + t
 
 
 def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float = np.inf) -> list[tuple[int, int]]:
