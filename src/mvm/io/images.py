@@ -11,9 +11,11 @@ from mvm.io.checks import check_input_file, read_bytes
 
 MAX_IMAGE_BYTES = 512 * 2 ** 20
 """The largest image file a reader decodes (bytes)."""
-NOT_AN_IMAGE = "not an image OpenCV can decode"
-"""The problem of an :class:`InputError` for a regular file that does not decode (a reader of
-many frames may skip such a frame; every other refusal stands)."""
+
+
+class UndecodableImage(InputError):
+    """A regular file inside the scene that OpenCV cannot decode: a reader of many frames may
+    skip such a frame; every other refusal of :func:`read_image` stands."""
 
 
 def read_image(path: str | Path, root: str | Path | None = None, flags: int | None = None,
@@ -29,7 +31,7 @@ def read_image(path: str | Path, root: str | Path | None = None, flags: int | No
     data = read_bytes(path, root, limit=MAX_IMAGE_BYTES)
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR if flags is None else flags)
     if image is None:
-        raise InputError(path, None, NOT_AN_IMAGE)
+        raise UndecodableImage(path, None, "not an image OpenCV can decode")
     return image
 
 

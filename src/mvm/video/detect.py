@@ -31,7 +31,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
 from mvm.io.files import atomic_write_json
-from mvm.io.images import NOT_AN_IMAGE, read_image
+from mvm.io.images import UndecodableImage, read_image
 from mvm.io.paths import resolve_in
 from mvm.video.appearance import colour_descriptor, pool_features
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
@@ -366,9 +366,7 @@ def read_frames(scene: Path, names: list[str], batch_size: int, warn: bool = Tru
         file = resolve_in(scene / FRAMES_DIR, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
         try:
             image = read_image(file, root=scene, missing_ok=True)
-        except InputError as e:
-            if e.problem != NOT_AN_IMAGE:
-                raise
+        except UndecodableImage:
             image = None
         if image is None and warn:
             log.warning("%s: cannot read this frame image; it is skipped", file)
