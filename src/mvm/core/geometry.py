@@ -1,5 +1,4 @@
-"""Multi-view geometry on batched arrays: projection, fundamental matrices, epipolar
-distances, DLT triangulation. Pure numpy, no I/O.
+"""Multi-view geometry on batched arrays: projection, DLT triangulation. Pure numpy, no I/O.
 
 Conventions: world -> camera ``x_cam = R X + t``; projection matrices ``P = K [R | t]``;
 pixel coordinates of an undistorted pinhole camera.
@@ -35,26 +34,6 @@ def project(points: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(divide="ignore", invalid="ignore"):
         pixels = x[..., :2] / depth[..., None]
     return pixels, depth
-
-
-def fundamental_matrices(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Fundamental matrices of every ordered pair of views.
-
-    ``K, R: (V, 3, 3)``, ``t: (V, 3)`` -> ``F: (V, V, 3, 3)`` with ``F[i, j] @ x_j`` the epipolar
-    line in view ``i`` of pixel ``x_j`` of view ``j`` (so ``x_i^T F[i, j] x_j = 0``).
-    """
-    K_inv = np.linalg.inv(K)
-    R_ij = np.einsum("iab,jcb->ijac", R, R)                    # R_i R_j^T
-    t_ij = t[:, None, :] - np.einsum("ijab,jb->ija", R_ij, t)  # t_i - R_ij t_j
-    E = skew(t_ij) @ R_ij
-    return np.einsum("iba,ijbc,jcd->ijad", K_inv, E, K_inv)
-
-
-def point_line_distance(points: np.ndarray, lines: np.ndarray) -> np.ndarray:
-    """Euclidean distance of pixels to lines. ``points: (..., 2)``, ``lines: (..., 3)`` -> ``(...)``."""
-    numerator = np.abs(lines[..., 0] * points[..., 0] + lines[..., 1] * points[..., 1] + lines[..., 2])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return numerator / np.hypot(lines[..., 0], lines[..., 1])
 
 
 def triangulate_dlt(points: np.ndarray, P: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
