@@ -1,21 +1,22 @@
 """Refinement of triangulated poses (the paper's Eq. bundle):
 
-    min_X  Σ_u ρ(‖π_u(X) − x_u‖²) · c_u  +  λ · E_P(X),   E_P(X) = −log Σ_l w_l N(X̃ | μ_l, Σ_l)
+    min_X  Σ_u ρ(‖π_u(X) − x_u‖²) · c_u  +  λ · E_P(X)  [+ Σ_b w ((|X_a − X_b| − L_b) / L_b)²]
 
 with ρ the soft-L1 robust loss of scale ``f`` pixels, ``c_u`` the keypoint confidences, X̃
-the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`) and λ the
-prior weight. It is solved with ``scipy.optimize.least_squares`` (trust region, LSMR) on an
-analytic sparse Jacobian whose pattern is built once per outer iteration
-(residuals and Jacobian are pure functions of the parameter vector):
-
-- each 2D keypoint gives two rows that depend on the 3 coordinates of its joint only;
-- each person's prior rows depend on that person's coordinates only (a dense block).
+the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`), λ the
+prior weight and the optional soft bone-length terms of a rigid skeleton (:class:`BoneTerms`).
 
 Outer iterations re-linearize what the inner problem holds fixed: the robust weights
 (iteratively reweighted least squares for ρ), the body frame and scale of the
 canonicalization, and the mixture component (the max-mixture approximation of E_P, whose
-negative log-likelihood of one component is a sum of squares). Persons are independent, so
-one solve refines all of them at once.
+negative log-likelihood of one component is a sum of squares). The inner problem is then a
+nonlinear least-squares problem per person: its unknowns are the person's present joints
+(at most 17 × 3), each reprojection row touches one joint, the linearized prior rows touch
+only that person and each bone row two of its joints. Persons are independent, so the normal
+equations are one dense ``51 × 51`` system per person (absent joints: identity rows), solved
+for all persons at once by a batched Levenberg-Marquardt (:func:`levenberg_marquardt`): every
+person has its own damping, accepts or rejects its own steps and stops on its own
+tolerance. Residuals and their derivatives are pure functions of the joints.
 """
 from __future__ import annotations
 
@@ -23,14 +24,21 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.optimize import least_squares
 
 from mvm.core.geometry import project
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
 
 log = logging.getLogger(__name__)
+
+_BONES = np.array(BONES)
+#: ``(B, J)`` bone incidence: +1 at a bone's first joint, -1 at its second.
+_INCIDENCE = np.zeros((len(BONES), 17))
+_INCIDENCE[np.arange(len(BONES)), _BONES[:, 0]] = 1.0
+_INCIDENCE[np.arange(len(BONES)), _BONES[:, 1]] = -1.0
+#: Initial damping of every person, relative to the diagonal of its normal equations.
+INITIAL_DAMPING = 1e-3
+_MIN_DAMPING, _MAX_DAMPING = 1e-9, 1e12
 
 
 @dataclass
@@ -59,204 +67,303 @@ def _median_by(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-@dataclass
-class PriorBlock:
-    """The linearized prior of persons sharing the same present joints and mixture component:
-    residuals ``G[p] @ x[cols[p]] - h[p]``.
+@dataclass(frozen=True)
+class Observations:
+    """The 2D keypoints the refinement fits, in the persons' view-slot layout.
 
-    ``cols: (Pg, 3n)`` parameter columns of the persons' present joints (joint-major x, y, z);
-    ``G: (Pg, K, 3n)``; ``h: (Pg, K)`` with ``K = 3n``."""
+    ``xy: (P, M, J, 2)`` pixels; ``P: (P, M, 3, 4)`` the slots' projections; ``conf: (P, M, J)``
+    confidences; ``fit: (P, M, J)`` bool, the keypoints fitted (inliers of present joints)."""
 
-    cols: np.ndarray
+    xy: np.ndarray
+    P: np.ndarray
+    conf: np.ndarray
+    fit: np.ndarray
+
+    def take(self, persons: np.ndarray) -> "Observations":
+        """The observations of ``persons: (Q,)`` indices."""
+        return Observations(self.xy[persons], self.P[persons], self.conf[persons], self.fit[persons])
+
+    def _homogeneous(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Image coordinates ``(P, M, 2, J)`` and depths ``(P, M, J)`` (1 where not fitted) of
+        the joints ``X: (P, J, 3)`` in every slot's view."""
+        Pn, M = self.P.shape[:2]
+        proj = np.matmul(self.P[..., :3].reshape(Pn, 3 * M, 3), np.swapaxes(X, 1, 2)).reshape(Pn, M, 3, -1) \
+            + self.P[..., 3, None]
+        depth = np.where(self.fit, proj[:, :, 2], 1.0)
+        return proj[:, :, :2] / depth[:, :, None], depth
+
+    def reprojection(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residual pixels ``(P, M, J, 2)`` and depths ``(P, M, J)`` of the keypoints at joints
+        ``X: (P, J, 3)``; 0 and 1 where a keypoint is not fitted."""
+        uv, depth = self._homogeneous(X)
+        return np.where(self.fit[..., None], np.swapaxes(uv, 2, 3) - self.xy, 0.0), depth
+
+    def normal_terms(self, X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The reprojection rows' share of the normal equations at ``X: (P, J, 3)`` with
+        weights ``w: (P, M, J)`` (0 where not fitted): the cost ``½ Σ w |e|²: (P,)``, the
+        gradient ``(P, J, 3)`` and one ``3 × 3`` block ``Σ w DᵀD`` per joint ``(P, J, 3, 3)``.
+
+        With ``A`` the rows of a view's ``P[:, :3]``, ``(u, v, 1) z`` the projection and ``e``
+        its residual, ``D = (A_uv − (u, v)ᵀ a_z) / z``; its products expand into four ``3 × 3``
+        matrices per view, contracted with per-keypoint coefficients (no per-keypoint
+        Jacobian is formed)."""
+        Pn, M = self.P.shape[:2]
+        uv, z = self._homogeneous(X)                                                   # (P, M, 2, J)
+        e = np.where(self.fit[:, :, None], uv - np.swapaxes(self.xy, 2, 3), 0.0)
+        A = self.P[..., :3]                                                            # (P, M, 3, 3)
+        cross = A[:, :, :2, :, None] * A[:, :, 2, None, None, :]                       # (P, M, 2, 3, 3)
+        mats = np.stack([np.einsum("pmia,pmib->pmab", A[:, :, :2], A[:, :, :2]),
+                         cross[:, :, 0] + np.swapaxes(cross[:, :, 0], -1, -2),
+                         cross[:, :, 1] + np.swapaxes(cross[:, :, 1], -1, -2),
+                         A[:, :, 2, :, None] * A[:, :, 2, None, :]], axis=2)           # (P, M, 4, 3, 3)
+        c = w / z**2
+        coef = np.stack([c, -c * uv[:, :, 0], -c * uv[:, :, 1], c * (uv**2).sum(2)], axis=2)  # (P, M, 4, J)
+        blocks = np.matmul(np.swapaxes(coef.reshape(Pn, 4 * M, -1), 1, 2), mats.reshape(Pn, 4 * M, 9))
+        g = w / z
+        coef = np.concatenate([g[:, :, None] * e, -(g * (e * uv).sum(2))[:, :, None]], axis=2)  # (P, M, 3, J)
+        grad = np.matmul(np.swapaxes(coef.reshape(Pn, 3 * M, -1), 1, 2), A.reshape(Pn, 3 * M, 3))
+        return 0.5 * (w * (e**2).sum(2)).sum((1, 2)), grad, blocks.reshape(Pn, -1, 3, 3)
+
+
+@dataclass(frozen=True)
+class LinearPrior:
+    """The linearized prior of every person: residuals ``G @ x − h`` of its joints flattened
+    joint-major, ``x: (P, 3J)``. ``G: (P, 3J, 3J)`` (rows beyond a person's ``3n`` present
+    coordinates, and persons without a prior, are zero); ``h: (P, 3J)``; ``GtG: (P, 3J, 3J)``,
+    ``Gᵀ G``, constant while the prior stays linearized at the same point."""
+
     G: np.ndarray
     h: np.ndarray
+    GtG: np.ndarray
+
+    @staticmethod
+    def of(G: np.ndarray, h: np.ndarray) -> "LinearPrior":
+        return LinearPrior(G, h, np.matmul(np.swapaxes(G, 1, 2), G))
+
+    def take(self, persons: np.ndarray) -> "LinearPrior":
+        return LinearPrior(self.G[persons], self.h[persons], self.GtG[persons])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        """``(Pg, K)``."""
-        return np.einsum("pkc,pc->pk", self.G, x[self.cols]) - self.h
+        """``(P, 3J)``."""
+        return np.matmul(self.G, x[..., None])[..., 0] - self.h
 
 
-def prior_blocks(X: np.ndarray, present: np.ndarray, param_of: np.ndarray, prior,
-                 weight: float) -> list[PriorBlock]:
+def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
     """Linearize ``weight · E_P`` at ``X: (P, J, 3)`` for every person that has both hips and
     shoulders: the prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame
     ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
-    negative log-likelihood is ``½ |W (y − μ)|²``. Persons are batched by (present joints,
-    component): ``param_of: (P, J)`` parameter index of each present joint."""
+    negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
+    each (present joints, component) pair is built once; the others get zero rows."""
+    Pn, J, _ = X.shape
     rotation, _, scale = body_frame(np.where(present[..., None], X, np.nan))      # (P, 3, 3), (P,)
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
-    if not usable.any():
-        return []
-    canonical = canonicalize(np.where(present[..., None], X, np.nan))
-    component = np.full(len(X), -1)
-    component[usable] = prior.best_component(canonical[usable])
+    component = np.full(Pn, -1)
+    if prior is not None and weight > 0 and usable.any():
+        component[usable] = prior.best_component(canonicalize(np.where(present[..., None], X, np.nan))[usable])
     usable &= component >= 0
-    keys = np.concatenate([present, component[:, None]], axis=1)[usable]
-    persons = np.flatnonzero(usable)
-    _, group = np.unique(keys, axis=0, return_inverse=True)
-    blocks = []
-    for g in range(group.max() + 1):
-        ps = persons[group.ravel() == g]
-        joints = np.flatnonzero(present[ps[0]])
-        n = len(joints)
-        mean, W, _ = prior.whitening(present[ps[0]], int(component[ps[0]]))
-        # W @ (C ⊗ R/s) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction.
-        Wr = W.reshape(len(W), n, 3)
-        WC = Wr.copy()
-        total = Wr.sum(axis=1)
-        WC[:, np.searchsorted(joints, LEFT_HIP)] -= 0.5 * total
-        WC[:, np.searchsorted(joints, RIGHT_HIP)] -= 0.5 * total
-        G = np.einsum("kja,pab->pkjb", WC, rotation[ps] / scale[ps, None, None]).reshape(len(ps), len(W), 3 * n)
-        cols = (3 * param_of[np.ix_(ps, joints)][..., None] + np.arange(3)).reshape(len(ps), 3 * n)
-        root = np.sqrt(weight)
-        blocks.append(PriorBlock(cols, root * G, root * np.broadcast_to(W @ mean, (len(ps), len(W))).copy()))
-    return blocks
-
-
-@dataclass(frozen=True)
-class FittedKeypoints:
-    """The ``K`` 2D keypoints the refinement fits, flattened.
-
-    ``param: (K,)`` parameter joint (row of ``x.reshape(-1, 3)``) each keypoint observes;
-    ``person: (K,)`` its person; ``P: (K, 3, 4)`` its view's projection; ``xy: (K, 2)`` pixels;
-    ``conf: (K,)`` confidences."""
-
-    param: np.ndarray
-    person: np.ndarray
-    P: np.ndarray
-    xy: np.ndarray
-    conf: np.ndarray
-
-
-@dataclass(frozen=True)
-class SparsityPattern:
-    """The Jacobian's non-zero entries (``rows``, ``cols``: 3 per reprojection row, a dense
-    block per person's prior rows), the constant prior values and the ``shape``."""
-
-    rows: np.ndarray
-    cols: np.ndarray
-    prior_values: np.ndarray
-    shape: tuple[int, int]
+    keys, group = np.unique(np.concatenate([present, component[:, None]], axis=1)[usable], axis=0,
+                            return_inverse=True)
+    # Per pair: W @ (C ⊗ I) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction, on the
+    # coordinates of all J joints (zero columns for absent ones), and W @ μ; the last pair: none.
+    WC = np.zeros((len(keys) + 1, 3 * J, J, 3))
+    Wmean = np.zeros((len(keys) + 1, 3 * J))
+    root = np.sqrt(weight)
+    for g, key in enumerate(keys):
+        mask = key[:J].astype(bool)
+        mean, W, _ = prior.whitening(mask, int(key[J]))
+        block = W.reshape(len(W), -1, 3)
+        total = block.sum(axis=1)
+        WC[g, :len(W), mask] = root * np.swapaxes(block, 0, 1)
+        WC[g, :len(W), [LEFT_HIP, RIGHT_HIP]] -= 0.5 * root * total
+        Wmean[g, :len(W)] = root * (W @ mean)
+    which = np.full(Pn, len(keys))
+    which[usable] = group.ravel()
+    frame = np.where(usable[:, None, None], rotation / np.where(usable, scale, 1.0)[:, None, None], 0.0)
+    G = np.matmul(WC[which].reshape(Pn, -1, 3), frame).reshape(Pn, 3 * J, 3 * J)
+    return LinearPrior.of(G, Wmean[which])
 
 
 @dataclass(frozen=True)
 class BoneTerms:
     """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` (a relative error, weight ``w`` in
-    pixels²). ``ends: (N, 2)`` parameter joints of each bone; ``target: (N,)`` lengths ``L``."""
+    pixels²) of the :data:`mvm.core.keypoints.BONES` ``(a, b)``. ``target: (P, B)`` lengths
+    ``L``, 0 where a person's bone has no term."""
 
-    ends: np.ndarray
     target: np.ndarray
     root_weight: float
 
     @staticmethod
-    def build(lengths, weight: float, present: np.ndarray, param_of: np.ndarray) -> "BoneTerms":
-        """Terms for the :data:`mvm.core.keypoints.BONES` of ``lengths: (P, B)`` (NaN: none)
-        whose two joints are present."""
-        bones = np.array(BONES)
-        target = np.asarray(lengths, dtype=float).reshape(len(present), len(bones))
-        ok = present[:, bones[:, 0]] & present[:, bones[:, 1]] & np.isfinite(target) & (target > 0)
-        p, b = np.nonzero(ok)
-        ends = np.stack([param_of[p, bones[b, 0]], param_of[p, bones[b, 1]]], axis=1)
-        return BoneTerms(ends, target[p, b], float(np.sqrt(weight)))
+    def build(lengths, weight: float, present: np.ndarray) -> "BoneTerms":
+        """Terms for the bones of ``lengths: (P, B)`` (NaN: none) whose two joints are present
+        (``present: (P, J)`` bool)."""
+        target = np.asarray(lengths, dtype=float).reshape(len(present), len(_BONES))
+        ok = present[:, _BONES[:, 0]] & present[:, _BONES[:, 1]] & np.isfinite(target) & (target > 0)
+        return BoneTerms(np.where(ok, target, 0.0), float(np.sqrt(weight)))
 
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        """``(N,)``."""
-        points = x.reshape(-1, 3)
-        length = np.linalg.norm(points[self.ends[:, 0]] - points[self.ends[:, 1]], axis=-1)
-        return self.root_weight * (length - self.target) / self.target
+    def take(self, persons: np.ndarray) -> "BoneTerms":
+        return BoneTerms(self.target[persons], self.root_weight)
 
-    def jacobian_values(self, x: np.ndarray) -> np.ndarray:
-        """``(N, 2, 3)``: derivatives by the coordinates of each bone's two joints."""
-        points = x.reshape(-1, 3)
-        d = points[self.ends[:, 0]] - points[self.ends[:, 1]]
-        u = d / np.maximum(np.linalg.norm(d, axis=-1), 1e-12)[:, None] * (self.root_weight / self.target)[:, None]
-        return np.stack([u, -u], axis=1)
+    def linearize(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals ``(P, B)`` at ``X: (P, J, 3)`` and their derivatives ``u: (P, B, 3)`` by
+        the coordinates of each bone's first joint (``−u`` by its second); 0 without a term."""
+        d = X[:, _BONES[:, 0]] - X[:, _BONES[:, 1]]
+        length = np.linalg.norm(d, axis=-1)
+        on = self.target > 0
+        scale = np.where(on, self.root_weight / np.where(on, self.target, 1.0), 0.0)
+        u = d * (scale / np.maximum(length, 1e-12))[..., None]
+        return scale * (length - self.target), u
 
 
-def reprojection(x: np.ndarray, fitted: FittedKeypoints) -> tuple[np.ndarray, np.ndarray]:
-    """Residual pixels ``(K, 2)`` and depths ``(K,)`` of the fitted keypoints at ``x: (3 n,)``."""
-    uv, depth = project(x.reshape(-1, 3)[fitted.param], fitted.P)
-    return uv - fitted.xy, depth
+@dataclass(frozen=True)
+class InnerProblem:
+    """The least-squares problem of one outer iteration, for ``P`` persons: the observations,
+    the IRLS root weights ``sqrt_w: (P, M, J)`` of their reprojection residuals, the
+    linearized prior and the bone terms (or None)."""
+
+    obs: Observations
+    sqrt_w: np.ndarray
+    prior: LinearPrior
+    bones: BoneTerms | None
+
+    def take(self, persons: np.ndarray) -> "InnerProblem":
+        return InnerProblem(self.obs.take(persons), self.sqrt_w[persons], self.prior.take(persons),
+                            None if self.bones is None else self.bones.take(persons))
 
 
-def objective(x: np.ndarray, fitted: FittedKeypoints, blocks: list[PriorBlock], robust_scale_px: float,
+def residuals(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
+    """Every person's residuals at ``x: (P, 3J)``: ``(P, 2 M J + 3J [+ B])``, the weighted
+    reprojection errors, the linearized prior rows and the bone rows. The inner cost is half
+    their sum of squares per person."""
+    X = x.reshape(len(x), -1, 3)
+    e, _ = problem.obs.reprojection(X)
+    rows = [(problem.sqrt_w[..., None] * e).reshape(len(x), -1), problem.prior.residuals(x)]
+    if problem.bones is not None:
+        rows.append(problem.bones.linearize(X)[0])
+    return np.concatenate(rows, axis=1)
+
+
+def block_entries(J: int, bones: bool) -> np.ndarray:
+    """Flat indices into a ``3J × 3J`` matrix of the ``3 × 3`` blocks of
+    :func:`normal_equations`: the ``J`` diagonal blocks, then ``(a, b)`` and ``(b, a)`` of every
+    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block."""
+    rows, cols = np.arange(J), np.arange(J)
+    if bones:
+        rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
+    x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+    return ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+
+
+def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gauss-Newton normal equations of :func:`residuals` ``r`` with Jacobian ``Jr`` at
+    ``x: (P, 3J)``: the cost ``½|r|²: (P,)``, the gradient ``Jrᵀ r: (P, 3J)`` and the
+    ``3 × 3`` blocks ``(P, K, 3, 3)`` that ``Jrᵀ Jr`` adds to the prior's constant ``Gᵀ G`` at
+    :func:`block_entries`: one per joint (its keypoints, its bones) and two per bone."""
+    Pn, J = len(x), x.shape[1] // 3
+    X = x.reshape(Pn, J, 3)
+    cost, grad, blocks = problem.obs.normal_terms(X, problem.sqrt_w**2)
+    r_prior = problem.prior.residuals(x)
+    cost += 0.5 * (r_prior**2).sum(1)
+    grad = grad.reshape(Pn, -1) + np.matmul(r_prior[:, None], problem.prior.G)[:, 0]
+    if problem.bones is None:
+        return cost, grad, blocks
+    r_bone, u = problem.bones.linearize(X)
+    cost += 0.5 * (r_bone**2).sum(1)
+    grad += np.matmul(_INCIDENCE.T, r_bone[..., None] * u).reshape(Pn, -1)
+    uu = (u[..., :, None] * u[..., None, :]).reshape(Pn, -1, 9)                       # (P, B, 9)
+    blocks += np.matmul(np.abs(_INCIDENCE.T), uu).reshape(Pn, J, 3, 3)
+    return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
+
+
+def hessian(GtG: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """``Jrᵀ Jr: (P, 3J, 3J)`` from the prior's ``GtG: (P, 3J, 3J)`` and the ``blocks`` of
+    :func:`normal_equations`."""
+    Pn, n, _ = GtG.shape
+    H = GtG.copy()
+    H.reshape(Pn, -1)[:, block_entries(n // 3, blocks.shape[1] > n // 3)] += blocks.reshape(Pn, -1)
+    return H
+
+
+def damped_steps(GtG: np.ndarray, blocks: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt steps ``(P, n)``: ``(H + μ diag(H)) δ = −grad`` for ``H`` the
+    :func:`hessian` of ``GtG`` and ``blocks``, ``grad: (P, n)``, ``damping μ: (P,)``. A
+    coordinate that no residual depends on (a zero diagonal: an absent joint) gets an identity
+    row and does not move."""
+    H = hessian(GtG, blocks)
+    diagonal = H.reshape(len(H), -1)[:, :: H.shape[1] + 1]
+    diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
+    return -np.linalg.solve(H, grad[..., None])[..., 0]
+
+
+def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
+                        tolerance: float) -> np.ndarray:
+    """Minimize every person's half sum of squared :func:`residuals` from ``x: (P, 3J)``.
+
+    Each person has its own damping (relative to its normal equations' diagonal: divided by 3
+    after an accepted step, multiplied by 10 after a rejected one) and stops on its own when an
+    accepted step lowers its cost by less than ``tolerance`` times the cost, or a step is
+    shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and ``xtol`` of
+    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. Returns ``(P, 3J)``."""
+    x = x.copy()
+    cost, grad, blocks = normal_equations(x, problem)
+    damping = np.full(len(x), INITIAL_DAMPING)
+    active = np.isfinite(cost)
+    sub, idx = problem, np.arange(len(x))
+    for _ in range(max_steps):
+        if not active.any():
+            break
+        if not active[idx].all():
+            idx = np.flatnonzero(active)
+            sub = problem.take(idx)
+        step = damped_steps(sub.prior.GtG, blocks[idx], grad[idx], damping[idx])
+        trial = x[idx] + step
+        trial_cost = 0.5 * (residuals(trial, sub) ** 2).sum(1)
+        better = trial_cost < cost[idx]
+        small_step = np.linalg.norm(step, axis=1) <= tolerance * (tolerance + np.linalg.norm(x[idx], axis=1))
+        small_gain = better & (cost[idx] - trial_cost <= tolerance * cost[idx])
+        damping[idx] = np.clip(np.where(better, damping[idx] / 3.0, damping[idx] * 10.0), _MIN_DAMPING, _MAX_DAMPING)
+        active[idx] = ~(small_step | small_gain)
+        if better.any():
+            moved = idx[better]
+            x[moved] = trial[better]
+            cost[moved], grad[moved], blocks[moved] = normal_equations(
+                x[moved], sub if better.all() else sub.take(np.flatnonzero(better)))
+    return x
+
+
+def objective(X: np.ndarray, obs: Observations, prior: LinearPrior, robust_scale_px: float,
               bones: BoneTerms | None = None) -> float:
-    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``x: (3 n,)``."""
-    e, _ = reprojection(x, fitted)
+    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``X: (P, J, 3)``
+    (absent joints 0), with the prior linearized at ``X`` itself."""
+    e, _ = obs.reprojection(X)
     f2 = robust_scale_px**2
-    total = (fitted.conf * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-    total += 0.5 * np.sum(bones.residuals(x) ** 2) if bones is not None else 0.0
-    return float(total + sum(0.5 * np.sum(b.residuals(x) ** 2) for b in blocks))
+    total = (np.where(obs.fit, obs.conf, 0.0) * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
+    total += 0.5 * np.sum(bones.linearize(X)[0] ** 2) if bones is not None else 0.0
+    return float(total + 0.5 * np.sum(prior.residuals(X.reshape(len(X), -1)) ** 2))
 
 
-def residuals(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
-              pattern: SparsityPattern, bones: BoneTerms | None = None) -> np.ndarray:
-    """The inner least-squares residuals ``(2 K + prior rows [+ bone rows],)``: weighted
-    reprojection errors (``sqrt_w: (2 K,)``, the IRLS weights of ρ), the linearized prior rows
-    and the bone terms."""
-    e, _ = reprojection(x, fitted)
-    extra = [bones.residuals(x)] if bones is not None else []
-    return np.concatenate([sqrt_w * e.reshape(-1)] + [b.residuals(x).reshape(-1) for b in blocks] + extra)
-
-
-def jacobian(x: np.ndarray, fitted: FittedKeypoints, sqrt_w: np.ndarray, blocks: list[PriorBlock],
-             pattern: SparsityPattern, bones: BoneTerms | None = None) -> sp.csr_matrix:
-    """The analytic Jacobian of :func:`residuals` at ``x``, sparse as ``pattern``."""
-    K = len(fitted.param)
-    homogeneous = np.concatenate([x.reshape(-1, 3)[fitted.param], np.ones((K, 1))], axis=1)
-    proj = np.einsum("kab,kb->ka", fitted.P, homogeneous)
-    z = proj[:, 2:3]
-    uv = proj[:, :2] / z
-    d = (fitted.P[:, :2, :3] - uv[:, :, None] * fitted.P[:, 2:3, :3]) / z[:, :, None]   # (K, 2, 3)
-    values = (d * sqrt_w.reshape(K, 2)[:, :, None]).reshape(-1)
-    extra = [bones.jacobian_values(x).reshape(-1)] if bones is not None else []
-    return sp.csr_matrix((np.concatenate([values, pattern.prior_values] + extra), (pattern.rows, pattern.cols)),
-                         shape=pattern.shape)
-
-
-def sparsity_pattern(fitted: FittedKeypoints, blocks: list[PriorBlock], n_params: int,
-                     bones: BoneTerms | None = None) -> SparsityPattern:
-    """Where :func:`jacobian` is non-zero: 3 entries per reprojection row (the coordinates of the
-    keypoint's joint), a dense block per person's prior rows, 6 per bone row (its two joints)."""
-    K = len(fitted.param)
-    rows_reproj = np.repeat(np.arange(2 * K), 3)
-    cols_reproj = (3 * np.repeat(fitted.param, 2)[:, None] + np.arange(3)).reshape(-1)
-    sizes = [b.G.shape[0] * b.G.shape[1] for b in blocks]
-    starts = 2 * K + np.cumsum([0] + sizes)
-    rows = np.concatenate([rows_reproj] + [np.repeat(np.arange(a, a + n), b.G.shape[2])
-                                           for a, n, b in zip(starts, sizes, blocks)])
-    cols = np.concatenate([cols_reproj] + [np.broadcast_to(b.cols[:, None, :], b.G.shape).reshape(-1)
-                                           for b in blocks])
-    prior_values = np.concatenate([np.zeros(0)] + [b.G.reshape(-1) for b in blocks])
-    n_rows = int(starts[-1])
-    if bones is not None:
-        rows = np.concatenate([rows, n_rows + np.repeat(np.arange(len(bones.target)), 6)])
-        cols = np.concatenate([cols, (3 * bones.ends[:, :, None] + np.arange(3)).reshape(-1)])
-        n_rows += len(bones.target)
-    return SparsityPattern(rows, cols, prior_values, (n_rows, n_params))
-
-
-def irls_weights(x: np.ndarray, fitted: FittedKeypoints, robust_scale_px: float) -> np.ndarray:
-    """``sqrt(2 ρ'(e²) c)`` of soft-L1 at ``x``, repeated for the two rows of each keypoint: ``(2 K,)``."""
-    e, _ = reprojection(x, fitted)
+def irls_weights(X: np.ndarray, obs: Observations, robust_scale_px: float) -> np.ndarray:
+    """``sqrt(2 ρ'(e²) c)`` of soft-L1 at ``X: (P, J, 3)``, ``(P, M, J)`` (0 where not fitted)."""
+    e, _ = obs.reprojection(X)
     robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)
-    return np.repeat(np.sqrt(2.0 * robust_w * fitted.conf), 2)
+    return np.sqrt(2.0 * robust_w * np.where(obs.fit, obs.conf, 0.0))
 
 
-def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, fitted: FittedKeypoints,
+def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, obs: Observations,
                      robust_scale_px: float) -> np.ndarray:
     """``(P,)`` bool: observed persons whose refinement is not finite, has a median
     reprojection error above twice the triangulation's plus ``robust_scale_px``, or puts a
-    fitted joint behind a camera."""
+    fitted joint behind a camera. ``X0, X: (P, J, 3)``."""
     Pn = len(X0)
-    e0, _ = reprojection(X0[present].reshape(-1), fitted)
-    e1, depth1 = reprojection(X[present].reshape(-1), fitted)
-    observed = np.bincount(fitted.person, minlength=Pn) > 0
+    person = np.nonzero(obs.fit)[0]
+    with np.errstate(all="ignore"):
+        e0, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))
+        e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
+    observed = obs.fit.any((1, 2))
     finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
-    worse = (_median_by(np.linalg.norm(e1, axis=-1), fitted.person, Pn)
-             > 2.0 * _median_by(np.linalg.norm(e0, axis=-1), fitted.person, Pn) + robust_scale_px)
-    behind = np.bincount(fitted.person, weights=depth1 <= 0, minlength=Pn) > 0
+    worse = (_median_by(np.linalg.norm(e1[obs.fit], axis=-1), person, Pn)
+             > 2.0 * _median_by(np.linalg.norm(e0[obs.fit], axis=-1), person, Pn) + robust_scale_px)
+    behind = ~(depth1 > 0).all((1, 2))
     return observed & (~finite | worse | behind)
 
 
@@ -273,50 +380,39 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         inliers: ``(P, M, J)`` bool, the keypoints to fit.
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
         prior_weight: λ, pixels² per nat; robust_scale_px: scale ``f`` of the soft-L1 loss.
+        max_iterations: Levenberg-Marquardt steps per person and outer iteration.
+        outer_iterations: re-linearizations of the robust loss and the prior.
         bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
             are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
             relative length error (0: no bone term).
-        tolerance: relative change of the cost and of the parameters at which an inner solve
-            stops (``ftol``, ``xtol`` of ``scipy.optimize.least_squares``).
+        tolerance: relative change of a person's cost, and of its joints, at which its inner
+            solve stops (the ``ftol``, ``xtol`` of :func:`levenberg_marquardt`).
     Returns :class:`RefineResult`.
     """
     X0 = np.asarray(X0, dtype=float)
     Pn, J, _ = X0.shape
     present = np.isfinite(X0).all(-1)                                    # (P, J)
-    param_of = -np.ones((Pn, J), dtype=int)
-    param_of[present] = np.arange(present.sum())
-    n_params = 3 * int(present.sum())
-    p_idx, m_idx, j_idx = np.nonzero(inliers & present[:, None, :])
-    if n_params == 0 or len(p_idx) == 0:
+    obs = Observations(np.asarray(xy, dtype=float), np.asarray(P, dtype=float), np.asarray(conf, dtype=float),
+                       np.asarray(inliers, bool) & present[:, None, :])
+    if not obs.fit.any():
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
-    fitted = FittedKeypoints(param_of[p_idx, j_idx], p_idx, P[p_idx, m_idx], xy[p_idx, m_idx, j_idx],
-                             conf[p_idx, m_idx, j_idx])
     use_prior = prior is not None and prior_weight > 0
-
-    def unpack(x):
-        X = np.full((Pn, J, 3), np.nan)
-        X[present] = x.reshape(-1, 3)
-        return X
-
-    def linearized_prior(X):
-        return prior_blocks(X, present, param_of, prior, prior_weight) if use_prior else []
-
-    bones = (BoneTerms.build(bone_lengths, bone_weight, present, param_of)
+    bones = (BoneTerms.build(bone_lengths, bone_weight, present)
              if bone_lengths is not None and bone_weight > 0 else None)
-    x = X0[present].reshape(-1).copy()
-    cost_before = objective(x, fitted, linearized_prior(X0), robust_scale_px, bones)
-    for _ in range(outer_iterations):
-        sqrt_w = irls_weights(x, fitted, robust_scale_px)
-        blocks = linearized_prior(unpack(x))
-        pattern = sparsity_pattern(fitted, blocks, n_params, bones)
-        x = least_squares(residuals, x, jac=jacobian, method="trf", tr_solver="lsmr", x_scale="jac",
-                          max_nfev=max_iterations, ftol=tolerance, xtol=tolerance,
-                          args=(fitted, sqrt_w, blocks, pattern, bones)).x
 
-    X = unpack(x)
-    fallback = fallback_persons(X0, X, present, fitted, robust_scale_px)
+    def linear_prior(X):
+        return linearized_prior(X, present, prior if use_prior else None, prior_weight)
+
+    X = np.where(present[..., None], X0, 0.0)
+    cost_before = objective(X, obs, linear_prior(X), robust_scale_px, bones)
+    for _ in range(outer_iterations):
+        problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear_prior(X), bones)
+        X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, tolerance).reshape(Pn, J, 3)
+    cost_after = objective(X, obs, linear_prior(X), robust_scale_px, bones)
+    X = np.where(present[..., None], X, np.nan)
+    fallback = fallback_persons(X0, X, present, obs, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-    cost_after = objective(X[present].reshape(-1), fitted, linearized_prior(X), robust_scale_px, bones)
+        cost_after = objective(np.where(present[..., None], X, 0.0), obs, linear_prior(X), robust_scale_px, bones)
     return RefineResult(X, fallback, cost_before, cost_after)

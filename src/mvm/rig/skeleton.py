@@ -89,35 +89,25 @@ def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: 
 
 
 def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
-                  config, prior=None, bone_weight: float = 20000.0, batch_size: int = 16,
-                  outer_iterations: int = 3, tolerance: float = 1e-5) -> InstantPersons:
+                  config, prior=None, bone_weight: float = 20000.0, outer_iterations: int = 3,
+                  tolerance: float = 1e-5) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
     ``bone_weight``, px² per squared relative length error). ``config``: a
-    :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Persons are solved
-    ``batch_size`` instants at a time (they are independent once the lengths are fixed; small
-    problems keep the iterative solver's steps few). ``tolerance``: the inner solves stop at this
-    relative change (1e-5 moves the joints by micrometres against 1e-8, at half the cost);
+    :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Once the lengths
+    are fixed the persons are independent: one call of :func:`mvm.core.refine.refine_poses`
+    solves all of them. ``tolerance``: the relative change at which a person's inner solve
+    stops (1e-5 moves the joints by micrometres against 1e-8, in fewer steps);
     ``outer_iterations``: re-linearizations of the robust loss and the prior."""
-    from threadpoolctl import threadpool_limits
-
     from mvm.core.refine import refine_poses
 
     if not len(persons):
         return persons
     lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
     xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
-    X = persons.X.copy()
-    bounds = np.searchsorted(persons.instant, np.arange(persons.instant.min(), persons.instant.max() + batch_size,
-                                                        batch_size))
-    with threadpool_limits(limits=1, user_api="blas"), np.errstate(all="ignore"):
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
-            if hi <= lo:
-                continue
-            s = slice(lo, hi)
-            X[s] = refine_poses(persons.X[s], xy[s], conf[s], P[s], used[s], prior, config.prior_weight,
-                                config.robust_scale_px, config.refine_max_iterations,
-                                bone_lengths=lengths[s], bone_weight=bone_weight,
-                                outer_iterations=outer_iterations, tolerance=tolerance).X
+    with np.errstate(all="ignore"):
+        X = refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale_px,
+                         config.refine_max_iterations, bone_lengths=lengths, bone_weight=bone_weight,
+                         outer_iterations=outer_iterations, tolerance=tolerance).X
     X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)
     return refit(persons, X, detections, cameras)
