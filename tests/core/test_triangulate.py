@@ -105,32 +105,3 @@ def test_prior_pulls_a_narrow_baseline_pose_toward_the_truth():
     assert prior.nll(canonicalize(with_prior.X))[0] < prior.nll(canonicalize(tri.X))[0] - 10
     assert error(with_prior.X) < 0.85 * error(tri.X)
     assert error(with_prior.X) < 0.85 * error(without.X)
-
-
-def test_refinement_jacobian_is_the_derivative_of_its_residuals():
-    """The analytic sparse Jacobian (reprojection and linearized prior rows) against central
-    finite differences of the residuals, at a perturbed pose."""
-    from mvm.core.prior import shipped_prior
-    from mvm.core.refine import FittedKeypoints, irls_weights, jacobian, prior_blocks, residuals, sparsity_pattern
-
-    rng = np.random.default_rng(7)
-    cams = random_cameras(rng, 6, arc_deg=60)
-    poses, groups, _ = _observe(cams, STANDING[None], rng, noise=1.0)
-    obs = gather_groups(cams, poses, groups, 0.1)
-    X = STANDING[None] + rng.normal(0, 0.02, (1, 17, 3))
-    present = np.ones((1, 17), bool)
-    param_of = np.arange(17)[None]
-    p, m, j = np.nonzero(obs.conf > 0)
-    fitted = FittedKeypoints(param_of[p, j], p, obs.P[p, m], obs.xy[p, m, j], obs.conf[p, m, j])
-    x = X.reshape(-1)
-    blocks = prior_blocks(X, present, param_of, shipped_prior(), 10.0)
-    assert blocks, "a complete standing pose has a prior block"
-    sqrt_w = irls_weights(x, fitted, 5.0)
-    pattern = sparsity_pattern(fitted, blocks, x.size)
-    args = (fitted, sqrt_w, blocks, pattern)
-    analytic = jacobian(x, *args).toarray()
-    assert analytic.shape == (len(residuals(x, *args)), x.size)
-    h = 1e-6
-    numeric = np.stack([(residuals(x + h * e, *args) - residuals(x - h * e, *args)) / (2 * h)
-                        for e in np.eye(x.size)], axis=1)
-    np.testing.assert_allclose(analytic, numeric, rtol=1e-5, atol=1e-3)

@@ -52,19 +52,14 @@ class RefineResult:
     cost_after: float
 
 
-def _median_by(values: np.ndarray, group: np.ndarray, n: int) -> np.ndarray:
-    """Median of ``values: (K,)`` within each of ``n`` groups (``group: (K,)`` int) -> ``(n,)``,
-    NaN for empty groups (the mean of the two middle values for even counts, as np.median)."""
-    order = np.lexsort((values, group))
-    counts = np.bincount(group, minlength=n)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    low = starts + (counts - 1) // 2
-    high = starts + counts // 2
-    ok = counts > 0
-    out = np.full(n, np.nan)
-    sorted_values = values[order]
-    out[ok] = 0.5 * (sorted_values[low[ok]] + sorted_values[high[ok]])
-    return out
+def _row_medians(values: np.ndarray) -> np.ndarray:
+    """Median of every row of ``values: (P, K)`` ignoring NaN -> ``(P,)``, NaN for a row without
+    values (the mean of the two middle values for even counts, as np.median)."""
+    ordered = np.sort(values, axis=1)                                              # NaN last
+    count = np.isfinite(values).sum(1)
+    low = np.take_along_axis(ordered, np.maximum(count - 1, 0)[:, None] // 2, axis=1)[:, 0]
+    high = np.take_along_axis(ordered, (count // 2)[:, None], axis=1)[:, 0]
+    return np.where(count > 0, 0.5 * (low + high), np.nan)
 
 
 @dataclass(frozen=True)
@@ -72,16 +67,32 @@ class Observations:
     """The 2D keypoints the refinement fits, in the persons' view-slot layout.
 
     ``xy: (P, M, J, 2)`` pixels; ``P: (P, M, 3, 4)`` the slots' projections; ``conf: (P, M, J)``
-    confidences; ``fit: (P, M, J)`` bool, the keypoints fitted (inliers of present joints)."""
+    confidences; ``fit: (P, M, J)`` bool, the keypoints fitted (inliers of present joints);
+    ``products: (P, M, 4, 9)`` the four ``3 × 3`` matrices of every view that
+    :meth:`normal_terms` combines (:meth:`build` computes them)."""
 
     xy: np.ndarray
     P: np.ndarray
     conf: np.ndarray
     fit: np.ndarray
+    products: np.ndarray
+
+    @staticmethod
+    def build(xy: np.ndarray, P: np.ndarray, conf: np.ndarray, fit: np.ndarray) -> "Observations":
+        """With ``A`` the rows of a view's ``P[:, :3]``: ``A_uᵀA_u + A_vᵀA_v``, ``A_uᵀa_z + a_zᵀA_u``,
+        ``A_vᵀa_z + a_zᵀA_v`` and ``a_zᵀa_z``."""
+        A = P[..., :3]                                                                 # (P, M, 3, 3)
+        cross = A[:, :, :2, :, None] * A[:, :, 2, None, None, :]                       # (P, M, 2, 3, 3)
+        products = np.stack([np.einsum("pmia,pmib->pmab", A[:, :, :2], A[:, :, :2]),
+                             cross[:, :, 0] + np.swapaxes(cross[:, :, 0], -1, -2),
+                             cross[:, :, 1] + np.swapaxes(cross[:, :, 1], -1, -2),
+                             A[:, :, 2, :, None] * A[:, :, 2, None, :]], axis=2)
+        return Observations(xy, P, conf, fit, products.reshape(*P.shape[:2], 4, 9))
 
     def take(self, persons: np.ndarray) -> "Observations":
         """The observations of ``persons: (Q,)`` indices."""
-        return Observations(self.xy[persons], self.P[persons], self.conf[persons], self.fit[persons])
+        return Observations(self.xy[persons], self.P[persons], self.conf[persons], self.fit[persons],
+                            self.products[persons])
 
     def _homogeneous(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Image coordinates ``(P, M, 2, J)`` and depths ``(P, M, J)`` (1 where not fitted) of
@@ -104,24 +115,18 @@ class Observations:
         gradient ``(P, J, 3)`` and one ``3 × 3`` block ``Σ w DᵀD`` per joint ``(P, J, 3, 3)``.
 
         With ``A`` the rows of a view's ``P[:, :3]``, ``(u, v, 1) z`` the projection and ``e``
-        its residual, ``D = (A_uv − (u, v)ᵀ a_z) / z``; its products expand into four ``3 × 3``
-        matrices per view, contracted with per-keypoint coefficients (no per-keypoint
-        Jacobian is formed)."""
+        its residual, ``D = (A_uv − (u, v)ᵀ a_z) / z``; ``DᵀD`` expands into the view's
+        :attr:`products`, contracted with per-keypoint coefficients (no per-keypoint Jacobian
+        is formed)."""
         Pn, M = self.P.shape[:2]
         uv, z = self._homogeneous(X)                                                   # (P, M, 2, J)
         e = np.where(self.fit[:, :, None], uv - np.swapaxes(self.xy, 2, 3), 0.0)
-        A = self.P[..., :3]                                                            # (P, M, 3, 3)
-        cross = A[:, :, :2, :, None] * A[:, :, 2, None, None, :]                       # (P, M, 2, 3, 3)
-        mats = np.stack([np.einsum("pmia,pmib->pmab", A[:, :, :2], A[:, :, :2]),
-                         cross[:, :, 0] + np.swapaxes(cross[:, :, 0], -1, -2),
-                         cross[:, :, 1] + np.swapaxes(cross[:, :, 1], -1, -2),
-                         A[:, :, 2, :, None] * A[:, :, 2, None, :]], axis=2)           # (P, M, 4, 3, 3)
         c = w / z**2
         coef = np.stack([c, -c * uv[:, :, 0], -c * uv[:, :, 1], c * (uv**2).sum(2)], axis=2)  # (P, M, 4, J)
-        blocks = np.matmul(np.swapaxes(coef.reshape(Pn, 4 * M, -1), 1, 2), mats.reshape(Pn, 4 * M, 9))
+        blocks = np.matmul(np.swapaxes(coef.reshape(Pn, 4 * M, -1), 1, 2), self.products.reshape(Pn, 4 * M, 9))
         g = w / z
         coef = np.concatenate([g[:, :, None] * e, -(g * (e * uv).sum(2))[:, :, None]], axis=2)  # (P, M, 3, J)
-        grad = np.matmul(np.swapaxes(coef.reshape(Pn, 3 * M, -1), 1, 2), A.reshape(Pn, 3 * M, 3))
+        grad = np.matmul(np.swapaxes(coef.reshape(Pn, 3 * M, -1), 1, 2), self.P[..., :3].reshape(Pn, 3 * M, 3))
         return 0.5 * (w * (e**2).sum(2)).sum((1, 2)), grad, blocks.reshape(Pn, -1, 3, 3)
 
 
@@ -129,23 +134,53 @@ class Observations:
 class LinearPrior:
     """The linearized prior of every person: residuals ``G @ x − h`` of its joints flattened
     joint-major, ``x: (P, 3J)``. ``G: (P, 3J, 3J)`` (rows beyond a person's ``3n`` present
-    coordinates, and persons without a prior, are zero); ``h: (P, 3J)``; ``GtG: (P, 3J, 3J)``,
-    ``Gᵀ G``, constant while the prior stays linearized at the same point."""
+    coordinates, and persons without a prior, are zero); ``h: (P, 3J)``."""
 
     G: np.ndarray
     h: np.ndarray
-    GtG: np.ndarray
-
-    @staticmethod
-    def of(G: np.ndarray, h: np.ndarray) -> "LinearPrior":
-        return LinearPrior(G, h, np.matmul(np.swapaxes(G, 1, 2), G))
 
     def take(self, persons: np.ndarray) -> "LinearPrior":
-        return LinearPrior(self.G[persons], self.h[persons], self.GtG[persons])
+        return LinearPrior(self.G[persons], self.h[persons])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """``(P, 3J)``."""
         return np.matmul(self.G, x[..., None])[..., 0] - self.h
+
+    def energy(self, x: np.ndarray) -> np.ndarray:
+        """Half the squared residuals per person, ``(P,)``: at the point of linearization,
+        ``weight · ½ |W (X̃ − μ)|²`` of the max-mixture component, the prior's share of the
+        objective."""
+        return 0.5 * (self.residuals(x) ** 2).sum(1)
+
+    def gram(self) -> np.ndarray:
+        """``Gᵀ G: (P, 3J, 3J)``, the prior's constant share of the normal equations."""
+        return np.matmul(np.swapaxes(self.G, 1, 2), self.G)
+
+
+def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
+    """The body frames and canonical poses of ``X: (P, J, 3)`` (``present: (P, J)``), and the
+    (present joints, max-mixture component) pair of every person the prior applies to (both
+    hips and shoulders present). Returns ``rotation: (P, 3, 3)``, ``scale: (P,)``, ``canonical:
+    (P, J, 3)``, ``keys: (G, J + 1)`` int (present joints, component) and ``which: (P,)``, each
+    person's row of ``keys`` (``G``: none)."""
+    Pn, J, _ = X.shape
+    poses = np.where(present[..., None], X, np.nan)
+    rotation, _, scale = body_frame(poses)                                        # (P, 3, 3), (P,)
+    needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
+    usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
+    component = np.full(Pn, -1)
+    canonical = np.full_like(poses, np.nan)
+    if prior is not None and weight > 0 and usable.any():
+        canonical = canonicalize(poses)
+        component[usable] = prior.best_component(canonical[usable])
+    usable &= component >= 0
+    code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
+    codes, group = np.unique(code[usable], return_inverse=True)
+    first = np.flatnonzero(usable)[np.unique(group, return_index=True)[1]]
+    keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
+    which = np.full(Pn, len(codes))
+    which[usable] = group.ravel()
+    return rotation, scale, canonical, keys, which
 
 
 def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
@@ -155,15 +190,8 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
     each (present joints, component) pair is built once; the others get zero rows."""
     Pn, J, _ = X.shape
-    rotation, _, scale = body_frame(np.where(present[..., None], X, np.nan))      # (P, 3, 3), (P,)
-    needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
-    usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
-    component = np.full(Pn, -1)
-    if prior is not None and weight > 0 and usable.any():
-        component[usable] = prior.best_component(canonicalize(np.where(present[..., None], X, np.nan))[usable])
-    usable &= component >= 0
-    keys, group = np.unique(np.concatenate([present, component[:, None]], axis=1)[usable], axis=0,
-                            return_inverse=True)
+    rotation, scale, _, keys, which = _prior_groups(X, present, prior, weight)
+    usable = which < len(keys)
     # Per pair: W @ (C ⊗ I) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction, on the
     # coordinates of all J joints (zero columns for absent ones), and W @ μ; the last pair: none.
     WC = np.zeros((len(keys) + 1, 3 * J, J, 3))
@@ -177,11 +205,9 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
         WC[g, :len(W), mask] = root * np.swapaxes(block, 0, 1)
         WC[g, :len(W), [LEFT_HIP, RIGHT_HIP]] -= 0.5 * root * total
         Wmean[g, :len(W)] = root * (W @ mean)
-    which = np.full(Pn, len(keys))
-    which[usable] = group.ravel()
     frame = np.where(usable[:, None, None], rotation / np.where(usable, scale, 1.0)[:, None, None], 0.0)
     G = np.matmul(WC[which].reshape(Pn, -1, 3), frame).reshape(Pn, 3 * J, 3 * J)
-    return LinearPrior.of(G, Wmean[which])
+    return LinearPrior(G, Wmean[which])
 
 
 @dataclass(frozen=True)
@@ -275,21 +301,19 @@ def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, 
     return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
 
 
-def hessian(GtG: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarray:
     """``Jrᵀ Jr: (P, 3J, 3J)`` from the prior's ``GtG: (P, 3J, 3J)`` and the ``blocks`` of
-    :func:`normal_equations`."""
+    :func:`normal_equations` (added to ``GtG`` itself unless ``copy``)."""
     Pn, n, _ = GtG.shape
-    H = GtG.copy()
+    H = GtG.copy() if copy else GtG
     H.reshape(Pn, -1)[:, block_entries(n // 3, blocks.shape[1] > n // 3)] += blocks.reshape(Pn, -1)
     return H
 
 
-def damped_steps(GtG: np.ndarray, blocks: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
-    """Levenberg-Marquardt steps ``(P, n)``: ``(H + μ diag(H)) δ = −grad`` for ``H`` the
-    :func:`hessian` of ``GtG`` and ``blocks``, ``grad: (P, n)``, ``damping μ: (P,)``. A
-    coordinate that no residual depends on (a zero diagonal: an absent joint) gets an identity
-    row and does not move."""
-    H = hessian(GtG, blocks)
+def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt steps ``(P, n)``: ``(H + μ diag(H)) δ = −grad`` for ``H: (P, n, n)``
+    (overwritten), ``grad: (P, n)``, ``damping μ: (P,)``. A coordinate that no residual depends
+    on (a zero diagonal: an absent joint) gets an identity row and does not move."""
     diagonal = H.reshape(len(H), -1)[:, :: H.shape[1] + 1]
     diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
     return -np.linalg.solve(H, grad[..., None])[..., 0]
@@ -306,6 +330,7 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     ``scipy.optimize.least_squares``), or after ``max_steps`` steps. Returns ``(P, 3J)``."""
     x = x.copy()
     cost, grad, blocks = normal_equations(x, problem)
+    GtG = problem.prior.gram()
     damping = np.full(len(x), INITIAL_DAMPING)
     active = np.isfinite(cost)
     sub, idx = problem, np.arange(len(x))
@@ -315,7 +340,7 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         if not active[idx].all():
             idx = np.flatnonzero(active)
             sub = problem.take(idx)
-        step = damped_steps(sub.prior.GtG, blocks[idx], grad[idx], damping[idx])
+        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], damping[idx])
         trial = x[idx] + step
         trial_cost = 0.5 * (residuals(trial, sub) ** 2).sum(1)
         better = trial_cost < cost[idx]
@@ -331,15 +356,15 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     return x
 
 
-def objective(X: np.ndarray, obs: Observations, prior: LinearPrior, robust_scale_px: float,
+def objective(X: np.ndarray, obs: Observations, energy: np.ndarray, robust_scale_px: float,
               bones: BoneTerms | None = None) -> float:
     """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``X: (P, J, 3)``
-    (absent joints 0), with the prior linearized at ``X`` itself."""
+    (absent joints 0), ``energy: (P,)`` the prior's (:meth:`LinearPrior.energy` at ``X``)."""
     e, _ = obs.reprojection(X)
     f2 = robust_scale_px**2
     total = (np.where(obs.fit, obs.conf, 0.0) * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
     total += 0.5 * np.sum(bones.linearize(X)[0] ** 2) if bones is not None else 0.0
-    return float(total + 0.5 * np.sum(prior.residuals(X.reshape(len(X), -1)) ** 2))
+    return float(total + np.sum(energy))
 
 
 def irls_weights(X: np.ndarray, obs: Observations, robust_scale_px: float) -> np.ndarray:
@@ -354,15 +379,16 @@ def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, obs: Ob
     """``(P,)`` bool: observed persons whose refinement is not finite, has a median
     reprojection error above twice the triangulation's plus ``robust_scale_px``, or puts a
     fitted joint behind a camera. ``X0, X: (P, J, 3)``."""
-    Pn = len(X0)
-    person = np.nonzero(obs.fit)[0]
     with np.errstate(all="ignore"):
         e0, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))
         e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
     observed = obs.fit.any((1, 2))
     finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
-    worse = (_median_by(np.linalg.norm(e1[obs.fit], axis=-1), person, Pn)
-             > 2.0 * _median_by(np.linalg.norm(e0[obs.fit], axis=-1), person, Pn) + robust_scale_px)
+
+    def median_error(e):
+        return _row_medians(np.where(obs.fit, np.linalg.norm(e, axis=-1), np.nan).reshape(len(X), -1))
+
+    worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale_px
     behind = ~(depth1 > 0).all((1, 2))
     return observed & (~finite | worse | behind)
 
@@ -392,27 +418,30 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     X0 = np.asarray(X0, dtype=float)
     Pn, J, _ = X0.shape
     present = np.isfinite(X0).all(-1)                                    # (P, J)
-    obs = Observations(np.asarray(xy, dtype=float), np.asarray(P, dtype=float), np.asarray(conf, dtype=float),
+    obs = Observations.build(np.asarray(xy, dtype=float), np.asarray(P, dtype=float), np.asarray(conf, dtype=float),
                        np.asarray(inliers, bool) & present[:, None, :])
     if not obs.fit.any():
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
     use_prior = prior is not None and prior_weight > 0
     bones = (BoneTerms.build(bone_lengths, bone_weight, present)
              if bone_lengths is not None and bone_weight > 0 else None)
+    prior = prior if use_prior else None
 
-    def linear_prior(X):
-        return linearized_prior(X, present, prior if use_prior else None, prior_weight)
+    def cost(X, linear):
+        return objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
 
     X = np.where(present[..., None], X0, 0.0)
-    cost_before = objective(X, obs, linear_prior(X), robust_scale_px, bones)
-    for _ in range(outer_iterations):
-        problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear_prior(X), bones)
+    linear = linearized_prior(X, present, prior, prior_weight)
+    cost_before = cost(X, linear)
+    for k in range(outer_iterations):
+        linear = linearized_prior(X, present, prior, prior_weight) if k else linear
+        problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear, bones)
         X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, tolerance).reshape(Pn, J, 3)
-    cost_after = objective(X, obs, linear_prior(X), robust_scale_px, bones)
     X = np.where(present[..., None], X, np.nan)
     fallback = fallback_persons(X0, X, present, obs, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-        cost_after = objective(np.where(present[..., None], X, 0.0), obs, linear_prior(X), robust_scale_px, bones)
+    X_fit = np.where(present[..., None], X, 0.0)
+    cost_after = cost(X_fit, linearized_prior(X_fit, present, prior, prior_weight))
     return RefineResult(X, fallback, cost_before, cost_after)
