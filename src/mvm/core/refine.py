@@ -269,22 +269,12 @@ def residuals(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
     return np.concatenate(rows, axis=1)
 
 
-def block_entries(J: int, bones: bool) -> np.ndarray:
-    """Flat indices into a ``3J × 3J`` matrix of the ``3 × 3`` blocks of
-    :func:`normal_equations`: the ``J`` diagonal blocks, then ``(a, b)`` and ``(b, a)`` of every
-    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block."""
-    rows, cols = np.arange(J), np.arange(J)
-    if bones:
-        rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
-    x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-    return ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
-
-
 def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The Gauss-Newton normal equations of :func:`residuals` ``r`` with Jacobian ``Jr`` at
     ``x: (P, 3J)``: the cost ``½|r|²: (P,)``, the gradient ``Jrᵀ r: (P, 3J)`` and the
-    ``3 × 3`` blocks ``(P, K, 3, 3)`` that ``Jrᵀ Jr`` adds to the prior's constant ``Gᵀ G`` at
-    :func:`block_entries`: one per joint (its keypoints, its bones) and two per bone."""
+    ``3 × 3`` blocks ``(P, K, 3, 3)`` that ``Jrᵀ Jr`` adds to the prior's constant ``Gᵀ G``
+    (:func:`hessian`): the ``J`` diagonal blocks (a joint's keypoints and bones), then with bone
+    terms the ``(a, b)`` blocks of the :data:`~mvm.core.keypoints.BONES` and their ``(b, a)``."""
     Pn, J = len(x), x.shape[1] // 3
     X = x.reshape(Pn, J, 3)
     cost, grad, blocks = problem.obs.normal_terms(X, problem.sqrt_w**2)
@@ -301,9 +291,20 @@ def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, 
     return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
 
 
+def block_entries(J: int, bones: bool) -> np.ndarray:
+    """Flat indices into a ``3J × 3J`` matrix of the ``3 × 3`` blocks of
+    :func:`normal_equations`: the ``J`` diagonal blocks, then ``(a, b)`` and ``(b, a)`` of every
+    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block."""
+    rows, cols = np.arange(J), np.arange(J)
+    if bones:
+        rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
+    x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
+    return ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+
+
 def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarray:
     """``Jrᵀ Jr: (P, 3J, 3J)`` from the prior's ``GtG: (P, 3J, 3J)`` and the ``blocks`` of
-    :func:`normal_equations` (added to ``GtG`` itself unless ``copy``)."""
+    :func:`normal_equations` at :func:`block_entries` (added to ``GtG`` itself unless ``copy``)."""
     Pn, n, _ = GtG.shape
     H = GtG.copy() if copy else GtG
     H.reshape(Pn, -1)[:, block_entries(n // 3, blocks.shape[1] > n // 3)] += blocks.reshape(Pn, -1)
@@ -342,17 +343,15 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
             sub = problem.take(idx)
         step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], damping[idx])
         trial = x[idx] + step
-        trial_cost = 0.5 * (residuals(trial, sub) ** 2).sum(1)
+        trial_cost, trial_grad, trial_blocks = normal_equations(trial, sub)
         better = trial_cost < cost[idx]
         small_step = np.linalg.norm(step, axis=1) <= tolerance * (tolerance + np.linalg.norm(x[idx], axis=1))
         small_gain = better & (cost[idx] - trial_cost <= tolerance * cost[idx])
         damping[idx] = np.clip(np.where(better, damping[idx] / 3.0, damping[idx] * 10.0), _MIN_DAMPING, _MAX_DAMPING)
         active[idx] = ~(small_step | small_gain)
-        if better.any():
-            moved = idx[better]
-            x[moved] = trial[better]
-            cost[moved], grad[moved], blocks[moved] = normal_equations(
-                x[moved], sub if better.all() else sub.take(np.flatnonzero(better)))
+        moved = idx[better]
+        x[moved], cost[moved], grad[moved], blocks[moved] = (trial[better], trial_cost[better], trial_grad[better],
+                                                             trial_blocks[better])
     return x
 
 
