@@ -10,8 +10,18 @@ from scipy.optimize import least_squares
 from mvm.core.geometry import project
 from mvm.core.keypoints import bone_lengths
 from mvm.core.prior import shipped_prior
-from mvm.core.refine import (BoneTerms, InnerProblem, Observations, hessian, irls_weights, levenberg_marquardt,
-                             linearized_prior, normal_equations, refine_poses, residuals)
+from mvm.core.refine import (
+    BoneTerms,
+    InnerProblem,
+    Observations,
+    hessian,
+    irls_weights,
+    levenberg_marquardt,
+    linearized_prior,
+    normal_equations,
+    refine_poses,
+    residuals,
+)
 
 from helpers import STANDING, random_cameras
 
@@ -92,7 +102,7 @@ def test_persons_are_refined_independently(with_bones):
     and the refined poses are closer to the truth than the perturbed start."""
     truth, X0, xy, conf, P, inliers = _capture(3)
     lengths = bone_lengths(truth) if with_bones else None
-    kwargs = dict(prior=shipped_prior(), bone_weight=2e4 if with_bones else 0.0, tolerance=1e-10)
+    kwargs = {"prior": shipped_prior(), "bone_weight": 2e4 if with_bones else 0.0, "tolerance": 1e-10}
     together = refine_poses(X0, xy, conf, P, inliers, bone_lengths=lengths, **kwargs)
     for p in range(len(X0)):
         s = slice(p, p + 1)
@@ -109,7 +119,7 @@ def test_persons_are_refined_independently(with_bones):
 def test_a_person_pushed_behind_the_cameras_falls_back_to_its_triangulation():
     """A triangulation behind every camera cannot be refined into view: the person is flagged
     and keeps its joints; the others are refined."""
-    truth, X0, xy, conf, P, inliers = _capture(4)
+    _, X0, xy, conf, P, inliers = _capture(4)
     centre = np.linalg.inv(P[0, 0, :, :3]) @ -P[0, 0, :, 3]                          # camera 0's centre
     X0[1] = 2 * centre - X0[1]                                                       # mirrored behind it
     result = refine_poses(X0, xy, conf, P, inliers, shipped_prior())

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mvm.core.geometry import project
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
 
@@ -78,7 +77,7 @@ class Observations:
     products: np.ndarray
 
     @staticmethod
-    def build(xy: np.ndarray, P: np.ndarray, conf: np.ndarray, fit: np.ndarray) -> "Observations":
+    def build(xy: np.ndarray, P: np.ndarray, conf: np.ndarray, fit: np.ndarray) -> Observations:
         """With ``A`` the rows of a view's ``P[:, :3]``: ``A_uᵀA_u + A_vᵀA_v``, ``A_uᵀa_z + a_zᵀA_u``,
         ``A_vᵀa_z + a_zᵀA_v`` and ``a_zᵀa_z``."""
         A = P[..., :3]                                                                 # (P, M, 3, 3)
@@ -89,7 +88,7 @@ class Observations:
                              A[:, :, 2, :, None] * A[:, :, 2, None, :]], axis=2)
         return Observations(xy, P, conf, fit, products.reshape(*P.shape[:2], 4, 9))
 
-    def take(self, persons: np.ndarray) -> "Observations":
+    def take(self, persons: np.ndarray) -> Observations:
         """The observations of ``persons: (Q,)`` indices."""
         return Observations(self.xy[persons], self.P[persons], self.conf[persons], self.fit[persons],
                             self.products[persons])
@@ -139,7 +138,7 @@ class LinearPrior:
     G: np.ndarray
     h: np.ndarray
 
-    def take(self, persons: np.ndarray) -> "LinearPrior":
+    def take(self, persons: np.ndarray) -> LinearPrior:
         return LinearPrior(self.G[persons], self.h[persons])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
@@ -220,14 +219,14 @@ class BoneTerms:
     root_weight: float
 
     @staticmethod
-    def build(lengths, weight: float, present: np.ndarray) -> "BoneTerms":
+    def build(lengths, weight: float, present: np.ndarray) -> BoneTerms:
         """Terms for the bones of ``lengths: (P, B)`` (NaN: none) whose two joints are present
         (``present: (P, J)`` bool)."""
         target = np.asarray(lengths, dtype=float).reshape(len(present), len(_BONES))
         ok = present[:, _BONES[:, 0]] & present[:, _BONES[:, 1]] & np.isfinite(target) & (target > 0)
         return BoneTerms(np.where(ok, target, 0.0), float(np.sqrt(weight)))
 
-    def take(self, persons: np.ndarray) -> "BoneTerms":
+    def take(self, persons: np.ndarray) -> BoneTerms:
         return BoneTerms(self.target[persons], self.root_weight)
 
     def linearize(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -252,7 +251,7 @@ class InnerProblem:
     prior: LinearPrior
     bones: BoneTerms | None
 
-    def take(self, persons: np.ndarray) -> "InnerProblem":
+    def take(self, persons: np.ndarray) -> InnerProblem:
         return InnerProblem(self.obs.take(persons), self.sqrt_w[persons], self.prior.take(persons),
                             None if self.bones is None else self.bones.take(persons))
 

@@ -31,7 +31,7 @@ def track_bone_lengths(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> 
     lengths = bone_lengths(X)                                                     # (Q, B)
     track = np.asarray(track)
     ids, index = np.unique(track, return_inverse=True)
-    Q, B = lengths.shape
+    B = lengths.shape[1]
     key = (index[:, None] * B + np.arange(B)).ravel()                             # (Q B,)
     values = lengths.ravel()
     ok = np.isfinite(values)
