@@ -233,7 +233,8 @@ class Config:
     prior_weight: float = setting(10.0, ge=0)
     #: Scale of the robust (soft-L1) loss on reprojection residuals. [px]
     robust_scale_px: float = setting(5.0, gt=0)
-    #: Iterations of the solver (function evaluations ≈ 50 × this). [1]
+    #: Levenberg-Marquardt steps of the refinement per person and outer iteration (one
+    #: evaluation of the objective each). [1]
     refine_max_iterations: int = setting(30, ge=1, le=10_000)
     #: Complete every person: joints not reconstructed are inferred from the pose prior given the
     #: others (flagged "inferred" in poses3d.json); off leaves them null. [bool]

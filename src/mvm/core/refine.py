@@ -1,6 +1,7 @@
 """Refinement of triangulated poses (the paper's Eq. bundle):
 
-    min_X  Σ_u ρ(‖π_u(X) − x_u‖²) · c_u  +  λ · E_P(X)  [+ Σ_b w ((|X_a − X_b| − L_b) / L_b)²]
+    min_X  Σ_u ρ(‖π_u(X) − x_u‖²) · c_u  +  λ · E_P(X)  [+ Σ_b w ((|X_a − X_b| − L_b) / L_b)²],
+    E_P(X) = −log Σ_l w_l N(X̃ | μ_l, Σ_l)
 
 with ρ the soft-L1 robust loss of scale ``f`` pixels, ``c_u`` the keypoint confidences, X̃
 the root-relative, scale-normalized pose in its own body frame (:mod:`mvm.core.prior`), λ the
@@ -10,13 +11,16 @@ Outer iterations re-linearize what the inner problem holds fixed: the robust wei
 (iteratively reweighted least squares for ρ), the body frame and scale of the
 canonicalization, and the mixture component (the max-mixture approximation of E_P, whose
 negative log-likelihood of one component is a sum of squares). The inner problem is then a
-nonlinear least-squares problem per person: its unknowns are the person's present joints
-(at most 17 × 3), each reprojection row touches one joint, the linearized prior rows touch
-only that person and each bone row two of its joints. Persons are independent, so the normal
-equations are one dense ``51 × 51`` system per person (absent joints: identity rows), solved
-for all persons at once by a batched Levenberg-Marquardt (:func:`levenberg_marquardt`): every
-person has its own damping, accepts or rejects its own steps and stops on its own
-tolerance. Residuals and their derivatives are pure functions of the joints.
+nonlinear least-squares problem per person (:func:`residuals`, pure functions of the joints):
+its unknowns are the person's present joints (at most 17 × 3); each reprojection row touches
+one joint, the linearized prior rows only that person (a constant dense ``GᵀG`` per outer
+iteration) and each bone row two of its joints. Persons are independent, so the Gauss-Newton
+normal equations are one dense ``3J × 3J`` system per person, padded (absent joints: identity
+rows, they stay NaN) and assembled for all persons at once from ``3 × 3`` blocks
+(:func:`normal_equations`, :func:`hessian`). A batched Levenberg-Marquardt
+(:func:`levenberg_marquardt`) solves them together with one batched ``np.linalg.solve`` per
+step: every person has its own damping, accepts or rejects its own steps and stops on its own
+tolerance, with the ``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``.
 """
 from __future__ import annotations
 
