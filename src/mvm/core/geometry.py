@@ -173,13 +173,20 @@ def triangulate_dlt(points: np.ndarray, P: np.ndarray, weights: np.ndarray | Non
     """
     points = np.asarray(points, dtype=float)
     weights = np.ones(points.shape[:-1]) if weights is None else np.asarray(weights, dtype=float)
-    normal = (dlt_terms(points, P) * weights**2).sum(-1)                       # (10, ...)
+    return weighted_dlt(dlt_terms(points, P), weights)
+
+
+def weighted_dlt(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """:func:`triangulate_dlt` from the views' :func:`dlt_terms` ``(10, ..., M)`` and ``weights:
+    (..., M)`` -> ``(..., 3)``, NaN where fewer than two views have weight."""
     enough = (weights > 0).sum(axis=-1) >= 2
-    return dehomogenize(smallest_eigenvector(np.where(enough, normal, np.nan)), enough)
+    return solve_dlt(np.where(enough, (terms * weights**2).sum(-1), np.nan), enough)
 
 
-def dehomogenize(X: np.ndarray, keep: np.ndarray | bool = True) -> np.ndarray:
-    """``X: (..., 4)`` homogeneous -> ``(..., 3)``, NaN at infinity and where ``keep`` is False."""
+def solve_dlt(normal: np.ndarray, keep: np.ndarray | bool = True) -> np.ndarray:
+    """The point of packed DLT normal matrices ``(10, ...)`` -> ``(..., 3)``, NaN at infinity
+    and where ``keep`` is False."""
+    X = smallest_eigenvector(normal)
     with np.errstate(divide="ignore", invalid="ignore"):
         result = X[..., :3] / X[..., 3:4]
     return np.where(np.asarray(keep)[..., None], result, np.nan)
