@@ -70,3 +70,46 @@ def test_mean_normalization_does_not_merge_close_people():
         # long group exceeds τ for any candidate.
         sums = A[groups[0]][:, person == 1 - person[groups[0][0]]].sum(0)
         assert (np.nan_to_num(sums) > 0.2).any()
+
+
+def test_instants_matched_together_as_each_alone():
+    """The instants of a rig matched in one padded affinity and one grouping advancing in all
+    of them give each instant's own affinity and groups, and the groups are the people."""
+    from mvm.core.affinity import block_pose_affinity, pose_affinity
+    from mvm.core.config import Config
+    from mvm.core.matching.greedy import greedy_groups_blocks
+
+    rng = np.random.default_rng(4)
+    cams = random_cameras(rng, 5, arc_deg=300)
+    config = Config()
+    keypoints, view, instant, person = [], [], [], []
+    for t in range(12):
+        G = int(rng.integers(1, 5))
+        people = STANDING[None] + np.array([[2.0 * g - 3, rng.uniform(-1, 1), 0] for g in range(G)])[:, None]
+        uv, _ = project(people[None], cams.P[:, None, None])                 # (V, G, 17, 2)
+        seen = rng.uniform(size=(5, G)) < 0.8                                # some people missed
+        kp = np.concatenate([uv + rng.normal(0, 1.0, uv.shape), np.ones(uv.shape[:-1] + (1,))], -1)[seen]
+        keypoints.append(kp)
+        view += np.nonzero(seen)[0].tolist()
+        person += np.nonzero(seen)[1].tolist()
+        instant += [t] * len(kp)
+    poses = Poses2D(np.concatenate(keypoints), np.array(view), np.arange(len(view)), rng.uniform(0.5, 1, len(view)),
+                    instant=np.array(instant))
+    person = np.array(person)
+    blocks = poses.blocks()
+    index = np.full((len(blocks), max(map(len, blocks))), -1)
+    for b, rows in enumerate(blocks):
+        index[b, :len(rows)] = rows
+    A = block_pose_affinity(cams, poses, index, config)
+    pad = index < 0
+    together = greedy_groups_blocks(A, np.where(pad, 0, poses.score[index]), np.where(pad, -1, poses.view[index]),
+                                    config.tau, config.min_pose_score)
+    for b, rows in enumerate(blocks):
+        alone = pose_affinity(cams, poses.subset(rows), config)
+        n = len(rows)
+        assert np.allclose(A[b, :n, :n], alone, rtol=1e-5, atol=1e-9, equal_nan=True)   # float32 rounding
+        assert (A[b][pad[b]] < 1e-30).all() and (A[b][:, pad[b]] < 1e-30).all()
+        expected = greedy_groups(alone, poses.score[rows], poses.view[rows], config.tau, config.min_pose_score)
+        assert [g.tolist() for g in together[b]] == [g.tolist() for g in expected]
+        assert sorted(sorted(person[rows[g]].tolist()) for g in together[b]) == \
+            sorted([p] * int((person[rows] == p).sum()) for p in np.unique(person[rows]))

@@ -21,10 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvm.core.affinity import pose_affinity
+from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
+from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
@@ -34,21 +35,23 @@ from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups
 log = logging.getLogger(__name__)
 
 
-#: Rig instants are matched a few at a time in one affinity of at most this many poses: one
-#: call per instant would cost more in overhead than the pairs across instants (never grouped).
-MATCH_BATCH_POSES = 64
+#: The instants of a rig are matched together, as many at a time as fit this many pairs of
+#: poses (padded to the largest instant): one affinity ``(B, n, n)`` and one greedy grouping
+#: advancing in every instant at once. An instant larger than this is matched alone.
+MATCH_BATCH_PAIRS = 2**16
 
 
-def _batches(blocks: list[np.ndarray], max_poses: int) -> list[list[np.ndarray]]:
-    """Consecutive blocks in batches of at most ``max_poses`` poses (a larger block alone)."""
+def _batches(blocks: list[np.ndarray], max_pairs: int) -> list[list[np.ndarray]]:
+    """Consecutive blocks in batches of at most ``max_pairs`` padded pairs (a larger block alone)."""
     batches: list[list[np.ndarray]] = []
     size = 0
     for rows in blocks:
-        if not batches or size + len(rows) > max_poses:
+        n = max(size, len(rows))
+        if not batches or n * n * (len(batches[-1]) + 1) > max_pairs:
             batches.append([])
-            size = 0
+            n = len(rows)
         batches[-1].append(rows)
-        size += len(rows)
+        size = n
     return batches
 
 
@@ -57,19 +60,24 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
 
     Returns groups of pose indices (each within one block), block by block. Memory: one
     ``(n, n)`` float32 matrix for a scene of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`),
-    at most ``MATCH_BATCH_POSES²`` for a rig with small instants.
+    ``17 ×`` :data:`MATCH_BATCH_PAIRS` numbers for a rig (a larger instant: as a scene).
     """
     groups: list[np.ndarray] = []
-    for batch in _batches(poses.blocks(), MATCH_BATCH_POSES):
-        rows_all = np.concatenate(batch)
-        sub = poses if len(batch) == 1 and len(rows_all) == len(poses) else poses.subset(rows_all)
-        A = pose_affinity(cameras, sub, config)
-        start = 0
-        for rows in batch:
-            part = slice(start, start + len(rows))
-            start += len(rows)
-            groups += [rows[g] for g in greedy_groups(A[part, part], sub.score[part], sub.view[part], config.tau,
-                                                      config.min_pose_score, config.min_group_size)]
+    for batch in _batches(poses.blocks(), MATCH_BATCH_PAIRS):
+        if poses.instant is None or len(batch) == 1 and len(batch[0]) ** 2 > MATCH_BATCH_PAIRS:
+            rows = batch[0]
+            sub = poses if len(rows) == len(poses) else poses.subset(rows)
+            found = [greedy_groups(pose_affinity(cameras, sub, config), sub.score, sub.view, config.tau,
+                                   config.min_pose_score, config.min_group_size)]
+        else:
+            index = np.full((len(batch), max(len(rows) for rows in batch)), -1)
+            for b, rows in enumerate(batch):
+                index[b, :len(rows)] = rows
+            pad = index < 0
+            found = greedy_groups_blocks(block_pose_affinity(cameras, poses, index, config),
+                                         np.where(pad, 0.0, poses.score[index]), np.where(pad, -1, poses.view[index]),
+                                         config.tau, config.min_pose_score, config.min_group_size)
+        groups += [rows[g] for rows, block in zip(batch, found) for g in block]
     return groups
 
 
