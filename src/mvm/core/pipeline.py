@@ -95,37 +95,46 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
                                        config.min_parallax_deg, rng, use_ransac=config.ransac, initial=initial)
 
 
-def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
-                     max_relative_distance: float) -> list[np.ndarray] | None:
-    """Merge groups whose triangulated poses coincide (a person split into two groups).
+def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
+    """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
 
     Two persons are duplicates when their mean joint distance, over the joints both have, is
     below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
     keeps the test free of the model's unknown scale; also when one is the mirror of the other
-    (left and right exchanged: a group of left-right swapped detections). The smaller group's
-    poses join the larger one, except those from views the larger group already has;
-    triangulation then treats a swapped keypoint as any other outlier.
-
-    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
-    when nothing merges.
+    (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
+    ``block: (P,)``; only pairs within a block are compared, all at once.
     """
     from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
     P = len(X)
-    if P < 2:
-        return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
-                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+    i, j = np.nonzero((block[:, None] == block[None]) & ~np.eye(P, dtype=bool))
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)                      # all-NaN rows
-        diff = np.linalg.norm(X[:, None] - X[None], axis=-1)                 # (P, P, J)
-        mirrored = np.linalg.norm(X[:, None] - X[None][:, :, FLIP_PERMUTATION], axis=-1)
+        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
+                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+        diff = np.linalg.norm(X[i] - X[j], axis=-1)                          # (K, J)
+        mirrored = np.linalg.norm(X[i] - X[j][:, FLIP_PERMUTATION], axis=-1)
         mean = np.fmin(np.nanmean(diff, axis=-1), np.nanmean(mirrored, axis=-1))
-        scale = np.fmax(torso[:, None], torso[None])
-        close = (mean < max_relative_distance * scale) & ~np.eye(P, dtype=bool)
-    if not close.any():
+        close = np.zeros((P, P), dtype=bool)
+        close[i, j] = mean < max_relative_distance * np.fmax(torso[i], torso[j])
+    return close
+
+
+def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
+                     max_relative_distance: float, close: np.ndarray | None = None) -> list[np.ndarray] | None:
+    """Merge groups whose triangulated poses coincide (a person split into two groups), as
+    :func:`duplicate_pairs` finds them (``close: (P, P)`` when already computed).
+
+    The smaller group's poses join the larger one, except those from views the larger group
+    already has; triangulation then treats a swapped keypoint as any other outlier.
+
+    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
+    when nothing merges.
+    """
+    P = len(groups)
+    if close is None:
+        close = duplicate_pairs(X, np.zeros(P, dtype=int), max_relative_distance) if P >= 2 else None
+    if close is None or not close.any():
         return None
     order = np.argsort([-len(g) for g in groups], kind="stable")
     absorbed = np.zeros(P, dtype=bool)
@@ -152,20 +161,23 @@ def group_blocks(poses: Poses2D, groups: list[np.ndarray]) -> np.ndarray:
 def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
                  config: Config) -> list[np.ndarray] | None:
     """:func:`merge_duplicates` within each block (groups come block by block, as from
-    :func:`match`). ``X: (P, J, 3)``. Returns the new groups, or None when nothing merges."""
-    if config.merge_distance <= 0:
+    :func:`match`), the duplicates of every block found at once. ``X: (P, J, 3)``. Returns the
+    new groups, or None when nothing merges."""
+    if config.merge_distance <= 0 or len(groups) < 2:
         return None
-    changed = False
+    block = group_blocks(poses, groups)
+    close = duplicate_pairs(X, block, config.merge_distance)
+    if not close.any():
+        return None
     out: list[np.ndarray] = []
-    bounds = np.flatnonzero(np.diff(group_blocks(poses, groups))) + 1
+    bounds = np.flatnonzero(np.diff(block)) + 1
     for rows in np.split(np.arange(len(groups)), bounds):
         part = [groups[i] for i in rows]
-        merged = merge_duplicates(X[rows], part, poses.view, config.merge_distance)
-        if merged is not None:
-            changed = True
-            part = merged
+        if close[rows[0]:rows[-1] + 1].any():
+            part = merge_duplicates(X[rows], part, poses.view, config.merge_distance,
+                                    close[rows[0]:rows[-1] + 1, rows[0]:rows[-1] + 1]) or part
         out += part
-    return out if changed else None
+    return out
 
 
 def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config: Config,
