@@ -180,16 +180,17 @@ def weighted_dlt(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """:func:`triangulate_dlt` from the views' :func:`dlt_terms` ``(10, ..., M)`` and ``weights:
     (..., M)`` -> ``(..., 3)``, NaN where fewer than two views have weight."""
     enough = (weights > 0).sum(axis=-1) >= 2
-    return solve_dlt(np.where(enough, (terms * weights**2).sum(-1), np.nan), enough)
+    return solve_dlt((terms * weights**2).sum(-1), enough)
 
 
 def solve_dlt(normal: np.ndarray, keep: np.ndarray | bool = True) -> np.ndarray:
     """The point of packed DLT normal matrices ``(10, ...)`` -> ``(..., 3)``, NaN at infinity
     and where ``keep`` is False."""
-    X = smallest_eigenvector(normal)
+    keep = np.asarray(keep)
+    X = smallest_eigenvector(np.where(keep, normal, np.nan) if keep.ndim else normal)   # NaN: not solved
     with np.errstate(divide="ignore", invalid="ignore"):
         result = X[..., :3] / X[..., 3:4]
-    return np.where(np.asarray(keep)[..., None], result, np.nan)
+    return np.where(keep[..., None], result, np.nan)
 
 
 def ray_spread_deg(directions: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -99,7 +99,7 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) 
     pairs = count * (count - 1) // 2
     enumerate_all = pairs <= hypotheses
     # Groups of one view (min_group_size = 1) have no pair: both draws are that view, the
-    # hypothesis is degenerate and the joint stays unreconstructed.
+    # hypothesis is degenerate (NaN) and the joint stays unreconstructed.
     if enumerate_all.all():
         shape = count.shape + (max(1, int(pairs.max(initial=0))),)
         a = b = np.zeros(shape, dtype=int)
@@ -187,7 +187,8 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
     ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
     world points join the two-view hypotheses."""
     a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
-    X_h = solve_dlt(np.take_along_axis(terms, a[None], axis=-1) + np.take_along_axis(terms, b[None], axis=-1))
+    # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
+    X_h = solve_dlt(np.take_along_axis(terms, a[None], axis=-1) + np.take_along_axis(terms, b[None], axis=-1), a != b)
     if initial is not None:
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
