@@ -60,9 +60,9 @@ def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau
         return [[] for _ in range(B)]
     w = np.asarray(score, dtype=float)
     w = np.where(np.isfinite(w), w, 0.0)
-    state = _Growth(available=(view >= 0) & (w >= min_score), group=np.full((B, n), -1), rank=np.zeros((B, n), int),
+    state = _Growth(eligible=(view >= 0) & (w >= min_score), joined=np.full((B, n), -1), seed=np.zeros((B, n), bool),
                     weighted_sum=np.zeros((B, n)), total_weight=np.zeros((B, n)), open_=np.zeros((B, n), bool),
-                    growing=np.zeros(B, bool), done=np.zeros(B, bool), count=np.zeros(B, int))
+                    growing=np.zeros(B, bool), done=np.zeros(B, bool))
     step, closed = 0, True
     while True:
         if closed:
@@ -71,24 +71,24 @@ def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau
                 break
         closed = _grow(A, w, view, state, tau, step)
         step += 1
-    return _collect(state.group, state.rank, min_group_size)
+    return _collect(state.joined, state.seed, min_group_size)
 
 
 @dataclass
 class _Growth:
     """The state of :func:`greedy_groups_blocks`, ``(B, n)`` per pose or ``(B,)`` per block:
-    ``group`` (-1: none) and join ``rank`` of each pose; the weighted sum and total weight of
+    the step at which each pose ``joined`` a group (-1: not yet; a pose that joined is no longer
+    available) and whether it was the group's ``seed``; the weighted sum and total weight of
     affinities of each candidate to the growing group; ``open_`` candidates."""
 
-    available: np.ndarray
-    group: np.ndarray
-    rank: np.ndarray
+    eligible: np.ndarray
+    joined: np.ndarray
+    seed: np.ndarray
     weighted_sum: np.ndarray
     total_weight: np.ndarray
     open_: np.ndarray
     growing: np.ndarray
     done: np.ndarray
-    count: np.ndarray
 
 
 def _affinity_rows(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,9 +105,7 @@ def _join(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, b: np.ndar
     """Pose ``x`` of block ``b`` joins the block's current group; ``rows``: ``b`` as an index
     of rows (``slice(None)`` when ``b`` is every block, to update in place)."""
     rows = b if rows is None else rows
-    s.group[b, x] = s.count[b]
-    s.rank[b, x] = step
-    s.available[b, x] = False
+    s.joined[b, x] = step
     s.open_[rows] &= view[rows] != view[b, x][:, None]
     a, defined = _affinity_rows(A, b, x)
     weight = w[b, x][:, None]
@@ -121,13 +119,15 @@ def _seed(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, step: int)
     b = np.flatnonzero(~s.growing & ~s.done)
     if not len(b):
         return
-    seed = np.argmax(np.where(s.available[b], w[b], -np.inf), axis=1)
-    found = s.available[b, seed]
+    available = s.eligible[b] & (s.joined[b] < 0)
+    seed = np.argmax(np.where(available, w[b], -np.inf), axis=1)
+    found = available[np.arange(len(b)), seed]
     s.done[b[~found]] = True
-    b, seed = b[found], seed[found]
+    b, seed, available = b[found], seed[found], available[found]
+    s.seed[b, seed] = True
     s.weighted_sum[b] = 0.0
     s.total_weight[b] = 0.0
-    s.open_[b] = s.available[b]
+    s.open_[b] = available
     _join(A, w, view, s, b, seed, step)
     s.growing[b] = True
 
@@ -148,21 +148,18 @@ def _grow(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, tau: float
         _join(A, w, view, s, b, best, step + 1, slice(None) if every else b)
         return False
     _join(A, w, view, s, b[accept], best[accept], step + 1)
-    closed = b[~accept]
-    s.growing[closed] = False
-    s.count[closed] += 1
+    s.growing[b[~accept]] = False
     return True
 
 
-def _collect(group: np.ndarray, rank: np.ndarray, min_group_size: int) -> list[list[np.ndarray]]:
-    """Per block, its groups' members ``group: (B, n)`` in the order they joined (``rank``)."""
-    out: list[list[np.ndarray]] = [[] for _ in range(len(group))]
-    b, x = np.nonzero(group >= 0)
-    order = np.lexsort((rank[b, x], group[b, x], b))
+def _collect(joined: np.ndarray, seed: np.ndarray, min_group_size: int) -> list[list[np.ndarray]]:
+    """Per block, its groups in the order they were built, each's members in the order they
+    joined (``joined: (B, n)`` steps; a ``seed: (B, n)`` starts a group)."""
+    out: list[list[np.ndarray]] = [[] for _ in range(len(joined))]
+    b, x = np.nonzero(joined >= 0)
+    order = np.lexsort((joined[b, x], b))
     b, x = b[order], x[order]
-    key = b * (group.shape[1] + 1) + group[b, x]
-    bounds = np.flatnonzero(np.diff(key)) + 1
-    for members in np.split(np.stack([b, x]), bounds, axis=1):
+    for members in np.split(np.stack([b, x]), np.flatnonzero(seed[b, x])[1:], axis=1):
         if members.shape[1] >= min_group_size:
             out[members[0, 0]].append(members[1])
     return out
