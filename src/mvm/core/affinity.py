@@ -146,7 +146,7 @@ def _plucker_rays(cameras: Cameras, homogeneous: np.ndarray, view: np.ndarray) -
     centers = cameras.centers
     K_inv = np.linalg.inv(cameras.K)
     to_world = np.einsum("vba,vbc->vac", cameras.R, K_inv)                        # R^T K^-1: (V, 3, 3)
-    b = np.einsum("nac,njc->nja", to_world[view], homogeneous)                      # R^T K^-1 x
+    b = np.matmul(homogeneous, to_world[view].transpose(0, 2, 1))                   # R^T K^-1 x: (N, J, 3)
     plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
     M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
                   np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))

@@ -57,7 +57,7 @@ def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
     Rt = np.concatenate([cameras.R, ((cameras.t + cameras.R @ offset) / scale)[:, :, None]], axis=2)
     K_inv = np.linalg.inv(cameras.K)
     homogeneous = np.concatenate([kp[..., :2], np.ones(kp.shape[:-1] + (1,))], axis=-1)
-    normalized = np.einsum("pmab,pmjb->pmja", K_inv[views], homogeneous)[..., :2]
+    normalized = np.matmul(homogeneous, K_inv[views].transpose(0, 1, 3, 2))[..., :2]
     Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
     return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
                              members, scale, offset)
