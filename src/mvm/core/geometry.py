@@ -180,7 +180,7 @@ def weighted_dlt(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """:func:`triangulate_dlt` from the views' :func:`dlt_terms` ``(10, ..., M)`` and ``weights:
     (..., M)`` -> ``(..., 3)``, NaN where fewer than two views have weight."""
     enough = (weights > 0).sum(axis=-1) >= 2
-    return solve_dlt((terms * weights**2).sum(-1), enough)
+    return solve_dlt(np.einsum("k...m,...m->k...", terms, weights**2), enough)
 
 
 def solve_dlt(normal: np.ndarray, keep: np.ndarray | bool = True) -> np.ndarray:
