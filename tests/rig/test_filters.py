@@ -25,7 +25,8 @@ def test_filtfilt_equals_scipy_and_keeps_a_slow_signal():
     b, a = butter_lowpass(2, 6.0 / 15.0)
     smooth = filtfilt(b, a, noisy)
     np.testing.assert_allclose(smooth, signal.filtfilt(b, a, noisy, axis=0), rtol=0, atol=1e-12)
-    assert np.abs(smooth - truth).mean() < 0.5 * np.abs(noisy - truth).mean()
+    # white noise keeps about sqrt(0.4) of its amplitude through a cut-off at 0.4 of the Nyquist frequency
+    assert np.abs(smooth - truth).mean() < 0.75 * np.abs(noisy - truth).mean()
 
 
 def test_filtfilt_many_equals_one_at_a_time():
