@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +44,13 @@ def read_scene(path: str | Path) -> Scene:
     view_of_name = model.index()
     unregistered = set(model.unregistered)
     image_view = np.full(len(coco.file_names), -1)
+    # Below a frames/ folder that does not exist nothing can be a link: the names' own checks suffice.
+    frames_absent = not os.path.lexists(path / FRAMES)
     for i, name in enumerate(coco.file_names):
-        resolve_in(path / FRAMES, name, coco_path, f"images[{i}].file_name", scene=path)
+        if frames_absent:
+            check_name(name, coco_path, f"images[{i}].file_name")
+        else:
+            resolve_in(path / FRAMES, name, coco_path, f"images[{i}].file_name", scene=path)
         if name in view_of_name:
             image_view[i] = view_of_name[name]
         elif name not in unregistered:
