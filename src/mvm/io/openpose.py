@@ -34,7 +34,7 @@ def frame_number(path: str | Path, source: str | Path | None = None, field: str 
     its ``_keypoints.json`` / ``.predictions.json`` / ``.json`` ending (``cam1_000012_keypoints.json``
     -> 12). Raises :class:`InputError` when there is none or it exceeds :data:`MAX_FRAME`,
     naming ``source`` and ``field`` (the file that lists the name) or else ``path``."""
-    name = Path(path).name
+    name = path.name if isinstance(path, Path) else Path(path).name
     for suffix in ("_keypoints.json", ".predictions.json", ".json"):
         if name.endswith(suffix):
             name = name[: -len(suffix)]
@@ -72,7 +72,7 @@ def read_openpose_frame(path: str | Path, root: str | Path | None = None) -> np.
 def read_openpose_frames(paths, root: str | Path | None = None) -> list[np.ndarray]:
     """:func:`read_openpose_frame` of each of ``paths`` (files of one folder are read through
     :func:`mvm.io.checks.read_many`, which checks the folder once) -> ``[(K_i, 17, 3)]``."""
-    paths = [Path(p) for p in paths]
+    paths = [p if isinstance(p, Path) else Path(p) for p in paths]
     return [openpose_people(parse_json(decode_text(data, path), path), path)
             for path, data in zip(paths, read_many(paths, root))]
 

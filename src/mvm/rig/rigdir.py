@@ -152,7 +152,7 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
 def _source_format(path: Path) -> str:
     if path.is_file():
         return "coco"
-    first = next(iter(sorted(path.glob("*.json"))))
+    first = min(path.glob("*.json"))
     data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
         return "openpose"
