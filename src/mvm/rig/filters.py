@@ -4,9 +4,10 @@
 analog prototype's poles, prewarped, mapped by the bilinear transform) and :func:`filtfilt` the
 same result as ``scipy.signal.filtfilt(b, a, x, axis=0)`` with its defaults (odd extension of
 ``3 * max(len(a), len(b))`` samples, steady-state initial conditions, forward then backward
-pass in the transposed direct form II). Importing ``scipy.signal`` costs the whole of
-``scipy.stats`` (about 0.7 s of every ``mvm rig reconstruct`` process, twice the rest of the
-smoothing's imports); the tests pin both functions to ``scipy.signal``. No I/O.
+pass in the transposed direct form II), to the last bit on the rig's tracks. Importing
+``scipy.signal`` imports ``scipy.stats`` too: about 0.7 s of every ``mvm rig reconstruct``
+process, as much as all the numpy and scipy the rest of the rig pipeline needs; the tests pin
+both functions to ``scipy.signal``. No I/O.
 """
 from __future__ import annotations
 
