@@ -22,6 +22,8 @@ COMMANDS = {
     "mvm --version": [sys.executable, "-m", "mvm", "--version"],
     "mvm --help": [sys.executable, "-m", "mvm", "--help"],
     "mvm reconstruct --help": [sys.executable, "-m", "mvm", "reconstruct", "--help"],
+    "mvm rig reconstruct --help": [sys.executable, "-m", "mvm", "rig", "reconstruct", "--help"],
+    "import mvm.rig.pipeline": [sys.executable, "-c", "import mvm.rig.pipeline"],
 }
 HEAVY = ("numpy", "scipy", "torch", "cv2", "pycolmap", "rich", "onnxruntime", "mvm.core.reconstruct")
 

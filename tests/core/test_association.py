@@ -156,8 +156,8 @@ def test_proportions_tell_a_body_from_a_scramble(mixed):
 
 
 def test_the_method_is_a_setting_with_its_choices_listed():
-    from mvm.io.settings import load_config
     from mvm.errors import InputError
+    from mvm.io.settings import load_config
 
     assert load_config(None, {"association": "paper"}).association == "paper"
     with pytest.raises(InputError, match="'paper', '3d'"):

@@ -55,3 +55,53 @@ def test_epipolar_distance_zero_for_same_person_and_resolution_invariant():
     D3 = epipolar_distance(big, kp3, view, 0.1, 0.01)
     finite = np.isfinite(D)
     assert np.allclose(D[finite], D3[finite], rtol=1e-4, atol=1e-4)
+
+
+def _packed(N: np.ndarray) -> np.ndarray:
+    from mvm.core.geometry import PACKED_4X4
+
+    return np.stack([N[..., i, j] for i, j in PACKED_4X4])
+
+
+def _angle_to(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Angle (radians, to first order) between unit vectors up to sign. ``(..., 4)`` each."""
+    return np.minimum(np.linalg.norm(v - w, axis=-1), np.linalg.norm(v + w, axis=-1))
+
+
+def test_smallest_eigenvector_matches_eigh_on_random_psd_matrices():
+    from mvm.core.geometry import smallest_eigenvector
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(2000, 6, 4)) * rng.uniform(1e-3, 1e3, (2000, 1, 1))     # any scale
+    N = A.transpose(0, 2, 1) @ A
+    values, vectors = np.linalg.eigh(N)
+    v = smallest_eigenvector(_packed(N))
+    assert np.allclose(np.linalg.norm(v, axis=-1), 1.0)
+    # The error of an eigenvector is bounded by rounding over the eigen-gap (as for eigh).
+    gap = (values[:, 1] - values[:, 0]) / values[:, 3]
+    assert (_angle_to(v, vectors[..., 0]) <= 1e-9 + 1e-13 / gap).all()
+
+
+def test_smallest_eigenvector_on_nearly_degenerate_matrices():
+    """Rank 3 (an exact DLT), a nearly repeated smallest eigenvalue (two nearly parallel
+    rays), rank 2 (two equal views) and non-finite input: the certified vectors are eigh's,
+    the others are eigh's own answer or NaN."""
+    from mvm.core.geometry import smallest_eigenvector
+
+    rng = np.random.default_rng(1)
+    Q = np.linalg.qr(rng.normal(size=(400, 4, 4)))[0]
+    spectra = np.array([[0.0, 1.0, 2.0, 3.0], [1e-12, 1e-3, 0.5, 1.0], [1e-8, 1e-8 + 1e-14, 1.0, 2.0],
+                        [0.0, 0.0, 1.0, 1.0]])
+    values = np.repeat(spectra, 100, axis=0)
+    N = np.einsum("nij,nj,nkj->nik", Q, values, Q)
+    v = smallest_eigenvector(_packed(N))
+    angle = _angle_to(v, Q[..., 0])
+    assert (angle[:200] < 1e-8).all()                                        # well separated: exact
+    # Repeated smallest eigenvalue: any unit vector of the smallest eigenspace is right.
+    span = np.einsum("nij,nj->ni", Q[200:].transpose(0, 2, 1), v[200:])     # coordinates in the eigenbasis
+    assert (np.linalg.norm(span[:, 2:], axis=-1) < 1e-6).all()
+    assert np.allclose(np.linalg.norm(v, axis=-1), 1.0)
+    broken = _packed(N[:3]).copy()
+    broken[0, 1] = np.nan
+    out = smallest_eigenvector(broken)
+    assert np.isnan(out[1]).all() and np.isfinite(out[[0, 2]]).all()

@@ -70,3 +70,118 @@ def test_mean_normalization_does_not_merge_close_people():
         # long group exceeds τ for any candidate.
         sums = A[groups[0]][:, person == 1 - person[groups[0][0]]].sum(0)
         assert (np.nan_to_num(sums) > 0.2).any()
+
+
+def _rig_instants(rng: np.random.Generator, instants: int = 12):
+    """1 to 4 people per instant seen by 5 cameras, some detections missed: cameras, poses
+    (with their instant), the person of each pose."""
+    cams = random_cameras(rng, 5, arc_deg=300)
+    keypoints, view, instant, person = [], [], [], []
+    for t in range(instants):
+        G = int(rng.integers(1, 5))
+        people = STANDING[None] + np.array([[2.0 * g - 3, rng.uniform(-1, 1), 0] for g in range(G)])[:, None]
+        uv, _ = project(people[None], cams.P[:, None, None])                 # (V, G, 17, 2)
+        seen = rng.uniform(size=(5, G)) < 0.8                                # some people missed
+        kp = np.concatenate([uv + rng.normal(0, 1.0, uv.shape), np.ones(uv.shape[:-1] + (1,))], -1)[seen]
+        keypoints.append(kp)
+        view += np.nonzero(seen)[0].tolist()
+        person += np.nonzero(seen)[1].tolist()
+        instant += [t] * len(kp)
+    poses = Poses2D(np.concatenate(keypoints), np.array(view), np.arange(len(view)), rng.uniform(0.5, 1, len(view)),
+                    instant=np.array(instant))
+    return cams, poses, np.array(person)
+
+
+def test_instants_matched_together_as_each_alone():
+    """The instants of a rig matched in one padded affinity and one grouping advancing in all
+    of them give each instant's own affinity and groups, and the groups are the people."""
+    from mvm.core.affinity import block_pose_affinity, pose_affinity
+    from mvm.core.config import Config
+    from mvm.core.matching.greedy import greedy_groups_blocks
+
+    rng = np.random.default_rng(4)
+    cams, poses, person = _rig_instants(rng)
+    config = Config()
+    blocks = poses.blocks()
+    index = np.full((len(blocks), max(map(len, blocks))), -1)
+    for b, rows in enumerate(blocks):
+        index[b, :len(rows)] = rows
+    A = block_pose_affinity(cams, poses, index, config)
+    pad = index < 0
+    together = greedy_groups_blocks(A, np.where(pad, 0, poses.score[index]), np.where(pad, -1, poses.view[index]),
+                                    config.tau, config.min_pose_score)
+    for b, rows in enumerate(blocks):
+        alone = pose_affinity(cams, poses.subset(rows), config)
+        n = len(rows)
+        assert np.allclose(A[b, :n, :n], alone, rtol=1e-5, atol=1e-9, equal_nan=True)   # float32 rounding
+        assert (A[b][pad[b]] < 1e-30).all() and (A[b][:, pad[b]] < 1e-30).all()
+        expected = greedy_groups(alone, poses.score[rows], poses.view[rows], config.tau, config.min_pose_score)
+        assert [g.tolist() for g in together[b]] == [g.tolist() for g in expected]
+        assert sorted(sorted(person[rows[g]].tolist()) for g in together[b]) == \
+            sorted([p] * int((person[rows] == p).sum()) for p in np.unique(person[rows]))
+
+
+def test_match_batches_instants_and_matches_a_large_instant_alone(monkeypatch):
+    """However the instants are batched (an instant too large for a batch is matched as a
+    scene), the groups are the same and come instant by instant."""
+    import mvm.core.pipeline as pipeline
+    from mvm.core.config import Config
+
+    cams, poses, _ = _rig_instants(np.random.default_rng(5), instants=8)
+    batched = pipeline.match(cams, poses, Config())
+    monkeypatch.setattr(pipeline, "MATCH_BATCH_PAIRS", 16)                   # every instant alone, as a scene
+    alone = pipeline.match(cams, poses, Config())
+    assert [g.tolist() for g in batched] == [g.tolist() for g in alone]
+    assert np.all(np.diff([poses.instant[g[0]] for g in batched]) >= 0)
+    assert all(len(np.unique(poses.instant[g])) == 1 for g in batched)
+    used = np.concatenate(batched)
+    assert len(np.unique(used)) == len(used) > len(poses) // 2
+
+
+def _algorithm1(A, w, view, tau, min_score, min_group_size):
+    """Algorithm 1 written plainly, one candidate at a time (the reference)."""
+    available = [x for x in range(len(w)) if w[x] >= min_score]
+    groups = []
+    for seed in sorted(range(len(w)), key=lambda x: -w[x]):
+        if seed not in available:
+            continue
+        available.remove(seed)
+        group = [seed]
+        while True:
+            best, best_sum, best_weight = None, -np.inf, 0.0
+            for x in available:
+                if view[x] in {view[p] for p in group}:
+                    continue
+                total = sum(w[p] * np.nan_to_num(A[x, p]) for p in group)
+                weight = sum(w[p] for p in group if not np.isnan(A[x, p]))
+                if w[x] * total > best_sum:
+                    best, best_sum, best_weight = x, w[x] * total, weight
+            if best is None or best_weight == 0 or best_sum / w[best] < tau * best_weight:
+                break
+            group.append(best)
+            available.remove(best)
+        if len(group) >= min_group_size:
+            groups.append(group)
+    return groups
+
+
+def test_greedy_in_blocks_is_algorithm_1():
+    """Random affinities with undefined pairs, repeated confidences and views, several blocks
+    of different sizes at once: each block's groups are the reference's."""
+    from mvm.core.matching.greedy import greedy_groups_blocks
+
+    rng = np.random.default_rng(6)
+    sizes = rng.integers(0, 14, 9)
+    n = sizes.max()
+    A = rng.uniform(0, 0.5, (len(sizes), n, n)).astype(np.float32)
+    A[rng.uniform(size=A.shape) < 0.15] = np.nan
+    A = np.where(np.isnan(A) | np.isnan(A.transpose(0, 2, 1)), np.nan, (A + A.transpose(0, 2, 1)) / 2)
+    w = rng.choice([0.3, 0.5, 0.8, 1.0], (len(sizes), n))
+    view = rng.integers(0, 4, (len(sizes), n))
+    pad = np.arange(n)[None] >= sizes[:, None]
+    view[pad] = -1
+    groups = greedy_groups_blocks(A, w, view, 0.22, min_score=0.4, min_group_size=2)
+    for b, size in enumerate(sizes):
+        expected = _algorithm1(A[b, :size, :size].astype(float), w[b, :size], view[b, :size], 0.22, 0.4, 2)
+        assert [g.tolist() for g in groups[b]] == expected
+    assert sum(len(g) for g in groups) > 5                                   # the case is not empty

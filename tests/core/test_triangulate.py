@@ -105,3 +105,27 @@ def test_prior_pulls_a_narrow_baseline_pose_toward_the_truth():
     assert prior.nll(canonicalize(with_prior.X))[0] < prior.nll(canonicalize(tri.X))[0] - 10
     assert error(with_prior.X) < 0.85 * error(tri.X)
     assert error(with_prior.X) < 0.85 * error(without.X)
+
+
+def test_few_views_enumerate_every_pair_of_views():
+    """With no more view pairs than hypotheses, every pair is tried: a joint whose only clean
+    pair is one specific pair of views is found whatever the random draws."""
+    from mvm.core.triangulate import _sample_pairs
+
+    rng = np.random.default_rng(2)
+    valid = rng.uniform(size=(30, 6, 17)) < 0.7                               # (P, M, J)
+    a, b = _sample_pairs(valid, 15, rng)
+    count = valid.sum(1)
+    for p, j in zip(*np.nonzero(count >= 2)):
+        pairs = {tuple(sorted(x)) for x in zip(a[p, j], b[p, j])}
+        views = np.flatnonzero(valid[p, :, j])
+        assert pairs == {(u, w) for u in views for w in views if u < w}
+    # Three outliers in five views: only the pair of clean views explains the point.
+    cams = random_cameras(rng, 5, arc_deg=90)
+    poses, groups, _ = _observe(cams, STANDING[None], rng)
+    kp = poses.keypoints.copy()
+    kp[:3, :, :2] += rng.uniform(80, 200, (3, 17, 2))
+    obs = gather_groups(cams, Poses2D(kp, poses.view, poses.ids, poses.score), groups, 0.1)
+    tri = ransac_triangulate(obs, 5.0, 10, 2, 1.0, rng)
+    assert np.abs(tri.X - STANDING).max() < 1e-6
+    assert np.array_equal(tri.inliers[0], np.arange(5)[:, None].repeat(17, 1) >= 3)

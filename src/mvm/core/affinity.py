@@ -66,14 +66,12 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
     """
     keypoints = np.asarray(keypoints, dtype=float)
     view = np.asarray(view)
-    N, J = keypoints.shape[:2]
+    N = len(keypoints)
     item = np.dtype(dtype).itemsize
     sums = np.zeros((N, N), dtype=dtype)
     if N == 0:
         return sums
-    visible = keypoints[:, :, 2] >= max(keypoint_threshold, 1e-9)
-    homogeneous = np.concatenate([keypoints[:, :, :2], np.ones((N, J, 1))], axis=2)
-    homogeneous[~visible] = 0.0                                     # missing joints add nothing
+    visible, homogeneous = _homogeneous(keypoints, keypoint_threshold)
 
     used = np.unique(view)
     centers = cameras.centers
@@ -92,6 +90,34 @@ def epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray,
     return sums
 
 
+def _homogeneous(keypoints: np.ndarray, keypoint_threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """``keypoints: (N, J, 3)`` -> ``visible: (N, J)`` bool and homogeneous pixels ``(N, J, 3)``,
+    zero where missing (a missing joint adds nothing to a distance)."""
+    visible = keypoints[:, :, 2] >= max(keypoint_threshold, 1e-9)
+    homogeneous = np.concatenate([keypoints[:, :, :2], np.ones(keypoints.shape[:2] + (1,))], axis=2)
+    homogeneous[~visible] = 0.0
+    return visible, homogeneous
+
+
+def _unit_lines(lines: np.ndarray, unit: float) -> np.ndarray:
+    """Epipolar lines ``(..., 3, n)`` scaled in place so that ``x · l`` is a distance in ``unit``
+    (pixels per unit); ``l = 0`` stays 0."""
+    lines *= (1.0 / unit) / (np.sqrt(lines[..., 0, :] ** 2 + lines[..., 1, :] ** 2) + 1e-30)[..., None, :]
+    return lines
+
+
+def _distance(total: np.ndarray, common: np.ndarray, min_common: int, undefined: np.ndarray,
+              excluded: np.ndarray) -> np.ndarray:
+    """D from the two one-sided sums ``total`` and the ``common`` keypoint counts (same shapes):
+    ``total / (2 · common)``; inf on overflow and where ``excluded``, NaN where fewer than
+    ``min_common`` keypoints are shared or ``undefined`` (no baseline)."""
+    D = total / (2 * common)
+    D[~np.isfinite(total)] = np.inf                                       # overflow: no match
+    D[(common < min_common) | undefined] = np.nan
+    D[excluded] = np.inf
+    return D
+
+
 def _one_sided_sums(sums: np.ndarray, points: np.ndarray, plucker: np.ndarray, M: np.ndarray, unit: np.ndarray,
                     view: np.ndarray, used: np.ndarray, block_bytes: int) -> None:
     """In place, ``sums[u, n]``: Σ_joints distance of x_u to the epipolar line of x_n, in
@@ -104,9 +130,7 @@ def _one_sided_sums(sums: np.ndarray, points: np.ndarray, plucker: np.ndarray, M
         cols = np.flatnonzero(view != v)
         if len(cols) == 0:
             continue
-        lines = np.matmul(M[v], plucker[:, :, cols])                            # (J, 3, n_c) in view v
-        # Normalize so that x · l is a distance in view v's unit; l = 0 stays 0.
-        lines *= (1.0 / unit[v]) / (np.sqrt(lines[:, 0] ** 2 + lines[:, 1] ** 2) + 1e-30)[:, None]
+        lines = _unit_lines(np.matmul(M[v], plucker[:, :, cols]), unit[v])     # (J, 3, n_c) in view v
         step = _block_rows(len(cols), J * item, block_bytes)
         for r0 in range(0, len(rows), step):
             chunk = rows[r0:r0 + step]
@@ -122,7 +146,7 @@ def _plucker_rays(cameras: Cameras, homogeneous: np.ndarray, view: np.ndarray) -
     centers = cameras.centers
     K_inv = np.linalg.inv(cameras.K)
     to_world = np.einsum("vba,vbc->vac", cameras.R, K_inv)                        # R^T K^-1: (V, 3, 3)
-    b = np.einsum("nac,njc->nja", to_world[view], homogeneous)                      # R^T K^-1 x
+    b = np.matmul(homogeneous, to_world[view].transpose(0, 2, 1))                   # R^T K^-1 x: (N, J, 3)
     plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
     M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
                   np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
@@ -150,16 +174,49 @@ def _symmetrize(sums: np.ndarray, visible: np.ndarray, view: np.ndarray, instant
         i = slice(i0, min(i0 + step, N))
         for j0 in range(i0, N, step):
             j = slice(j0, min(j0 + step, N))
-            total = sums[i, j] + sums[j, i].T
-            common = visible[i] @ visible[j].T
-            D = total / (2 * common)
-            D[~np.isfinite(total)] = np.inf                                       # overflow: no match
-            D[(common < min_common) | no_baseline[view[i][:, None], view[j][None, :]]] = np.nan
-            D[view[i][:, None] == view[j][None, :]] = np.inf
+            excluded = view[i][:, None] == view[j][None, :]
             if instant is not None:
-                D[instant[i][:, None] != instant[j][None, :]] = np.inf
+                excluded |= instant[i][:, None] != instant[j][None, :]
+            D = _distance(sums[i, j] + sums[j, i].T, visible[i] @ visible[j].T, min_common,
+                          no_baseline[view[i][:, None], view[j][None, :]], excluded)
             sums[i, j] = D
             sums[j, i] = D.T
+
+
+def block_epipolar_distance(cameras: Cameras, keypoints: np.ndarray, view: np.ndarray, blocks: np.ndarray,
+                            keypoint_threshold: float, distance_scale: float, min_common_keypoints: int = 1,
+                            dtype=np.float32) -> np.ndarray:
+    """D (Eq. 2) within each of ``B`` small blocks of poses (the instants of a rig), all blocks
+    at once: :func:`epipolar_distance` of each block's poses, without the pairs across blocks.
+
+    ``keypoints: (N, 17, 3)``, ``view: (N,)``; ``blocks: (B, n)`` pose indices, -1 for padding
+    -> ``D: (B, n, n)`` (inf for padding). Memory: ``B · 17 · n²`` numbers of ``dtype``.
+    """
+    keypoints = np.asarray(keypoints, dtype=float)
+    view = np.asarray(view)
+    blocks = np.asarray(blocks)
+    present = blocks >= 0
+    idx = np.where(present, blocks, 0)
+    visible, homogeneous = _homogeneous(keypoints, keypoint_threshold)
+    visible = (visible[idx] & present[..., None]).astype(dtype)                # (B, n, J)
+    v_of = np.where(present, view[idx], -1)                                     # (B, n)
+    used = np.unique(v_of[present])
+    sums = np.zeros(blocks.shape + blocks.shape[-1:], dtype=dtype)             # (B, n, n)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        plucker, M = _plucker_rays(cameras, homogeneous, view)
+        unit = distance_scale * cameras.focal
+        rays = np.ascontiguousarray(plucker[idx].transpose(0, 2, 3, 1), dtype=dtype)   # (B, J, 6, n)
+        points = homogeneous[idx].transpose(0, 2, 1, 3).astype(dtype)                 # (B, J, n, 3)
+        for v in used:
+            lines = _unit_lines(np.matmul(M[v].astype(dtype), rays), unit[v])         # (B, J, 3, n)
+            d = np.matmul(points, lines)                                               # (B, J, n, n)
+            np.copyto(sums, np.abs(d, out=d).sum(axis=1), where=(v_of == v)[:, :, None])
+        no_baseline = _no_baseline(cameras.centers, used)
+        pad_view = np.where(present, v_of, 0)
+        excluded = (v_of[:, :, None] == v_of[:, None, :]) | ~present[:, :, None] | ~present[:, None, :]
+        return _distance(sums + sums.transpose(0, 2, 1), visible @ visible.transpose(0, 2, 1),
+                         max(min_common_keypoints, 1), no_baseline[pad_view[:, :, None], pad_view[:, None, :]],
+                         excluded)
 
 
 def appearance_similarity(appearance: np.ndarray | None, n: int, dtype=np.float32) -> np.ndarray | float:
@@ -210,6 +267,19 @@ def pose_affinity(cameras: Cameras, poses: Poses2D, config: Config, appearance: 
     D = epipolar_distance(cameras, poses.keypoints, poses.view, config.keypoint_threshold,
                           config.distance_scale, config.min_common_keypoints, instant=poses.instant)
     S = appearance_similarity(poses.appearance if use_appearance else None, len(poses))
+    return affinity(D, config.gamma, S, out=D)
+
+
+def block_pose_affinity(cameras: Cameras, poses: Poses2D, blocks: np.ndarray, config: Config) -> np.ndarray:
+    """:func:`pose_affinity` within each of ``B`` blocks of ``poses``: ``blocks: (B, n)`` pose
+    indices, -1 for padding -> ``A: (B, n, n)`` float32 (0 for padding). See
+    :func:`block_epipolar_distance`."""
+    D = block_epipolar_distance(cameras, poses.keypoints, poses.view, blocks, config.keypoint_threshold,
+                                config.distance_scale, config.min_common_keypoints)
+    S = appearance_similarity(poses.appearance if config.use_appearance else None, len(poses))
+    if not np.isscalar(S):
+        idx = np.maximum(blocks, 0)
+        S = S[idx[:, :, None], idx[:, None, :]]
     return affinity(D, config.gamma, S, out=D)
 
 

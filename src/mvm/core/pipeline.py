@@ -21,10 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvm.core.affinity import pose_affinity
+from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
 from mvm.core.matching import greedy_groups
+from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
@@ -34,21 +35,23 @@ from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups
 log = logging.getLogger(__name__)
 
 
-#: Rig instants are matched a few at a time in one affinity of at most this many poses: one
-#: call per instant would cost more in overhead than the pairs across instants (never grouped).
-MATCH_BATCH_POSES = 64
+#: The instants of a rig are matched together, as many at a time as fit this many pairs of
+#: poses (padded to the largest instant): one affinity ``(B, n, n)`` and one greedy grouping
+#: advancing in every instant at once. An instant larger than this is matched alone.
+MATCH_BATCH_PAIRS = 2**16
 
 
-def _batches(blocks: list[np.ndarray], max_poses: int) -> list[list[np.ndarray]]:
-    """Consecutive blocks in batches of at most ``max_poses`` poses (a larger block alone)."""
+def _batches(blocks: list[np.ndarray], max_pairs: int) -> list[list[np.ndarray]]:
+    """Consecutive blocks in batches of at most ``max_pairs`` padded pairs (a larger block alone)."""
     batches: list[list[np.ndarray]] = []
     size = 0
     for rows in blocks:
-        if not batches or size + len(rows) > max_poses:
+        n = max(size, len(rows))
+        if not batches or n * n * (len(batches[-1]) + 1) > max_pairs:
             batches.append([])
-            size = 0
+            n = len(rows)
         batches[-1].append(rows)
-        size += len(rows)
+        size = n
     return batches
 
 
@@ -57,19 +60,24 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
 
     Returns groups of pose indices (each within one block), block by block. Memory: one
     ``(n, n)`` float32 matrix for a scene of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`),
-    at most ``MATCH_BATCH_POSES²`` for a rig with small instants.
+    ``17 ×`` :data:`MATCH_BATCH_PAIRS` numbers for a rig (a larger instant: as a scene).
     """
     groups: list[np.ndarray] = []
-    for batch in _batches(poses.blocks(), MATCH_BATCH_POSES):
-        rows_all = np.concatenate(batch)
-        sub = poses if len(batch) == 1 and len(rows_all) == len(poses) else poses.subset(rows_all)
-        A = pose_affinity(cameras, sub, config)
-        start = 0
-        for rows in batch:
-            part = slice(start, start + len(rows))
-            start += len(rows)
-            groups += [rows[g] for g in greedy_groups(A[part, part], sub.score[part], sub.view[part], config.tau,
-                                                      config.min_pose_score, config.min_group_size)]
+    for batch in _batches(poses.blocks(), MATCH_BATCH_PAIRS):
+        if poses.instant is None or len(batch) == 1 and len(batch[0]) ** 2 > MATCH_BATCH_PAIRS:
+            rows = batch[0]
+            sub = poses if len(rows) == len(poses) else poses.subset(rows)
+            found = [greedy_groups(pose_affinity(cameras, sub, config), sub.score, sub.view, config.tau,
+                                   config.min_pose_score, config.min_group_size)]
+        else:
+            index = np.full((len(batch), max(len(rows) for rows in batch)), -1)
+            for b, rows in enumerate(batch):
+                index[b, :len(rows)] = rows
+            pad = index < 0
+            found = greedy_groups_blocks(block_pose_affinity(cameras, poses, index, config),
+                                         np.where(pad, 0.0, poses.score[index]), np.where(pad, -1, poses.view[index]),
+                                         config.tau, config.min_pose_score, config.min_group_size)
+        groups += [rows[g] for rows, block in zip(batch, found) for g in block]
     return groups
 
 
@@ -87,37 +95,46 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
                                        config.min_parallax_deg, rng, use_ransac=config.ransac, initial=initial)
 
 
-def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
-                     max_relative_distance: float) -> list[np.ndarray] | None:
-    """Merge groups whose triangulated poses coincide (a person split into two groups).
+def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
+    """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
 
     Two persons are duplicates when their mean joint distance, over the joints both have, is
     below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
     keeps the test free of the model's unknown scale; also when one is the mirror of the other
-    (left and right exchanged: a group of left-right swapped detections). The smaller group's
-    poses join the larger one, except those from views the larger group already has;
-    triangulation then treats a swapped keypoint as any other outlier.
-
-    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
-    when nothing merges.
+    (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
+    ``block: (P,)``; only pairs within a block are compared, all at once.
     """
     from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
     P = len(X)
-    if P < 2:
-        return None
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
-                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+    i, j = np.nonzero((block[:, None] == block[None]) & ~np.eye(P, dtype=bool))
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)                      # all-NaN rows
-        diff = np.linalg.norm(X[:, None] - X[None], axis=-1)                 # (P, P, J)
-        mirrored = np.linalg.norm(X[:, None] - X[None][:, :, FLIP_PERMUTATION], axis=-1)
+        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
+                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
+        diff = np.linalg.norm(X[i] - X[j], axis=-1)                          # (K, J)
+        mirrored = np.linalg.norm(X[i] - X[j][:, FLIP_PERMUTATION], axis=-1)
         mean = np.fmin(np.nanmean(diff, axis=-1), np.nanmean(mirrored, axis=-1))
-        scale = np.fmax(torso[:, None], torso[None])
-        close = (mean < max_relative_distance * scale) & ~np.eye(P, dtype=bool)
-    if not close.any():
+        close = np.zeros((P, P), dtype=bool)
+        close[i, j] = mean < max_relative_distance * np.fmax(torso[i], torso[j])
+    return close
+
+
+def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
+                     max_relative_distance: float, close: np.ndarray | None = None) -> list[np.ndarray] | None:
+    """Merge groups whose triangulated poses coincide (a person split into two groups), as
+    :func:`duplicate_pairs` finds them (``close: (P, P)`` when already computed).
+
+    The smaller group's poses join the larger one, except those from views the larger group
+    already has; triangulation then treats a swapped keypoint as any other outlier.
+
+    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
+    when nothing merges.
+    """
+    P = len(groups)
+    if close is None:
+        close = duplicate_pairs(X, np.zeros(P, dtype=int), max_relative_distance) if P >= 2 else None
+    if close is None or not close.any():
         return None
     order = np.argsort([-len(g) for g in groups], kind="stable")
     absorbed = np.zeros(P, dtype=bool)
@@ -144,20 +161,23 @@ def group_blocks(poses: Poses2D, groups: list[np.ndarray]) -> np.ndarray:
 def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
                  config: Config) -> list[np.ndarray] | None:
     """:func:`merge_duplicates` within each block (groups come block by block, as from
-    :func:`match`). ``X: (P, J, 3)``. Returns the new groups, or None when nothing merges."""
-    if config.merge_distance <= 0:
+    :func:`match`), the duplicates of every block found at once. ``X: (P, J, 3)``. Returns the
+    new groups, or None when nothing merges."""
+    if config.merge_distance <= 0 or len(groups) < 2:
         return None
-    changed = False
+    block = group_blocks(poses, groups)
+    close = duplicate_pairs(X, block, config.merge_distance)
+    if not close.any():
+        return None
     out: list[np.ndarray] = []
-    bounds = np.flatnonzero(np.diff(group_blocks(poses, groups))) + 1
+    bounds = np.flatnonzero(np.diff(block)) + 1
     for rows in np.split(np.arange(len(groups)), bounds):
         part = [groups[i] for i in rows]
-        merged = merge_duplicates(X[rows], part, poses.view, config.merge_distance)
-        if merged is not None:
-            changed = True
-            part = merged
+        if close[rows[0]:rows[-1] + 1].any():
+            part = merge_duplicates(X[rows], part, poses.view, config.merge_distance,
+                                    close[rows[0]:rows[-1] + 1, rows[0]:rows[-1] + 1]) or part
         out += part
-    return out if changed else None
+    return out
 
 
 def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config: Config,

@@ -3,11 +3,12 @@
 writing a scene directory is :func:`mvm.scenes.reconstruct_dir`."""
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from mvm.core.affinity import affinity_bytes
 from mvm.core.config import Config
@@ -103,7 +104,7 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
     check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
                           config, scene.name)
     # The hot paths are many small products: BLAS threads only contend with each other.
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas_controller().limit(limits=1, user_api="blas"):
         result = _scene_result(scene, config, reconstruct_poses(scene.cameras, scene.poses, config, prior, groups))
     if config.complete and len(result.persons):
         from mvm.core.completion import complete_persons
@@ -113,6 +114,13 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
         persons.keypoints3d, persons.flags = complete_persons(persons.keypoints3d, prior or shipped_prior(),
                                                               config.min_person_joints)
     return result
+
+
+@functools.cache
+def _blas_controller() -> ThreadpoolController:
+    """The BLAS libraries loaded by the time the first scene is reconstructed (numpy's and
+    scipy's), found once: looking them up costs more than a small scene's matching."""
+    return ThreadpoolController()
 
 
 def _scene_warnings(scene: Scene, config: Config) -> list[str]:

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mvm.core.geometry import ray_spread_deg, triangulate_dlt
+from mvm.core.geometry import dlt_terms, ray_spread_deg, solve_dlt, weighted_dlt
 from mvm.core.scene import Cameras, Poses2D
 
 
@@ -57,7 +57,7 @@ def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
     Rt = np.concatenate([cameras.R, ((cameras.t + cameras.R @ offset) / scale)[:, :, None]], axis=2)
     K_inv = np.linalg.inv(cameras.K)
     homogeneous = np.concatenate([kp[..., :2], np.ones(kp.shape[:-1] + (1,))], axis=-1)
-    normalized = np.einsum("pmab,pmjb->pmja", K_inv[views], homogeneous)[..., :2]
+    normalized = np.matmul(homogeneous, K_inv[views].transpose(0, 1, 3, 2))[..., :2]
     Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
     return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
                              members, scale, offset)
@@ -80,19 +80,42 @@ class Triangulation:
     parallax_deg: np.ndarray
 
 
+def _pair_table(M: int) -> np.ndarray:
+    """``(C(M, 2), 2)`` the pairs ``i < j`` of ``M`` ranks ordered by ``j``: the first ``C(n, 2)``
+    are exactly the pairs of the first ``n`` ranks."""
+    j, i = np.divmod(np.arange(M * M), M)
+    return np.stack([i, j], -1)[i < j]
+
+
 def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Random pairs of distinct valid views. ``valid: (P, M, J)`` -> two ``(P, J, H)`` view indices."""
+    """Pairs of distinct valid views. ``valid: (P, M, J)`` -> two ``(P, J, H)`` view indices.
+
+    A joint with ``n`` valid views has ``C(n, 2)`` distinct pairs: where they are at most
+    ``hypotheses``, every pair is a hypothesis (cycled to fill ``H``); elsewhere ``hypotheses``
+    random pairs are drawn. ``H`` is ``hypotheses``, or ``max C(n, 2)`` when every joint is
+    enumerated (and no random number is drawn)."""
     order = np.argsort(~valid, axis=1, kind="stable").transpose(0, 2, 1)    # (P, J, M) valid first
     count = valid.sum(axis=1)                                                # (P, J)
+    pairs = count * (count - 1) // 2
+    enumerate_all = pairs <= hypotheses
     # Groups of one view (min_group_size = 1) have no pair: both draws are that view, the
-    # hypothesis is degenerate and the joint stays unreconstructed.
-    n = np.minimum(np.maximum(count, 2), valid.shape[1])[..., None]
-    shape = count.shape + (hypotheses,)
-    a = np.floor(rng.random(shape) * n).astype(int)
-    b = np.floor(rng.random(shape) * (n - 1)).astype(int)
-    b = b + (b >= a)
-    a = np.minimum(a, n - 1)
-    b = np.minimum(b, n - 1)
+    # hypothesis is degenerate (NaN) and the joint stays unreconstructed.
+    if enumerate_all.all():
+        shape = count.shape + (max(1, int(pairs.max(initial=0))),)
+        a = b = np.zeros(shape, dtype=int)
+    else:
+        n = np.minimum(np.maximum(count, 2), valid.shape[1])[..., None]
+        shape = count.shape + (hypotheses,)
+        a = np.floor(rng.random(shape) * n).astype(int)
+        b = np.floor(rng.random(shape) * (n - 1)).astype(int)
+        b = b + (b >= a)
+        a = np.minimum(a, n - 1)
+        b = np.minimum(b, n - 1)
+    table = _pair_table(valid.shape[1])
+    if len(table):
+        slot = np.arange(shape[-1]) % np.maximum(pairs, 1)[..., None]        # (P, J, H)
+        a = np.where(enumerate_all[..., None], table[slot, 0] * (pairs[..., None] > 0), a)
+        b = np.where(enumerate_all[..., None], table[slot, 1] * (pairs[..., None] > 0), b)
     return np.take_along_axis(order, a, axis=2), np.take_along_axis(order, b, axis=2)
 
 
@@ -115,13 +138,14 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
                        initial: np.ndarray | None = None) -> Triangulation:
     """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
 
-    Each hypothesis is scored by MSAC, ``Σ min(e², thr²)`` over the available keypoints; the
+    A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
+    ``hypotheses`` random pairs (:func:`_sample_pairs`). Each hypothesis is scored by MSAC, ``Σ min(e², thr²)`` over the available keypoints; the
     best one's inliers (``e < thr``, in front of the camera) are re-triangulated with
     confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
     rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
 
-    ``initial: (P, J, 3)`` world points (NaN: none) join the random hypotheses, e.g. a previous
+    ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
     triangulation of nearly the same groups: few random hypotheses then suffice.
     """
     rng = np.random.default_rng(0) if rng is None else rng
@@ -130,18 +154,16 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     if Pn == 0 or M == 0:
         empty = np.zeros((Pn, J, 3)) * np.nan
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)))
-    xy_n = obs.normalized_xy.transpose(0, 2, 1, 3)                          # (P, J, M, 2)
-    Rt = obs.Rt                                                             # (P, M, 3, 4)
+    terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
     if use_ransac:
-        inliers = _ransac_inliers(obs, valid, xy_n, Rt, threshold_px, hypotheses, rng, initial)
+        inliers = _ransac_inliers(obs, valid, terms, threshold_px, hypotheses, rng, initial)
     else:
         inliers = valid.copy()
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
-    Rt_b = np.broadcast_to(Rt[:, None], (Pn, J, M, 3, 4))
     for _ in range(2 if use_ransac else 1):
-        X = triangulate_dlt(xy_n, Rt_b, weights)                              # (P, J, 3)
+        X = weighted_dlt(terms, weights)                                    # (P, J, 3)
         if not use_ransac:
             break
         err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
@@ -149,7 +171,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
         keep = refreshed.sum(axis=1) >= min_views
         inliers = np.where(keep[:, None, :], refreshed, inliers)
         weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)
-    X = triangulate_dlt(xy_n, Rt_b, weights) * obs.world_scale + obs.world_offset
+    X = weighted_dlt(terms, weights) * obs.world_scale + obs.world_offset
 
     directions = X[:, None] - obs.centers[:, :, None]                          # (P, M, J, 3)
     directions /= np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)
@@ -160,18 +182,14 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     return Triangulation(X, inliers, valid, parallax)
 
 
-def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, xy_n: np.ndarray, Rt: np.ndarray,
-                    threshold_px: float, hypotheses: int, rng: np.random.Generator,
-                    initial: np.ndarray | None) -> np.ndarray:
-    """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score);
-    ``initial: (P, J, 3)`` world points join the random hypotheses."""
-    Pn, M, J = valid.shape
+def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold_px: float,
+                    hypotheses: int, rng: np.random.Generator, initial: np.ndarray | None) -> np.ndarray:
+    """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score).
+    ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
+    world points join the two-view hypotheses."""
     a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
-    pj = np.indices((Pn, J))
-    pts = np.stack([xy_n[pj[0][..., None], pj[1][..., None], a],
-                    xy_n[pj[0][..., None], pj[1][..., None], b]], axis=-2)       # (P, J, H, 2, 2)
-    cams = np.stack([Rt[pj[0][..., None], a], Rt[pj[0][..., None], b]], axis=-3)  # (P, J, H, 2, 3, 4)
-    X_h = triangulate_dlt(pts, cams)                                         # (P, J, H, 3)
+    # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
+    X_h = solve_dlt(np.take_along_axis(terms, a[None], axis=-1) + np.take_along_axis(terms, b[None], axis=-1), a != b)
     if initial is not None:
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)

@@ -106,13 +106,23 @@ def read_bytes(path: str | Path, root: str | Path | None = None, limit: int | No
     if root is not None:
         inside_root(path, root)
     try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+        fd = os.open(path, _READ_FLAGS)
     except FileNotFoundError:
         raise InputError(path, None, "file not found") from None
     except IsADirectoryError:
         raise InputError(path, None, "is a directory, expected a file") from None
     except OSError as e:
         raise InputError(path, None, f"cannot read: {e.strerror or e}") from None
+    return _read_open(path, fd, limit)
+
+
+_READ_FLAGS = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+_NOFOLLOW = getattr(os, "O_NOFOLLOW", 0)
+
+
+def _read_open(path: Path, fd: int, limit: int) -> bytes:
+    """Check the opened ``fd`` of ``path`` (a regular file of at most ``limit`` bytes), read it
+    whole and close it."""
     try:
         _check_kind(path, os.fstat(fd), limit)
         chunks, total = [], 0
@@ -132,9 +142,71 @@ def read_bytes(path: str | Path, root: str | Path | None = None, limit: int | No
         os.close(fd)
 
 
+def read_many(paths, root: str | Path | None = None, limit: int | None = None):
+    """:func:`read_bytes` of each of ``paths`` in turn (a generator of ``bytes``): the same
+    refusals, the same messages, at a fraction of the cost for many files of one folder.
+
+    With ``root``, the folder of a run of paths is resolved and checked once and held open; each
+    of its files is then opened relative to it without following a link (no path resolution):
+    a file that is itself a symbolic link, or that cannot be opened that way, is read by
+    :func:`read_bytes` (which resolves it, so a link out of ``root`` is refused as ever).
+    """
+    limit = MAX_INPUT_BYTES if limit is None else limit
+    paths = [Path(p) for p in paths]
+    if root is None or not _NOFOLLOW or os.open not in os.supports_dir_fd:
+        for path in paths:
+            yield read_bytes(path, root, limit)
+        return
+    i = 0
+    while i < len(paths):
+        parent = paths[i].parent
+        j = i
+        while j < len(paths) and paths[j].parent == parent:
+            j += 1
+        folder = _open_checked_folder(parent, root)
+        try:
+            for path in paths[i:j]:
+                fd = None
+                if folder is not None and path.name not in ("", ".", ".."):
+                    try:
+                        fd = os.open(path.name, _READ_FLAGS | _NOFOLLOW, dir_fd=folder)
+                    except OSError:                   # a link (ELOOP), missing…: the one-file way says why
+                        fd = None
+                yield read_bytes(path, root, limit) if fd is None else _read_open(path, fd, limit)
+        finally:
+            if folder is not None:
+                os.close(folder)
+        i = j
+
+
+def _open_checked_folder(folder: Path, root: str | Path) -> int | None:
+    """A descriptor of ``folder`` when, links resolved, it lies inside ``root`` (and is the folder
+    the path names as it is opened); None otherwise (its files then take the one-file path)."""
+    try:
+        resolved = folder.resolve(strict=True)
+        base = Path(root).resolve()
+        if resolved != base and base not in resolved.parents:
+            return None
+        fd = os.open(resolved, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0) | getattr(os, "O_CLOEXEC", 0))
+    except (OSError, RuntimeError):
+        return None
+    try:
+        opened, named = os.fstat(fd), os.stat(folder)
+        if stat.S_ISDIR(opened.st_mode) and (opened.st_dev, opened.st_ino) == (named.st_dev, named.st_ino):
+            return fd
+    except OSError:
+        pass
+    os.close(fd)
+    return None
+
+
 def read_text(path: str | Path, root: str | Path | None = None) -> str:
     """The UTF-8 text of ``path`` (read by :func:`read_bytes`); a non-UTF-8 file raises InputError."""
-    data = read_bytes(path, root)
+    return decode_text(read_bytes(path, root), path)
+
+
+def decode_text(data: bytes, path: str | Path) -> str:
+    """``data`` read from ``path`` as UTF-8 text; anything else raises InputError."""
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:

@@ -5,14 +5,17 @@ the 17 COCO keypoints. OpenPose marks a missing joint with ``0, 0, 0``.
 """
 from __future__ import annotations
 
+import fnmatch
+import os
 import re
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
-from mvm.io.checks import load_json, numbers
+from mvm.io.checks import decode_text, load_json, numbers, parse_json, read_many
 
 #: Index of each COCO-17 keypoint in OpenPose's BODY_25 and COCO-18 layouts.
 BODY25_TO_COCO17 = np.array([0, 16, 15, 18, 17, 5, 2, 6, 3, 7, 4, 12, 9, 13, 10, 14, 11])
@@ -31,7 +34,7 @@ def frame_number(path: str | Path, source: str | Path | None = None, field: str 
     its ``_keypoints.json`` / ``.predictions.json`` / ``.json`` ending (``cam1_000012_keypoints.json``
     -> 12). Raises :class:`InputError` when there is none or it exceeds :data:`MAX_FRAME`,
     naming ``source`` and ``field`` (the file that lists the name) or else ``path``."""
-    name = Path(path).name
+    name = path.name if isinstance(path, Path) else Path(path).name
     for suffix in ("_keypoints.json", ".predictions.json", ".json"):
         if name.endswith(suffix):
             name = name[: -len(suffix)]
@@ -63,15 +66,47 @@ def read_openpose_frame(path: str | Path, root: str | Path | None = None) -> np.
     """Read one OpenPose JSON file (inside ``root`` when given) -> ``(K, 17, 3)`` keypoints of
     its ``K`` people (pixels, confidence in [0, 1]; a missing joint is 0, 0, 0)."""
     path = Path(path)
-    data = _load_json(path, root)
+    return openpose_people(_load_json(path, root), path)
+
+
+def read_openpose_frames(paths, root: str | Path | None = None) -> list[np.ndarray]:
+    """:func:`read_openpose_frame` of each of ``paths`` (files of one folder are read through
+    :func:`mvm.io.checks.read_many`, which checks the folder once) -> ``[(K_i, 17, 3)]``."""
+    paths = [p if isinstance(p, Path) else Path(p) for p in paths]
+    return [openpose_people(parse_json(decode_text(data, path), path), path)
+            for path, data in zip(paths, read_many(paths, root))]
+
+
+def openpose_people(data, path: Path) -> np.ndarray:
+    """The parsed content of the OpenPose file ``path`` -> ``(K, 17, 3)``; a problem raises
+    :class:`InputError` naming the field. All people are checked and converted at once; the
+    first problem is then named by the person-by-person checks."""
     if not isinstance(data, dict) or not isinstance(data.get("people"), list):
         raise InputError(path, "people", "missing, or not a list")
-    people = []
-    for k, person in enumerate(data["people"]):
+    people = data["people"]
+    if not people:
+        return np.zeros((0, NUM_JOINTS, 3))
+    try:
+        values = [person["pose_keypoints_2d"] for person in people]
+    except (TypeError, KeyError):
+        values = None
+    if values is not None and all(type(v) is list for v in values):
+        lengths = set(map(len, values))
+        if len(lengths) == 1 and lengths <= _LAYOUTS.keys() and set(map(type, chain.from_iterable(values))) <= {float, int}:
+            try:
+                flat = np.array(values, dtype=float)                                          # (K, n)
+            except OverflowError:
+                flat = None
+            if flat is not None and np.isfinite(flat).all():
+                kp = flat.reshape(len(people), -1, 3)[:, _LAYOUTS[flat.shape[1]]]             # (K, 17, 3)
+                kp[kp[..., 2] <= 0] = 0.0
+                return kp
+    out = []
+    for k, person in enumerate(people):
         if not isinstance(person, dict) or "pose_keypoints_2d" not in person:
             raise InputError(path, f"people[{k}].pose_keypoints_2d", "missing")
-        people.append(to_coco17(person["pose_keypoints_2d"], path, f"people[{k}].pose_keypoints_2d"))
-    return np.array(people, dtype=float).reshape(len(people), NUM_JOINTS, 3)
+        out.append(to_coco17(person["pose_keypoints_2d"], path, f"people[{k}].pose_keypoints_2d"))
+    return np.array(out, dtype=float).reshape(len(out), NUM_JOINTS, 3)
 
 
 def frame_files(directory: str | Path, pattern: str = "*.json") -> list[tuple[int, Path]]:
@@ -80,8 +115,9 @@ def frame_files(directory: str | Path, pattern: str = "*.json") -> list[tuple[in
     directory = Path(directory)
     if not directory.is_dir():
         raise InputError(directory, None, "not a directory")
-    files = sorted(((frame_number(p), p) for p in directory.glob(pattern) if p.is_file()),
-                   key=lambda item: item[0])
+    with os.scandir(directory) as entries:
+        paths = [directory / e.name for e in entries if fnmatch.fnmatchcase(e.name, pattern) and e.is_file()]
+    files = sorted(((frame_number(p), p) for p in paths), key=lambda item: item[0])
     numbers = [n for n, _ in files]
     for a, b in zip(numbers, numbers[1:]):
         if a == b:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +44,13 @@ def read_scene(path: str | Path) -> Scene:
     view_of_name = model.index()
     unregistered = set(model.unregistered)
     image_view = np.full(len(coco.file_names), -1)
+    # Below a frames/ folder that does not exist nothing can be a link: the names' own checks suffice.
+    frames_absent = not os.path.lexists(path / FRAMES)
     for i, name in enumerate(coco.file_names):
-        resolve_in(path / FRAMES, name, coco_path, f"images[{i}].file_name", scene=path)
+        if frames_absent:
+            check_name(name, coco_path, f"images[{i}].file_name")
+        else:
+            resolve_in(path / FRAMES, name, coco_path, f"images[{i}].file_name", scene=path)
         if name in view_of_name:
             image_view[i] = view_of_name[name]
         elif name not in unregistered:
@@ -105,21 +111,21 @@ def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: d
     """The ``mvm.poses3d/1`` document. ``members`` hold annotation ids of ``poses``. Numbers
     follow the writer policy (:func:`mvm.io.files.json_number`): coordinates keep 10
     significant digits whatever the model's unit, and a non-finite value is ``null``."""
+    X = np.asarray(persons.keypoints3d, dtype=float)
+    coords, scores = X.tolist(), np.asarray(persons.scores, dtype=float).tolist()       # plain floats, one pass
+    finite = np.isfinite(X).all(-1).tolist() if X.size else []
+    ids = np.asarray(poses.ids).tolist()
+    missing = [None, None, None, 0.0]
     out = []
     for p in range(len(persons)):
-        kp = []
-        for j in range(NUM_JOINTS):
-            x = persons.keypoints3d[p, j]
-            if np.all(np.isfinite(x)):
-                kp.append([json_number(v) for v in x] + [round(float(persons.scores[p, j]), 4)])
-            else:
-                kp.append([None, None, None, 0.0])
+        kp = [[json_number(c[0]), json_number(c[1]), json_number(c[2]), round(score, 4)] if ok else list(missing)
+              for c, score, ok in zip(coords[p][:NUM_JOINTS], scores[p], finite[p])]
         out.append({
             "id": p,
             "keypoints3d": kp,
-            "members": [int(poses.ids[m]) for m in persons.members[p]],
-            "views_per_joint": [int(v) for v in persons.views_per_joint[p]],
-            "outliers_per_joint": [int(v) for v in persons.outliers_per_joint[p]],
+            "members": [ids[m] for m in np.asarray(persons.members[p]).tolist()],
+            "views_per_joint": np.asarray(persons.views_per_joint[p]).astype(int).tolist(),
+            "outliers_per_joint": np.asarray(persons.outliers_per_joint[p]).astype(int).tolist(),
             "reprojection_error_px": json_number(persons.reprojection_error_px[p], 6),
         })
         if persons.flags is not None:

@@ -82,10 +82,14 @@ def trc_text(points: np.ndarray, markers, rate: float, frames: np.ndarray | None
         "\t\t" + "\t".join(f"X{i + 1}\tY{i + 1}\tZ{i + 1}" for i in range(L)),
         "",
     ]
-    text = np.char.mod(f"%.{decimals}f", np.nan_to_num(points, nan=0.0)).reshape(T, 3 * L)
-    text[~np.isfinite(points).reshape(T, 3 * L)] = ""
-    times = (frames - first) / rate
-    rows = [f"{f}\t{t:.6f}\t" + "\t".join(r) for f, t, r in zip(frames, times, text)]
+    number = f"%.{decimals}f"
+    row_format = "\t".join([number] * (3 * L))                            # a row with every marker, at once
+    values = points.reshape(T, 3 * L).tolist()
+    complete = np.isfinite(points).reshape(T, 3 * L).all(1).tolist()
+    times = ((frames - first) / rate).tolist()
+    rows = [f"{f}\t{t:.6f}\t" + (row_format % tuple(r) if ok else
+                                   "\t".join("" if v != v or v in (math.inf, -math.inf) else number % v for v in r))
+            for f, t, r, ok in zip(frames.tolist(), times, values, complete)]
     return "\n".join(header + rows) + "\n"
 
 

@@ -109,10 +109,8 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
     if len(poses) and (poses.view.min() < 0 or poses.view.max() >= len(cameras)):
         raise ValueError(f"poses.view: expected camera indices in [0, {len(cameras)}), "
                          f"got {poses.view.min()}..{poses.view.max()}")
-    # With few cameras the distinct view pairs are few: twice their number of random two-view
-    # hypotheses finds an all-inlier pair as surely as the default, at a fraction of the cost.
-    V = len(cameras)
-    config = config.replace(ransac_hypotheses=max(1, min(config.ransac_hypotheses, V * (V - 1))))
+    # With few cameras the RANSAC of a joint tries each of its pairs of views once
+    # (mvm.core.triangulate): C(5, 2) = 10 two-view hypotheses for 5 cameras.
     prior = load_prior(config, prior)
     instants = np.unique(poses.instant)
     order = np.argsort(poses.instant, kind="stable")

@@ -57,21 +57,31 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
     "inferred" or "missing"), "members" {camera: pose index in that camera's frame},
     "views_per_joint" (inlier 2D keypoints of the observed joints), "reprojection_error_px"}]}``.
     ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); None: observed where ``X`` is finite."""
-    lines = []
+    X = np.asarray(X, dtype=float)
     bounds = np.searchsorted(persons.instant, np.arange(len(frames) + 1))
     if flags is None:
         flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING)
     names = flag_names(flags)
-    views = (persons.inliers & (np.asarray(flags) == OBSERVED)[:, None, :]).sum(1)
-    for t, frame in enumerate(frames):
+    views = (persons.inliers & (np.asarray(flags) == OBSERVED)[:, None, :]).sum(1).tolist()
+    J = len(COCO_KEYPOINTS)
+    coords = X[:, :J].tolist()                                                    # plain floats, one pass
+    scores = np.asarray(persons.scores, dtype=float)[:, :J].tolist()
+    finite = np.isfinite(X[:, :J]).all(-1).tolist()
+    members = persons.members.tolist()
+    errors = [_number(e, 4) for e in np.asarray(persons.reprojection_error_px, dtype=float).tolist()]
+    ids = np.asarray(track).tolist()
+    frame_numbers = np.asarray(frames).tolist()
+    missing = [None, None, None, 0.0]
+    lines = []
+    for t, frame in enumerate(frame_numbers):
         out = []
         for q in range(bounds[t], bounds[t + 1]):
-            kp = [[_number(c) for c in X[q, j]] + [round(float(persons.scores[q, j]), 4)]
-                  if np.isfinite(X[q, j]).all() else [None, None, None, 0.0] for j in range(len(COCO_KEYPOINTS))]
-            out.append({"id": int(track[q]), "keypoints3d": kp, "flags": names[q],
-                        "members": {camera_names[v]: int(m) for v, m in enumerate(persons.members[q]) if m >= 0},
-                        "views_per_joint": views[q].tolist(),
-                        "reprojection_error_px": _number(persons.reprojection_error_px[q], 4)})
+            kp = [[round(c[0], 6), round(c[1], 6), round(c[2], 6), round(score, 4)] if ok else list(missing)
+                  for c, score, ok in zip(coords[q], scores[q], finite[q])]
+            out.append({"id": int(ids[q]), "keypoints3d": kp, "flags": names[q],
+                        "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
+                        "views_per_joint": views[q],
+                        "reprojection_error_px": errors[q]})
         lines.append(json.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frame), "persons": out},
                                 allow_nan=False))
     return "\n".join(lines) + ("\n" if lines else "")

@@ -26,7 +26,7 @@ from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
 from mvm.io.checks import load_json
 from mvm.io.openpifpaf import read_openpifpaf_frame
-from mvm.io.openpose import frame_files, frame_number, read_openpose_frame
+from mvm.io.openpose import frame_files, frame_number, read_openpose_frames
 from mvm.rig.instants import rig_poses
 
 log = logging.getLogger(__name__)
@@ -152,7 +152,7 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
 def _source_format(path: Path) -> str:
     if path.is_file():
         return "coco"
-    first = next(iter(sorted(path.glob("*.json"))))
+    first = min(path.glob("*.json"))
     data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
         return "openpose"
@@ -161,9 +161,9 @@ def _source_format(path: Path) -> str:
     raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
 
 
-def _read_source(path: Path, fmt: str, root: Path) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """``[(frame, keypoints (K, 17, 3), scores (K,))]`` of one camera; every file is read the
-    guarded way, inside the rig directory ``root``."""
+def _read_source(path: Path, fmt: str, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 2D poses of one camera, by frame number: ``(frames (N,), keypoints (N, 17, 3),
+    scores (N,))``; every file is read the guarded way, inside the rig directory ``root``."""
     if fmt == "coco":
         from mvm.io.coco import read_coco_keypoints
 
@@ -171,17 +171,22 @@ def _read_source(path: Path, fmt: str, root: Path) -> list[tuple[int, np.ndarray
         frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
                                    for i, n in enumerate(coco.file_names)], dtype=np.int64)
         frames = frame_of_image[coco.ann_image]
-        return [(int(f), coco.keypoints[frames == f], coco.score[frames == f]) for f in np.unique(frames)]
-    out = []
-    for f, file in frame_files(path, "*.json"):
-        if fmt == "openpose":
-            kp = read_openpose_frame(file, root=root)
-            present = kp[..., 2] > 0
-            score = np.where(present, kp[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
-        else:
-            kp, score = read_openpifpaf_frame(file, root=root)
-        out.append((f, kp, score))
-    return out
+        order = np.argsort(frames, kind="stable")
+        return frames[order], coco.keypoints[order], coco.score[order]
+    files = frame_files(path, "*.json")
+    if fmt == "openpose":
+        kps = read_openpose_frames([file for _, file in files], root=root)
+        scores = None
+    else:
+        kps, scores = zip(*(read_openpifpaf_frame(file, root=root) for _, file in files)) if files else ((), ())
+    frames = np.repeat(np.array([f for f, _ in files], dtype=np.int64), [len(kp) for kp in kps])
+    keypoints = np.concatenate(kps) if len(kps) else np.zeros((0, 17, 3))
+    if scores is None:
+        present = keypoints[..., 2] > 0
+        score = np.where(present, keypoints[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
+    else:
+        score = np.concatenate(scores) if len(scores) else np.zeros(0)
+    return frames, keypoints, score
 
 
 def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
@@ -228,13 +233,16 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     fmt = formats.pop()
     kps, frame_of, cam_of, scores = [], [], [], []
     for new_index, c in enumerate(used):
-        for f, kp, score in _read_source(sources[entries[matched[c]]], fmt, rig_dir):
-            if (start is not None and f < start) or (stop is not None and f >= stop) or not len(kp):
-                continue
-            kps.append(kp)
-            scores.append(score)
-            frame_of.append(np.full(len(kp), f))
-            cam_of.append(np.full(len(kp), new_index))
+        f, kp, score = _read_source(sources[entries[matched[c]]], fmt, rig_dir)
+        keep = np.ones(len(f), dtype=bool)
+        if start is not None:
+            keep &= f >= start
+        if stop is not None:
+            keep &= f < stop
+        kps.append(kp[keep])
+        scores.append(score[keep])
+        frame_of.append(f[keep])
+        cam_of.append(np.full(int(keep.sum()), new_index))
     keypoints = np.concatenate(kps) if kps else np.zeros((0, 17, 3))
     frame_of = np.concatenate(frame_of) if kps else np.zeros(0, int)
     cam_of = np.concatenate(cam_of) if kps else np.zeros(0, int)

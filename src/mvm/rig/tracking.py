@@ -8,7 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.signal import butter, filtfilt, savgol_filter
+
+from mvm.rig.filters import butter_lowpass, filtfilt_many
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, min_joints: int | np.ndarray = 1) -> np.ndarray:
@@ -147,29 +148,39 @@ def smooth_series(points: np.ndarray, method: str, rate: float = 30.0, cutoff_hz
     """Smooth one track along time. ``points: (L, J, 3)`` consecutive instants (NaN: missing) ->
     ``(L, J, 3)``. Each joint's finite runs are filtered separately (zero-phase Butterworth
     low-pass, or Savitzky–Golay of degree 2); runs too short for the filter are left as they are."""
+    return _smooth_many([points], method, rate, cutoff_hz, order, window)[0]
+
+
+def _smooth_many(series: list, method: str, rate: float = 30.0, cutoff_hz: float = 6.0,
+                 order: int = 4, window: int = 9) -> list:
+    """:func:`smooth_series` of every ``(L_i, J, 3)`` array of ``series``; the Butterworth
+    filters every run (of any joint, any series) in one pass (:func:`mvm.rig.filters.filtfilt_many`)."""
     if method == "none":
-        return points.copy()
+        return [np.array(points, dtype=float) for points in series]
     if method not in ("butterworth", "savgol"):
         raise ValueError(f"smoothing: expected 'none', 'butterworth' or 'savgol', got {method!r}")
-    out = np.array(points, dtype=float)
     if method == "butterworth":
         if not 0 < cutoff_hz < rate / 2:
             raise ValueError(f"cutoff_hz must be in (0, {rate / 2}) for a rate of {rate} Hz, got {cutoff_hz}")
-        b, a = butter(order // 2 if order > 1 else 1, cutoff_hz / (rate / 2))   # filtfilt doubles the order
+        b, a = butter_lowpass(order // 2 if order > 1 else 1, cutoff_hz / (rate / 2))   # filtfilt doubles the order
         min_length = 3 * max(len(a), len(b)) + 1
     else:
+        from scipy.signal import savgol_filter
+
         window = window if window % 2 else window + 1
         min_length = window
-    finite = np.isfinite(out).all(-1)                                                 # (L, J)
-    for j in range(out.shape[1]):
-        for start, stop in _runs(finite[:, j]):
-            if stop - start < min_length:
-                continue
-            segment = out[start:stop, j]
-            if method == "butterworth":
-                out[start:stop, j] = filtfilt(b, a, segment, axis=0)
-            else:
-                out[start:stop, j] = savgol_filter(segment, window, 2, axis=0)
+    out = [np.array(points, dtype=float) for points in series]
+    runs = []                                                                        # (series, joint, start, stop)
+    for i, points in enumerate(out):
+        finite = np.isfinite(points).all(-1)                                          # (L, J)
+        for j in range(points.shape[1]):
+            runs += [(i, j, start, stop) for start, stop in _runs(finite[:, j]) if stop - start >= min_length]
+    if method == "butterworth":
+        smoothed = filtfilt_many(b, a, [out[i][start:stop, j] for i, j, start, stop in runs])
+    else:
+        smoothed = [savgol_filter(out[i][start:stop, j], window, 2, axis=0) for i, j, start, stop in runs]
+    for (i, j, start, stop), values in zip(runs, smoothed):
+        out[i][start:stop, j] = values
     return out
 
 
@@ -188,11 +199,12 @@ def smooth_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, method:
     if method == "none":
         return np.array(X, dtype=float)
     out = np.array(X, dtype=float)
+    ids = np.unique(track)
+    series = [track_series(X, instant, track, k) for k in ids]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        for k in np.unique(track):
-            rows = np.flatnonzero(track == k)
-            times, series = track_series(X, instant, track, k)
-            smoothed = smooth_series(series, method, **kwargs)
-            out[rows] = smoothed[instant[rows] - times[0]]
+        smoothed = _smooth_many([points for _, points in series], method, **kwargs)
+    for k, (times, _), points in zip(ids, series, smoothed):
+        rows = np.flatnonzero(track == k)
+        out[rows] = points[instant[rows] - times[0]]
     return out

@@ -18,6 +18,8 @@ happens pairwise on a near-horizontal camera arc) has a low mean over the many o
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -38,55 +40,126 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
     Memory: ``A`` is only read, one row per pose (``O(N)`` extra); time ``O(N²)``.
     """
     N = len(score)
-    if A.shape != (N, N) or view.shape != (N,):
+    if A.shape != (N, N) or np.shape(view) != (N,):
         raise ValueError(f"greedy_groups: expected A (N, N) and view (N,) with N = {N}, "
-                         f"got {A.shape} and {view.shape}")
+                         f"got {A.shape} and {np.shape(view)}")
+    return greedy_groups_blocks(A[None], np.asarray(score)[None], np.asarray(view)[None], tau, min_score,
+                                min_group_size)[0]
+
+
+def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float,
+                         min_score: float = 0.0, min_group_size: int = 1) -> list[list[np.ndarray]]:
+    """:func:`greedy_groups` in ``B`` independent blocks at once (the instants of a rig), all
+    blocks advancing in step: one vectorized step seeds or grows one group in every block.
+
+    ``A: (B, n, n)``, ``score: (B, n)``, ``view: (B, n)`` (-1: padding, never grouped) -> for
+    each block its groups (indices into the block), in the order they were built.
+    """
+    B, n = np.shape(view)
+    if n == 0:
+        return [[] for _ in range(B)]
     w = np.asarray(score, dtype=float)
     w = np.where(np.isfinite(w), w, 0.0)
-    available = w >= min_score
-    groups: list[np.ndarray] = []
-    for seed in np.argsort(-w, kind="stable"):
-        if not available[seed]:
-            continue
-        available[seed] = False
-        members = grow_group(A, w, view, available, int(seed), tau)
-        available[members] = False
-        if len(members) >= min_group_size:
-            groups.append(members)
-    return groups
+    state = _Growth(eligible=(view >= 0) & (w >= min_score), joined=np.full((B, n), -1), seed=np.zeros((B, n), bool),
+                    weighted_sum=np.zeros((B, n)), total_weight=np.zeros((B, n)), open_=np.zeros((B, n), bool),
+                    growing=np.zeros(B, bool), done=np.zeros(B, bool))
+    step, closed = 0, True
+    while True:
+        if closed:
+            _seed(A, w, view, state, step)
+            if not state.growing.any():
+                break
+        closed = _grow(A, w, view, state, tau, step)
+        step += 1
+    return _collect(state.joined, state.seed, min_group_size)
 
 
-def _affinity_row(A: np.ndarray, x: int, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Affinities of pose ``x`` to ``columns`` (undefined -> 0) and where they are defined,
-    ``(C,)`` float32 each. Each pose's row is read once (as seed or as member): no ``N × N`` temporary."""
-    a = np.asarray(A[x, columns], dtype=np.float32)
-    defined = ~np.isnan(a)
-    return np.where(defined, a, np.float32(0)), defined.astype(np.float32)
+@dataclass
+class _Growth:
+    """The state of :func:`greedy_groups_blocks`, ``(B, n)`` per pose or ``(B,)`` per block:
+    the step at which each pose ``joined`` a group (-1: not yet; a pose that joined is no longer
+    available) and whether it was the group's ``seed``; the weighted sum and total weight of
+    affinities of each candidate to the growing group; ``open_`` candidates."""
+
+    eligible: np.ndarray
+    joined: np.ndarray
+    seed: np.ndarray
+    weighted_sum: np.ndarray
+    total_weight: np.ndarray
+    open_: np.ndarray
+    growing: np.ndarray
+    done: np.ndarray
 
 
-def grow_group(A: np.ndarray, w: np.ndarray, view: np.ndarray, available: np.ndarray, seed: int,
-               tau: float) -> np.ndarray:
-    """One group of Algorithm 1 grown from ``seed``: candidates are the ``available: (N,)``
-    poses of other views; the one with the largest weighted sum of affinities joins while
-    its weighted mean affinity ā is >= ``tau``. ``w: (N,)`` confidences. Returns the members
-    (seed first)."""
-    candidates = np.flatnonzero(available & (view != view[seed]))
-    a, defined = _affinity_row(A, seed, candidates)
-    weighted_sum = w[seed] * a                                       # Σ_p w_p A(x, p)
-    total_weight = w[seed] * defined                                 # Σ_p w_p [A defined]
-    members = [seed]
-    open_ = np.ones(len(candidates), dtype=bool)
-    cand_w = w[candidates]
-    cand_view = view[candidates]
-    while open_.any():
-        gain = np.where(open_, cand_w * weighted_sum, -np.inf)    # the paper's sum
-        best = int(np.argmax(gain))
-        if not weighted_sum[best] >= tau * total_weight[best] or total_weight[best] == 0:
-            break
-        x = candidates[best]
-        members.append(x)
-        open_ &= cand_view != cand_view[best]
-        a, defined = _affinity_row(A, x, candidates)
-        weighted_sum += w[x] * a
-        total_weight += w[x] * defined
-    return np.array(members)
+def _affinity_rows(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Affinities of pose ``x`` of block ``b`` (``(k,)`` each) to its block (undefined -> 0)
+    and where they are defined, ``(k, n)`` each. Each pose's row is read once (as seed or as
+    member): no ``n × n`` temporary."""
+    a = np.asarray(A[b, x], dtype=np.float32)
+    defined = a == a
+    return np.where(defined, a, np.float32(0)), defined
+
+
+def _join(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, b: np.ndarray, x: np.ndarray,
+          step: int, rows: np.ndarray | slice | None = None) -> None:
+    """Pose ``x`` of block ``b`` joins the block's current group; ``rows``: ``b`` as an index
+    of rows (``slice(None)`` when ``b`` is every block, to update in place)."""
+    rows = b if rows is None else rows
+    s.joined[b, x] = step
+    s.open_[rows] &= view[rows] != view[b, x][:, None]
+    a, defined = _affinity_rows(A, b, x)
+    weight = w[b, x][:, None]
+    s.weighted_sum[rows] += weight * a                                        # Σ_p w_p A(x, p)
+    s.total_weight[rows] += weight * defined                                  # Σ_p w_p [A defined]
+
+
+def _seed(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, step: int) -> None:
+    """Every block without a growing group starts one from its most confident available pose
+    (the first in index order among equals), or is done."""
+    b = np.flatnonzero(~s.growing & ~s.done)
+    if not len(b):
+        return
+    available = s.eligible[b] & (s.joined[b] < 0)
+    seed = np.argmax(np.where(available, w[b], -np.inf), axis=1)
+    found = available[np.arange(len(b)), seed]
+    s.done[b[~found]] = True
+    b, seed, available = b[found], seed[found], available[found]
+    s.seed[b, seed] = True
+    s.weighted_sum[b] = 0.0
+    s.total_weight[b] = 0.0
+    s.open_[b] = available
+    _join(A, w, view, s, b, seed, step)
+    s.growing[b] = True
+
+
+def _grow(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, tau: float, step: int) -> bool:
+    """Every growing group takes the open candidate with the largest weighted sum of affinities
+    (the paper's rule) while its weighted mean affinity ā is >= ``tau``; otherwise it closes.
+    Returns whether a group closed."""
+    b = np.flatnonzero(s.growing)
+    every = len(b) == len(w)                                      # no gathers needed
+    open_, weighted_sum = (s.open_, s.weighted_sum) if every else (s.open_[b], s.weighted_sum[b])
+    gain = np.where(open_, (w if every else w[b]) * weighted_sum, -np.inf)
+    best = np.argmax(gain, axis=1)
+    k = np.arange(len(b))
+    total = s.total_weight[b, best]
+    accept = open_[k, best] & (weighted_sum[k, best] >= tau * total) & (total != 0)
+    if accept.all():
+        _join(A, w, view, s, b, best, step + 1, slice(None) if every else b)
+        return False
+    _join(A, w, view, s, b[accept], best[accept], step + 1)
+    s.growing[b[~accept]] = False
+    return True
+
+
+def _collect(joined: np.ndarray, seed: np.ndarray, min_group_size: int) -> list[list[np.ndarray]]:
+    """Per block, its groups in the order they were built, each's members in the order they
+    joined (``joined: (B, n)`` steps; a ``seed: (B, n)`` starts a group)."""
+    out: list[list[np.ndarray]] = [[] for _ in range(len(joined))]
+    b, x = np.nonzero(joined >= 0)
+    order = np.lexsort((joined[b, x], b))
+    b, x = b[order], x[order]
+    for members in np.split(np.stack([b, x]), np.flatnonzero(seed[b, x])[1:], axis=1):
+        if members.shape[1] >= min_group_size:
+            out[members[0, 0]].append(members[1])
+    return out
