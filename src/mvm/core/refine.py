@@ -112,6 +112,11 @@ class Observations:
         uv, depth = self._homogeneous(X)
         return np.where(self.fit[..., None], np.swapaxes(uv, 2, 3) - self.xy, 0.0), depth
 
+    def cost(self, X: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``½ Σ w |e|²: (P,)`` of the reprojection rows at ``X: (P, J, 3)``, weights ``w: (P, M, J)``."""
+        uv, _ = self._homogeneous(X)
+        return 0.5 * np.where(self.fit, w * ((uv - np.swapaxes(self.xy, 2, 3)) ** 2).sum(2), 0.0).sum((1, 2))
+
     def normal_terms(self, X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The reprojection rows' share of the normal equations at ``X: (P, J, 3)`` with
         weights ``w: (P, M, J)`` (0 where not fitted): the cost ``½ Σ w |e|²: (P,)``, the
@@ -168,22 +173,37 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
     person's row of ``keys`` (``G``: none)."""
     Pn, J, _ = X.shape
     poses = np.where(present[..., None], X, np.nan)
-    rotation, _, scale = body_frame(poses)                                        # (P, 3, 3), (P,)
+    frame = body_frame(poses)
+    rotation, scale = frame[0], frame[2]                                          # (P, 3, 3), (P,)
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
     component = np.full(Pn, -1)
     canonical = np.full_like(poses, np.nan)
     if prior is not None and weight > 0 and usable.any():
-        canonical = canonicalize(poses)
+        canonical = canonicalize(poses, frame)
         component[usable] = prior.best_component(canonical[usable])
     usable &= component >= 0
     code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
-    codes, group = np.unique(code[usable], return_inverse=True)
-    first = np.flatnonzero(usable)[np.unique(group, return_index=True)[1]]
+    codes, first, group = np.unique(code[usable], return_index=True, return_inverse=True)
+    first = np.flatnonzero(usable)[first]
     keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
     which = np.full(Pn, len(codes))
     which[usable] = group.ravel()
     return rotation, scale, canonical, keys, which
+
+
+def prior_energy(X: np.ndarray, present: np.ndarray, prior, weight: float) -> np.ndarray:
+    """``weight · E_P`` of the max-mixture component (up to its constant) at ``X: (P, J, 3)``,
+    ``(P,)`` (0 without a prior): :meth:`LinearPrior.energy` of :func:`linearized_prior` at
+    ``X``, without building the linearization."""
+    _, _, canonical, keys, which = _prior_groups(X, present, prior, weight)
+    energy = np.zeros(len(X))
+    for g, key in enumerate(keys):
+        rows, mask = np.flatnonzero(which == g), key[:-1].astype(bool)
+        mean, W, _ = prior.whitening(mask, int(key[-1]))
+        r = (canonical[rows][:, mask].reshape(len(rows), -1) - mean) @ W.T
+        energy[rows] = 0.5 * weight * (r**2).sum(1)
+    return energy
 
 
 def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
@@ -211,6 +231,7 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     frame = np.where(usable[:, None, None], rotation / np.where(usable, scale, 1.0)[:, None, None], 0.0)
     G = np.matmul(WC[which].reshape(Pn, -1, 3), frame).reshape(Pn, 3 * J, 3 * J)
     return LinearPrior(G, Wmean[which])
+
 
 
 @dataclass(frozen=True)
@@ -323,6 +344,14 @@ def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.nda
     return -np.linalg.solve(H, grad[..., None])[..., 0]
 
 
+def inner_cost(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
+    """Half the sum of squared :func:`residuals` of every person at ``x: (P, 3J)``, ``(P,)``
+    (without forming them)."""
+    X = x.reshape(len(x), -1, 3)
+    cost = problem.obs.cost(X, problem.sqrt_w**2) + problem.prior.energy(x)
+    return cost if problem.bones is None else cost + 0.5 * (problem.bones.linearize(X)[0] ** 2).sum(1)
+
+
 def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
                         tolerance: float) -> np.ndarray:
     """Minimize every person's half sum of squared :func:`residuals` from ``x: (P, 3J)``.
@@ -331,9 +360,12 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     after an accepted step, multiplied by 10 after a rejected one) and stops on its own when an
     accepted step lowers its cost by less than ``tolerance`` times the cost, or a step is
     shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and ``xtol`` of
-    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. Returns ``(P, 3J)``."""
+    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point costs only
+    its residuals; the normal equations are built where a step is accepted and the person goes
+    on (only the persons still active are solved). Returns ``(P, 3J)``."""
     x = x.copy()
-    cost, grad, blocks = normal_equations(x, problem)
+    cost = inner_cost(x, problem)
+    _, grad, blocks = normal_equations(x, problem)
     GtG = problem.prior.gram()
     damping = np.full(len(x), INITIAL_DAMPING)
     active = np.isfinite(cost)
@@ -346,16 +378,27 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
             sub = problem.take(idx)
         step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], damping[idx])
         trial = x[idx] + step
-        trial_cost, trial_grad, trial_blocks = normal_equations(trial, sub)
+        trial_cost = inner_cost(trial, sub)
         better = trial_cost < cost[idx]
         small_step = np.linalg.norm(step, axis=1) <= tolerance * (tolerance + np.linalg.norm(x[idx], axis=1))
         small_gain = better & (cost[idx] - trial_cost <= tolerance * cost[idx])
         damping[idx] = np.clip(np.where(better, damping[idx] / 3.0, damping[idx] * 10.0), _MIN_DAMPING, _MAX_DAMPING)
         active[idx] = ~(small_step | small_gain)
-        moved = idx[better]
-        x[moved], cost[moved], grad[moved], blocks[moved] = (trial[better], trial_cost[better], trial_grad[better],
-                                                             trial_blocks[better])
+        x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
+        _refresh(trial, grad, blocks, idx, better & active[idx], sub)
     return x
+
+
+def _refresh(trial: np.ndarray, grad: np.ndarray, blocks: np.ndarray, idx: np.ndarray, moved: np.ndarray,
+             sub: InnerProblem) -> None:
+    """Rebuild, in place, the gradient and blocks of :func:`normal_equations` of the persons
+    ``idx[moved]`` at their accepted ``trial: (Q, 3J)`` points (``sub``: the problem of
+    ``idx: (Q,)``, ``moved: (Q,)`` bool)."""
+    if moved.all():
+        _, grad[idx], blocks[idx] = normal_equations(trial, sub)
+    elif moved.any():
+        rows = np.flatnonzero(moved)
+        _, grad[idx[rows]], blocks[idx[rows]] = normal_equations(trial[rows], sub.take(rows))
 
 
 def objective(X: np.ndarray, obs: Observations, energy: np.ndarray, robust_scale_px: float,
@@ -429,12 +472,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
              if bone_lengths is not None and bone_weight > 0 else None)
     prior = prior if use_prior else None
 
-    def cost(X, linear):
-        return objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
-
     X = np.where(present[..., None], X0, 0.0)
     linear = linearized_prior(X, present, prior, prior_weight)
-    cost_before = cost(X, linear)
+    cost_before = objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
     for k in range(outer_iterations):
         linear = linearized_prior(X, present, prior, prior_weight) if k else linear
         problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear, bones)
@@ -445,5 +485,5 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     X_fit = np.where(present[..., None], X, 0.0)
-    cost_after = cost(X_fit, linearized_prior(X_fit, present, prior, prior_weight))
+    cost_after = objective(X_fit, obs, prior_energy(X_fit, present, prior, prior_weight), robust_scale_px, bones)
     return RefineResult(X, fallback, cost_before, cost_after)
