@@ -24,6 +24,7 @@ tolerance, with the ``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_square
 """
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 
@@ -315,15 +316,18 @@ def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, 
     return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
 
 
+@functools.lru_cache(maxsize=8)
 def block_entries(J: int, bones: bool) -> np.ndarray:
     """Flat indices into a ``3J × 3J`` matrix of the ``3 × 3`` blocks of
     :func:`normal_equations`: the ``J`` diagonal blocks, then ``(a, b)`` and ``(b, a)`` of every
-    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block."""
+    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block (cached, read-only)."""
     rows, cols = np.arange(J), np.arange(J)
     if bones:
         rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
     x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-    return ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+    entries = ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+    entries.setflags(write=False)
+    return entries
 
 
 def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarray:
