@@ -23,6 +23,7 @@ from mvm.core.refine import (
     prior_energy,
     refine_poses,
     residuals,
+    spd_solve,
 )
 
 from helpers import STANDING, random_cameras
@@ -73,6 +74,19 @@ def test_normal_equations_are_the_derivatives_of_the_residuals():
     np.testing.assert_allclose(hessian(problem.prior.gram(), blocks), JtJ, rtol=1e-6, atol=1e-7 * np.abs(JtJ).max())
     absent = ~np.repeat(present, 3, axis=1)
     assert absent.sum() == 3 and np.all(jac[absent[:, None, :].repeat(jac.shape[1], 1)] == 0)
+
+
+def test_spd_solve_solves_every_system_including_indefinite_ones():
+    """Cholesky per matrix against LU; an indefinite and a negative definite matrix (Cholesky
+    fails on them) are still solved."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(5, 9, 9))
+    H = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(9)
+    H[1] = -H[1]
+    H[3, 0, 0] = -50.0
+    b = rng.normal(size=(5, 9))
+    expected = np.linalg.solve(H, b[..., None])[..., 0]
+    np.testing.assert_allclose(spd_solve(H.copy(), b), expected, rtol=1e-10, atol=1e-12)
 
 
 def test_costs_without_the_normal_equations_match_them():

@@ -29,6 +29,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dposv as posv
 
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
@@ -345,7 +346,22 @@ def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.nda
     on (a zero diagonal: an absent joint) gets an identity row and does not move."""
     diagonal = H.reshape(len(H), -1)[:, :: H.shape[1] + 1]
     diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
-    return -np.linalg.solve(H, grad[..., None])[..., 0]
+    return -spd_solve(H, grad)
+
+
+def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x: (P, n)`` with ``A x = b`` for symmetric positive definite ``A: (P, n, n)`` (its
+    upper triangle is overwritten), ``b: (P, n)``: LAPACK's Cholesky solver ``posv`` in place
+    on each matrix (numpy's batched solve copies every matrix and factorizes it by LU, twice
+    the work); a matrix that is not positive definite to working precision is solved by LU."""
+    x, diagonal = np.array(b, dtype=float), np.diagonal(A, axis1=1, axis2=2).copy()
+    columns = np.swapaxes(A, 1, 2)              # column-major views: LAPACK needs no copy
+    for p in range(len(A)):
+        _, x[p], info = posv(columns[p], x[p], lower=1, overwrite_a=1, overwrite_b=1)
+        if info != 0:                           # rebuilt from the untouched lower triangle
+            lower = np.tril(A[p], -1)
+            x[p] = np.linalg.solve(lower + lower.T + np.diag(diagonal[p]), b[p])
+    return x
 
 
 def inner_cost(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
