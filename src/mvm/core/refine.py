@@ -396,17 +396,23 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         if not active[idx].all():
             idx = np.flatnonzero(active)
             sub = problem.take(idx)
-        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], damping[idx])
-        trial = x[idx] + step
+        start, current, mu = x[idx], cost[idx], damping[idx]
+        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], mu)
+        trial = start + step
         trial_cost = inner_cost(trial, sub)
-        better = trial_cost < cost[idx]
-        small_step = np.linalg.norm(step, axis=1) <= tolerance * (tolerance + np.linalg.norm(x[idx], axis=1))
-        small_gain = better & (cost[idx] - trial_cost <= tolerance * cost[idx])
-        damping[idx] = np.clip(np.where(better, damping[idx] / 3.0, damping[idx] * 10.0), _MIN_DAMPING, _MAX_DAMPING)
+        better = trial_cost < current
+        small_step = _norms(step) <= tolerance * (tolerance + _norms(start))
+        small_gain = better & (current - trial_cost <= tolerance * current)
+        damping[idx] = np.clip(np.where(better, mu / 3.0, mu * 10.0), _MIN_DAMPING, _MAX_DAMPING)
         active[idx] = ~(small_step | small_gain)
         x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
         _refresh(trial, grad, blocks, idx, better & active[idx], sub)
     return x
+
+
+def _norms(x: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``x: (P, n)``, ``(P,)``."""
+    return np.sqrt(np.einsum("pn,pn->p", x, x))
 
 
 def _refresh(trial: np.ndarray, grad: np.ndarray, blocks: np.ndarray, idx: np.ndarray, moved: np.ndarray,
