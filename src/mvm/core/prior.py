@@ -122,7 +122,7 @@ class PosePrior:
         object.__setattr__(self, "_stacked", functools.lru_cache(maxsize=256)(self._stacked_uncached))
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> "PosePrior":
+    def load(cls, path: str | Path | None = None) -> PosePrior:
         """Read a prior ``.npz`` (arrays ``weights``, ``means``, ``covariances``); default: the shipped one."""
         arrays = read_arrays(path, "pose_prior.npz", ("weights", "means", "covariances"), "a pose prior")
         try:

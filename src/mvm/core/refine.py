@@ -18,9 +18,12 @@ iteration) and each bone row two of its joints. Persons are independent, so the 
 normal equations are one dense ``3J × 3J`` system per person, padded (absent joints: identity
 rows, they stay NaN) and assembled for all persons at once from ``3 × 3`` blocks
 (:func:`normal_equations`, :func:`hessian`). A batched Levenberg-Marquardt
-(:func:`levenberg_marquardt`) solves them together with one batched ``np.linalg.solve`` per
-step: every person has its own damping, accepts or rejects its own steps and stops on its own
-tolerance, with the ``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``.
+(:func:`levenberg_marquardt`) solves them together: every person has its own damping, accepts
+or rejects its own steps and stops on its own tolerance, with the ``ftol`` / ``xtol`` meaning
+of ``scipy.optimize.least_squares``. Where the time goes is the damped ``3J × 3J`` solves, so a
+step solves only the persons still active, each by an in-place Cholesky (:func:`spd_solve`);
+a trial point costs only its residuals (:func:`inner_cost`) and the normal equations are
+rebuilt only where a step is accepted and the person goes on.
 """
 from __future__ import annotations
 
