@@ -1,10 +1,10 @@
-"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dir`)."""
+"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dirs`)."""
 from __future__ import annotations
 
 import click
 
 from mvm.cli.common import (command, config_options, fmt, out, print_line, read_config, report_failures,
-                             run_each, text_table)
+                             run_outcomes, text_table)
 
 
 @command("reconstruct")
@@ -19,10 +19,10 @@ def reconstruct(scenes, config_path, sets, refine, output):
     written to SCENE/<output>/poses3d.json. A scene that fails, for whatever reason, is reported
     in one line and the others are still done; the exit status is 2 if any scene failed.
     """
-    from mvm.scenes import reconstruct_dir
+    from mvm.scenes import reconstruct_dirs
 
     config = read_config(config_path, sets, refine=refine)
-    rows, failed = run_each(scenes, lambda scene: reconstruct_dir(scene, config, output), "reconstructing")
+    rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output), "reconstructing")
     if rows:
         columns = ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s")
         cells = [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
