@@ -47,7 +47,7 @@ def test_many_scenes_give_what_one_at_a_time_gives(three, tmp_path):
 
 
 def test_a_scene_that_fails_to_read_or_write_is_its_own_failure(three, monkeypatch):
-    import mvm.scenes as scenes
+    from mvm import scenes
     from mvm.scenes import reconstruct_dirs
 
     root, _ = three

@@ -3,8 +3,17 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import (command, config_options, fmt, out, print_line, read_config, report_failures,
-                             run_outcomes, text_table)
+from mvm.cli.common import (
+    command,
+    config_options,
+    fmt,
+    out,
+    print_line,
+    read_config,
+    report_failures,
+    run_outcomes,
+    text_table,
+)
 
 
 @command("reconstruct")

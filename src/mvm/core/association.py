@@ -139,8 +139,9 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
     out[pose[easy]] = person[easy]
     hard = np.flatnonzero(clash_slot[slot])
     if len(hard):
-        from scipy.optimize import linear_sum_assignment     # scipy.optimize costs 0.4 s to import: only
-                                                             # when a slot has a clash
+        # Imported here: scipy.optimize costs 0.4 s to import, and most scenes have no clash.
+        from scipy.optimize import linear_sum_assignment
+
         hard = hard[np.argsort(slot[hard], kind="stable")]
         bounds = np.flatnonzero(np.diff(slot[hard])) + 1
         for rows in np.split(hard, bounds):
