@@ -114,6 +114,23 @@ def test_nll_matches_scipy_including_marginals():
         np.testing.assert_allclose(nll[p], expected, rtol=1e-9, atol=1e-9)
 
 
+def test_log_densities_of_a_mixed_batch_are_each_poses_own():
+    """Poses with different missing joints in one batch: every pose and component is its
+    marginal's scipy log density plus the log weight."""
+    rng = np.random.default_rng(10)
+    prior = _tiny_mixture(rng, components=3)
+    x = rng.normal(0, 0.6, (5, 17, 3))
+    x[1, [3, 9]] = np.nan
+    x[3, [3, 9]] = np.nan
+    x[2, :10] = np.nan
+    out = prior.log_weighted_densities(x)
+    for p in range(len(x)):
+        coords = ~np.isnan(x[p].reshape(-1))
+        expected = [np.log(w) + multivariate_normal(m[coords], c[np.ix_(coords, coords)]).logpdf(x[p].reshape(-1)[coords])
+                    for w, m, c in zip(prior.weights, prior.means, prior.covariances)]
+        np.testing.assert_allclose(out[p], expected, rtol=1e-9)
+
+
 def test_best_component_is_the_argmax():
     rng = np.random.default_rng(8)
     prior = _tiny_mixture(rng, components=4)

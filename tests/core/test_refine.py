@@ -15,12 +15,15 @@ from mvm.core.refine import (
     InnerProblem,
     Observations,
     hessian,
+    inner_cost,
     irls_weights,
     levenberg_marquardt,
     linearized_prior,
     normal_equations,
+    prior_energy,
     refine_poses,
     residuals,
+    spd_solve,
 )
 
 from helpers import STANDING, random_cameras
@@ -71,6 +74,33 @@ def test_normal_equations_are_the_derivatives_of_the_residuals():
     np.testing.assert_allclose(hessian(problem.prior.gram(), blocks), JtJ, rtol=1e-6, atol=1e-7 * np.abs(JtJ).max())
     absent = ~np.repeat(present, 3, axis=1)
     assert absent.sum() == 3 and np.all(jac[absent[:, None, :].repeat(jac.shape[1], 1)] == 0)
+
+
+def test_spd_solve_solves_every_system_including_indefinite_ones():
+    """Cholesky per matrix against LU; an indefinite and a negative definite matrix (Cholesky
+    fails on them) are still solved."""
+    rng = np.random.default_rng(5)
+    A = rng.normal(size=(5, 9, 9))
+    H = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(9)
+    H[1] = -H[1]
+    H[3, 0, 0] = -50.0
+    b = rng.normal(size=(5, 9))
+    expected = np.linalg.solve(H, b[..., None])[..., 0]
+    np.testing.assert_allclose(spd_solve(H.copy(), b), expected, rtol=1e-10, atol=1e-12)
+
+
+def test_costs_without_the_normal_equations_match_them():
+    """The trial-point cost of the solver and the prior energy computed without linearizing
+    are the cost of the residuals and the linearized prior's energy at the same point."""
+    truth, X0, xy, conf, P, inliers = _capture(1, persons=4)
+    X0[2, 5] = np.nan                                                                # a shoulder: no prior
+    x, present, problem = _inner_problem(X0, xy, conf, P, inliers, truth)
+    x = x + np.where(np.repeat(present, 3, axis=1), np.random.default_rng(2).normal(0, 0.02, x.shape), 0.0)
+    np.testing.assert_allclose(inner_cost(x, problem), 0.5 * (residuals(x, problem) ** 2).sum(1), rtol=1e-12)
+    X = x.reshape(len(x), -1, 3)
+    energy = prior_energy(X, present, shipped_prior(), 10.0)
+    np.testing.assert_allclose(energy, linearized_prior(X, present, shipped_prior(), 10.0).energy(x), rtol=1e-9)
+    assert energy[2] == 0.0 and np.all(energy[[0, 1, 3]] > 0)
 
 
 def test_levenberg_marquardt_reaches_the_minimum_of_an_independent_solver():

@@ -187,7 +187,8 @@ class Config:
     # --- triangulation -------------------------------------------------------------------
     #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this. [px]
     ransac_threshold_px: float = setting(15.0, gt=0)
-    #: Number of RANSAC hypotheses (two-view triangulations) per joint. [1]
+    #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
+    #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True

@@ -62,23 +62,26 @@ def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         z = up - np.sum(up * x, axis=-1, keepdims=True) * x
         z_norm = np.linalg.norm(z, axis=-1, keepdims=True)
         z = z / z_norm
-        rotation = np.stack([x, np.cross(z, x), z], axis=-2)
+        y = np.stack([z[..., 1] * x[..., 2] - z[..., 2] * x[..., 1], z[..., 2] * x[..., 0] - z[..., 0] * x[..., 2],
+                      z[..., 0] * x[..., 1] - z[..., 1] * x[..., 0]], axis=-1)                  # z × x
+        rotation = np.stack([x, y, z], axis=-2)
     degenerate = ~((x_norm[..., 0] > _EPS * scale) & (z_norm[..., 0] > _EPS * scale) & (scale > _EPS))
     rotation[degenerate] = np.nan
     scale = np.where(degenerate, np.nan, scale)
     return rotation, centre, scale
 
 
-def canonicalize(poses: np.ndarray) -> np.ndarray:
+def canonicalize(poses: np.ndarray, frame: tuple | None = None) -> np.ndarray:
     """World poses in the pose's own body frame, scale-normalized. ``poses: (..., 17, 3)`` -> ``(..., 17, 3)``.
 
     Origin: the pelvis (mid-hips). Axes: x from the right hip to the left hip; z from the pelvis
     to the mid-shoulders, made orthogonal to x; y = z × x (towards the back). Scale: divided by
     the torso length, the mean of the left and right shoulder-to-hip distances (``body_frame``).
     The result does not depend on the world's rotation, translation or scale. NaN joints stay
-    NaN; a pose lacking a hip or a shoulder (or with coincident hips) is all NaN.
+    NaN; a pose lacking a hip or a shoulder (or with coincident hips) is all NaN. ``frame``:
+    the poses' ``body_frame`` when the caller already has it.
     """
-    rotation, centre, scale = body_frame(poses)
+    rotation, centre, scale = body_frame(poses) if frame is None else frame
     with np.errstate(invalid="ignore"):
         return np.einsum("...ij,...kj->...ki", rotation, np.asarray(poses, dtype=float) - centre[..., None, :]) \
             / scale[..., None, None]
@@ -116,9 +119,10 @@ class PosePrior:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "_whitening", functools.lru_cache(maxsize=1024)(self._whitening_uncached))
+        object.__setattr__(self, "_stacked", functools.lru_cache(maxsize=256)(self._stacked_uncached))
 
     @classmethod
-    def load(cls, path: str | Path | None = None) -> "PosePrior":
+    def load(cls, path: str | Path | None = None) -> PosePrior:
         """Read a prior ``.npz`` (arrays ``weights``, ``means``, ``covariances``); default: the shipped one."""
         arrays = read_arrays(path, "pose_prior.npz", ("weights", "means", "covariances"), "a pose prior")
         try:
@@ -148,17 +152,24 @@ class PosePrior:
         present = ~np.isnan(canonical).any(axis=-1)                                  # (P, 17)
         flat = canonical.reshape(len(canonical), DIM)
         out = np.full((len(canonical), self.components), np.nan)
-        patterns, inverse = np.unique(present, axis=0, return_inverse=True)
+        code = present.astype(np.int64) @ (1 << np.arange(NUM_JOINTS))
+        patterns, first, inverse = np.unique(code, return_index=True, return_inverse=True)
         for k, pattern in enumerate(patterns):
-            if not pattern.any():
+            if pattern == 0:
                 continue
-            rows = np.flatnonzero(inverse.reshape(-1) == k)
-            x = flat[np.ix_(rows, np.repeat(pattern, 3))]                          # (n, K)
-            for component in range(self.components):
-                mean, w, c = self.whitening(pattern, component)
-                r = (x - mean) @ w.T
-                out[rows, component] = -0.5 * np.einsum("nk,nk->n", r, r) - c
+            rows = np.flatnonzero(inverse.reshape(-1) == k) if len(patterns) > 1 else np.arange(len(code))
+            mean, w, c = self._stacked(present[first[k]].tobytes())                   # (L, K), (L, K, K), (L,)
+            x = flat[np.ix_(rows, np.repeat(present[first[k]], 3))]                  # (n, K)
+            r = np.matmul(x[None] - mean[:, None], np.swapaxes(w, 1, 2))               # (L, n, K)
+            out[rows] = (-0.5 * np.einsum("lnk,lnk->nl", r, r)) - c
         return out
+
+    def _stacked_uncached(self, present_bytes: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The :meth:`whitening` of every component for one pattern of present joints, stacked:
+        ``mean: (L, K)``, ``W: (L, K, K)``, ``c: (L,)``."""
+        present = np.frombuffer(present_bytes, dtype=bool)
+        parts = [self.whitening(present, component) for component in range(self.components)]
+        return tuple(np.stack([part[i] for part in parts]) for i in range(3))
 
     def nll(self, canonical: np.ndarray) -> np.ndarray:
         """``E_P``: ``-log Σ_l w_l N(x_obs | μ_l,obs, Σ_l,obs)``. ``canonical: (P, 17, 3)`` -> ``(P,)``.

@@ -18,16 +18,21 @@ iteration) and each bone row two of its joints. Persons are independent, so the 
 normal equations are one dense ``3J × 3J`` system per person, padded (absent joints: identity
 rows, they stay NaN) and assembled for all persons at once from ``3 × 3`` blocks
 (:func:`normal_equations`, :func:`hessian`). A batched Levenberg-Marquardt
-(:func:`levenberg_marquardt`) solves them together with one batched ``np.linalg.solve`` per
-step: every person has its own damping, accepts or rejects its own steps and stops on its own
-tolerance, with the ``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``.
+(:func:`levenberg_marquardt`) solves them together: every person has its own damping, accepts
+or rejects its own steps and stops on its own tolerance, with the ``ftol`` / ``xtol`` meaning
+of ``scipy.optimize.least_squares``. Where the time goes is the damped ``3J × 3J`` solves, so a
+step solves only the persons still active, each by an in-place Cholesky (:func:`spd_solve`);
+a trial point costs only its residuals (:func:`inner_cost`) and the normal equations are
+rebuilt only where a step is accepted and the person goes on.
 """
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dposv as posv
 
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
@@ -112,6 +117,11 @@ class Observations:
         uv, depth = self._homogeneous(X)
         return np.where(self.fit[..., None], np.swapaxes(uv, 2, 3) - self.xy, 0.0), depth
 
+    def cost(self, X: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``½ Σ w |e|²: (P,)`` of the reprojection rows at ``X: (P, J, 3)``, weights ``w: (P, M, J)``."""
+        uv, _ = self._homogeneous(X)
+        return 0.5 * np.where(self.fit, w * ((uv - np.swapaxes(self.xy, 2, 3)) ** 2).sum(2), 0.0).sum((1, 2))
+
     def normal_terms(self, X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The reprojection rows' share of the normal equations at ``X: (P, J, 3)`` with
         weights ``w: (P, M, J)`` (0 where not fitted): the cost ``½ Σ w |e|²: (P,)``, the
@@ -168,22 +178,37 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
     person's row of ``keys`` (``G``: none)."""
     Pn, J, _ = X.shape
     poses = np.where(present[..., None], X, np.nan)
-    rotation, _, scale = body_frame(poses)                                        # (P, 3, 3), (P,)
+    frame = body_frame(poses)
+    rotation, scale = frame[0], frame[2]                                          # (P, 3, 3), (P,)
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
     component = np.full(Pn, -1)
     canonical = np.full_like(poses, np.nan)
     if prior is not None and weight > 0 and usable.any():
-        canonical = canonicalize(poses)
+        canonical = canonicalize(poses, frame)
         component[usable] = prior.best_component(canonical[usable])
     usable &= component >= 0
     code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
-    codes, group = np.unique(code[usable], return_inverse=True)
-    first = np.flatnonzero(usable)[np.unique(group, return_index=True)[1]]
+    codes, first, group = np.unique(code[usable], return_index=True, return_inverse=True)
+    first = np.flatnonzero(usable)[first]
     keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
     which = np.full(Pn, len(codes))
     which[usable] = group.ravel()
     return rotation, scale, canonical, keys, which
+
+
+def prior_energy(X: np.ndarray, present: np.ndarray, prior, weight: float) -> np.ndarray:
+    """``weight · E_P`` of the max-mixture component (up to its constant) at ``X: (P, J, 3)``,
+    ``(P,)`` (0 without a prior): :meth:`LinearPrior.energy` of :func:`linearized_prior` at
+    ``X``, without building the linearization."""
+    _, _, canonical, keys, which = _prior_groups(X, present, prior, weight)
+    energy = np.zeros(len(X))
+    for g, key in enumerate(keys):
+        rows, mask = np.flatnonzero(which == g), key[:-1].astype(bool)
+        mean, W, _ = prior.whitening(mask, int(key[-1]))
+        r = (canonical[rows][:, mask].reshape(len(rows), -1) - mean) @ W.T
+        energy[rows] = 0.5 * weight * (r**2).sum(1)
+    return energy
 
 
 def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
@@ -211,6 +236,7 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     frame = np.where(usable[:, None, None], rotation / np.where(usable, scale, 1.0)[:, None, None], 0.0)
     G = np.matmul(WC[which].reshape(Pn, -1, 3), frame).reshape(Pn, 3 * J, 3 * J)
     return LinearPrior(G, Wmean[which])
+
 
 
 @dataclass(frozen=True)
@@ -294,15 +320,18 @@ def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, 
     return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
 
 
+@functools.lru_cache(maxsize=8)
 def block_entries(J: int, bones: bool) -> np.ndarray:
     """Flat indices into a ``3J × 3J`` matrix of the ``3 × 3`` blocks of
     :func:`normal_equations`: the ``J`` diagonal blocks, then ``(a, b)`` and ``(b, a)`` of every
-    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block."""
+    bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block (cached, read-only)."""
     rows, cols = np.arange(J), np.arange(J)
     if bones:
         rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
     x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
-    return ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+    entries = ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
+    entries.setflags(write=False)
+    return entries
 
 
 def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarray:
@@ -320,7 +349,30 @@ def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.nda
     on (a zero diagonal: an absent joint) gets an identity row and does not move."""
     diagonal = H.reshape(len(H), -1)[:, :: H.shape[1] + 1]
     diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
-    return -np.linalg.solve(H, grad[..., None])[..., 0]
+    return -spd_solve(H, grad)
+
+
+def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``x: (P, n)`` with ``A x = b`` for symmetric positive definite ``A: (P, n, n)`` (its
+    upper triangle is overwritten), ``b: (P, n)``: LAPACK's Cholesky solver ``posv`` in place
+    on each matrix (numpy's batched solve copies every matrix and factorizes it by LU, twice
+    the work); a matrix that is not positive definite to working precision is solved by LU."""
+    x, diagonal = np.array(b, dtype=float), np.diagonal(A, axis1=1, axis2=2).copy()
+    columns = np.swapaxes(A, 1, 2)              # column-major views: LAPACK needs no copy
+    for p in range(len(A)):
+        _, x[p], info = posv(columns[p], x[p], lower=1, overwrite_a=1, overwrite_b=1)
+        if info != 0:                           # rebuilt from the untouched lower triangle
+            lower = np.tril(A[p], -1)
+            x[p] = np.linalg.solve(lower + lower.T + np.diag(diagonal[p]), b[p])
+    return x
+
+
+def inner_cost(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
+    """Half the sum of squared :func:`residuals` of every person at ``x: (P, 3J)``, ``(P,)``
+    (without forming them)."""
+    X = x.reshape(len(x), -1, 3)
+    cost = problem.obs.cost(X, problem.sqrt_w**2) + problem.prior.energy(x)
+    return cost if problem.bones is None else cost + 0.5 * (problem.bones.linearize(X)[0] ** 2).sum(1)
 
 
 def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
@@ -331,9 +383,12 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     after an accepted step, multiplied by 10 after a rejected one) and stops on its own when an
     accepted step lowers its cost by less than ``tolerance`` times the cost, or a step is
     shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and ``xtol`` of
-    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. Returns ``(P, 3J)``."""
+    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point costs only
+    its residuals; the normal equations are built where a step is accepted and the person goes
+    on (only the persons still active are solved). Returns ``(P, 3J)``."""
     x = x.copy()
-    cost, grad, blocks = normal_equations(x, problem)
+    cost = inner_cost(x, problem)
+    _, grad, blocks = normal_equations(x, problem)
     GtG = problem.prior.gram()
     damping = np.full(len(x), INITIAL_DAMPING)
     active = np.isfinite(cost)
@@ -344,18 +399,35 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         if not active[idx].all():
             idx = np.flatnonzero(active)
             sub = problem.take(idx)
-        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], damping[idx])
-        trial = x[idx] + step
-        trial_cost, trial_grad, trial_blocks = normal_equations(trial, sub)
-        better = trial_cost < cost[idx]
-        small_step = np.linalg.norm(step, axis=1) <= tolerance * (tolerance + np.linalg.norm(x[idx], axis=1))
-        small_gain = better & (cost[idx] - trial_cost <= tolerance * cost[idx])
-        damping[idx] = np.clip(np.where(better, damping[idx] / 3.0, damping[idx] * 10.0), _MIN_DAMPING, _MAX_DAMPING)
+        start, current, mu = x[idx], cost[idx], damping[idx]
+        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], mu)
+        trial = start + step
+        trial_cost = inner_cost(trial, sub)
+        better = trial_cost < current
+        small_step = _norms(step) <= tolerance * (tolerance + _norms(start))
+        small_gain = better & (current - trial_cost <= tolerance * current)
+        damping[idx] = np.clip(np.where(better, mu / 3.0, mu * 10.0), _MIN_DAMPING, _MAX_DAMPING)
         active[idx] = ~(small_step | small_gain)
-        moved = idx[better]
-        x[moved], cost[moved], grad[moved], blocks[moved] = (trial[better], trial_cost[better], trial_grad[better],
-                                                             trial_blocks[better])
+        x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
+        _refresh(trial, grad, blocks, idx, better & active[idx], sub)
     return x
+
+
+def _norms(x: np.ndarray) -> np.ndarray:
+    """Euclidean norms of the rows of ``x: (P, n)``, ``(P,)``."""
+    return np.sqrt(np.einsum("pn,pn->p", x, x))
+
+
+def _refresh(trial: np.ndarray, grad: np.ndarray, blocks: np.ndarray, idx: np.ndarray, moved: np.ndarray,
+             sub: InnerProblem) -> None:
+    """Rebuild, in place, the gradient and blocks of :func:`normal_equations` of the persons
+    ``idx[moved]`` at their accepted ``trial: (Q, 3J)`` points (``sub``: the problem of
+    ``idx: (Q,)``, ``moved: (Q,)`` bool)."""
+    if moved.all():
+        _, grad[idx], blocks[idx] = normal_equations(trial, sub)
+    elif moved.any():
+        rows = np.flatnonzero(moved)
+        _, grad[idx[rows]], blocks[idx[rows]] = normal_equations(trial[rows], sub.take(rows))
 
 
 def objective(X: np.ndarray, obs: Observations, energy: np.ndarray, robust_scale_px: float,
@@ -429,12 +501,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
              if bone_lengths is not None and bone_weight > 0 else None)
     prior = prior if use_prior else None
 
-    def cost(X, linear):
-        return objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
-
     X = np.where(present[..., None], X0, 0.0)
     linear = linearized_prior(X, present, prior, prior_weight)
-    cost_before = cost(X, linear)
+    cost_before = objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
     for k in range(outer_iterations):
         linear = linearized_prior(X, present, prior, prior_weight) if k else linear
         problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear, bones)
@@ -445,5 +514,5 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     X_fit = np.where(present[..., None], X, 0.0)
-    cost_after = cost(X_fit, linearized_prior(X_fit, present, prior, prior_weight))
+    cost_after = objective(X_fit, obs, prior_energy(X_fit, present, prior, prior_weight), robust_scale_px, bones)
     return RefineResult(X, fallback, cost_before, cost_after)
