@@ -28,16 +28,16 @@ def scenes(tmp_path_factory, bank_poses):
 def test_any_error_is_the_scene_s_own(scenes, monkeypatch):
     import mvm.scenes as core
 
-    real = core.reconstruct_dir
+    real = core.reconstruct
 
     def flaky(scene, *args, **kwargs):
-        if str(scene).endswith("bug"):
+        if scene.name == "bug":
             raise RuntimeError("an unexpected bug\nwith two lines")
-        if str(scene).endswith("oserror"):
-            raise PermissionError(13, "Permission denied", str(scene))
+        if scene.name == "oserror":
+            raise PermissionError(13, "Permission denied", str(scenes["oserror"]))
         return real(scene, *args, **kwargs)
 
-    monkeypatch.setattr(core, "reconstruct_dir", flaky)
+    monkeypatch.setattr(core, "reconstruct", flaky)
     order = ["loop", "bug", "good", "oserror"]
     result = CliRunner().invoke(main, ["reconstruct", *(str(scenes[n]) for n in order), "--no-refine"])
     assert result.exit_code == 2, result.output

@@ -1,6 +1,8 @@
 """Association consistent in 3D, against simulated scenes whose true grouping is known."""
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
@@ -153,6 +155,20 @@ def test_proportions_tell_a_body_from_a_scramble(mixed):
     assert (proportion_deviation(3.0 * bodies) < 0.12).all()       # whatever the model's scale
     scrambled = bodies[:, np.random.default_rng(0).permutation(17)]
     assert (proportion_deviation(scrambled) > 0.25).all()
+
+
+def test_the_row_median_is_numpys_nanmedian_to_the_bit():
+    from mvm.core.association import _row_nanmedian
+
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        a = rng.random((int(rng.integers(0, 6)), int(rng.integers(1, 20)))) * 10.0 ** rng.integers(-3, 4)
+        a[rng.random(a.shape) < rng.random()] = np.nan
+        a[rng.random(a.shape) < 0.05] = np.inf
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN rows
+            expected = np.nanmedian(a, axis=1)
+        np.testing.assert_array_equal(_row_nanmedian(a), expected)
 
 
 def test_the_method_is_a_setting_with_its_choices_listed():

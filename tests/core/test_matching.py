@@ -185,3 +185,27 @@ def test_greedy_in_blocks_is_algorithm_1():
         expected = _algorithm1(A[b, :size, :size].astype(float), w[b, :size], view[b, :size], 0.22, 0.4, 2)
         assert [g.tolist() for g in groups[b]] == expected
     assert sum(len(g) for g in groups) > 5                                   # the case is not empty
+
+
+def test_poses_in_too_few_views_make_no_group_and_are_not_matched(bank_poses):
+    """The shortcut of :func:`mvm.core.pipeline.match` (eligible poses in fewer than
+    ``min_group_size`` views make no group) gives what the grouping itself gives."""
+    from mvm.core.affinity import pose_affinity
+    from mvm.core.config import Config
+    from mvm.core.matching import greedy_groups
+    from mvm.core.pipeline import _may_group, match
+    from mvm.sim.simulate import SimConfig, simulate
+
+    scene, _ = simulate(SimConfig(people=2, frames=8, seed=2), bank_poses)
+    poses = scene.poses
+    for config in (Config(min_group_size=3), Config(min_group_size=2), Config(min_group_size=3, min_pose_score=0.9)):
+        for views in ([0], [0, 1], [0, 1, 2], [2, 5, 7]):
+            sub = poses.subset(np.flatnonzero(np.isin(poses.view, views)))
+            grouped = greedy_groups(pose_affinity(scene.cameras, sub, config), sub.score, sub.view, config.tau,
+                                    config.min_pose_score, config.min_group_size)
+            if not _may_group(sub.view, sub.score, config):
+                assert grouped == [] and match(scene.cameras, sub, config) == []
+            assert [g.tolist() for g in match(scene.cameras, sub, config)] == [g.tolist() for g in grouped]
+    assert not _may_group(np.array([0, 0, 1]), np.ones(3), Config(min_group_size=3))
+    assert _may_group(np.array([0, 1, 2]), np.ones(3), Config(min_group_size=3))
+    assert not _may_group(np.array([0, 1, 2]), np.array([1.0, 1.0, np.nan]), Config(min_group_size=3))

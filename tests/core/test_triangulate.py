@@ -129,3 +129,23 @@ def test_few_views_enumerate_every_pair_of_views():
     tri = ransac_triangulate(obs, 5.0, 10, 2, 1.0, rng)
     assert np.abs(tri.X - STANDING).max() < 1e-6
     assert np.array_equal(tri.inliers[0], np.arange(5)[:, None].repeat(17, 1) >= 3)
+
+
+def test_a_refit_with_unchanged_inliers_is_skipped_with_the_same_numbers(bank_poses, monkeypatch):
+    import mvm.core.triangulate as tri_module
+    from mvm.core.config import Config
+    from mvm.core.pipeline import match, triangulate_groups
+    from mvm.sim.simulate import SimConfig, simulate
+
+    scene, _ = simulate(SimConfig(people=3, frames=10, seed=6), bank_poses)
+    config = Config()
+    groups = match(scene.cameras, scene.poses, config)
+    solves = []
+    real = tri_module.weighted_dlt
+    monkeypatch.setattr(tri_module, "weighted_dlt", lambda *a: solves.append(1) or real(*a))
+    _, reused = triangulate_groups(scene.cameras, scene.poses, groups, config)
+    assert len(solves) < 3                                          # the inliers settled: a solve skipped
+    monkeypatch.setattr(tri_module, "_refit", lambda terms, weights, previous: (weights, real(terms, weights)))
+    _, always = triangulate_groups(scene.cameras, scene.poses, groups, config)
+    np.testing.assert_array_equal(reused.X, always.X)
+    np.testing.assert_array_equal(reused.inliers, always.inliers)

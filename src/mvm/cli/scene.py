@@ -1,9 +1,19 @@
-"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dir`)."""
+"""``mvm reconstruct``: the 3D poses of scene directories (:func:`mvm.scenes.reconstruct_dirs`)."""
 from __future__ import annotations
 
 import click
 
-from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_each
+from mvm.cli.common import (
+    command,
+    config_options,
+    fmt,
+    out,
+    print_line,
+    read_config,
+    report_failures,
+    run_outcomes,
+    text_table,
+)
 
 
 @command("reconstruct")
@@ -18,20 +28,14 @@ def reconstruct(scenes, config_path, sets, refine, output):
     written to SCENE/<output>/poses3d.json. A scene that fails, for whatever reason, is reported
     in one line and the others are still done; the exit status is 2 if any scene failed.
     """
-    from rich.table import Table
-
-    from mvm.scenes import reconstruct_dir
+    from mvm.scenes import reconstruct_dirs
 
     config = read_config(config_path, sets, refine=refine)
-    rows, failed = run_each(scenes, lambda scene: reconstruct_dir(scene, config, output), "reconstructing")
+    rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output), "reconstructing")
     if rows:
-        table = Table(title="mvm reconstruct")
-        for column in ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s"):
-            table.add_column(column, justify="right" if column != "scene" else "left")
-        for scene, r in rows:
-            m = r.metrics
-            table.add_row(str(scene), str(m["persons"]), str(m["matched_poses"]), str(m["unmatched_poses"]),
-                          fmt(m["E_R_px"]), fmt(m["outliers"], 1), fmt(m["G_k"], 1),
-                          fmt(r.timings["read_s"] + r.timings["total_s"]))
-        out().print(table)
+        columns = ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s")
+        cells = [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
+                  str(r.metrics["unmatched_poses"]), fmt(r.metrics["E_R_px"]), fmt(r.metrics["outliers"], 1),
+                  fmt(r.metrics["G_k"], 1), fmt(r.timings["read_s"] + r.timings["total_s"])) for scene, r in rows]
+        print_line(text_table("mvm reconstruct", columns, cells), out())
     report_failures(failed, len(scenes))

@@ -66,6 +66,8 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
     for batch in _batches(poses.blocks(), MATCH_BATCH_PAIRS):
         if poses.instant is None or len(batch) == 1 and len(batch[0]) ** 2 > MATCH_BATCH_PAIRS:
             rows = batch[0]
+            if not _may_group(poses.view[rows], poses.score[rows], config):
+                continue
             sub = poses if len(rows) == len(poses) else poses.subset(rows)
             found = [greedy_groups(pose_affinity(cameras, sub, config), sub.score, sub.view, config.tau,
                                    config.min_pose_score, config.min_group_size)]
@@ -79,6 +81,15 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
                                          config.tau, config.min_pose_score, config.min_group_size)
         groups += [rows[g] for rows, block in zip(batch, found) for g in block]
     return groups
+
+
+def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
+    """Whether poses of ``view, score: (n,)`` can make a group: a group holds one pose per view
+    and at least ``min_group_size`` poses, all of score ``min_pose_score`` or more, so poses
+    eligible in fewer views make none (e.g. the few false positives the association leaves
+    over), and their affinity need not be computed."""
+    eligible = np.where(np.isfinite(score), score, 0.0) >= config.min_pose_score     # as the grouping reads it
+    return len(np.unique(view[eligible])) >= max(config.min_group_size, 1)
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],

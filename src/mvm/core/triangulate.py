@@ -162,8 +162,10 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
         inliers = valid.copy()
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
+    solved = None
     for _ in range(2 if use_ransac else 1):
-        X = weighted_dlt(terms, weights)                                    # (P, J, 3)
+        solved = _refit(terms, weights, solved)
+        X = solved[1]                                                       # (P, J, 3)
         if not use_ransac:
             break
         err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
@@ -171,7 +173,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
         keep = refreshed.sum(axis=1) >= min_views
         inliers = np.where(keep[:, None, :], refreshed, inliers)
         weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)
-    X = weighted_dlt(terms, weights) * obs.world_scale + obs.world_offset
+    X = _refit(terms, weights, solved)[1] * obs.world_scale + obs.world_offset
 
     directions = X[:, None] - obs.centers[:, :, None]                          # (P, M, J, 3)
     directions /= np.maximum(np.linalg.norm(directions, axis=-1, keepdims=True), 1e-12)
@@ -180,6 +182,15 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     X[~good] = np.nan
     inliers &= good[:, None, :]
     return Triangulation(X, inliers, valid, parallax)
+
+
+def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(weights, X)``: the weighted DLT of ``weights: (P, J, M)``, or ``previous`` (the same
+    pair from the last refit) when the weights have not changed, as the inliers usually do not
+    between refits: the same numbers, one solve fewer."""
+    if previous is not None and np.array_equal(previous[0], weights):
+        return previous
+    return weights, weighted_dlt(terms, weights)
 
 
 def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold_px: float,
