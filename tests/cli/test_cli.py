@@ -73,17 +73,3 @@ def test_poses3d_has_every_field(tmp_path, bank_poses):
     assert set(document["metrics"]) >= {"E_R_px", "outliers", "G_k", "persons", "matched_poses", "unmatched_poses"}
     text = (tmp_path / "s" / "mvm" / "poses3d.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
-
-
-def test_the_per_scene_table_keeps_whole_paths_and_aligns_its_columns():
-    from mvm.cli.common import text_table
-
-    rows = [("/a/very/long/path/to/scene_000001", "4", "12.50"), ("s2", "10", "3.00")]
-    lines = text_table("recap", ("scene", "persons", "time s"), rows).splitlines()
-    assert lines[0].strip() == "recap"
-    body = lines[4:6]
-    assert body[0].startswith("│ /a/very/long/path/to/scene_000001 │")
-    assert body[1].startswith("│ s2                                │")
-    assert len({len(line) for line in lines[1:]}) == 1                              # one width
-    assert [line.index("│", 2) for line in body] == [lines[2].index("┃", 2)] * 2     # columns line up
-    assert body[1].endswith("│      10 │   3.00 │")                                 # numbers to the right

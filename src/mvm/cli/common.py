@@ -148,36 +148,6 @@ def measure_table(title: str, rows) -> None:
     out().print(table)
 
 
-def text_table(title: str, columns: tuple[str, ...], rows: list[tuple[str, ...]], left: int = 1) -> str:
-    """A recap table of one row per input as plain text, in rich's box style: ``columns``
-    names, ``rows`` of cell strings, the first ``left`` columns aligned left and the others
-    right. Cells are never cut (a scene path stays whole), and it costs milliseconds where a
-    rich ``Table`` renders about a millisecond per row (a run over hundreds of scenes).
-
-    >>> print(text_table("t", ("a", "n"), [("x", "1")]))
-        t
-    ┏━━━┳━━━┓
-    ┃ a ┃ n ┃
-    ┡━━━╇━━━┩
-    │ x │ 1 │
-    └───┴───┘
-    """
-    widths = [max([len(c)] + [len(r[i]) for r in rows]) for i, c in enumerate(columns)]
-
-    def line(cells, bar):
-        return bar + bar.join(f" {c:<{w}} " if i < left else f" {c:>{w}} "
-                              for i, (c, w) in enumerate(zip(cells, widths))) + bar
-
-    def rule(a, b, c, fill):
-        return a + b.join(fill * (w + 2) for w in widths) + c
-
-    top = rule("┏", "┳", "┓", "━")
-    lines = [title.center(len(top)).rstrip(), top, line(columns, "┃"), rule("┡", "╇", "┩", "━")]
-    lines += [line(r, "│") for r in rows]
-    lines.append(rule("└", "┴", "┘", "─"))
-    return "\n".join(lines)
-
-
 def print_line(text: str, console=None, **style) -> None:
     """Print ``text`` literally (no rich markup or highlighting), wrapped softly."""
     (console or err()).print(text, markup=False, highlight=False, soft_wrap=True, **style)

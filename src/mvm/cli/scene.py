@@ -3,17 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import (
-    command,
-    config_options,
-    fmt,
-    out,
-    print_line,
-    read_config,
-    report_failures,
-    run_outcomes,
-    text_table,
-)
+from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_outcomes
 
 
 @command("reconstruct")
@@ -33,9 +23,16 @@ def reconstruct(scenes, config_path, sets, refine, output):
     config = read_config(config_path, sets, refine=refine)
     rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output), "reconstructing")
     if rows:
-        columns = ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s")
-        cells = [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
-                  str(r.metrics["unmatched_poses"]), fmt(r.metrics["E_R_px"]), fmt(r.metrics["outliers"], 1),
-                  fmt(r.metrics["G_k"], 1), fmt(r.timings["read_s"] + r.timings["total_s"])) for scene, r in rows]
-        print_line(text_table("mvm reconstruct", columns, cells), out())
+        from rich.table import Table
+
+        table = Table(title="mvm reconstruct")
+        table.add_column("scene", overflow="fold")                          # a path is never cut
+        for column in ("persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s"):
+            table.add_column(column, justify="right")
+        for scene, r in rows:
+            m = r.metrics
+            table.add_row(str(scene), str(m["persons"]), str(m["matched_poses"]), str(m["unmatched_poses"]),
+                          fmt(m["E_R_px"]), fmt(m["outliers"], 1), fmt(m["G_k"], 1),
+                          fmt(r.timings["read_s"] + r.timings["total_s"]))
+        out().print(table)
     report_failures(failed, len(scenes))
