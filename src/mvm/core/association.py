@@ -234,7 +234,7 @@ def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
     ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
     known = np.isfinite(ratio).sum(1)
     scale = _row_nanmedian(ratio)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
         deviation = _row_nanmedian(np.abs(ratio / scale[:, None] - 1))
     return np.where(known >= min_bones, deviation, np.nan)
 
