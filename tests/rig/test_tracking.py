@@ -2,7 +2,7 @@
 keep theirs, a person sharing too few joints with a track does not take its id."""
 import numpy as np
 
-from mvm.rig.tracking import identity_switches, link_tracks, track_persons
+from mvm.rig.tracking import assign, identity_switches, link_tracks, track_persons
 
 from helpers import STANDING
 
@@ -81,3 +81,28 @@ def test_identity_switches_counts():
     truth = np.array([0, 0, 0, 0, 0, -1])
     instant = np.arange(6)
     assert identity_switches(track, truth, instant) == {"switches": 2, "tracks_per_person": 2.0, "persons": 1}
+
+
+def test_assignment_is_the_hungarian_one_with_or_without_conflicts():
+    """The shortcut (every row's cheapest feasible column distinct) and the Hungarian fallback
+    give the assignment scipy's gives, on gated random costs of every shape."""
+    from scipy.optimize import linear_sum_assignment
+
+    rng = np.random.default_rng(3)
+    shortcut = conflicts = 0
+    for _ in range(400):
+        R, C = rng.integers(0, 6, 2)
+        cost = rng.uniform(0, 1, (R, C))
+        feasible = cost < rng.uniform(0.1, 0.9)
+        r, c = linear_sum_assignment(np.where(feasible, cost, 1e12))
+        ok = feasible[r, c]
+        got = assign(cost, feasible)
+        assert {(int(a), int(b)) for a, b in zip(*got)} == {(int(a), int(b)) for a, b in zip(r[ok], c[ok])}
+        if not feasible.any():
+            continue
+        best = np.argmin(np.where(feasible, cost, np.inf), axis=1)[feasible.any(1)]
+        distinct = len(np.unique(best)) == len(best)
+        shortcut += distinct
+        conflicts += not distinct
+    assert shortcut > 50 and conflicts > 50                                     # both paths tested
+

@@ -7,7 +7,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from mvm.rig.filters import butter_lowpass, filtfilt_many
 
@@ -23,6 +22,27 @@ def pose_distance(a: np.ndarray, b: np.ndarray, min_joints: int | np.ndarray = 1
         mean = np.where(ok, diff, 0.0).sum(-1) / count
     need = np.maximum(np.asarray(min_joints), 1)
     return np.where(count >= (need[:, None] if need.ndim else need), mean, np.inf)
+
+
+def assign(cost: np.ndarray, feasible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The minimum-cost assignment of rows to columns among the ``feasible`` pairs (Hungarian):
+    ``cost, feasible: (R, C)`` -> the rows and columns ``(K,), (K,)`` of the pairs kept.
+
+    Where every row's cheapest feasible column is a different column, those pairs are the
+    assignment (each row at its lowest cost, and every row that can be matched is: no
+    assignment does better), so ``scipy.optimize`` (about 0.3 s to import) is only imported for
+    real conflicts, e.g. two people crossing close."""
+    r = np.flatnonzero(feasible.any(1))
+    if not len(r):
+        return r, np.zeros(0, dtype=np.intp)
+    c = np.argmin(np.where(feasible, cost, np.inf), axis=1)[r]
+    if len(np.unique(c)) == len(c):
+        return r, c
+    from scipy.optimize import linear_sum_assignment
+
+    r, c = linear_sum_assignment(np.where(feasible, cost, 1e12))
+    ok = feasible[r, c]
+    return r[ok], c[ok]
 
 
 @dataclass
@@ -89,10 +109,9 @@ def track_persons(X: np.ndarray, instant: np.ndarray, max_distance: float, max_g
             cost = pose_distance(X[rows], predicted, need)
             feasible = cost <= max_distance
             loose = pose_distance(X[rows], predicted, 1) <= max_distance
-            r, c = linear_sum_assignment(np.where(feasible, cost, 1e12))
-            ok = feasible[r, c]
-            assigned[r[ok]] = alive[c[ok]]
-            resumed += int((dt[c[ok]] > 1).sum())
+            r, c = assign(cost, feasible)
+            assigned[r] = alive[c]
+            resumed += int((dt[c] > 1).sum())
             unlinked += int((~feasible.any(1) & loose.any(1)).sum())
         new = assigned < 0
         count_new = int(new.sum())
