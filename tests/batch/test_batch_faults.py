@@ -144,3 +144,40 @@ def test_two_drivers_share_one_root(root):
     manifest.close()
     assert sum(by_run.values()) == 2 * len(good)
     assert len(by_run) == 2, by_run                                     # both did some of the work
+
+
+def test_a_pool_broken_between_polls_is_restarted_when_the_next_stage_is_submitted():
+    """A worker that dies between two polls breaks the pool before the next submit: the stage
+    that was running on it is reported lost (and so retried), the new stage runs on a new pool."""
+    from concurrent.futures import Future
+    from concurrent.futures.process import BrokenProcessPool
+
+    from mvm.batch.clips import Clip
+    from mvm.batch.engines import LocalEngine
+    from mvm.batch.stages import BatchOptions, StageResult
+
+    class BrokenPool:
+        def submit(self, *args):
+            raise BrokenProcessPool("a child process terminated abruptly")
+
+        def shutdown(self, wait=True, cancel_futures=False):
+            pass
+
+    class FreshPool(BrokenPool):
+        def submit(self, fn, clip, stage, options):
+            future = Future()
+            future.set_result(StageResult(clip.id, stage, ok=True))
+            return future
+
+    engine = LocalEngine(1, BatchOptions())
+    engine._pool.shutdown()
+    running, new = Clip("a", "a", "/a"), Clip("b", "b", "/b")
+    engine._running[Future()] = (running, "reconstruct")            # on the worker that died
+    engine._pool, engine._new_pool = BrokenPool(), FreshPool
+    engine.submit(new, "reconstruct")
+    results = engine.poll(timeout=1.0)
+    by_clip = {r.clip: r for r in results}
+    assert set(by_clip) == {"a", "b"}
+    assert not by_clip["a"].ok and by_clip["a"].transient and "worker lost" in by_clip["a"].error
+    assert by_clip["b"].ok
+    assert isinstance(engine._pool, FreshPool) and not engine._running

@@ -54,6 +54,7 @@ class LocalEngine:
         self._context = multiprocessing.get_context("spawn")
         self._pool = self._new_pool()
         self._running: dict[Future, tuple[Clip, str]] = {}
+        self._lost_results: list[StageResult] = []
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.capacity, mp_context=self._context, initializer=_init_worker,
@@ -63,13 +64,19 @@ class LocalEngine:
         return [p.pid for p in (self._pool._processes or {}).values()]
 
     def submit(self, clip: Clip, stage: str) -> None:
-        self._running[self._pool.submit(run_stage, clip, stage, self.options)] = (clip, stage)
+        try:
+            future = self._pool.submit(run_stage, clip, stage, self.options)
+        except BrokenProcessPool:                       # a worker ended since the last poll
+            self._restart()
+            future = self._pool.submit(run_stage, clip, stage, self.options)
+        self._running[future] = (clip, stage)
 
     def poll(self, timeout: float) -> list[StageResult]:
+        results, self._lost_results = self._lost_results, []
         if not self._running:
-            return []
+            return results
         done, _ = wait(list(self._running), timeout=timeout, return_when=FIRST_COMPLETED)
-        results, broken = [], False
+        broken = False
         for future in done:
             clip, stage = self._running.pop(future)
             try:
@@ -78,13 +85,19 @@ class LocalEngine:
                 broken = True
                 results.append(_lost(clip, stage, "a worker process ended abruptly"))
         if broken:
-            log.warning("a worker process ended abruptly; restarting the pool")
-            for future, (clip, stage) in list(self._running.items()):
-                results.append(_lost(clip, stage, "a worker process ended abruptly"))
-            self._running.clear()
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = self._new_pool()
+            self._restart()
+            results, self._lost_results = results + self._lost_results, []
         return results
+
+    def _restart(self) -> None:
+        """A worker ended abruptly: every stage still running is lost (reported by the next
+        :meth:`poll`, and retried by the runner) and the pool is started afresh."""
+        log.warning("a worker process ended abruptly; restarting the pool")
+        self._lost_results += [_lost(clip, stage, "a worker process ended abruptly")
+                               for clip, stage in self._running.values()]
+        self._running.clear()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._pool = self._new_pool()
 
     def close(self, wait: bool = True) -> None:
         """Stop the pool; without ``wait`` (an interrupted run) its workers are ended at once."""
