@@ -126,7 +126,8 @@ def test_log_densities_of_a_mixed_batch_are_each_poses_own():
     out = prior.log_weighted_densities(x)
     for p in range(len(x)):
         coords = ~np.isnan(x[p].reshape(-1))
-        expected = [np.log(w) + multivariate_normal(m[coords], c[np.ix_(coords, coords)]).logpdf(x[p].reshape(-1)[coords])
+        values = x[p].reshape(-1)[coords]
+        expected = [np.log(w) + multivariate_normal(m[coords], c[np.ix_(coords, coords)]).logpdf(values)
                     for w, m, c in zip(prior.weights, prior.means, prior.covariances)]
         np.testing.assert_allclose(out[p], expected, rtol=1e-9)
 

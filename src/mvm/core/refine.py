@@ -327,7 +327,8 @@ def block_entries(J: int, bones: bool) -> np.ndarray:
     bone when ``bones``. ``(9 K,)`` for ``K`` blocks, row-major within each block (cached, read-only)."""
     rows, cols = np.arange(J), np.arange(J)
     if bones:
-        rows, cols = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]]), np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
+        rows = np.concatenate([rows, _BONES[:, 0], _BONES[:, 1]])
+        cols = np.concatenate([cols, _BONES[:, 1], _BONES[:, 0]])
     x, y = np.meshgrid(np.arange(3), np.arange(3), indexing="ij")
     entries = ((3 * rows[:, None, None] + x) * 3 * J + 3 * cols[:, None, None] + y).reshape(-1)
     entries.setflags(write=False)

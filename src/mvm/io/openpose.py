@@ -92,7 +92,8 @@ def openpose_people(data, path: Path) -> np.ndarray:
         values = None
     if values is not None and all(type(v) is list for v in values):
         lengths = set(map(len, values))
-        if len(lengths) == 1 and lengths <= _LAYOUTS.keys() and set(map(type, chain.from_iterable(values))) <= {float, int}:
+        numeric = set(map(type, chain.from_iterable(values))) <= {float, int}
+        if len(lengths) == 1 and lengths <= _LAYOUTS.keys() and numeric:
             try:
                 flat = np.array(values, dtype=float)                                          # (K, n)
             except OverflowError:
