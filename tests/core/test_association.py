@@ -158,7 +158,7 @@ def test_proportions_tell_a_body_from_a_scramble(mixed):
 
 
 def test_the_row_median_is_numpys_nanmedian_to_the_bit():
-    from mvm.core.association import _row_nanmedian
+    from mvm.core.quality import row_nanmedian
 
     rng = np.random.default_rng(3)
     for _ in range(300):
@@ -168,7 +168,7 @@ def test_the_row_median_is_numpys_nanmedian_to_the_bit():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN rows
             expected = np.nanmedian(a, axis=1)
-        np.testing.assert_array_equal(_row_nanmedian(a), expected)
+        np.testing.assert_array_equal(row_nanmedian(a), expected)
 
 
 def test_the_method_is_a_setting_with_its_choices_listed():

@@ -27,6 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
+from mvm.core.quality import row_nanmedian
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -233,22 +234,10 @@ def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
     """
     ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
     known = np.isfinite(ratio).sum(1)
-    scale = _row_nanmedian(ratio)
+    scale = row_nanmedian(ratio)
     with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
-        deviation = _row_nanmedian(np.abs(ratio / scale[:, None] - 1))
+        deviation = row_nanmedian(np.abs(ratio / scale[:, None] - 1))
     return np.where(known >= min_bones, deviation, np.nan)
-
-
-def _row_nanmedian(a: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(a, axis=1)`` of ``a: (Q, B)`` -> ``(Q,)``, NaN for an all-NaN row, with no
-    warning, and the same numbers: the mean of the middle two of each row's sorted non-NaN
-    values (NaNs sort last). For the few short rows of one scene, ``np.nanmedian`` goes through
-    masked arrays and costs several times more."""
-    s = np.sort(a, axis=1)
-    n = (~np.isnan(a)).sum(1)
-    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
-    hi = np.take_along_axis(s, np.minimum(n // 2, a.shape[1] - 1)[:, None], axis=1)[:, 0]
-    return np.where(n > 0, (lo + hi) / 2, np.nan)
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:

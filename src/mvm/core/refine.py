@@ -36,6 +36,7 @@ from scipy.linalg.lapack import dposv as posv
 
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
+from mvm.core.quality import row_nanmedian
 
 log = logging.getLogger(__name__)
 
@@ -58,16 +59,6 @@ class RefineResult:
     fallback: np.ndarray
     cost_before: float
     cost_after: float
-
-
-def _row_medians(values: np.ndarray) -> np.ndarray:
-    """Median of every row of ``values: (P, K)`` ignoring NaN -> ``(P,)``, NaN for a row without
-    values (the mean of the two middle values for even counts, as np.median)."""
-    ordered = np.sort(values, axis=1)                                              # NaN last
-    count = np.isfinite(values).sum(1)
-    low = np.take_along_axis(ordered, np.maximum(count - 1, 0)[:, None] // 2, axis=1)[:, 0]
-    high = np.take_along_axis(ordered, (count // 2)[:, None], axis=1)[:, 0]
-    return np.where(count > 0, 0.5 * (low + high), np.nan)
 
 
 @dataclass(frozen=True)
@@ -461,7 +452,7 @@ def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, obs: Ob
     finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
 
     def median_error(e):
-        return _row_medians(np.where(obs.fit, np.linalg.norm(e, axis=-1), np.nan).reshape(len(X), -1))
+        return row_nanmedian(np.where(obs.fit, np.linalg.norm(e, axis=-1), np.nan).reshape(len(X), -1))
 
     worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale_px
     behind = ~(depth1 > 0).all((1, 2))
