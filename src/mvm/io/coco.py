@@ -1,7 +1,6 @@
 """COCO keypoint files (the *dataset* format, as OpenPifPaf and the scene contract use it)."""
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,19 +80,14 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
             raise InputError(path, key, "missing, or not a list")
     image_ids, names, sizes = _read_images(data["images"], path)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
-    plain = _plain_annotations(data["annotations"], index)
-    if plain is not None:
-        ann_ids, ann_image, kps, scores = plain
-        apps = [None] * len(ann_ids)
-    else:
-        ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
-        seen: set[int] = set()
-        for i, ann in enumerate(data["annotations"]):
-            row = _read_annotation(ann, path, f"annotations[{i}]", index, seen)
-            if row is None:
-                continue  # not a person
-            for column, value in zip((ann_ids, ann_image, kps, scores, apps), row):
-                column.append(value)
+    ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
+    seen: set[int] = set()
+    for i, ann in enumerate(data["annotations"]):
+        row = _read_annotation(ann, path, f"annotations[{i}]", index, seen)
+        if row is None:
+            continue  # not a person
+        for column, value in zip((ann_ids, ann_image, kps, scores, apps), row):
+            column.append(value)
     N = len(ann_ids)
     return CocoKeypoints(
         image_ids=np.array(image_ids, dtype=np.int64),
@@ -129,52 +123,6 @@ def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[t
         first = next(i for i, n in enumerate(names) if names.index(n) != i)
         raise InputError(path, f"images[{first}].file_name", f"duplicate file_name {names[first]!r}")
     return image_ids, names, sizes
-
-
-def _plain_annotations(anns: list, index: dict[int, int]):
-    """The annotations read at once when they are all plain people: ``(ids, image indices,
-    keypoints (N, 17, 3), scores)`` as :func:`_read_annotation` gives them, or None when any
-    annotation needs a closer look (another category, an appearance, anything
-    :func:`_read_annotation` would refuse), which then reads them one by one."""
-    if not all(type(a) is dict for a in anns):
-        return None
-    ids = [a.get("id") for a in anns]
-    images = [a.get("image_id") for a in anns]
-    values = [a.get("keypoints") for a in anns]
-    if not (all(type(i) is int for i in ids) and all(type(i) is int for i in images)
-            and len(set(ids)) == len(ids) and all(i in index for i in images)
-            and all(type(a.get("category_id", 1)) is int and a.get("category_id", 1) == 1 for a in anns)
-            and all(a.get("appearance") is None for a in anns)
-            and all(type(v) is list and len(v) == 3 * NUM_JOINTS for v in values)):
-        return None
-    if ids and not -(2 ** 63) <= min(ids) <= max(ids) < 2 ** 63:
-        return None
-    if values and not set(type(x) for v in values for x in v) <= {float, int}:
-        return None
-    try:
-        kp = np.array(values, dtype=float).reshape(len(anns), NUM_JOINTS, 3)
-    except OverflowError:
-        return None
-    if not np.isfinite(kp).all() or (kp[..., 2] < 0).any():
-        return None
-    kp[..., 2] = np.minimum(kp[..., 2], 1.0)                  # COCO ground truth flags 1, 2 -> 1
-    kp[kp[..., 2] == 0, :2] = 0.0
-    scores = []
-    for a, k in zip(anns, kp):
-        if "score" in a:
-            if type(a["score"]) not in (float, int):
-                return None
-            try:
-                score = float(a["score"])
-            except OverflowError:
-                return None
-            if not math.isfinite(score) or score < 0:
-                return None
-        else:
-            present = k[:, 2] > 0
-            score = float(k[present, 2].mean()) if present.any() else 0.0
-        scores.append(min(score, 1.0))
-    return ids, [index[i] for i in images], list(kp), scores
 
 
 def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: set[int]):

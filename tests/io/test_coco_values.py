@@ -1,5 +1,5 @@
-"""COCO annotations read at once (all plain people) give what the one-by-one reading gives, and
-the values the file holds."""
+"""COCO keypoint annotations read back as the file holds them, with or without a non-person
+annotation among them."""
 import json
 
 import numpy as np
@@ -18,7 +18,7 @@ def _document(rng, n, extra=()):
     return kp, {"images": images, "annotations": annotations + list(extra), "categories": []}
 
 
-def test_plain_and_one_by_one_readings_agree_with_the_file(tmp_path):
+def test_annotations_read_as_the_file_holds_them(tmp_path):
     rng = np.random.default_rng(3)
     kp, doc = _document(rng, 7)
     expected = kp.copy()
@@ -26,7 +26,7 @@ def test_plain_and_one_by_one_readings_agree_with_the_file(tmp_path):
     expected[expected[..., 2] == 0, :2] = 0.0
     plain = tmp_path / "plain.json"
     plain.write_text(json.dumps(doc))
-    # a non-person annotation sends the whole file through the one-by-one reading
+    # a non-person annotation is skipped
     mixed = tmp_path / "mixed.json"
     mixed.write_text(json.dumps({**doc, "annotations": doc["annotations"] + [
         {"id": 99, "image_id": 1, "category_id": 3, "keypoints": [0] * 51}]}))
