@@ -54,8 +54,14 @@ def to_coco17(values, path, field) -> np.ndarray:
     """A flat OpenPose keypoint list (75, 54 or 51 numbers) -> ``(17, 3)`` x, y, confidence."""
     flat = numbers(values, path, field, tuple(_LAYOUTS),
                    "75 (BODY_25), 54 (COCO-18) or 51 (COCO-17) numbers")
-    kp = flat.reshape(-1, 3)[_LAYOUTS[len(flat)]].copy()
-    kp[kp[:, 2] <= 0] = 0.0
+    return _coco17(flat[None])[0]
+
+
+def _coco17(flat: np.ndarray) -> np.ndarray:
+    """``(K, n)`` checked OpenPose keypoint lists of one layout -> ``(K, 17, 3)``, a joint of
+    confidence <= 0 set to 0, 0, 0."""
+    kp = flat.reshape(len(flat), -1, 3)[:, _LAYOUTS[flat.shape[1]]]                # a copy
+    kp[kp[..., 2] <= 0] = 0.0
     return kp
 
 
@@ -99,9 +105,7 @@ def openpose_people(data, path: Path) -> np.ndarray:
             except OverflowError:
                 flat = None
             if flat is not None and np.isfinite(flat).all():
-                kp = flat.reshape(len(people), -1, 3)[:, _LAYOUTS[flat.shape[1]]]             # (K, 17, 3)
-                kp[kp[..., 2] <= 0] = 0.0
-                return kp
+                return _coco17(flat)
     out = []
     for k, person in enumerate(people):
         if not isinstance(person, dict) or "pose_keypoints_2d" not in person:
