@@ -17,3 +17,7 @@ class InputError(ValueError):
         self.problem = problem
         parts = [p for p in (self.path, field) if p]
         super().__init__(": ".join(parts + [problem]))
+
+    def __reduce__(self):
+        """Pickled with its three parts (a worker process raises it in its parent)."""
+        return type(self), (self.path, self.field, self.problem)
