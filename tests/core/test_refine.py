@@ -14,6 +14,7 @@ from mvm.core.refine import (
     BoneTerms,
     InnerProblem,
     Observations,
+    damped_steps,
     hessian,
     inner_cost,
     irls_weights,
@@ -63,7 +64,7 @@ def test_normal_equations_are_the_derivatives_of_the_residuals():
     truth, X0, xy, conf, P, inliers = _capture(0)
     x, present, problem = _inner_problem(X0, xy, conf, P, inliers, truth)
     x = x + np.where(np.repeat(present, 3, axis=1), np.random.default_rng(1).normal(0, 0.01, x.shape), 0.0)
-    cost, grad, blocks = normal_equations(x, problem)
+    cost, grad, blocks, reach = normal_equations(x, problem)
     r = residuals(x, problem)                                                        # (P, R)
     h = 1e-6
     jac = np.stack([(residuals(x + h * e, problem) - residuals(x - h * e, problem)) / (2 * h)
@@ -74,6 +75,24 @@ def test_normal_equations_are_the_derivatives_of_the_residuals():
     np.testing.assert_allclose(hessian(problem.prior.gram(), blocks), JtJ, rtol=1e-6, atol=1e-7 * np.abs(JtJ).max())
     absent = ~np.repeat(present, 3, axis=1)
     assert absent.sum() == 3 and np.all(jac[absent[:, None, :].repeat(jac.shape[1], 1)] == 0)
+    # No step lowers the Gauss-Newton model by more than the bound: ½ gᵀ H⁻¹ g <= reach.
+    H = np.where(np.eye(x.shape[1], dtype=bool) & absent[:, None, :], 1.0, JtJ)
+    decrease = 0.5 * np.einsum("pa,pa->p", grad, np.linalg.solve(H, grad[..., None])[..., 0])
+    assert np.all(decrease <= reach * (1 + 1e-9)) and np.all(reach < 20 * decrease)
+
+
+def test_damped_steps_in_the_body_basis_are_the_world_steps():
+    """The steps solved in each person's body basis are those of the world-frame normal
+    equations (without damping, where the two bases' diagonals do not matter)."""
+    truth, X0, xy, conf, P, inliers = _capture(6)
+    x, present, problem = _inner_problem(X0, xy, conf, P, inliers, truth)
+    _, grad, blocks, _ = normal_equations(x, problem)
+    H = hessian(problem.prior.gram(), blocks)
+    absent = np.eye(x.shape[1], dtype=bool) & ~np.repeat(present, 3, axis=1)[:, None, :]
+    expected = -np.linalg.solve(np.where(absent, 1.0, H), grad[..., None])[..., 0]
+    steps = damped_steps(problem.prior, blocks, grad, np.zeros(len(x)))
+    np.testing.assert_allclose(steps, expected, rtol=1e-7, atol=1e-9 * np.abs(expected).max())
+    assert np.all(steps[~np.repeat(present, 3, axis=1)] == 0)
 
 
 def test_spd_solve_solves_every_system_including_indefinite_ones():

@@ -47,6 +47,9 @@ _INCIDENCE[np.arange(len(BONES)), _BONES[:, 1]] = -1.0
 #: Initial damping of every person, relative to the diagonal of its normal equations.
 INITIAL_DAMPING = 1e-3
 _MIN_DAMPING, _MAX_DAMPING = 1e-9, 1e12
+#: The inner solves of the outer iterations before the last stop at this multiple of the
+#: tolerance: their robust weights, body frames and components are replaced anyway.
+EARLY_TOLERANCE_FACTOR = 10.0
 
 
 @dataclass
@@ -135,37 +138,91 @@ class Observations:
 
 @dataclass(frozen=True)
 class LinearPrior:
-    """The linearized prior of every person: residuals ``G @ x − h`` of its joints flattened
-    joint-major, ``x: (P, 3J)``. ``G: (P, 3J, 3J)`` (rows beyond a person's ``3n`` present
-    coordinates, and persons without a prior, are zero); ``h: (P, 3J)``."""
+    """The linearized prior of every person, in its body basis.
 
-    G: np.ndarray
+    A person's canonical coordinates ``y_j = R (X_j − pelvis) / s`` are linear in its joints
+    once the frame ``R, s`` is held fixed: its prior residuals are ``M_g (x̂ / s) − h_g`` with
+    ``x̂ = (R X_j)_j`` the joints in the body basis, flattened joint-major, and ``M_g: (3J, 3J)``,
+    ``h_g: (3J,)`` shared by every person of the same (present joints, mixture component) group
+    ``g`` (the whitening, the pelvis subtraction and ``√weight``; zero rows beyond the present
+    coordinates). Nothing per person is ``3J × 3J``: residuals are one product per group, and
+    the prior's share of the normal equations in the body basis is the group's ``M_gᵀ M_g / s²``.
+
+    ``rotation: (P, 3, 3)`` ``R`` (identity without a prior), ``scale: (P,)`` ``s`` (1 without);
+    ``which: (P,)`` each person's group (``G``: none); ``M: (G, 3J, 3J)``, ``h: (G, 3J)``;
+    ``gram: (G + 1, 3J, 3J)`` the ``M_gᵀ M_g`` (the last: zero)."""
+
+    rotation: np.ndarray
+    scale: np.ndarray
+    which: np.ndarray
+    M: np.ndarray
     h: np.ndarray
+    gram_body: np.ndarray
 
     def take(self, persons: np.ndarray) -> LinearPrior:
-        return LinearPrior(self.G[persons], self.h[persons])
+        return LinearPrior(self.rotation[persons], self.scale[persons], self.which[persons], self.M, self.h,
+                           self.gram_body)
+
+    @functools.cached_property
+    def _groups(self) -> list:
+        """``(g, rows)`` of every group that has persons."""
+        order = np.argsort(self.which, kind="stable")
+        bounds = np.flatnonzero(np.diff(self.which[order])) + 1
+        return [(int(self.which[rows[0]]), rows) for rows in np.split(order, bounds)
+                if self.which[rows[0]] < len(self.M)]
+
+    def to_body(self, x: np.ndarray) -> np.ndarray:
+        """``x: (P, 3J)`` world coordinates (or gradients) -> ``(P, 3J)`` rotated into each
+        person's body basis."""
+        return np.matmul(x.reshape(len(x), -1, 3), np.swapaxes(self.rotation, 1, 2)).reshape(len(x), -1)
+
+    def to_world(self, x: np.ndarray) -> np.ndarray:
+        """The inverse rotation of :meth:`to_body`."""
+        return np.matmul(x.reshape(len(x), -1, 3), self.rotation).reshape(len(x), -1)
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        """``(P, 3J)``."""
-        return np.matmul(self.G, x[..., None])[..., 0] - self.h
+        """``(P, 3J)`` at ``x: (P, 3J)``; zero for persons without a prior."""
+        y = self.to_body(x) / self.scale[:, None]
+        r = np.zeros_like(y)
+        for g, rows in self._groups:
+            r[rows] = y[rows] @ self.M[g].T - self.h[g]
+        return r
+
+    def energy_gradient(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Half the squared residuals per person ``(P,)`` and their gradient by ``x``, ``(P, 3J)``."""
+        r = self.residuals(x)
+        back = np.zeros_like(r)
+        for g, rows in self._groups:
+            back[rows] = r[rows] @ self.M[g]
+        return 0.5 * np.einsum("pn,pn->p", r, r), self.to_world(back) / self.scale[:, None]
 
     def energy(self, x: np.ndarray) -> np.ndarray:
         """Half the squared residuals per person, ``(P,)``: at the point of linearization,
         ``weight · ½ |W (X̃ − μ)|²`` of the max-mixture component, the prior's share of the
         objective."""
-        return 0.5 * (self.residuals(x) ** 2).sum(1)
+        r = self.residuals(x)
+        return 0.5 * np.einsum("pn,pn->p", r, r)
+
+    def body_hessian(self) -> np.ndarray:
+        """The prior's share of the normal equations in the body basis, ``M_gᵀ M_g / s²``:
+        ``(P, 3J, 3J)``, a new array."""
+        H = np.take(self.gram_body, self.which, axis=0)
+        H /= (self.scale**2)[:, None, None]
+        return H
 
     def gram(self) -> np.ndarray:
-        """``Gᵀ G: (P, 3J, 3J)``, the prior's constant share of the normal equations."""
-        return np.matmul(np.swapaxes(self.G, 1, 2), self.G)
+        """The prior's share of the normal equations in world coordinates, ``(P, 3J, 3J)``."""
+        Pn, n = len(self.which), self.gram_body.shape[1]
+        H = self.body_hessian().reshape(Pn, n // 3, 3, n)
+        H = np.matmul(np.swapaxes(self.rotation, 1, 2)[:, None], H).reshape(Pn, n, n // 3, 3)
+        return np.matmul(H, self.rotation[:, None]).reshape(Pn, n, n)
 
 
 def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
-    """The body frames and canonical poses of ``X: (P, J, 3)`` (``present: (P, J)``), and the
-    (present joints, max-mixture component) pair of every person the prior applies to (both
-    hips and shoulders present). Returns ``rotation: (P, 3, 3)``, ``scale: (P,)``, ``canonical:
-    (P, J, 3)``, ``keys: (G, J + 1)`` int (present joints, component) and ``which: (P,)``, each
-    person's row of ``keys`` (``G``: none)."""
+    """The body frames of ``X: (P, J, 3)`` (``present: (P, J)``), and the (present joints,
+    max-mixture component) pair of every person the prior applies to (both hips and shoulders
+    present). Returns ``rotation: (P, 3, 3)``, ``scale: (P,)``, ``keys: (G, J + 1)`` int
+    (present joints, component) and ``which: (P,)``, each person's row of ``keys`` (``G``: none)."""
     Pn, J, _ = X.shape
     poses = np.where(present[..., None], X, np.nan)
     frame = body_frame(poses)
@@ -173,10 +230,8 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
     component = np.full(Pn, -1)
-    canonical = np.full_like(poses, np.nan)
     if prior is not None and weight > 0 and usable.any():
-        canonical = canonicalize(poses, frame)
-        component[usable] = prior.best_component(canonical[usable])
+        component[usable] = prior.best_component(canonicalize(poses[usable], tuple(f[usable] for f in frame)))
     usable &= component >= 0
     code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
     codes, first, group = np.unique(code[usable], return_index=True, return_inverse=True)
@@ -184,21 +239,38 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
     keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
     which = np.full(Pn, len(codes))
     which[usable] = group.ravel()
-    return rotation, scale, canonical, keys, which
+    return rotation, scale, keys, which
 
 
 def prior_energy(X: np.ndarray, present: np.ndarray, prior, weight: float) -> np.ndarray:
     """``weight · E_P`` of the max-mixture component (up to its constant) at ``X: (P, J, 3)``,
-    ``(P,)`` (0 without a prior): :meth:`LinearPrior.energy` of :func:`linearized_prior` at
-    ``X``, without building the linearization."""
-    _, _, canonical, keys, which = _prior_groups(X, present, prior, weight)
-    energy = np.zeros(len(X))
-    for g, key in enumerate(keys):
-        rows, mask = np.flatnonzero(which == g), key[:-1].astype(bool)
-        mean, W, _ = prior.whitening(mask, int(key[-1]))
-        r = (canonical[rows][:, mask].reshape(len(rows), -1) - mean) @ W.T
-        energy[rows] = 0.5 * weight * (r**2).sum(1)
-    return energy
+    ``(P,)`` (0 without a prior): :meth:`LinearPrior.energy` of :func:`linearized_prior` at ``X``."""
+    return linearized_prior(X, present, prior, weight).energy(X.reshape(len(X), -1))
+
+
+@functools.lru_cache(maxsize=1024)
+def _group_matrices(prior, present: bytes, component: int, weight: float
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The linearized prior of one (present joints, component) group (:class:`LinearPrior`):
+    ``M: (3J, 3J)``, ``h: (3J,)`` and ``Mᵀ M`` (cached, read-only). ``present``: the ``(J,)``
+    bool mask's bytes."""
+    mask = np.frombuffer(present, dtype=bool)
+    J = len(mask)
+    mean, W, _ = prior.whitening(mask, component)
+    root = np.sqrt(weight)
+    # W @ (C ⊗ I) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction, on the
+    # coordinates of all J joints (zero columns for absent ones), and W @ μ.
+    block = W.reshape(len(W), -1, 3)
+    M = np.zeros((3 * J, J, 3))
+    M[:len(W), mask] = root * block
+    M[:len(W), [LEFT_HIP, RIGHT_HIP]] -= 0.5 * root * block.sum(axis=1)[:, None]
+    M = M.reshape(3 * J, 3 * J)
+    h = np.zeros(3 * J)
+    h[:len(W)] = root * (W @ mean)
+    out = (M, h, M.T @ M)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
@@ -206,27 +278,17 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     shoulders: the prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame
     ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
     negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
-    each (present joints, component) pair is built once; the others get zero rows."""
+    each (present joints, component) pair is built once (:class:`LinearPrior`)."""
     Pn, J, _ = X.shape
-    rotation, scale, _, keys, which = _prior_groups(X, present, prior, weight)
+    rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
     usable = which < len(keys)
-    # Per pair: W @ (C ⊗ I) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction, on the
-    # coordinates of all J joints (zero columns for absent ones), and W @ μ; the last pair: none.
-    WC = np.zeros((len(keys) + 1, 3 * J, J, 3))
-    Wmean = np.zeros((len(keys) + 1, 3 * J))
-    root = np.sqrt(weight)
-    for g, key in enumerate(keys):
-        mask = key[:J].astype(bool)
-        mean, W, _ = prior.whitening(mask, int(key[J]))
-        block = W.reshape(len(W), -1, 3)
-        total = block.sum(axis=1)
-        WC[g, :len(W), mask] = root * np.swapaxes(block, 0, 1)
-        WC[g, :len(W), [LEFT_HIP, RIGHT_HIP]] -= 0.5 * root * total
-        Wmean[g, :len(W)] = root * (W @ mean)
-    frame = np.where(usable[:, None, None], rotation / np.where(usable, scale, 1.0)[:, None, None], 0.0)
-    G = np.matmul(WC[which].reshape(Pn, -1, 3), frame).reshape(Pn, 3 * J, 3 * J)
-    return LinearPrior(G, Wmean[which])
-
+    groups = [_group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), float(weight)) for key in keys]
+    M = np.array([g[0] for g in groups]).reshape(len(keys), 3 * J, 3 * J)
+    h = np.array([g[1] for g in groups]).reshape(len(keys), 3 * J)
+    gram = np.zeros((len(keys) + 1, 3 * J, 3 * J))
+    gram[:-1] = [g[2] for g in groups]
+    rotation = np.where(usable[:, None, None], rotation, np.eye(3))
+    return LinearPrior(rotation, np.where(usable, scale, 1.0), which, M, h, gram)
 
 
 @dataclass(frozen=True)
@@ -288,26 +350,47 @@ def residuals(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
     return np.concatenate(rows, axis=1)
 
 
-def normal_equations(x: np.ndarray, problem: InnerProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def normal_equations(x: np.ndarray, problem: InnerProblem
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The Gauss-Newton normal equations of :func:`residuals` ``r`` with Jacobian ``Jr`` at
-    ``x: (P, 3J)``: the cost ``½|r|²: (P,)``, the gradient ``Jrᵀ r: (P, 3J)`` and the
-    ``3 × 3`` blocks ``(P, K, 3, 3)`` that ``Jrᵀ Jr`` adds to the prior's constant ``Gᵀ G``
-    (:func:`hessian`): the ``J`` diagonal blocks (a joint's keypoints and bones), then with bone
-    terms the ``(a, b)`` blocks of the :data:`~mvm.core.keypoints.BONES` and their ``(b, a)``."""
+    ``x: (P, 3J)``: the cost ``½|r|²: (P,)``, the gradient ``Jrᵀ r: (P, 3J)``, the ``3 × 3``
+    blocks ``(P, K, 3, 3)`` that ``Jrᵀ Jr`` adds to the prior's constant share
+    (:meth:`LinearPrior.gram`, :func:`hessian`): the ``J`` diagonal blocks (a joint's keypoints
+    and bones), then with bone terms the ``(a, b)`` blocks of the
+    :data:`~mvm.core.keypoints.BONES` and their ``(b, a)``; and ``reach: (P,)``, a bound on the
+    decrease any step can bring the Gauss-Newton model (:func:`model_decrease_bound`)."""
     Pn, J = len(x), x.shape[1] // 3
     X = x.reshape(Pn, J, 3)
     cost, grad, blocks = problem.obs.normal_terms(X, problem.sqrt_w**2)
-    r_prior = problem.prior.residuals(x)
-    cost += 0.5 * (r_prior**2).sum(1)
-    grad = grad.reshape(Pn, -1) + np.matmul(r_prior[:, None], problem.prior.G)[:, 0]
+    energy, prior_grad = problem.prior.energy_gradient(x)
+    cost += energy
+    grad = grad.reshape(Pn, -1) + prior_grad
+    if problem.bones is not None:
+        r_bone, u = problem.bones.linearize(X)
+        cost += 0.5 * (r_bone**2).sum(1)
+        grad += np.matmul(_INCIDENCE.T, r_bone[..., None] * u).reshape(Pn, -1)
+    reach = model_decrease_bound(blocks, grad.reshape(Pn, J, 3))
     if problem.bones is None:
-        return cost, grad, blocks
-    r_bone, u = problem.bones.linearize(X)
-    cost += 0.5 * (r_bone**2).sum(1)
-    grad += np.matmul(_INCIDENCE.T, r_bone[..., None] * u).reshape(Pn, -1)
+        return cost, grad, blocks, reach
     uu = (u[..., :, None] * u[..., None, :]).reshape(Pn, -1, 9)                       # (P, B, 9)
     blocks += np.matmul(np.abs(_INCIDENCE.T), uu).reshape(Pn, J, 3, 3)
-    return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1)
+    return cost, grad, np.concatenate([blocks, -uu.reshape(Pn, -1, 3, 3), -uu.reshape(Pn, -1, 3, 3)], axis=1), reach
+
+
+def model_decrease_bound(D: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``½ Σ_j g_jᵀ D_j⁻¹ g_j: (P,)`` for the reprojection rows' diagonal blocks ``D: (P, J, 3, 3)``
+    and the gradient ``g: (P, J, 3)``: a bound on ``½ gᵀ H⁻¹ g``, the most any step can lower
+    the Gauss-Newton model ``H``, since ``H`` is ``D`` plus positive semidefinite terms (the
+    prior's and the bones'). Infinite where a joint with a gradient has a singular block
+    (seen in fewer than two views), 0 where nothing pulls."""
+    # The adjugate of the symmetric block from cross products of its rows: D⁻¹ = adj / det.
+    adj = np.cross(D[..., [1, 2, 0], :], D[..., [2, 0, 1], :])                     # (P, J, 3, 3)
+    det = np.einsum("pji,pji->pj", D[..., 0, :], adj[..., 0, :])
+    quad = np.einsum("pji,pjik,pjk->pj", g, adj, g)
+    regular = det > 1e-12 * np.einsum("pjii->pj", D) ** 3
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.where(regular, quad / np.where(regular, det, 1.0), np.where((g != 0).any(-1), np.inf, 0.0))
+    return 0.5 * q.sum(1)
 
 
 @functools.lru_cache(maxsize=8)
@@ -334,13 +417,27 @@ def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarra
     return H
 
 
-def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
-    """Levenberg-Marquardt steps ``(P, n)``: ``(H + μ diag(H)) δ = −grad`` for ``H: (P, n, n)``
-    (overwritten), ``grad: (P, n)``, ``damping μ: (P,)``. A coordinate that no residual depends
+def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
+    """Levenberg-Marquardt steps ``(P, 3J)``: ``(H + μ diag(H)) δ = −grad`` with ``H`` the
+    prior's share plus ``blocks: (P, K, 3, 3)`` of :func:`normal_equations`, ``grad: (P, 3J)``,
+    ``damping μ: (P,)``. Solved in each person's body basis (:class:`LinearPrior`), where the
+    prior's share is its group's matrix: the ``3 × 3`` blocks are rotated instead of the whole
+    matrix, and the damping scales that basis's diagonal. A coordinate that no residual depends
     on (a zero diagonal: an absent joint) gets an identity row and does not move."""
-    diagonal = H.reshape(len(H), -1)[:, :: H.shape[1] + 1]
+    Pn, n = grad.shape
+    K = blocks.shape[1]
+    R, s2 = prior.rotation, prior.scale**2
+    # R B Rᵀ of every (symmetric) block, times s² (the whole system is scaled by s², so the
+    # prior's share is its group's matrix as it is): two products per person, not per block.
+    Rt = np.swapaxes(R, 1, 2) * s2[:, None, None]
+    rotated = np.matmul(blocks.reshape(Pn, 3 * K, 3), Rt).reshape(Pn, K, 3, 3)
+    rotated = np.matmul(np.swapaxes(rotated, 2, 3).reshape(Pn, 3 * K, 3), np.swapaxes(R, 1, 2))
+    H = np.take(prior.gram_body, prior.which, axis=0)
+    H.reshape(Pn, -1)[:, block_entries(n // 3, K > n // 3)] += rotated.reshape(Pn, -1)
+    diagonal = H.reshape(Pn, -1)[:, :: n + 1]
     diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
-    return -spd_solve(H, grad)
+    step = spd_solve(H, prior.to_body(grad) * s2[:, None])
+    return -prior.to_world(step)
 
 
 def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -375,18 +472,18 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     """Minimize every person's half sum of squared :func:`residuals` from ``x: (P, 3J)``.
 
     Each person has its own damping (relative to its normal equations' diagonal: divided by 3
-    after an accepted step, multiplied by 10 after a rejected one) and stops on its own when an
-    accepted step lowers its cost by less than ``tolerance`` times the cost, or a step is
-    shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and ``xtol`` of
-    ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point costs only
-    its residuals; the normal equations are built where a step is accepted and the person goes
-    on (only the persons still active are solved). Returns ``(P, 3J)``."""
+    after an accepted step, multiplied by 10 after a rejected one) and stops on its own when
+    no step can lower its Gauss-Newton model by more than ``tolerance`` times its cost (the
+    bound of :func:`model_decrease_bound`, checked wherever the normal equations are built,
+    so a converged person costs no solve), when an accepted step lowers its cost by less than
+    that, or a step is shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and
+    ``xtol`` of ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point
+    costs only its residuals; the normal equations are built where a step is accepted and the
+    person goes on (only the persons still active are solved). Returns ``(P, 3J)``."""
     x = x.copy()
-    cost = inner_cost(x, problem)
-    _, grad, blocks = normal_equations(x, problem)
-    GtG = problem.prior.gram()
+    cost, grad, blocks, reach = normal_equations(x, problem)
     damping = np.full(len(x), INITIAL_DAMPING)
-    active = np.isfinite(cost)
+    active = np.isfinite(cost) & ~(reach <= tolerance * cost)
     sub, idx = problem, np.arange(len(x))
     for _ in range(max_steps):
         if not active.any():
@@ -395,7 +492,7 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
             idx = np.flatnonzero(active)
             sub = problem.take(idx)
         start, current, mu = x[idx], cost[idx], damping[idx]
-        step = damped_steps(hessian(GtG[idx], blocks[idx], copy=False), grad[idx], mu)
+        step = damped_steps(sub.prior, blocks[idx], grad[idx], mu)
         trial = start + step
         trial_cost = inner_cost(trial, sub)
         better = trial_cost < current
@@ -404,25 +501,18 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         damping[idx] = np.clip(np.where(better, mu / 3.0, mu * 10.0), _MIN_DAMPING, _MAX_DAMPING)
         active[idx] = ~(small_step | small_gain)
         x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
-        _refresh(trial, grad, blocks, idx, better & active[idx], sub)
+        moved = better & active[idx]
+        if moved.any():
+            rows = np.flatnonzero(moved)
+            part = sub if moved.all() else sub.take(rows)
+            _, grad[idx[rows]], blocks[idx[rows]], reach = normal_equations(trial[rows], part)
+            active[idx[rows]] = ~(reach <= tolerance * trial_cost[rows])
     return x
 
 
 def _norms(x: np.ndarray) -> np.ndarray:
     """Euclidean norms of the rows of ``x: (P, n)``, ``(P,)``."""
     return np.sqrt(np.einsum("pn,pn->p", x, x))
-
-
-def _refresh(trial: np.ndarray, grad: np.ndarray, blocks: np.ndarray, idx: np.ndarray, moved: np.ndarray,
-             sub: InnerProblem) -> None:
-    """Rebuild, in place, the gradient and blocks of :func:`normal_equations` of the persons
-    ``idx[moved]`` at their accepted ``trial: (Q, 3J)`` points (``sub``: the problem of
-    ``idx: (Q,)``, ``moved: (Q,)`` bool)."""
-    if moved.all():
-        _, grad[idx], blocks[idx] = normal_equations(trial, sub)
-    elif moved.any():
-        rows = np.flatnonzero(moved)
-        _, grad[idx[rows]], blocks[idx[rows]] = normal_equations(trial[rows], sub.take(rows))
 
 
 def objective(X: np.ndarray, obs: Observations, energy: np.ndarray, robust_scale_px: float,
@@ -481,7 +571,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
             are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
             relative length error (0: no bone term).
         tolerance: relative change of a person's cost, and of its joints, at which its inner
-            solve stops (the ``ftol``, ``xtol`` of :func:`levenberg_marquardt`).
+            solve stops (the ``ftol``, ``xtol`` of :func:`levenberg_marquardt`), in the last
+            outer iteration; the earlier ones stop at :data:`EARLY_TOLERANCE_FACTOR` times it.
     Returns :class:`RefineResult`.
     """
     X0 = np.asarray(X0, dtype=float)
@@ -502,7 +593,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     for k in range(outer_iterations):
         linear = linearized_prior(X, present, prior, prior_weight) if k else linear
         problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear, bones)
-        X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, tolerance).reshape(Pn, J, 3)
+        inner_tolerance = tolerance if k == outer_iterations - 1 else EARLY_TOLERANCE_FACTOR * tolerance
+        X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, inner_tolerance).reshape(Pn, J, 3)
     X = np.where(present[..., None], X, np.nan)
     fallback = fallback_persons(X0, X, present, obs, robust_scale_px)
     X[fallback] = X0[fallback]
