@@ -49,7 +49,7 @@ INITIAL_DAMPING = 1e-3
 _MIN_DAMPING, _MAX_DAMPING = 1e-9, 1e12
 #: The inner solves of the outer iterations before the last stop at this multiple of the
 #: tolerance: their robust weights, body frames and components are replaced anyway.
-EARLY_TOLERANCE_FACTOR = 10.0
+EARLY_TOLERANCE_FACTOR = 30.0
 
 
 @dataclass
@@ -383,11 +383,15 @@ def model_decrease_bound(D: np.ndarray, g: np.ndarray) -> np.ndarray:
     the Gauss-Newton model ``H``, since ``H`` is ``D`` plus positive semidefinite terms (the
     prior's and the bones'). Infinite where a joint with a gradient has a singular block
     (seen in fewer than two views), 0 where nothing pulls."""
-    # The adjugate of the symmetric block from cross products of its rows: D⁻¹ = adj / det.
-    adj = np.cross(D[..., [1, 2, 0], :], D[..., [2, 0, 1], :])                     # (P, J, 3, 3)
-    det = np.einsum("pji,pji->pj", D[..., 0, :], adj[..., 0, :])
-    quad = np.einsum("pji,pjik,pjk->pj", g, adj, g)
-    regular = det > 1e-12 * np.einsum("pjii->pj", D) ** 3
+    a, b, c = D[..., 0, 0], D[..., 1, 1], D[..., 2, 2]
+    d, e, f = D[..., 0, 1], D[..., 1, 2], D[..., 0, 2]
+    # The adjugate of the symmetric block: D⁻¹ = adj / det.
+    A, B, C = b * c - e * e, a * c - f * f, a * b - d * d
+    Dx, E, F = f * e - d * c, d * f - a * e, d * e - b * f
+    det = a * A + d * Dx + f * F
+    x, y, z = g[..., 0], g[..., 1], g[..., 2]
+    quad = A * x * x + B * y * y + C * z * z + 2 * (Dx * x * y + E * y * z + F * x * z)
+    regular = det > 1e-12 * (a + b + c) ** 3
     with np.errstate(divide="ignore", invalid="ignore"):
         q = np.where(regular, quad / np.where(regular, det, 1.0), np.where((g != 0).any(-1), np.inf, 0.0))
     return 0.5 * q.sum(1)
