@@ -184,3 +184,30 @@ def test_hand_held_scene_completed_flagged_and_exported(tmp_path, prior):
     plain_annotations = json.loads(export_supervision([(scene, plain.persons)], tmp_path / "sup2", link="none",
                                                       prior=prior).read_text())["annotations"]
     assert any("inferred" in a.get("keypoint_flags", ()) for a in plain_annotations)
+
+
+def test_conditional_mean_is_the_mixture_of_gaussian_conditionals():
+    """Against the textbook formula with scipy: per component ``μ_m + Σ_mo Σ_oo⁻¹ (x_o − μ_o)``,
+    weighted by the posterior of the components given the present joints."""
+    from scipy.linalg import cho_factor, cho_solve
+    from scipy.stats import multivariate_normal
+
+    from mvm.core.completion import conditional_mean
+
+    rng = np.random.default_rng(7)
+    a = rng.normal(0, 0.3, (2, 51, 51))
+    prior = PosePrior(np.array([0.3, 0.7]), rng.normal(0, 0.5, (2, 51)), a @ np.swapaxes(a, 1, 2) / 51 + 0.05 * np.eye(51))
+    x = rng.normal(0, 0.5, (3, 17, 3))
+    x[0, [3, 4]] = np.nan
+    x[1, [3, 4]] = np.nan
+    x[2, 10:] = np.nan
+    out = conditional_mean(prior, x)
+    for p in range(3):
+        o = np.repeat(np.isfinite(x[p]).all(-1), 3)
+        xo = x[p].reshape(-1)[o]
+        dens = np.array([w * multivariate_normal(mu[o], S[np.ix_(o, o)]).pdf(xo)
+                         for w, mu, S in zip(prior.weights, prior.means, prior.covariances)])
+        expected = sum(r * (mu[~o] + S[np.ix_(~o, o)] @ cho_solve(cho_factor(S[np.ix_(o, o)]), xo - mu[o]))
+                       for r, mu, S in zip(dens / dens.sum(), prior.means, prior.covariances))
+        np.testing.assert_allclose(out[p].reshape(-1)[~o], expected, rtol=1e-9, atol=1e-12)
+        assert np.array_equal(out[p].reshape(-1)[o], xo)

@@ -246,3 +246,39 @@ def test_load_prior_has_one_rule_for_every_driver():
     shipped = load_prior(Config())
     assert isinstance(shipped, PosePrior) and shipped.components == 8           # the paper's 8 components
     assert load_prior(Config()) is shipped is shipped_prior()                   # read once per process
+
+
+# --- numpy in place of scipy.linalg / scipy.special ----------------------------------------------
+
+def test_logsumexp_and_responsibilities_match_scipy():
+    """The stable logsumexp against scipy's, including -inf entries and huge magnitudes; the
+    posterior of the components is the softmax of the weighted densities."""
+    from scipy.special import logsumexp as scipy_logsumexp
+    from scipy.special import softmax
+
+    from mvm.core.prior import logsumexp
+
+    a = np.array([[0.0, 1.0, 2.0], [-1e4, -1e4 + 1, -np.inf], [-np.inf, -np.inf, -np.inf], [800.0, 799.0, 0.0]])
+    np.testing.assert_allclose(logsumexp(a, axis=1), scipy_logsumexp(a, axis=1), rtol=1e-14)
+    np.testing.assert_allclose(logsumexp(a.T, axis=0), scipy_logsumexp(a, axis=1), rtol=1e-14)
+    prior = _tiny_mixture(np.random.default_rng(3))
+    x = np.random.default_rng(4).normal(0, 0.5, (5, 17, 3))
+    x[1, 3:9] = np.nan
+    np.testing.assert_allclose(prior.responsibilities(x), softmax(prior.log_weighted_densities(x), axis=1),
+                               rtol=1e-12, atol=1e-300)
+
+
+def test_whitening_is_the_inverse_lower_cholesky_factor():
+    """``W`` is lower triangular with ``W Σ_obs Wᵀ = I`` (scipy's triangular solve gave the same)."""
+    from scipy.linalg import cholesky, solve_triangular
+
+    prior = _tiny_mixture(np.random.default_rng(5))
+    present = np.ones(17, bool)
+    present[[2, 9]] = False
+    mean, W, _ = prior.whitening(present, 1)
+    coords = np.repeat(present, 3)
+    cov = prior.covariances[1][np.ix_(coords, coords)]
+    assert np.array_equal(W, np.tril(W))
+    np.testing.assert_allclose(W @ cov @ W.T, np.eye(len(W)), atol=1e-10)
+    expected = solve_triangular(cholesky(cov, lower=True), np.eye(len(W)), lower=True)
+    np.testing.assert_allclose(W, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())

@@ -163,13 +163,13 @@ class PosePrior:
         flat = canonical.reshape(len(canonical), DIM)
         out = np.full((len(canonical), self.components), np.nan)
         code = present.astype(np.int64) @ (1 << np.arange(NUM_JOINTS))
-        patterns, first, inverse = np.unique(code, return_index=True, return_inverse=True)
-        for k, pattern in enumerate(patterns):
+        for pattern in np.unique(code):
             if pattern == 0:
                 continue
-            rows = np.flatnonzero(inverse.reshape(-1) == k) if len(patterns) > 1 else np.arange(len(code))
-            mean, w, c = self._stacked(present[first[k]].tobytes())                   # (L, K), (L, K, K), (L,)
-            x = flat[np.ix_(rows, np.repeat(present[first[k]], 3))]                  # (n, K)
+            rows = np.flatnonzero(code == pattern)
+            mask = present[rows[0]]
+            mean, w, c = self._stacked(mask.tobytes())                               # (L, K), (L, K, K), (L,)
+            x = flat[rows] if mask.all() else flat[rows][:, np.repeat(mask, 3)]      # (n, K)
             r = np.matmul(x[None] - mean[:, None], np.swapaxes(w, 1, 2))               # (L, n, K)
             out[rows] = (-0.5 * np.einsum("lnk,lnk->nl", r, r)) - c
         return out

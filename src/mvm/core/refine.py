@@ -13,17 +13,20 @@ canonicalization, and the mixture component (the max-mixture approximation of E_
 negative log-likelihood of one component is a sum of squares). The inner problem is then a
 nonlinear least-squares problem per person (:func:`residuals`, pure functions of the joints):
 its unknowns are the person's present joints (at most 17 × 3); each reprojection row touches
-one joint, the linearized prior rows only that person (a constant dense ``GᵀG`` per outer
-iteration) and each bone row two of its joints. Persons are independent, so the Gauss-Newton
-normal equations are one dense ``3J × 3J`` system per person, padded (absent joints: identity
-rows, they stay NaN) and assembled for all persons at once from ``3 × 3`` blocks
-(:func:`normal_equations`, :func:`hessian`). A batched Levenberg-Marquardt
-(:func:`levenberg_marquardt`) solves them together: every person has its own damping, accepts
-or rejects its own steps and stops on its own tolerance, with the ``ftol`` / ``xtol`` meaning
-of ``scipy.optimize.least_squares``. Where the time goes is the damped ``3J × 3J`` solves, so a
-step solves only the persons still active, each by an in-place Cholesky (:func:`spd_solve`);
-a trial point costs only its residuals (:func:`inner_cost`) and the normal equations are
-rebuilt only where a step is accepted and the person goes on.
+one joint, the linearized prior rows only that person and each bone row two of its joints.
+In a person's body basis the prior's rows are a matrix shared by every person of the same
+(present joints, component) group (:class:`LinearPrior`), so its dense share of the normal
+equations is one matrix per group, never built per person. Persons are independent, so the
+Gauss-Newton normal equations are one dense ``3J × 3J`` system per person, padded (absent
+joints: identity rows, they stay NaN) and assembled for all persons at once from the group's
+matrix and ``3 × 3`` blocks (:func:`normal_equations`, :func:`damped_steps`). A batched
+Levenberg-Marquardt (:func:`levenberg_marquardt`) solves them together: every person has its
+own damping, accepts or rejects its own steps and stops on its own tolerance, with the
+``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``, or as soon as a bound on what
+any step could still gain (:func:`model_decrease_bound`) falls under it. Where the time goes
+is the damped ``3J × 3J`` solves, so a step solves only the persons still active; a trial
+point costs only its residuals (:func:`inner_cost`) and the normal equations are rebuilt only
+where a step is accepted and the person goes on.
 """
 from __future__ import annotations
 
@@ -166,10 +169,7 @@ class LinearPrior:
     @functools.cached_property
     def _groups(self) -> list:
         """``(g, rows)`` of every group that has persons."""
-        order = np.argsort(self.which, kind="stable")
-        bounds = np.flatnonzero(np.diff(self.which[order])) + 1
-        return [(int(self.which[rows[0]]), rows) for rows in np.split(order, bounds)
-                if self.which[rows[0]] < len(self.M)]
+        return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M)]
 
     def to_body(self, x: np.ndarray) -> np.ndarray:
         """``x: (P, 3J)`` world coordinates (or gradients) -> ``(P, 3J)`` rotated into each
@@ -413,8 +413,9 @@ def block_entries(J: int, bones: bool) -> np.ndarray:
 
 
 def hessian(GtG: np.ndarray, blocks: np.ndarray, copy: bool = True) -> np.ndarray:
-    """``Jrᵀ Jr: (P, 3J, 3J)`` from the prior's ``GtG: (P, 3J, 3J)`` and the ``blocks`` of
-    :func:`normal_equations` at :func:`block_entries` (added to ``GtG`` itself unless ``copy``)."""
+    """``Jrᵀ Jr: (P, 3J, 3J)`` from the prior's ``GtG: (P, 3J, 3J)`` (:meth:`LinearPrior.gram`)
+    and the ``blocks: (P, K, 3, 3)`` of :func:`normal_equations` at :func:`block_entries`
+    (added to ``GtG`` itself unless ``copy``); the same in a body basis with both rotated."""
     Pn, n, _ = GtG.shape
     H = GtG.copy() if copy else GtG
     H.reshape(Pn, -1)[:, block_entries(n // 3, blocks.shape[1] > n // 3)] += blocks.reshape(Pn, -1)
@@ -435,9 +436,8 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
     # prior's share is its group's matrix as it is): two products per person, not per block.
     Rt = np.swapaxes(R, 1, 2) * s2[:, None, None]
     rotated = np.matmul(blocks.reshape(Pn, 3 * K, 3), Rt).reshape(Pn, K, 3, 3)
-    rotated = np.matmul(np.swapaxes(rotated, 2, 3).reshape(Pn, 3 * K, 3), np.swapaxes(R, 1, 2))
-    H = np.take(prior.gram_body, prior.which, axis=0)
-    H.reshape(Pn, -1)[:, block_entries(n // 3, K > n // 3)] += rotated.reshape(Pn, -1)
+    rotated = np.matmul(np.swapaxes(rotated, 2, 3).reshape(Pn, 3 * K, 3), np.swapaxes(R, 1, 2)).reshape(Pn, K, 3, 3)
+    H = hessian(np.take(prior.gram_body, prior.which, axis=0), rotated, copy=False)
     diagonal = H.reshape(Pn, -1)[:, :: n + 1]
     diagonal[:] = np.where(diagonal > 0, diagonal * (1.0 + damping[:, None]), 1.0)
     step = spd_solve(H, prior.to_body(grad) * s2[:, None])
