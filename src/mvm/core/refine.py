@@ -152,8 +152,8 @@ class LinearPrior:
     the prior's share of the normal equations in the body basis is the group's ``M_gᵀ M_g / s²``.
 
     ``rotation: (P, 3, 3)`` ``R`` (identity without a prior), ``scale: (P,)`` ``s`` (1 without);
-    ``which: (P,)`` each person's group (``G``: none); ``M: (G, 3J, 3J)``, ``h: (G, 3J)``;
-    ``gram: (G + 1, 3J, 3J)`` the ``M_gᵀ M_g`` (the last: zero)."""
+    ``which: (P,)`` each person's group (``G``: none); ``M: (G + 1, 3J, 3J)``, ``h: (G + 1, 3J)``
+    and ``gram_body: (G + 1, 3J, 3J)``, the ``M_gᵀ M_g`` (the last group's: zero)."""
 
     rotation: np.ndarray
     scale: np.ndarray
@@ -168,8 +168,18 @@ class LinearPrior:
 
     @functools.cached_property
     def _groups(self) -> list:
-        """``(g, rows)`` of every group that has persons."""
-        return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M)]
+        """``(g, rows)`` of every group that has persons (not the last, no prior's)."""
+        return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M) - 1]
+
+    def _times(self, y: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``M_g y`` (``M_gᵀ y`` if ``transpose``) of every person, ``y: (P, 3J)``. One product
+        per group; with few persons per group, one gather of their matrices."""
+        if len(self.which) <= 2 * len(self._groups):
+            return np.einsum("pij,pi->pj" if transpose else "pij,pj->pi", self.M[self.which], y)
+        out = np.zeros_like(y)
+        for g, rows in self._groups:
+            out[rows] = y[rows] @ (self.M[g] if transpose else self.M[g].T)
+        return out
 
     def to_body(self, x: np.ndarray) -> np.ndarray:
         """``x: (P, 3J)`` world coordinates (or gradients) -> ``(P, 3J)`` rotated into each
@@ -182,19 +192,12 @@ class LinearPrior:
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """``(P, 3J)`` at ``x: (P, 3J)``; zero for persons without a prior."""
-        y = self.to_body(x) / self.scale[:, None]
-        r = np.zeros_like(y)
-        for g, rows in self._groups:
-            r[rows] = y[rows] @ self.M[g].T - self.h[g]
-        return r
+        return self._times(self.to_body(x) / self.scale[:, None]) - self.h[self.which]
 
     def energy_gradient(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half the squared residuals per person ``(P,)`` and their gradient by ``x``, ``(P, 3J)``."""
         r = self.residuals(x)
-        back = np.zeros_like(r)
-        for g, rows in self._groups:
-            back[rows] = r[rows] @ self.M[g]
-        return 0.5 * np.einsum("pn,pn->p", r, r), self.to_world(back) / self.scale[:, None]
+        return 0.5 * np.einsum("pn,pn->p", r, r), self.to_world(self._times(r, transpose=True)) / self.scale[:, None]
 
     def energy(self, x: np.ndarray) -> np.ndarray:
         """Half the squared residuals per person, ``(P,)``: at the point of linearization,
@@ -248,7 +251,7 @@ def prior_energy(X: np.ndarray, present: np.ndarray, prior, weight: float) -> np
     return linearized_prior(X, present, prior, weight).energy(X.reshape(len(X), -1))
 
 
-@functools.lru_cache(maxsize=1024)
+@functools.lru_cache(maxsize=256)
 def _group_matrices(prior, present: bytes, component: int, weight: float
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The linearized prior of one (present joints, component) group (:class:`LinearPrior`):
@@ -282,11 +285,10 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     Pn, J, _ = X.shape
     rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
     usable = which < len(keys)
-    groups = [_group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), float(weight)) for key in keys]
-    M = np.array([g[0] for g in groups]).reshape(len(keys), 3 * J, 3 * J)
-    h = np.array([g[1] for g in groups]).reshape(len(keys), 3 * J)
-    gram = np.zeros((len(keys) + 1, 3 * J, 3 * J))
-    gram[:-1] = [g[2] for g in groups]
+    M, gram = np.zeros((2, len(keys) + 1, 3 * J, 3 * J))
+    h = np.zeros((len(keys) + 1, 3 * J))
+    for g, key in enumerate(keys):
+        M[g], h[g], gram[g] = _group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), float(weight))
     rotation = np.where(usable[:, None, None], rotation, np.eye(3))
     return LinearPrior(rotation, np.where(usable, scale, 1.0), which, M, h, gram)
 
