@@ -163,7 +163,7 @@ class PosePrior:
         flat = canonical.reshape(len(canonical), DIM)
         out = np.full((len(canonical), self.components), np.nan)
         code = present.astype(np.int64) @ (1 << np.arange(NUM_JOINTS))
-        for pattern in np.unique(code):
+        for pattern in dict.fromkeys(code.tolist()):            # the patterns (a few), first seen first
             if pattern == 0:
                 continue
             rows = np.flatnonzero(code == pattern)

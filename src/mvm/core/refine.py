@@ -174,8 +174,9 @@ class LinearPrior:
     def _times(self, y: np.ndarray, transpose: bool = False) -> np.ndarray:
         """``M_g y`` (``M_gᵀ y`` if ``transpose``) of every person, ``y: (P, 3J)``. One product
         per group; with few persons per group, one gather of their matrices."""
-        if len(self.which) <= 2 * len(self._groups):
-            return np.einsum("pij,pi->pj" if transpose else "pij,pj->pi", self.M[self.which], y)
+        if len(self.which) <= 2 * len(self.M):
+            M = self.M[self.which]
+            return np.matmul(y[:, None], M)[:, 0] if transpose else np.matmul(M, y[..., None])[..., 0]
         out = np.zeros_like(y)
         for g, rows in self._groups:
             out[rows] = y[rows] @ (self.M[g] if transpose else self.M[g].T)
@@ -237,11 +238,13 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
         component[usable] = prior.best_component(canonicalize(poses[usable], tuple(f[usable] for f in frame)))
     usable &= component >= 0
     code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
-    codes, first, group = np.unique(code[usable], return_index=True, return_inverse=True)
-    first = np.flatnonzero(usable)[first]
+    rows = np.flatnonzero(usable)
+    groups: dict = {}                                      # code -> (group, first person); a few groups
+    group = [groups.setdefault(c, (len(groups), p))[0] for c, p in zip(code[rows].tolist(), rows.tolist())]
+    first = np.array([p for _, p in groups.values()], dtype=int)
     keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
-    which = np.full(Pn, len(codes))
-    which[usable] = group.ravel()
+    which = np.full(Pn, len(groups))
+    which[rows] = group
     return rotation, scale, keys, which
 
 
