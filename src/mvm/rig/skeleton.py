@@ -99,7 +99,7 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
     solves all of them, with BLAS on one thread (its matrices are small: threads only cost).
     ``tolerance``: the relative change at which a person's inner solve stops (on the rig
     benchmark 1e-5 reaches the objective of 1e-8 to within 3e-5 of it, 99.5 % of the joints
-    within 0.5 mm and 90 % within 0.05 mm, in a third of the steps); ``outer_iterations``:
+    within 0.5 mm and 90 % within 0.05 mm, with 43 % of the solves); ``outer_iterations``:
     re-linearizations of the robust loss and the prior."""
     from threadpoolctl import threadpool_limits
 
