@@ -17,13 +17,13 @@ from mvm.core.refine import (
     damped_steps,
     hessian,
     inner_cost,
-    irls_weights,
     levenberg_marquardt,
     linearized_prior,
     normal_equations,
     prior_energy,
     refine_poses,
     residuals,
+    robust_terms,
     spd_solve,
 )
 
@@ -54,7 +54,7 @@ def _inner_problem(X0, xy, conf, P, inliers, truth):
     X = np.where(present[..., None], X0, 0.0)
     obs = Observations.build(xy, P, conf, inliers & present[:, None])
     bones = BoneTerms.build(bone_lengths(truth) * 1.02, 2e4, present)
-    problem = InnerProblem(obs, irls_weights(X, obs, 5.0), linearized_prior(X, present, shipped_prior(), 10.0), bones)
+    problem = InnerProblem(obs, robust_terms(obs.reprojection(X)[0], obs, 5.0)[1], linearized_prior(X, present, shipped_prior(), 10.0), bones)
     return X.reshape(len(X), -1), present, problem
 
 
@@ -175,3 +175,20 @@ def test_a_person_pushed_behind_the_cameras_falls_back_to_its_triangulation():
     assert result.fallback.tolist() == [False, True, False]
     assert np.array_equal(result.X[1], X0[1])
     assert not np.array_equal(result.X[0], X0[0])
+
+
+def test_robust_weights_are_the_derivative_of_the_robust_cost():
+    """IRLS: the gradient of Σ c ρ(|e|²) by the residuals is ``w² e`` with ``w`` the root weights
+    (central differences), and the cost is soft-L1's ``2 f² (sqrt(1 + |e|²/f²) − 1)``."""
+    truth, X0, xy, conf, P, inliers = _capture(8)
+    present = np.isfinite(X0).all(-1)
+    obs = Observations.build(xy, P, conf, inliers & present[:, None])
+    e, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))
+    cost, w = robust_terms(e, obs, 5.0)
+    c = np.where(obs.fit, conf, 0.0)
+    np.testing.assert_allclose(cost, (c * 50.0 * (np.sqrt(1 + (e**2).sum(-1) / 25.0) - 1)).sum((1, 2)), rtol=1e-12)
+    h = 1e-6
+    step = np.zeros_like(e)
+    step[..., 0] = h
+    numeric = (robust_terms(e + step, obs, 5.0)[0] - robust_terms(e - step, obs, 5.0)[0]) / (2 * h)
+    np.testing.assert_allclose(numeric, (w**2 * e[..., 0]).sum((1, 2)), rtol=1e-6)

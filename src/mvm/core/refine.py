@@ -524,40 +524,35 @@ def _norms(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("pn,pn->p", x, x))
 
 
-def objective(X: np.ndarray, obs: Observations, energy: np.ndarray, robust_scale_px: float,
-              bones: BoneTerms | None = None) -> float:
-    """Σ c ρ(e²) + λ E_P (up to the mixture's constants) [+ the bone terms] at ``X: (P, J, 3)``
-    (absent joints 0), ``energy: (P,)`` the prior's (:meth:`LinearPrior.energy` at ``X``)."""
-    e, _ = obs.reprojection(X)
+def robust_terms(e: np.ndarray, obs: Observations, robust_scale_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """The soft-L1 reprojection terms of residuals ``e: (P, M, J, 2)`` (:meth:`Observations.reprojection`):
+    ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
+    (0 where not fitted)."""
     f2 = robust_scale_px**2
-    total = (np.where(obs.fit, obs.conf, 0.0) * 2 * f2 * (np.sqrt(1 + (e**2).sum(-1) / f2) - 1)).sum()
-    total += 0.5 * np.sum(bones.linearize(X)[0] ** 2) if bones is not None else 0.0
-    return float(total + np.sum(energy))
+    root = np.sqrt(1.0 + (e**2).sum(-1) / f2)
+    c = np.where(obs.fit, obs.conf, 0.0)
+    return (c * 2 * f2 * (root - 1)).sum((1, 2)), np.sqrt(2.0 * c / root)
 
 
-def irls_weights(X: np.ndarray, obs: Observations, robust_scale_px: float) -> np.ndarray:
-    """``sqrt(2 ρ'(e²) c)`` of soft-L1 at ``X: (P, J, 3)``, ``(P, M, J)`` (0 where not fitted)."""
-    e, _ = obs.reprojection(X)
-    robust_w = 1.0 / np.sqrt(1.0 + (e**2).sum(-1) / robust_scale_px**2)
-    return np.sqrt(2.0 * robust_w * np.where(obs.fit, obs.conf, 0.0))
+def _bone_cost(bones: BoneTerms | None, X: np.ndarray) -> float:
+    return 0.0 if bones is None else 0.5 * float(np.sum(bones.linearize(X)[0] ** 2))
 
 
-def fallback_persons(X0: np.ndarray, X: np.ndarray, present: np.ndarray, obs: Observations,
-                     robust_scale_px: float) -> np.ndarray:
-    """``(P,)`` bool: observed persons whose refinement is not finite, has a median
-    reprojection error above twice the triangulation's plus ``robust_scale_px``, or puts a
-    fitted joint behind a camera. ``X0, X: (P, J, 3)``."""
-    with np.errstate(all="ignore"):
-        e0, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))
-        e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
+def fallback_persons(e0: np.ndarray, e1: np.ndarray, depth1: np.ndarray, X: np.ndarray, present: np.ndarray,
+                     obs: Observations, robust_scale_px: float) -> np.ndarray:
+    """``(P,)`` bool: observed persons whose refinement ``X: (P, J, 3)`` is not finite, has a
+    median reprojection error above twice the triangulation's plus ``robust_scale_px``, or
+    puts a fitted joint behind a camera. ``e0, e1: (P, M, J, 2)`` the reprojection residuals of
+    the triangulation and of the refinement, ``depth1: (P, M, J)`` the refinement's depths."""
     observed = obs.fit.any((1, 2))
     finite = np.where(present[..., None], np.isfinite(X), True).all((1, 2))
 
     def median_error(e):
         return row_nanmedian(np.where(obs.fit, np.linalg.norm(e, axis=-1), np.nan).reshape(len(X), -1))
 
-    worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale_px
-    behind = ~(depth1 > 0).all((1, 2))
+    with np.errstate(all="ignore"):
+        worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale_px
+        behind = ~(depth1 > 0).all((1, 2))
     return observed & (~finite | worse | behind)
 
 
@@ -597,18 +592,26 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     prior = prior if use_prior else None
 
     X = np.where(present[..., None], X0, 0.0)
+    e0, _ = obs.reprojection(X)
+    robust, sqrt_w = robust_terms(e0, obs, robust_scale_px)
     linear = linearized_prior(X, present, prior, prior_weight)
-    cost_before = objective(X, obs, linear.energy(X.reshape(Pn, -1)), robust_scale_px, bones)
+    cost_before = float(robust.sum() + linear.energy(X.reshape(Pn, -1)).sum()) + _bone_cost(bones, X)
     for k in range(outer_iterations):
-        linear = linearized_prior(X, present, prior, prior_weight) if k else linear
-        problem = InnerProblem(obs, irls_weights(X, obs, robust_scale_px), linear, bones)
+        if k:
+            linear = linearized_prior(X, present, prior, prior_weight)
+            sqrt_w = robust_terms(obs.reprojection(X)[0], obs, robust_scale_px)[1]
+        problem = InnerProblem(obs, sqrt_w, linear, bones)
         inner_tolerance = tolerance if k == outer_iterations - 1 else EARLY_TOLERANCE_FACTOR * tolerance
         X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, inner_tolerance).reshape(Pn, J, 3)
     X = np.where(present[..., None], X, np.nan)
-    fallback = fallback_persons(X0, X, present, obs, robust_scale_px)
+    with np.errstate(all="ignore"):
+        e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
+    fallback = fallback_persons(e0, e1, depth1, X, present, obs, robust_scale_px)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     X_fit = np.where(present[..., None], X, 0.0)
-    cost_after = objective(X_fit, obs, prior_energy(X_fit, present, prior, prior_weight), robust_scale_px, bones)
+    robust, _ = robust_terms(np.where(fallback[:, None, None, None], e0, e1), obs, robust_scale_px)
+    cost_after = (float(robust.sum() + prior_energy(X_fit, present, prior, prior_weight).sum())
+                  + _bone_cost(bones, X_fit))
     return RefineResult(X, fallback, cost_before, cost_after)
