@@ -130,12 +130,15 @@ class Observations:
         Pn, M = self.P.shape[:2]
         uv, z = self._homogeneous(X)                                                   # (P, M, 2, J)
         e = np.where(self.fit[:, :, None], uv - np.swapaxes(self.xy, 2, 3), 0.0)
-        c = w / z**2
-        coef = np.stack([c, -c * uv[:, :, 0], -c * uv[:, :, 1], c * (uv**2).sum(2)], axis=2)  # (P, M, 4, J)
-        blocks = np.matmul(np.swapaxes(coef.reshape(Pn, 4 * M, -1), 1, 2), self.products.reshape(Pn, 4 * M, 9))
-        g = w / z
-        coef = np.concatenate([g[:, :, None] * e, -(g * (e * uv).sum(2))[:, :, None]], axis=2)  # (P, M, 3, J)
-        grad = np.matmul(np.swapaxes(coef.reshape(Pn, 3 * M, -1), 1, 2), self.P[..., :3].reshape(Pn, 3 * M, 3))
+        hess, jac = np.empty((Pn, M, 4, X.shape[1])), np.empty((Pn, M, 3, X.shape[1]))   # coefficients
+        c, g = hess[:, :, 0], jac[:, :, :2]
+        np.divide(w, z**2, out=c)
+        np.multiply(-c[:, :, None], uv, out=hess[:, :, 1:3])
+        np.multiply(c, (uv**2).sum(2), out=hess[:, :, 3])
+        np.multiply((w / z)[:, :, None], e, out=g)
+        np.negative((g * uv).sum(2), out=jac[:, :, 2])
+        blocks = np.matmul(np.swapaxes(hess.reshape(Pn, 4 * M, -1), 1, 2), self.products.reshape(Pn, 4 * M, 9))
+        grad = np.matmul(np.swapaxes(jac.reshape(Pn, 3 * M, -1), 1, 2), self.P[..., :3].reshape(Pn, 3 * M, 3))
         return 0.5 * (w * (e**2).sum(2)).sum((1, 2)), grad, blocks.reshape(Pn, -1, 3, 3)
 
 
