@@ -27,19 +27,18 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import numpy as np  # noqa: E402
+import numpy as np
+from rig_speed import write_capture
 
-from rig_speed import write_capture  # noqa: E402
-
-import mvm.core.refine as refine  # noqa: E402
-from mvm.core.config import Config  # noqa: E402
-from mvm.core.prior import shipped_prior  # noqa: E402
-from mvm.rig.instants import reconstruct_instants  # noqa: E402
-from mvm.rig.options import RigOptions  # noqa: E402
-from mvm.rig.pipeline import instants_config  # noqa: E402
-from mvm.rig.rigdir import read_rig  # noqa: E402
-from mvm.rig.skeleton import observations, refine_tracks, track_bone_lengths  # noqa: E402
-from mvm.rig.tracking import track_persons  # noqa: E402
+from mvm.core import refine
+from mvm.core.config import Config
+from mvm.core.prior import shipped_prior
+from mvm.rig.instants import reconstruct_instants
+from mvm.rig.options import RigOptions
+from mvm.rig.pipeline import instants_config
+from mvm.rig.rigdir import read_rig
+from mvm.rig.skeleton import observations, refine_tracks, track_bone_lengths
+from mvm.rig.tracking import track_persons
 
 
 def best_of(repeats: int, run) -> tuple[float, float, object]:

@@ -275,7 +275,7 @@ def test_whitening_is_the_inverse_lower_cholesky_factor():
     prior = _tiny_mixture(np.random.default_rng(5))
     present = np.ones(17, bool)
     present[[2, 9]] = False
-    mean, W, _ = prior.whitening(present, 1)
+    _, W, _ = prior.whitening(present, 1)
     coords = np.repeat(present, 3)
     cov = prior.covariances[1][np.ix_(coords, coords)]
     assert np.array_equal(W, np.tril(W))

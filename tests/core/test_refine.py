@@ -16,7 +16,6 @@ from mvm.core.refine import (
     Observations,
     damped_steps,
     hessian,
-    inner_cost,
     levenberg_marquardt,
     linearized_prior,
     normal_equations,
@@ -108,14 +107,15 @@ def test_spd_solve_solves_every_system_including_indefinite_ones():
     np.testing.assert_allclose(spd_solve(H.copy(), b), expected, rtol=1e-10, atol=1e-12)
 
 
-def test_costs_without_the_normal_equations_match_them():
-    """The trial-point cost of the solver and the prior energy computed without linearizing
-    are the cost of the residuals and the linearized prior's energy at the same point."""
+def test_prior_energy_is_the_linearized_priors_at_its_point():
+    """The prior energy of the objective is the linearized prior's energy at the point of
+    linearization, and the normal equations' cost that of the residuals, a person without a
+    shoulder (no prior) included."""
     truth, X0, xy, conf, P, inliers = _capture(1, persons=4)
     X0[2, 5] = np.nan                                                                # a shoulder: no prior
     x, present, problem = _inner_problem(X0, xy, conf, P, inliers, truth)
     x = x + np.where(np.repeat(present, 3, axis=1), np.random.default_rng(2).normal(0, 0.02, x.shape), 0.0)
-    np.testing.assert_allclose(inner_cost(x, problem), 0.5 * (residuals(x, problem) ** 2).sum(1), rtol=1e-12)
+    np.testing.assert_allclose(normal_equations(x, problem)[0], 0.5 * (residuals(x, problem) ** 2).sum(1), rtol=1e-12)
     X = x.reshape(len(x), -1, 3)
     energy = prior_energy(X, present, shipped_prior(), 10.0)
     np.testing.assert_allclose(energy, linearized_prior(X, present, shipped_prior(), 10.0).energy(x), rtol=1e-9)
@@ -180,7 +180,7 @@ def test_a_person_pushed_behind_the_cameras_falls_back_to_its_triangulation():
 def test_robust_weights_are_the_derivative_of_the_robust_cost():
     """IRLS: the gradient of Σ c ρ(|e|²) by the residuals is ``w² e`` with ``w`` the root weights
     (central differences), and the cost is soft-L1's ``2 f² (sqrt(1 + |e|²/f²) − 1)``."""
-    truth, X0, xy, conf, P, inliers = _capture(8)
+    _, X0, xy, conf, P, inliers = _capture(8)
     present = np.isfinite(X0).all(-1)
     obs = Observations.build(xy, P, conf, inliers & present[:, None])
     e, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))

@@ -24,9 +24,8 @@ Levenberg-Marquardt (:func:`levenberg_marquardt`) solves them together: every pe
 own damping, accepts or rejects its own steps and stops on its own tolerance, with the
 ``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``, or as soon as a bound on what
 any step could still gain (:func:`model_decrease_bound`) falls under it. Where the time goes
-is the damped ``3J × 3J`` solves, so a step solves only the persons still active; a trial
-point costs only its residuals (:func:`inner_cost`) and the normal equations are rebuilt only
-where a step is accepted and the person goes on.
+is the damped ``3J × 3J`` solves, so a step solves only the persons still active, and each
+trial point is evaluated once, its normal equations with its cost.
 """
 from __future__ import annotations
 
@@ -112,11 +111,6 @@ class Observations:
         ``X: (P, J, 3)``; 0 and 1 where a keypoint is not fitted."""
         uv, depth = self._homogeneous(X)
         return np.where(self.fit[..., None], np.swapaxes(uv, 2, 3) - self.xy, 0.0), depth
-
-    def cost(self, X: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """``½ Σ w |e|²: (P,)`` of the reprojection rows at ``X: (P, J, 3)``, weights ``w: (P, M, J)``."""
-        uv, _ = self._homogeneous(X)
-        return 0.5 * np.where(self.fit, w * ((uv - np.swapaxes(self.xy, 2, 3)) ** 2).sum(2), 0.0).sum((1, 2))
 
     def normal_terms(self, X: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The reprojection rows' share of the normal equations at ``X: (P, J, 3)`` with
@@ -288,7 +282,7 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
     negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
     each (present joints, component) pair is built once (:class:`LinearPrior`)."""
-    Pn, J, _ = X.shape
+    J = X.shape[1]
     rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
     usable = which < len(keys)
     M, gram = np.zeros((2, len(keys) + 1, 3 * J, 3 * J))
@@ -471,14 +465,6 @@ def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         return x
 
 
-def inner_cost(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
-    """Half the sum of squared :func:`residuals` of every person at ``x: (P, 3J)``, ``(P,)``
-    (without forming them)."""
-    X = x.reshape(len(x), -1, 3)
-    cost = problem.obs.cost(X, problem.sqrt_w**2) + problem.prior.energy(x)
-    return cost if problem.bones is None else cost + 0.5 * (problem.bones.linearize(X)[0] ** 2).sum(1)
-
-
 def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
                         tolerance: float) -> np.ndarray:
     """Minimize every person's half sum of squared :func:`residuals` from ``x: (P, 3J)``.
@@ -490,8 +476,9 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
     so a converged person costs no solve), when an accepted step lowers its cost by less than
     that, or a step is shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and
     ``xtol`` of ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point
-    costs only its residuals; the normal equations are built where a step is accepted and the
-    person goes on (only the persons still active are solved). Returns ``(P, 3J)``."""
+    gets its normal equations with its cost (most steps are accepted: one evaluation per step),
+    kept where the step is accepted; only the persons still active are solved. Returns
+    ``(P, 3J)``."""
     x = x.copy()
     cost, grad, blocks, reach = normal_equations(x, problem)
     damping = np.full(len(x), INITIAL_DAMPING)
@@ -506,7 +493,7 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         start, current, mu = x[idx], cost[idx], damping[idx]
         step = damped_steps(sub.prior, blocks[idx], grad[idx], mu)
         trial = start + step
-        trial_cost = inner_cost(trial, sub)
+        trial_cost, trial_grad, trial_blocks, reach = normal_equations(trial, sub)
         better = trial_cost < current
         small_step = _norms(step) <= tolerance * (tolerance + _norms(start))
         small_gain = better & (current - trial_cost <= tolerance * current)
@@ -514,11 +501,8 @@ def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
         active[idx] = ~(small_step | small_gain)
         x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
         moved = better & active[idx]
-        if moved.any():
-            rows = np.flatnonzero(moved)
-            part = sub if moved.all() else sub.take(rows)
-            _, grad[idx[rows]], blocks[idx[rows]], reach = normal_equations(trial[rows], part)
-            active[idx[rows]] = ~(reach <= tolerance * trial_cost[rows])
+        grad[idx[moved]], blocks[idx[moved]] = trial_grad[moved], trial_blocks[moved]
+        active[idx[moved]] = ~(reach[moved] <= tolerance * trial_cost[moved])
     return x
 
 
