@@ -168,18 +168,21 @@ class PosePrior:
                 continue
             rows = np.flatnonzero(code == pattern)
             mask = present[rows[0]]
-            mean, w, c = self._stacked(mask.tobytes())                               # (L, K), (L, K, K), (L,)
+            stacked, shift, c = self._stacked(mask.tobytes())                        # (K, L K), (L K,), (L,)
             x = flat[rows] if mask.all() else flat[rows][:, np.repeat(mask, 3)]      # (n, K)
-            r = np.matmul(x[None] - mean[:, None], np.swapaxes(w, 1, 2))               # (L, n, K)
-            out[rows] = (-0.5 * np.einsum("lnk,lnk->nl", r, r)) - c
+            r = (x @ stacked - shift).reshape(len(rows), len(c), -1)                 # (n, L, K): W_l (x − μ_l)
+            out[rows] = (-0.5 * np.einsum("nlk,nlk->nl", r, r)) - c
         return out
 
     def _stacked_uncached(self, present_bytes: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The :meth:`whitening` of every component for one pattern of present joints, stacked:
-        ``mean: (L, K)``, ``W: (L, K, K)``, ``c: (L,)``."""
+        """The :meth:`whitening` of every component for one pattern of present joints, as one
+        product: ``W_l (x − μ_l)`` of all ``l`` is ``x @ stacked − shift`` with ``stacked: (K, L K)``
+        the ``W_lᵀ`` side by side and ``shift: (L K,)`` the ``W_l μ_l``; and ``c: (L,)``."""
         present = np.frombuffer(present_bytes, dtype=bool)
         parts = [self.whitening(present, component) for component in range(self.components)]
-        return tuple(np.stack([part[i] for part in parts]) for i in range(3))
+        stacked = np.concatenate([w.T for _, w, _ in parts], axis=1)
+        shift = np.concatenate([w @ mean for mean, w, _ in parts])
+        return stacked, shift, np.array([c for _, _, c in parts])
 
     def nll(self, canonical: np.ndarray) -> np.ndarray:
         """``E_P``: ``-log Σ_l w_l N(x_obs | μ_l,obs, Σ_l,obs)``. ``canonical: (P, 17, 3)`` -> ``(P,)``.

@@ -516,7 +516,7 @@ def robust_terms(e: np.ndarray, obs: Observations, robust_scale_px: float) -> tu
     ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
     (0 where not fitted)."""
     f2 = robust_scale_px**2
-    root = np.sqrt(1.0 + (e**2).sum(-1) / f2)
+    root = np.sqrt(1.0 + (e[..., 0] ** 2 + e[..., 1] ** 2) / f2)
     c = np.where(obs.fit, obs.conf, 0.0)
     return (c * 2 * f2 * (root - 1)).sum((1, 2)), np.sqrt(2.0 * c / root)
 
