@@ -5,7 +5,8 @@ forked child that sends its result back pickled through a pipe. A fork shares ev
 already loaded (the pose prior, the cameras, the imported modules) for free, and costs about
 10 ms where a process pool costs 60–70 ms to import and start: the difference is most of a
 small capture's run. Where ``fork`` is missing (Windows) or one worker is asked for, the chunks
-run one after the other here.
+run one after the other here. By default only Linux forks (macOS system libraries are not safe
+to use in a forked child, which is why Python's own process pools spawn there).
 
 A chunk's exception is raised here as if it had run here (the first in chunk order). A child
 that dies without an answer (killed, out of memory) has its chunk run again here, so a lost
@@ -20,6 +21,7 @@ import logging
 import os
 import pickle
 import signal
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -29,12 +31,12 @@ WORKERS_ENV = "MVM_WORKERS"
 
 def available_workers(requested: int | None = None) -> int:
     """Worker processes to use: ``requested`` if given (not 0), else ``$MVM_WORKERS``, else the
-    cores this process may run on; at least 1."""
+    cores this process may run on (Linux; 1 elsewhere); at least 1."""
     if not requested:
         env = os.environ.get(WORKERS_ENV, "").strip()
         requested = int(env) if env.isdigit() else None
     if not requested:
-        requested = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        requested = len(os.sched_getaffinity(0)) if sys.platform.startswith("linux") else 1
     return max(1, int(requested))
 
 
