@@ -165,7 +165,7 @@ class LinearPrior:
 
     @functools.cached_property
     def _groups(self) -> list:
-        """``(g, rows)`` of every group that has persons (not the last, no prior's)."""
+        """``(g, rows)`` of every group that has persons, but the last (persons without a prior)."""
         return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M) - 1]
 
     def _times(self, y: np.ndarray, transpose: bool = False) -> np.ndarray:
@@ -204,17 +204,11 @@ class LinearPrior:
         r = self.residuals(x)
         return 0.5 * np.einsum("pn,pn->p", r, r)
 
-    def body_hessian(self) -> np.ndarray:
-        """The prior's share of the normal equations in the body basis, ``M_gᵀ M_g / s²``:
-        ``(P, 3J, 3J)``, a new array."""
-        H = np.take(self.gram_body, self.which, axis=0)
-        H /= (self.scale**2)[:, None, None]
-        return H
-
     def gram(self) -> np.ndarray:
-        """The prior's share of the normal equations in world coordinates, ``(P, 3J, 3J)``."""
+        """The prior's share of the normal equations in world coordinates, ``Rᵀ M_gᵀ M_g R / s²``
+        per joint block, ``(P, 3J, 3J)`` (the solver works in the body basis and never forms it)."""
         Pn, n = len(self.which), self.gram_body.shape[1]
-        H = self.body_hessian().reshape(Pn, n // 3, 3, n)
+        H = (self.gram_body[self.which] / (self.scale**2)[:, None, None]).reshape(Pn, n // 3, 3, n)
         H = np.matmul(np.swapaxes(self.rotation, 1, 2)[:, None], H).reshape(Pn, n, n // 3, 3)
         return np.matmul(H, self.rotation[:, None]).reshape(Pn, n, n)
 
