@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_outcomes
+from mvm.cli.common import Number, command, config_options, fmt, out, read_config, report_failures, run_outcomes
 
 
 @command("reconstruct")
@@ -11,7 +11,9 @@ from mvm.cli.common import command, config_options, fmt, out, read_config, repor
 @config_options
 @click.option("-o", "--output", default="mvm", show_default=True,
               help="Name of the output folder inside each scene directory.")
-def reconstruct(scenes, config_path, sets, refine, output):
+@click.option("--workers", type=Number(int, ge=1), default=None,
+              help="Processes sharing the scenes (default: $MVM_WORKERS, else the available cores).")
+def reconstruct(scenes, config_path, sets, refine, output, workers):
     """Reconstruct the 3D poses of one or more scene directories.
 
     Each SCENE holds sparse/ (a COLMAP model) and poses2d.json (COCO keypoints); the result is
@@ -21,7 +23,7 @@ def reconstruct(scenes, config_path, sets, refine, output):
     from mvm.scenes import reconstruct_dirs
 
     config = read_config(config_path, sets, refine=refine)
-    rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output), "reconstructing")
+    rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output, workers=workers), "reconstructing")
     if rows:
         from rich.table import Table
 
