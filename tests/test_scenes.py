@@ -159,3 +159,20 @@ def test_a_killed_worker_loses_no_scene(nine, tmp_path, monkeypatch):
             assert outcome.metrics == expected.metrics and len(outcome.persons) == 2
             assert _numbers(path / "killed" / "poses3d.json") == _numbers(path / "ref" / "poses3d.json")
             assert not list((path / "killed").glob(".*.tmp"))
+
+
+def test_the_command_recaps_tab_separated_in_a_pipe_and_checks_workers(three):
+    from click.testing import CliRunner
+
+    from mvm.cli.main import main
+    from mvm.cli.scene import RECAP_COLUMNS
+
+    root, truths = three
+    paths = [str(root / n) for n in ("a", "b")]
+    run = CliRunner().invoke(main, ["reconstruct", *paths, "--no-refine", "-o", "cli", "--workers", "2"])
+    assert run.exit_code == 0, run.output
+    lines = [line.split("\t") for line in run.stdout.splitlines()]
+    assert lines[0] == list(RECAP_COLUMNS) and [row[0] for row in lines[1:]] == paths
+    assert [int(row[1]) for row in lines[1:]] == [len(truths[n].poses3d) for n in ("a", "b")]
+    run = CliRunner().invoke(main, ["reconstruct", *paths, "--workers", "0"])
+    assert run.exit_code == 2 and "--workers" in run.stderr and "Traceback" not in run.output

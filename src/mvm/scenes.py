@@ -100,7 +100,7 @@ def _attempt(path, config: Config, output: str, prior) -> tuple:
     """``(path, result, output folder, document)`` of one scene, or ``(path, exception, None, None)``."""
     try:
         return (path, *_compute(Path(path), config, output, prior))
-    except Exception as e:                                # this scene's failure, reported in order
+    except Exception as e:                                # noqa: BLE001 - this scene's failure, reported in order
         return path, e, None, None
 
 
@@ -142,7 +142,7 @@ def _sendable(outcome):
     if isinstance(outcome, Exception):
         try:
             pickle.loads(pickle.dumps(outcome))
-        except Exception:
+        except Exception:                                 # noqa: BLE001 - any exception may fail to pickle
             return RuntimeError(f"{type(outcome).__name__}: {outcome}")
     return outcome
 

@@ -43,5 +43,5 @@ out = assign_per_frame(np.array([0.05, 0.08, 0.06, 0.2]), np.array([0, 0, 1, 1])
 assert out.tolist() == [1, 0], out
 assert "scipy.optimize" not in sys.modules
 """
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
