@@ -89,21 +89,26 @@ def _logged_reads(monkeypatch, pids_file):
     """Make every read of a scene log a warning naming it and note which process read it."""
     import logging
     import os
+    import warnings
 
     from mvm import scenes
 
     real = scenes.read_scene
 
+    parent = os.getpid()
+
     def noted(path):
         with open(pids_file, "a") as f:
             f.write(f"{os.getpid()} {path.name}\n")
         logging.getLogger("mvm.scenes").warning("reading %s", path.name)
+        if os.getpid() != parent:
+            warnings.warn(f"a Python warning in a worker, reading {path.name}", stacklevel=1)
         return real(path)
 
     monkeypatch.setattr(scenes, "read_scene", noted)
 
 
-def test_two_workers_give_the_files_outcomes_and_log_of_one(nine, tmp_path, monkeypatch, caplog):
+def test_two_workers_give_the_files_outcomes_and_log_of_one(nine, tmp_path, monkeypatch, caplog, capfd):
     import os
 
     from mvm.scenes import reconstruct_dirs
@@ -120,6 +125,9 @@ def test_two_workers_give_the_files_outcomes_and_log_of_one(nine, tmp_path, monk
     (one, one_log, one_pids), (two, two_log, two_pids) = runs[1], runs[2]
     assert [p for p, _ in two] == [p for p, _ in one] == nine                       # in order
     assert two_log == one_log == [f"reading s{k}" for k in range(9)]                 # the workers' log, in place
+    caught = [r.getMessage() for r in caplog.records if r.name == "py.warnings"]
+    assert len(caught) == 5 and all("a Python warning in a worker" in m for m in caught)
+    assert "Python warning" not in capfd.readouterr().err                          # a worker writes nothing
     assert {pid for pid, _ in one_pids} == {str(os.getpid())}
     worker = {name for pid, name in two_pids if pid != str(os.getpid())}
     assert worker == {f"s{k}" for k in range(4, 9)}                                  # the second share, elsewhere

@@ -11,6 +11,7 @@ import itertools
 import logging
 import pickle
 import time
+import warnings
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
@@ -106,12 +107,13 @@ def _attempt(path, config: Config, output: str, prior) -> tuple:
 
 def _share(paths: list, config: Config, output: str, prior) -> list[tuple]:
     """A worker's scenes: ``[(path, outcome, log records)]``, every scene done and written as
-    :func:`_stream` does, the records logged meanwhile kept (to be logged by the parent) and
-    exceptions made fit to be sent back."""
+    :func:`_stream` does, the records logged meanwhile (Python warnings included) kept to be
+    logged by the parent, and exceptions made fit to be sent back."""
     records: list[logging.LogRecord] = []
     root = logging.getLogger()
-    handlers = root.handlers
+    handlers, show = root.handlers, warnings.showwarning
     root.handlers = [_Keep(records)]
+    logging.captureWarnings(True)                         # a Python warning too: no write to the terminal
     try:
         done = []
         for path, outcome in _stream(paths, config, output, prior):
@@ -119,7 +121,8 @@ def _share(paths: list, config: Config, output: str, prior) -> list[tuple]:
             records.clear()
         return done
     finally:
-        root.handlers = handlers
+        logging.captureWarnings(False)
+        root.handlers, warnings.showwarning = handlers, show
 
 
 class _Keep(logging.Handler):
