@@ -133,10 +133,10 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
     order = np.lexsort((cost, pose))                                 # best pair of each pose first
     first = np.r_[True, pose[order][1:] != pose[order][:-1]]
     best = order[first]                                              # (n,) the best pair of each pose
-    claim = np.stack([slot[best], person[best]], axis=1)
-    _, inverse, counts = np.unique(claim, axis=0, return_inverse=True, return_counts=True)
+    claim = slot[best].astype(np.int64) * (int(person.max()) + 1) + person[best]      # (slot, person) as one key
+    _, inverse, counts = np.unique(claim, return_inverse=True, return_counts=True)
     clash_slot = np.zeros(slot.max() + 1, dtype=bool)
-    clash_slot[slot[best][counts[inverse.reshape(-1)] > 1]] = True
+    clash_slot[slot[best][counts[inverse] > 1]] = True
     easy = best[~clash_slot[slot[best]]]
     out[pose[easy]] = person[easy]
     hard = np.flatnonzero(clash_slot[slot])
