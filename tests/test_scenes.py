@@ -141,7 +141,7 @@ def test_two_workers_give_the_files_outcomes_and_log_of_one(nine, tmp_path, monk
         assert a.metrics == b.metrics
 
 
-def test_a_killed_worker_loses_no_scene(nine, tmp_path, monkeypatch):
+def test_a_killed_or_missing_worker_loses_no_scene(nine, tmp_path, monkeypatch):
     import os
     import signal
 
@@ -158,15 +158,22 @@ def test_a_killed_worker_loses_no_scene(nine, tmp_path, monkeypatch):
     config = Config(refine=False)
     reference = list(reconstruct_dirs(nine, config, "ref", workers=1))
     monkeypatch.setattr(scenes, "read_scene", killed_in_worker)
-    outcomes = list(reconstruct_dirs(nine, config, "killed", workers=2))
-    assert [p for p, _ in outcomes] == [p for p, _ in reference] == nine
-    for (path, outcome), (_, expected) in zip(outcomes, reference):
-        if path.name == "s3":
-            assert isinstance(outcome, InputError) and str(outcome) == str(expected)
-        else:
-            assert outcome.metrics == expected.metrics and len(outcome.persons) == 2
-            assert _numbers(path / "killed" / "poses3d.json") == _numbers(path / "ref" / "poses3d.json")
-            assert not list((path / "killed").glob(".*.tmp"))
+    outcomes = {"killed": list(reconstruct_dirs(nine, config, "killed", workers=2))}
+
+    def no_fork(fn, chunk):
+        raise OSError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(scenes, "_start", no_fork)                                   # no worker to be had
+    outcomes["unforked"] = list(reconstruct_dirs(nine, config, "unforked", workers=2))
+    for output, got in outcomes.items():
+        assert [p for p, _ in got] == [p for p, _ in reference] == nine
+        for (path, outcome), (_, expected) in zip(got, reference):
+            if path.name == "s3":
+                assert isinstance(outcome, InputError) and str(outcome) == str(expected)
+            else:
+                assert outcome.metrics == expected.metrics and len(outcome.persons) == 2
+                assert _numbers(path / output / "poses3d.json") == _numbers(path / "ref" / "poses3d.json")
+                assert not list((path / output).glob(".*.tmp"))
 
 
 def test_the_command_recaps_tab_separated_in_a_pipe_and_checks_workers(three):

@@ -52,8 +52,8 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     :data:`MIN_SCENES_PER_WORKER` scenes a process). This process does the first contiguous
     share and yields it live; each forked worker reads, computes and writes the next share and
     sends its outcomes, with the log records of its scenes (logged again here, in their place),
-    once it is done. A worker that dies without answering has its share done again here: no
-    scene is lost. The files, the outcomes and their order are those of one process.
+    once it is done. A worker that dies without answering (or cannot be started) has its share
+    done here: no scene is lost. The files, the outcomes and their order are those of one process.
 
     In each process one writer thread writes a scene's ``poses3d.json`` while the next scene is
     read and computed (writing waits on the disk: the fsyncs of
@@ -70,16 +70,22 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     work = partial(_share, config=config, output=output, prior=prior)
     children = []
     try:                                                  # forked before this call starts its writer thread
-        children = [(_start(work, paths[r.start:r.stop]), paths[r.start:r.stop]) for r in shares[1:]]
+        for r in shares[1:]:
+            share = paths[r.start:r.stop]
+            try:
+                children.append((_start(work, share), share))
+            except OSError:                               # no process to be had: the share is done here
+                children.append((None, share))
         yield from _stream(paths[1:shares[0].stop], config, output, prior, first)
         for child, share in children:
-            for path, outcome, records in _collect(child, work, share):
+            for path, outcome, records in work(share) if child is None else _collect(child, work, share):
                 for record in records:
                     logging.getLogger(record.name).handle(record)
                 yield path, outcome
     finally:
-        for (pid, fd), _ in children:
-            _stop(pid, fd)
+        for child, _ in children:
+            if child is not None:
+                _stop(*child)
 
 
 def _stream(paths: list, config: Config, output: str, prior, first: tuple | None = None) -> Iterator[tuple]:
