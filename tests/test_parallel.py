@@ -71,3 +71,21 @@ def test_no_child_outlives_the_call():
     fork_map(_work, [[1], [2]], workers=2)
     with pytest.raises(ChildProcessError):
         os.waitpid(-1, os.WNOHANG)
+
+
+def _logs(chunk):
+    import logging
+    import warnings
+
+    logging.getLogger("mvm.test").warning("chunk %s done", chunk)
+    if chunk == 2:
+        warnings.warn("second chunk warns")
+    return chunk
+
+
+def test_a_childs_log_records_are_handled_here(caplog):
+    with caplog.at_level("WARNING"):
+        assert fork_map(_logs, [1, 2], workers=2) == [1, 2]
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages[:2] == ["chunk 1 done", "chunk 2 done"]
+    assert any("second chunk warns" in m for m in messages[2:])

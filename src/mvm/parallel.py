@@ -5,18 +5,23 @@ forked child that sends its result back pickled through a pipe. A fork shares ev
 already loaded (the pose prior, the cameras, the imported modules) for free, and costs about
 10 ms where a process pool costs 60–70 ms to import and start: the difference is most of a
 small capture's run. Where ``fork`` is missing (Windows) or one worker is asked for, the chunks
-run one after the other here.
+run one after the other here. By default only Linux forks (macOS system libraries are not safe
+to use in a forked child, which is why Python's own process pools spawn there).
 
 A chunk's exception is raised here as if it had run here (the first in chunk order). A child
 that dies without an answer (killed, out of memory) has its chunk run again here, so a lost
-worker never loses results. Children never run the parent's exit handlers or flush its
-buffers: they leave by ``os._exit``.
+worker never loses results. A child never writes to the terminal: its log records (and
+warnings) come back with its answer and are handled here, in order, so that nothing waits on a
+lock that another thread of the parent (a progress bar) held at the fork. Children never run
+the parent's exit handlers or flush its buffers: they leave by ``os._exit``.
 """
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import signal
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -25,21 +30,22 @@ WORKERS_ENV = "MVM_WORKERS"
 
 
 def available_workers(requested: int | None = None) -> int:
-    """Worker processes to use: ``requested`` if given, else ``$MVM_WORKERS``, else the cores
-    this process may run on; at least 1."""
-    if requested is None:
+    """Worker processes to use: ``requested`` if given (not 0), else ``$MVM_WORKERS``, else the
+    cores this process may run on (Linux; 1 elsewhere); at least 1."""
+    if not requested:
         env = os.environ.get(WORKERS_ENV, "").strip()
         requested = int(env) if env.isdigit() else None
-    if requested is None:
-        requested = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    if not requested:
+        requested = len(os.sched_getaffinity(0)) if sys.platform.startswith("linux") else 1
     return max(1, int(requested))
 
 
-def split(n: int, parts: int) -> list[range]:
-    """``n`` items as at most ``parts`` contiguous, nearly equal, non-empty ranges."""
+def split(n: int, parts: int, min_size: int = 1) -> list[range]:
+    """``n`` items as at most ``parts`` contiguous, nearly equal, non-empty ranges of at least
+    ``min_size`` items each where ``n`` allows (work too small to be worth a fork stays whole)."""
     if n <= 0:
         return []
-    parts = max(1, min(parts, n))
+    parts = max(1, min(parts, n // max(min_size, 1)))
     bounds = [n * k // parts for k in range(parts + 1)]
     return [range(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
@@ -75,14 +81,15 @@ def _start(fn: Callable, chunk) -> tuple[int, int]:
     try:                                                    # the child: never returns
         os.close(read)
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+        records = _keep_log_records()
         try:
             answer = (True, fn(chunk))
         except BaseException as e:                          # noqa: BLE001 - raised again in the parent
             answer = (False, e)
         try:
-            data = pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL)
+            data = pickle.dumps((*answer, records), protocol=pickle.HIGHEST_PROTOCOL)
         except Exception as e:                              # an unpicklable result or exception
-            data = pickle.dumps((False, RuntimeError(f"worker result could not be sent: {e!r}")))
+            data = pickle.dumps((False, RuntimeError(f"worker result could not be sent: {e!r}"), records))
         with os.fdopen(write, "wb") as pipe:
             pipe.write(data)
     except BaseException:                                   # noqa: BLE001 - the parent reruns the chunk
@@ -91,15 +98,44 @@ def _start(fn: Callable, chunk) -> tuple[int, int]:
         os._exit(status)
 
 
+class _Kept(logging.Handler):
+    """Keeps a child's log records, made picklable (message formatted, no arguments or traceback)."""
+
+    def __init__(self, records: list):
+        super().__init__()
+        self.records = records
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.exc_info and not record.exc_text:
+            record.exc_text = logging.Formatter().formatException(record.exc_info)
+        record.msg, record.args, record.exc_info = record.getMessage(), None, None
+        self.records.append(record)
+
+
+def _keep_log_records() -> list:
+    """In a child: every log record (and warning) goes to the returned list instead of the
+    parent's handlers."""
+    records: list = []
+    root = logging.getLogger()
+    for logger in [root, *logging.root.manager.loggerDict.values()]:
+        if isinstance(logger, logging.Logger):
+            logger.handlers = []
+    root.addHandler(_Kept(records))
+    logging.captureWarnings(True)
+    return records
+
+
 def _collect(child: tuple[int, int], fn: Callable, chunk):
     """The child's result (its exception raised here); its chunk run here if it gave none."""
     pid, fd = child
     with os.fdopen(os.dup(fd), "rb") as pipe:
         data = pipe.read()
     try:
-        ok, value = pickle.loads(data)
+        ok, value, records = pickle.loads(data)
     except Exception:                                       # died before answering: redo it here
         return fn(chunk)
+    for record in records:
+        logging.getLogger(record.name).handle(record)
     if not ok:
         raise value
     return value

@@ -70,3 +70,17 @@ def test_a_broken_command_module_fails_loudly():
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
     assert proc.returncode == 1 and "ModuleNotFoundError" in proc.stderr and "mvm.cli.video" in proc.stderr
     assert "Commands:" not in proc.stdout
+
+
+def test_a_subcommand_imports_only_its_own_module():
+    """``mvm rig reconstruct`` pays for the rig commands only; every name of the lazy table
+    leads to the command of that name."""
+    from mvm.cli.main import COMMANDS as LAZY
+
+    assert set(LAZY) == set(COMMANDS)
+    assert all(main.get_command(None, name).name == name for name in LAZY)
+    probe = ("import json, sys\nfrom mvm.cli import main\n"
+             "try:\n    main(['rig', 'reconstruct', '--help'], standalone_mode=False)\n"
+             "finally:\n    print(json.dumps(sorted(m for m in sys.modules if m.startswith('mvm.cli.'))))\n")
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == ["mvm.cli.common", "mvm.cli.main", "mvm.cli.rig"]

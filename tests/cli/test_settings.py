@@ -54,7 +54,7 @@ BAD = [
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"], "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"], "--rig-set: seed: unknown setting (known: association, batch_size, "
      "bone_weight, complete, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, max_link_distance_m, "
-     "metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, up)"),
+     "metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, up, workers)"),
     (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"], "--set: refine_max_iterations: must be >= 1, got 0"),
 ]
 

@@ -90,8 +90,34 @@ class LogHandler(logging.Handler):
         self._rich.emit(record)
 
 
+class _NoBar:
+    """The progress bar where stderr is not a terminal (a pipe, a log file): it draws nothing,
+    as a transient rich bar would not there, and imports nothing."""
+
+    def __init__(self):
+        self.console = err()
+
+    def __enter__(self) -> _NoBar:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+    def add_task(self, *args, **kwargs) -> int:
+        return 0
+
+    def update(self, *args, **kwargs) -> None:
+        return None
+
+    def advance(self, *args, **kwargs) -> None:
+        return None
+
+
 def progress(*extra_columns):
-    """A transient rich progress bar on stderr: description, bar, done/total, ``extra_columns``, time."""
+    """A transient rich progress bar on stderr: description, bar, done/total, ``extra_columns``,
+    time; nothing (:class:`_NoBar`) where stderr is not a terminal."""
+    if not err().is_terminal:
+        return _NoBar()
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), *extra_columns,

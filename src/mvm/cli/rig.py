@@ -39,11 +39,13 @@ def rig() -> None:
 @click.option("--trc-inferred", is_flag=True,
               help="Write inferred joints into the .trc files too (default: observed and interpolated only).")
 @click.option("--frame-rate", type=float, default=None, help="Rig frame rate in Hz (default 30).")
+@click.option("--workers", type=int, default=None,
+              help="Processes to read, reconstruct and refine with (default: one per core; 1: this process only).")
 @click.option("--rig-set", "rig_sets", multiple=True, metavar="KEY=VALUE",
               help="Override one rig setting (batch_size, max_link_distance_m, max_gap, up, ...).")
 @config_options
-def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_inferred, frame_rate, rig_sets,
-                    config_path, sets, refine):
+def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_inferred, frame_rate, workers,
+                    rig_sets, config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
     from rich.table import Table
@@ -51,7 +53,7 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     from mvm.rig.pipeline import reconstruct_rig
 
     config = read_config(config_path, sets, refine=refine)
-    options = read_rig_options(rig_sets, smoothing=smoothing, frame_rate=frame_rate,
+    options = read_rig_options(rig_sets, smoothing=smoothing, frame_rate=frame_rate, workers=workers,
                                complete=False if no_complete else None, trc_inferred=True if trc_inferred else None)
     with progress() as bar:
         task = bar.add_task("instants", total=None)

@@ -17,8 +17,6 @@ Every joint carries a flag: :data:`OBSERVED`, :data:`INTERPOLATED`, :data:`INFER
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import cho_factor, cho_solve
-from scipy.special import softmax
 
 from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame
@@ -132,8 +130,7 @@ def conditional_mean(prior, canonical: np.ndarray) -> np.ndarray:
     if not todo.any():
         return out
     rows_all = np.flatnonzero(todo)
-    responsibility = softmax(prior.log_weighted_densities(np.where(present[rows_all, :, None],
-                                                                   canonical[rows_all], np.nan)), axis=1)
+    responsibility = prior.responsibilities(np.where(present[rows_all, :, None], canonical[rows_all], np.nan))
     patterns, inverse = np.unique(present[rows_all], axis=0, return_inverse=True)
     flat = canonical.reshape(len(canonical), 3 * NUM_JOINTS)
     for k, pattern in enumerate(patterns):
@@ -142,12 +139,10 @@ def conditional_mean(prior, canonical: np.ndarray) -> np.ndarray:
         o = np.repeat(pattern, 3)
         m = ~o
         x_o = flat[np.ix_(rows, o)]                                                # (n, K)
-        estimate = np.zeros((len(rows), m.sum()))
-        for component in range(prior.components):
-            cov = prior.covariances[component]
-            mean = prior.means[component]
-            gain = cho_solve(cho_factor(cov[np.ix_(o, o)]), cov[np.ix_(o, m)]).T      # (M, K)
-            estimate += responsibility[sel, component, None] * (mean[m] + (x_o - mean[o]) @ gain.T)
+        cov = prior.covariances[:, o]
+        gain = np.linalg.solve(cov[:, :, o], cov[:, :, m])                          # (L, K, M): Σ_oo⁻¹ Σ_om
+        means = prior.means[:, m][:, None] + np.matmul(x_o[None] - prior.means[:, None, o], gain)  # (L, n, M)
+        estimate = np.einsum("nl,lnm->nm", responsibility[sel], means)
         filled = flat[rows].copy()
         filled[:, m] = estimate
         out[rows] = filled.reshape(len(rows), NUM_JOINTS, 3)

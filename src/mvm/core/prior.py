@@ -16,8 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.linalg import solve_triangular
-from scipy.special import logsumexp
 
 from mvm.core.config import Config
 from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
@@ -36,6 +34,18 @@ COMPONENTS = 8
 #: (derived face points, other marker conventions).
 REG_COVAR = 1e-3
 _EPS = 1e-9
+
+
+def logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``log Σ exp(a)`` along ``axis``, with the maximum factored out (exact for -inf entries).
+
+    Here rather than ``scipy.special.logsumexp``: importing scipy.special costs more than the
+    refinement of a whole rig sequence, and the rig command imports no scipy at all."""
+    a = np.asarray(a, dtype=float)
+    top = np.max(a, axis=axis, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        return np.log(np.exp(a - top).sum(axis=axis)) + np.squeeze(top, axis=axis)
 
 
 def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -182,6 +192,13 @@ class PosePrior:
         out[valid] = -logsumexp(log_terms[valid], axis=1)
         return out
 
+    def responsibilities(self, canonical: np.ndarray) -> np.ndarray:
+        """The posterior probability of every component given the present joints.
+        ``canonical: (P, 17, 3)`` with NaN for missing joints -> ``(P, L)``, rows summing to 1
+        (NaN rows for all-NaN poses)."""
+        log_terms = self.log_weighted_densities(canonical)
+        return np.exp(log_terms - logsumexp(log_terms, axis=1)[:, None])
+
     def best_component(self, canonical: np.ndarray) -> np.ndarray:
         """The max-mixture component: ``argmax_l w_l N(x_obs | …)``. ``canonical: (P, 17, 3)`` -> ``(P,)`` int, -1 for all-NaN poses."""
         log_terms = self.log_weighted_densities(canonical)
@@ -209,7 +226,7 @@ class PosePrior:
         coords = np.repeat(np.frombuffer(present_bytes, dtype=bool), 3)
         mean = self.means[component, coords].copy()
         factor = np.linalg.cholesky(self.covariances[component][np.ix_(coords, coords)])
-        w = solve_triangular(factor, np.eye(len(mean)), lower=True)
+        w = np.tril(np.linalg.inv(factor))                      # the inverse of a lower factor is lower
         c = (-math.log(self.weights[component]) + 0.5 * len(mean) * math.log(2.0 * math.pi)
              + float(np.log(np.diag(factor)).sum()))
         mean.setflags(write=False)

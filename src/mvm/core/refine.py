@@ -32,7 +32,6 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.lapack import dposv as posv
 
 from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.prior import body_frame, canonicalize
@@ -345,18 +344,22 @@ def damped_steps(H: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.nda
 
 
 def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``x: (P, n)`` with ``A x = b`` for symmetric positive definite ``A: (P, n, n)`` (its
-    upper triangle is overwritten), ``b: (P, n)``: LAPACK's Cholesky solver ``posv`` in place
-    on each matrix (numpy's batched solve copies every matrix and factorizes it by LU, twice
-    the work); a matrix that is not positive definite to working precision is solved by LU."""
-    x, diagonal = np.array(b, dtype=float), np.diagonal(A, axis1=1, axis2=2).copy()
-    columns = np.swapaxes(A, 1, 2)              # column-major views: LAPACK needs no copy
-    for p in range(len(A)):
-        _, x[p], info = posv(columns[p], x[p], lower=1, overwrite_a=1, overwrite_b=1)
-        if info != 0:                           # rebuilt from the untouched lower triangle
-            lower = np.tril(A[p], -1)
-            x[p] = np.linalg.solve(lower + lower.T + np.diag(diagonal[p]), b[p])
-    return x
+    """``x: (P, n)`` with ``A x = b`` for ``A: (P, n, n)`` (the damped normal equations,
+    symmetric positive definite; not modified), ``b: (P, n)``: numpy's batched LAPACK solve.
+    numpy rather than scipy's Cholesky (``posv``): importing scipy.linalg costs more than the
+    whole refinement of a rig sequence, and the solve count matters more than the routine. A
+    batch holding an exactly singular matrix is solved matrix by matrix, that one by least
+    squares."""
+    try:
+        return np.linalg.solve(A, b[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        x = np.empty(b.shape)
+        for p in range(len(A)):
+            try:
+                x[p] = np.linalg.solve(A[p], b[p])
+            except np.linalg.LinAlgError:
+                x[p] = np.linalg.lstsq(A[p], b[p], rcond=None)[0]
+        return x
 
 
 def inner_cost(x: np.ndarray, problem: InnerProblem) -> np.ndarray:

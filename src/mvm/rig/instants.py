@@ -19,6 +19,7 @@ from mvm.core.config import Config
 from mvm.core.pipeline import Reconstruction, group_blocks, reconstruct_poses
 from mvm.core.prior import load_prior
 from mvm.core.scene import Cameras, Poses2D
+from mvm.parallel import available_workers, fork_map, split
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,10 @@ class InstantPersons:
 
     def __len__(self) -> int:
         return len(self.X)
+
+    def take(self, index: np.ndarray) -> "InstantPersons":
+        """The persons ``index: (K,)`` (indices or a boolean mask), in that order."""
+        return InstantPersons(*[getattr(self, f)[index] for f in InstantPersons.__dataclass_fields__])
 
     @staticmethod
     def concatenate(parts: list["InstantPersons"], V: int) -> "InstantPersons":
@@ -97,9 +102,11 @@ def reconstruct_batch(cameras: Cameras, poses: Poses2D, config: Config, prior=No
 
 def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None = None,
                          prior=None, batch_size: int = 64,
-                         progress: Callable[[int, int], None] | None = None) -> InstantPersons:
+                         progress: Callable[[int, int], None] | None = None,
+                         workers: int | None = None) -> InstantPersons:
     """Reconstruct the persons of every instant of ``poses`` (``poses.view``: the camera,
-    ``poses.instant`` set), ``batch_size`` instants at a time.
+    ``poses.instant`` set), ``batch_size`` instants at a time, the batches split in contiguous
+    runs over ``workers`` processes (:func:`mvm.parallel.fork_map`; default: the cores available).
 
     ``progress(done, total)`` is called after each batch with counts of instants.
     """
@@ -115,16 +122,25 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
     instants = np.unique(poses.instant)
     order = np.argsort(poses.instant, kind="stable")
     sorted_instant = poses.instant[order]
-    parts = []
-    with threadpool_limits(limits=1, user_api="blas"):
-        for start in range(0, len(instants), batch_size):
-            chunk = instants[start:start + batch_size]
-            lo, hi = np.searchsorted(sorted_instant, [chunk[0], chunk[-1] + 1])
+
+    def run(batches: range, report: Callable[[int, int], None] | None) -> list[InstantPersons]:
+        parts = []
+        for b in batches:
+            batch = instants[b * batch_size:(b + 1) * batch_size]
+            lo, hi = np.searchsorted(sorted_instant, [batch[0], batch[-1] + 1])
             rows = order[lo:hi]
             result = reconstruct_batch(cameras, poses.subset(rows), config, prior)
             # Members index the batch: map them back to ``poses``.
             result.members = np.where(result.members >= 0, rows[np.maximum(result.members, 0)], -1)
             parts.append(result)
-            if progress is not None:
-                progress(min(start + batch_size, len(instants)), len(instants))
-    return InstantPersons.concatenate(parts, len(cameras))
+            if report is not None:
+                report(min((b + 1) * batch_size, len(instants)), len(instants))
+        return parts
+
+    # Whole batches per worker: the result does not depend on the number of workers.
+    chunks = split(-(-len(instants) // batch_size), available_workers(workers), min_size=max(1, 32 // batch_size))
+    with threadpool_limits(limits=1, user_api="blas"):
+        parts = fork_map(lambda batches: run(batches, progress if batches.start == 0 else None), chunks, workers)
+    if progress is not None and len(chunks) > 1:
+        progress(len(instants), len(instants))
+    return InstantPersons.concatenate([p for part in parts for p in part], len(cameras))

@@ -15,8 +15,12 @@ class RigOptions:
     #: half of the reconstruction time for no gain (Panoptic, 5 cameras: PCP 0.995 either way). [-]
     association: str = setting("paper", choices=("paper", "3d"))
     #: Instants reconstructed together (one batched affinity, triangulation and refinement);
-    #: larger is faster per instant and uses more memory. [instants]
-    batch_size: int = setting(64, ge=1, le=100_000)
+    #: larger is faster per instant and uses more memory. The batches are shared out whole among
+    #: the workers, so the result does not depend on their number. [instants]
+    batch_size: int = setting(32, ge=1, le=100_000)
+    #: Processes reading, reconstructing and refining in parallel; 0: one per core this process
+    #: may use (or ``$MVM_WORKERS``), 1: everything in this process. [processes]
+    workers: int = setting(0, ge=0, le=1024)
     #: A person links to a track when its mean joint distance to the track's last pose is below
     #: this; raise it for fast motion or low frame rates. [metres]
     max_link_distance_m: float = setting(0.5, gt=0)

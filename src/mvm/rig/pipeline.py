@@ -17,6 +17,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.io.files import atomic_write_json, atomic_write_text
 from mvm.io.trc import to_opensim, write_trc
+from mvm.parallel import available_workers, fork_map, split
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.outputs import replace_output_set
@@ -51,40 +52,43 @@ def _number(v, digits=6):
 
 
 def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, track: np.ndarray,
-                  camera_names, flags: np.ndarray | None = None) -> str:
+                  camera_names, flags: np.ndarray | None = None, workers: int | None = None) -> str:
     """One JSON object per instant: ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
     [[x, y, z, score] | [null, null, null, 0]], "flags" (per joint: "observed", "interpolated",
     "inferred" or "missing"), "members" {camera: pose index in that camera's frame},
     "views_per_joint" (inlier 2D keypoints of the observed joints), "reprojection_error_px"}]}``.
-    ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); None: observed where ``X`` is finite."""
+    ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); None: observed where ``X`` is finite. Long
+    captures are formatted in runs of instants on ``workers`` processes (:func:`mvm.parallel.fork_map`)."""
     X = np.asarray(X, dtype=float)
     bounds = np.searchsorted(persons.instant, np.arange(len(frames) + 1))
-    if flags is None:
-        flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING)
-    names = flag_names(flags)
-    views = (persons.inliers & (np.asarray(flags) == OBSERVED)[:, None, :]).sum(1).tolist()
+    flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING) if flags is None else np.asarray(flags)
     J = len(COCO_KEYPOINTS)
-    coords = X[:, :J].tolist()                                                    # plain floats, one pass
-    scores = np.asarray(persons.scores, dtype=float)[:, :J].tolist()
-    finite = np.isfinite(X[:, :J]).all(-1).tolist()
-    members = persons.members.tolist()
-    errors = [_number(e, 4) for e in np.asarray(persons.reprojection_error_px, dtype=float).tolist()]
-    ids = np.asarray(track).tolist()
-    frame_numbers = np.asarray(frames).tolist()
     missing = [None, None, None, 0.0]
-    lines = []
-    for t, frame in enumerate(frame_numbers):
+
+    def lines(instants: range) -> str:
+        rows = slice(bounds[instants.start], bounds[instants.stop])
+        names = flag_names(flags[rows])
+        views = (persons.inliers[rows] & (flags[rows] == OBSERVED)[:, None, :]).sum(1).tolist()
+        coords = X[rows, :J].tolist()                                             # plain floats, one pass
+        scores = np.asarray(persons.scores[rows], dtype=float)[:, :J].tolist()
+        finite = np.isfinite(X[rows, :J]).all(-1).tolist()
+        members = persons.members[rows].tolist()
+        errors = [_number(e, 4) for e in np.asarray(persons.reprojection_error_px[rows], dtype=float).tolist()]
+        ids = np.asarray(track[rows]).tolist()
         out = []
-        for q in range(bounds[t], bounds[t + 1]):
-            kp = [[round(c[0], 6), round(c[1], 6), round(c[2], 6), round(score, 4)] if ok else list(missing)
-                  for c, score, ok in zip(coords[q], scores[q], finite[q])]
-            out.append({"id": int(ids[q]), "keypoints3d": kp, "flags": names[q],
-                        "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
-                        "views_per_joint": views[q],
-                        "reprojection_error_px": errors[q]})
-        lines.append(json.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frame), "persons": out},
-                                allow_nan=False))
-    return "\n".join(lines) + ("\n" if lines else "")
+        for t in instants:
+            found = []
+            for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start):
+                kp = [[round(c[0], 6), round(c[1], 6), round(c[2], 6), round(score, 4)] if ok else list(missing)
+                      for c, score, ok in zip(coords[q], scores[q], finite[q])]
+                found.append({"id": int(ids[q]), "keypoints3d": kp, "flags": names[q],
+                              "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
+                              "views_per_joint": views[q], "reprojection_error_px": errors[q]})
+            out.append(json.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found},
+                                  allow_nan=False) + "\n")
+        return "".join(out)
+
+    return "".join(fork_map(lines, split(len(frames), available_workers(workers), min_size=100), workers))
 
 
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
@@ -148,6 +152,31 @@ def instants_config(config: Config, options: RigOptions) -> Config:
     return config.replace(refine=False, association=options.association)
 
 
+def track_groups(track: np.ndarray, parts: int) -> list[np.ndarray]:
+    """The persons of ``track: (Q,)`` ids shared out among at most ``parts`` groups of whole
+    tracks, nearly equal in persons (largest track first to the smallest group): ``[(K_g,)]``
+    sorted indices, non-empty."""
+    ids, inverse, counts = np.unique(track, return_inverse=True, return_counts=True)
+    group_of, load = np.zeros(len(ids), dtype=int), np.zeros(max(1, min(parts, len(ids))))
+    for k in np.argsort(-counts, kind="stable"):
+        group_of[k] = np.argmin(load)
+        load[group_of[k]] += counts[k]
+    member = group_of[inverse.ravel()]
+    return [np.flatnonzero(member == g) for g in range(len(load)) if load[g] > 0]
+
+
+def refine_by_tracks(persons: InstantPersons, track: np.ndarray, detections, cameras, config: Config, prior,
+                     bone_weight: float, workers: int | None = None) -> InstantPersons:
+    """:func:`mvm.rig.skeleton.refine_tracks` of ``persons`` with whole tracks shared out among
+    ``workers`` processes (:func:`track_groups`, :func:`mvm.parallel.fork_map`): a track's
+    bone lengths are its own, so the result is the same as in one process."""
+    groups = track_groups(track, available_workers(workers) if len(persons) >= 200 else 1)
+    parts = fork_map(lambda index: refine_tracks(persons.take(index), track[index], detections, cameras, config,
+                                                 prior, bone_weight), groups, workers)
+    merged = InstantPersons.concatenate(parts, persons.members.shape[1])
+    return merged.take(np.argsort(np.concatenate(groups), kind="stable"))
+
+
 def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None, config: Config | None = None,
                        detections=None, cameras=None):
     """Tracks, the rigid-skeleton refinement, smoothing and completion of reconstructed instants
@@ -163,7 +192,8 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
     if config is not None and config.refine and detections is not None and len(persons):
-        persons = refine_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight)
+        persons = refine_by_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight,
+                                   options.workers)
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if options.complete:
@@ -186,13 +216,13 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     options = options or RigOptions()
     timings = {}
     t0 = time.perf_counter()
-    rig = read_rig(rig_dir, calib, frames)
+    rig = read_rig(rig_dir, calib, frames, options.workers)
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     prior = completion_prior(config, options, prior)
     cameras = rig.calibration.cameras
     persons = reconstruct_instants(cameras, rig.detections, instants_config(config, options), prior,
-                                   options.batch_size, progress)
+                                   options.batch_size, progress, options.workers)
     timings["reconstruct_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     tracking, persons, X, flags = track_and_complete(persons, options, prior, config, rig.detections, cameras)
@@ -209,7 +239,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
                                                             + timings["tracking_refinement_s"], 1e-9), 2)
     out_dir = Path(output) if output else Path(rig_dir) / "mvm"
     t0 = time.perf_counter()
-    lines = poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names, flags)
+    lines = poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names, flags, options.workers)
     outputs = {}
 
     def build(folder: Path) -> None:

@@ -27,6 +27,7 @@ from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
 from mvm.io.checks import load_json
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_files, frame_number, read_openpose_frames
+from mvm.parallel import available_workers, fork_map, split
 from mvm.rig.instants import rig_poses
 
 log = logging.getLogger(__name__)
@@ -161,32 +162,58 @@ def _source_format(path: Path) -> str:
     raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
 
 
-def _read_source(path: Path, fmt: str, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The 2D poses of one camera, by frame number: ``(frames (N,), keypoints (N, 17, 3),
-    scores (N,))``; every file is read the guarded way, inside the rig directory ``root``."""
-    if fmt == "coco":
-        from mvm.io.coco import read_coco_keypoints
+def _read_coco_source(path: Path, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 2D poses of one camera's COCO keypoints file, by frame number: ``(frames (N,),
+    keypoints (N, 17, 3), scores (N,))``."""
+    from mvm.io.coco import read_coco_keypoints
 
-        coco = read_coco_keypoints(path, root=root)
-        frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
-                                   for i, n in enumerate(coco.file_names)], dtype=np.int64)
-        frames = frame_of_image[coco.ann_image]
-        order = np.argsort(frames, kind="stable")
-        return frames[order], coco.keypoints[order], coco.score[order]
-    files = frame_files(path, "*.json")
-    if fmt == "openpose":
-        kps = read_openpose_frames([file for _, file in files], root=root)
-        scores = None
-    else:
-        kps, scores = zip(*(read_openpifpaf_frame(file, root=root) for _, file in files)) if files else ((), ())
-    frames = np.repeat(np.array([f for f, _ in files], dtype=np.int64), [len(kp) for kp in kps])
-    keypoints = np.concatenate(kps) if len(kps) else np.zeros((0, 17, 3))
-    if scores is None:
-        present = keypoints[..., 2] > 0
-        score = np.where(present, keypoints[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
-    else:
-        score = np.concatenate(scores) if len(scores) else np.zeros(0)
-    return frames, keypoints, score
+    coco = read_coco_keypoints(path, root=root)
+    frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
+                               for i, n in enumerate(coco.file_names)], dtype=np.int64)
+    frames = frame_of_image[coco.ann_image]
+    order = np.argsort(frames, kind="stable")
+    return frames[order], coco.keypoints[order], coco.score[order]
+
+
+def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(keypoints (K, 17, 3), scores (K,))`` of each OpenPose or OpenPifPaf file of ``files``,
+    read the guarded way inside the rig directory ``root`` (an OpenPose pose's score: the mean
+    confidence of its present joints)."""
+    if fmt != "openpose":
+        return [read_openpifpaf_frame(file, root=root) for file in files]
+    out = []
+    for kp in read_openpose_frames(files, root=root):
+        present = kp[..., 2] > 0
+        out.append((kp, np.where(present, kp[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)))
+    return out
+
+
+def _read_sources(paths: list[Path], fmt: str, root: Path, start: int | None, stop: int | None,
+                  workers: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The 2D poses of each camera's source of ``paths`` with a frame number in ``[start, stop)``
+    (None: open): ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. Per-frame files
+    outside the range are not read; the files of all cameras are read on ``workers`` processes
+    (:func:`mvm.parallel.fork_map`)."""
+    low, high = -np.inf if start is None else start, np.inf if stop is None else stop
+    if fmt == "coco":
+        out = []
+        for path in paths:
+            f, kp, score = _read_coco_source(path, root)
+            keep = (f >= low) & (f < high)
+            out.append((f[keep], kp[keep], score[keep]))
+        return out
+    listings = [[(f, file) for f, file in frame_files(path, "*.json") if low <= f < high] for path in paths]
+    flat = [file for files in listings for _, file in files]
+    parts = fork_map(lambda r: _read_frame_files(flat[r.start:r.stop], fmt, root),
+                     split(len(flat), available_workers(workers), min_size=100), workers)
+    per_file = iter([read for part in parts for read in part])
+    out = []
+    for files in listings:
+        kps, scores = zip(*[next(per_file) for _ in files]) if files else ((), ())
+        frames = np.repeat(np.array([f for f, _ in files], dtype=np.int64), [len(kp) for kp in kps])
+        out.append((frames, np.concatenate(kps) if kps else np.zeros((0, 17, 3)),
+                    np.concatenate(scores) if scores else np.zeros(0)))
+    return out
 
 
 def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
@@ -202,8 +229,11 @@ def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
         raise InputError("--frames", spec, "expected START:STOP frame numbers, e.g. 0:1000") from None
 
 
-def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str | None = None) -> RigData:
-    """Read ``rig_dir``: its calibration, the 2D poses of its cameras (undistorted), the frames."""
+def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str | None = None,
+             workers: int | None = None) -> RigData:
+    """Read ``rig_dir``: its calibration, the 2D poses of its cameras (undistorted), the frames
+    (``"START:STOP"`` frame numbers, :func:`parse_frames`). The pose files are read on
+    ``workers`` processes (default: :func:`mvm.parallel.available_workers`)."""
     rig_dir = Path(rig_dir)
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a directory")
@@ -231,18 +261,11 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     if len(formats) > 1:
         raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(formats)}")
     fmt = formats.pop()
-    kps, frame_of, cam_of, scores = [], [], [], []
-    for new_index, c in enumerate(used):
-        f, kp, score = _read_source(sources[entries[matched[c]]], fmt, rig_dir)
-        keep = np.ones(len(f), dtype=bool)
-        if start is not None:
-            keep &= f >= start
-        if stop is not None:
-            keep &= f < stop
-        kps.append(kp[keep])
-        scores.append(score[keep])
-        frame_of.append(f[keep])
-        cam_of.append(np.full(int(keep.sum()), new_index))
+    read = _read_sources([sources[entries[matched[c]]] for c in used], fmt, rig_dir, start, stop, workers)
+    kps = [kp for _, kp, _ in read]
+    scores = [score for _, _, score in read]
+    frame_of = [f for f, _, _ in read]
+    cam_of = [np.full(len(f), new_index) for new_index, (f, _, _) in enumerate(read)]
     keypoints = np.concatenate(kps) if kps else np.zeros((0, 17, 3))
     frame_of = np.concatenate(frame_of) if kps else np.zeros(0, int)
     cam_of = np.concatenate(cam_of) if kps else np.zeros(0, int)

@@ -98,8 +98,9 @@ def track_persons(X: np.ndarray, instant: np.ndarray, max_distance: float, max_g
     last_seen = np.zeros(0, dtype=np.int64)
     resumed = unlinked = 0
     present_count = np.isfinite(X).all(-1).sum(-1) if len(X) else np.zeros(0, int)
-    for t in np.unique(instant):
-        rows = np.flatnonzero(instant == t)
+    order = np.argsort(instant, kind="stable")
+    times, starts = np.unique(instant[order], return_index=True)
+    for t, rows in zip(times.tolist(), np.split(order, starts[1:])):
         alive = np.flatnonzero(t - last_seen <= max_gap + 1)
         assigned = np.full(len(rows), -1)
         if len(alive):
@@ -108,17 +109,20 @@ def track_persons(X: np.ndarray, instant: np.ndarray, max_distance: float, max_g
             need = np.minimum(min_joints, present_count[rows])                         # (R,)
             cost = pose_distance(X[rows], predicted, need)
             feasible = cost <= max_distance
-            loose = pose_distance(X[rows], predicted, 1) <= max_distance
             r, c = assign(cost, feasible)
             assigned[r] = alive[c]
             resumed += int((dt[c] > 1).sum())
-            unlinked += int((~feasible.any(1) & loose.any(1)).sum())
+            alone = ~feasible.any(1)
+            if alone.any():
+                loose = pose_distance(X[rows[alone]], predicted, 1) <= max_distance
+                unlinked += int(loose.any(1).sum())
         new = assigned < 0
         count_new = int(new.sum())
-        assigned[new] = len(last_seen) + np.arange(count_new)
-        last_pose = np.concatenate([last_pose, np.full((count_new, J, 3), np.nan)])
-        velocity = np.concatenate([velocity, np.zeros((count_new, 3))])
-        last_seen = np.concatenate([last_seen, np.full(count_new, t, dtype=np.int64)])
+        if count_new:
+            assigned[new] = len(last_seen) + np.arange(count_new)
+            last_pose = np.concatenate([last_pose, np.full((count_new, J, 3), np.nan)])
+            velocity = np.concatenate([velocity, np.zeros((count_new, 3))])
+            last_seen = np.concatenate([last_seen, np.full(count_new, t, dtype=np.int64)])
         previous = last_pose[assigned]
         step = X[rows] - previous                                                      # (R, J, 3)
         shared = np.isfinite(step).all(-1)
