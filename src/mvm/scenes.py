@@ -8,10 +8,8 @@ the next scene is read and computed.
 from __future__ import annotations
 
 import itertools
-import logging
 import pickle
 import time
-import warnings
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict
@@ -51,9 +49,10 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     ``$MVM_WORKERS`` or the cores; ``1`` does everything in this process; at least
     :data:`MIN_SCENES_PER_WORKER` scenes a process). This process does the first contiguous
     share and yields it live; each forked worker reads, computes and writes the next share and
-    sends its outcomes, with the log records of its scenes (logged again here, in their place),
-    once it is done. A worker that dies without answering (or cannot be started) has its share
-    done here: no scene is lost. The files, the outcomes and their order are those of one process.
+    sends its outcomes once it is done (its log records and warnings are logged here before
+    them: :mod:`mvm.parallel`). A worker that dies without answering (or cannot be started) has
+    its share done here: no scene is lost. The files, the outcomes and their order are those of
+    one process.
 
     In each process one writer thread writes a scene's ``poses3d.json`` while the next scene is
     read and computed (writing waits on the disk: the fsyncs of
@@ -62,7 +61,7 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     """
     config = config or Config()
     paths = list(paths)
-    shares = split(len(paths), min(available_workers(workers), len(paths) // MIN_SCENES_PER_WORKER))
+    shares = split(len(paths), available_workers(workers), MIN_SCENES_PER_WORKER)
     if len(shares) < 2:
         yield from _stream(paths, config, output, prior)
         return
@@ -78,10 +77,7 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
                 children.append((None, share))
         yield from _stream(paths[1:shares[0].stop], config, output, prior, first)
         for child, share in children:
-            for path, outcome, records in work(share) if child is None else _collect(child, work, share):
-                for record in records:
-                    logging.getLogger(record.name).handle(record)
-                yield path, outcome
+            yield from work(share) if child is None else _collect(child, work, share)
     finally:
         for child, _ in children:
             if child is not None:
@@ -112,38 +108,9 @@ def _attempt(path, config: Config, output: str, prior) -> tuple:
 
 
 def _share(paths: list, config: Config, output: str, prior) -> list[tuple]:
-    """A worker's scenes: ``[(path, outcome, log records)]``, every scene done and written as
-    :func:`_stream` does, the records logged meanwhile (Python warnings included) kept to be
-    logged by the parent, and exceptions made fit to be sent back."""
-    records: list[logging.LogRecord] = []
-    root = logging.getLogger()
-    handlers, show = root.handlers, warnings.showwarning
-    root.handlers = [_Keep(records)]
-    logging.captureWarnings(True)                         # a Python warning too: no write to the terminal
-    try:
-        done = []
-        for path, outcome in _stream(paths, config, output, prior):
-            done.append((path, _sendable(outcome), records[:]))
-            records.clear()
-        return done
-    finally:
-        logging.captureWarnings(False)
-        root.handlers, warnings.showwarning = handlers, show
-
-
-class _Keep(logging.Handler):
-    """Keeps the records it is given, their message formatted (their arguments may not pickle)."""
-
-    def __init__(self, records: list):
-        super().__init__()
-        self.records = records
-
-    def emit(self, record: logging.LogRecord) -> None:
-        record.msg, record.args = record.getMessage(), None
-        if record.exc_info:
-            record.exc_text = record.exc_text or logging.Formatter().formatException(record.exc_info)
-            record.exc_info = None
-        self.records.append(record)
+    """A worker's scenes: ``[(path, outcome)]``, every scene done and written as :func:`_stream`
+    does, exceptions made fit to be sent back."""
+    return [(path, _sendable(outcome)) for path, outcome in _stream(paths, config, output, prior)]
 
 
 def _sendable(outcome):

@@ -12,7 +12,8 @@ from mvm.cli.common import Number, command, config_options, fmt, out, read_confi
 @click.option("-o", "--output", default="mvm", show_default=True,
               help="Name of the output folder inside each scene directory.")
 @click.option("--workers", type=Number(int, ge=1), default=None,
-              help="Processes sharing the scenes (default: $MVM_WORKERS, else the available cores).")
+              help="Processes to reconstruct the scenes with (default: $MVM_WORKERS, else one per core; "
+                   "1: this process only).")
 def reconstruct(scenes, config_path, sets, refine, output, workers):
     """Reconstruct the 3D poses of one or more scene directories.
 
