@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import Group, config_options, fmt, out, parse_sets, progress, read_config
+from mvm.cli.common import Group, config_options, fmt, out, parse_sets, print_table, progress, read_config
 
 
 def read_rig_options(pairs: tuple[str, ...], **flags):
@@ -48,8 +48,6 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
                     rig_sets, config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
-    from rich.table import Table
-
     from mvm.rig.pipeline import reconstruct_rig
 
     config = read_config(config_path, sets, refine=refine)
@@ -61,19 +59,13 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
                                  progress=lambda done, total: bar.update(task, completed=done, total=total))
     r = result.recap
     flags = r["joint_flags"]
-    table = Table(title=f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
-                        f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
-                        + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v))
-    table.add_column("keypoint")
-    table.add_column("error px", justify="right")
-    table.add_column("views", justify="right")
     names = list(r["excluded_per_camera"])
-    for name in names:
-        table.add_column(f"excl. {name}", justify="right")
-    for j, kp in enumerate(r["keypoints"]):
-        table.add_row(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
-                      *[fmt(r["excluded_per_camera"][n][j]) for n in names])
-    out().print(table)
+    print_table(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
+                f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
+                + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v),
+                ("keypoint", "error px", "views", *[f"excl. {n}" for n in names]),
+                [(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
+                  *[fmt(r["excluded_per_camera"][n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])])
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         out().print(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
