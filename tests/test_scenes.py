@@ -186,7 +186,7 @@ def test_the_command_recaps_tab_separated_in_a_pipe_and_checks_workers(three):
     paths = [str(root / n) for n in ("a", "b")]
     run = CliRunner().invoke(main, ["reconstruct", *paths, "--no-refine", "-o", "cli", "--workers", "2"])
     assert run.exit_code == 0, run.output
-    lines = [line.split("\t") for line in run.stdout.splitlines()]
+    lines = [line.split("\t") for line in run.stdout.splitlines() if not line.startswith("# ")]
     assert lines[0] == list(RECAP_COLUMNS) and [row[0] for row in lines[1:]] == paths
     assert [int(row[1]) for row in lines[1:]] == [len(truths[n].poses3d) for n in ("a", "b")]
     run = CliRunner().invoke(main, ["reconstruct", *paths, "--workers", "0"])

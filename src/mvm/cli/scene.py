@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import Number, command, config_options, fmt, out, read_config, report_failures, run_outcomes
+from mvm.cli.common import Number, command, config_options, fmt, print_table, read_config, report_failures, run_outcomes
 
 
 @command("reconstruct")
@@ -20,8 +20,7 @@ def reconstruct(scenes, config_path, sets, refine, output, workers):
     Each SCENE holds sparse/ (a COLMAP model) and poses2d.json (COCO keypoints); the result is
     written to SCENE/<output>/poses3d.json. A scene that fails, for whatever reason, is reported
     in one line and the others are still done; the exit status is 2 if any scene failed. The
-    scenes are shared by --workers processes. The recap is a table on a terminal, tab-separated
-    lines (a header line first) in a file or a pipe.
+    scenes are shared by --workers processes.
     """
     from mvm.scenes import reconstruct_dirs
 
@@ -38,21 +37,9 @@ RECAP_COLUMNS = ("scene", "persons", "matched", "unmatched", "E_R px", "outliers
 
 
 def recap(rows) -> None:
-    """One row per scene: a rich table on a terminal; elsewhere (a file, a pipe) tab-separated
-    lines under a header line, for scripts to read (and without rich's layout, about 1 ms a
-    row: most of a long run's last second)."""
-    cells = [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
-              str(r.metrics["unmatched_poses"]), fmt(r.metrics["E_R_px"]), fmt(r.metrics["outliers"], 1),
-              fmt(r.metrics["G_k"], 1), fmt(r.timings["read_s"] + r.timings["total_s"])) for scene, r in rows]
-    if not out().is_terminal:
-        click.echo("\n".join("\t".join(row) for row in [RECAP_COLUMNS, *cells]))
-        return
-    from rich.table import Table
-
-    table = Table(title="mvm reconstruct")
-    table.add_column(RECAP_COLUMNS[0], overflow="fold")                    # a path is never cut
-    for column in RECAP_COLUMNS[1:]:
-        table.add_column(column, justify="right")
-    for row in cells:
-        table.add_row(*row)
-    out().print(table)
+    """One row per scene reconstructed (:func:`mvm.cli.common.print_table`)."""
+    print_table("mvm reconstruct", RECAP_COLUMNS,
+                [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
+                  str(r.metrics["unmatched_poses"]), fmt(r.metrics["E_R_px"]), fmt(r.metrics["outliers"], 1),
+                  fmt(r.metrics["G_k"], 1), fmt(r.timings["read_s"] + r.timings["total_s"])) for scene, r in rows],
+                fold_first=True)
