@@ -160,10 +160,10 @@ def test_a_killed_or_missing_worker_loses_no_scene(nine, tmp_path, monkeypatch):
     monkeypatch.setattr(scenes, "read_scene", killed_in_worker)
     outcomes = {"killed": list(reconstruct_dirs(nine, config, "killed", workers=2))}
 
-    def no_fork(fn, chunk):
+    def no_fork():
         raise OSError(11, "Resource temporarily unavailable")
 
-    monkeypatch.setattr(scenes, "_start", no_fork)                                   # no worker to be had
+    monkeypatch.setattr(os, "fork", no_fork)                                         # no worker to be had
     outcomes["unforked"] = list(reconstruct_dirs(nine, config, "unforked", workers=2))
     for output, got in outcomes.items():
         assert [p for p, _ in got] == [p for p, _ in reference] == nine

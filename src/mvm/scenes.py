@@ -21,7 +21,7 @@ from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct, val
 from mvm.errors import InputError
 from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
 from mvm.io.scene_dir import output_dir, poses3d_document, read_scene, write_poses3d
-from mvm.parallel import _collect, _start, _stop, available_workers, split
+from mvm.parallel import Forked, available_workers, split
 
 #: Fewest scenes worth a worker process of their own (a fork costs about a third of a small scene).
 MIN_SCENES_PER_WORKER = 4
@@ -70,18 +70,13 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     children = []
     try:                                                  # forked before this call starts its writer thread
         for r in shares[1:]:
-            share = paths[r.start:r.stop]
-            try:
-                children.append((_start(work, share), share))
-            except OSError:                               # no process to be had: the share is done here
-                children.append((None, share))
+            children.append(Forked(work, paths[r.start:r.stop]))     # done here if no process can be had
         yield from _stream(paths[1:shares[0].stop], config, output, prior, first)
-        for child, share in children:
-            yield from work(share) if child is None else _collect(child, work, share)
+        for child in children:
+            yield from child.result()
     finally:
-        for child, _ in children:
-            if child is not None:
-                _stop(*child)
+        for child in children:
+            child.stop()
 
 
 def _stream(paths: list, config: Config, output: str, prior, first: tuple | None = None) -> Iterator[tuple]:
