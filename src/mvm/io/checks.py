@@ -13,10 +13,12 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import stat
 from pathlib import Path
 
 import numpy as np
+import orjson
 
 from mvm.errors import InputError
 
@@ -213,10 +215,23 @@ def decode_text(data: bytes, path: str | Path) -> str:
         raise InputError(path, None, f"not UTF-8 text (byte {e.start})") from None
 
 
+_LONG_DIGITS = re.compile(r"\d{19}")
+
+
 def parse_json(text: str, path: str | Path):
     """Parse JSON ``text`` read from ``path``: invalid JSON, nesting too deep and integers too
     long to convert raise InputError; ``NaN`` and ``Infinity`` literals are kept as floats for
-    the value checks (:func:`number`) to refuse where a number is expected."""
+    the value checks (:func:`number`) to refuse where a number is expected.
+
+    orjson parses standard JSON five times faster than the standard library (most of reading a
+    rig's thousands of pose files). What it refuses (those literals, bad JSON), and any text with
+    19 digits in a row (orjson turns integers beyond 64 bits into floats), is parsed by
+    :func:`json.loads`, whose rules and messages stand."""
+    if not _LONG_DIGITS.search(text):
+        try:
+            return orjson.loads(text)
+        except orjson.JSONDecodeError:
+            pass
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
