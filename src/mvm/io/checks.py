@@ -153,7 +153,7 @@ def read_many(paths, root: str | Path | None = None, limit: int | None = None):
     :func:`read_bytes` (which resolves it, so a link out of ``root`` is refused as ever).
     """
     limit = MAX_INPUT_BYTES if limit is None else limit
-    paths = [Path(p) for p in paths]
+    paths = [p if isinstance(p, Path) else Path(p) for p in paths]
     if root is None or not _NOFOLLOW or os.open not in os.supports_dir_fd:
         for path in paths:
             yield read_bytes(path, root, limit)
