@@ -1,14 +1,15 @@
 """The per-scene path against the rig path on the same detections, whole process.
 
-    python benchmarks/rig_scene_path.py [--cameras 5] [--people 4] [--instants 300] [--repeats 1]
+    python benchmarks/rig_scene_path.py [--cameras 5] [--people 4] [--instants 300] [--repeats 1] [--workers N]
 
 One synthetic capture (:func:`rig_speed.write_capture`: cameras on a ring, people walking,
 detector errors as in the Panoptic evaluation) is written as a rig directory, and the same
 2D poses, undistorted as the rig reader gives them, as one scene directory per instant (the
 cameras as its views: ``sparse/`` and ``poses2d.json``). Then ``mvm rig reconstruct RIG`` and
-``mvm reconstruct SCENE...`` (every scene in one process) each run in a fresh process, with
-their defaults; the best wall and CPU seconds of ``--repeats`` runs are printed, and their ratio
-(the per-scene path should stay within 3x of the rig path). BLAS is limited to one thread.
+``mvm reconstruct SCENE...`` (every scene in one command) each run in a fresh process, with
+their defaults (``--workers N`` sets ``$MVM_WORKERS``, the processes either command may use);
+the best wall and CPU seconds (children included) of ``--repeats`` runs are printed, and their
+ratio (the per-scene path should stay within 3x of the rig path). BLAS is limited to one thread.
 """
 from __future__ import annotations
 
@@ -28,6 +29,7 @@ from rig_speed import write_capture  # noqa: E402
 
 from mvm.core.scene import Poses2D  # noqa: E402
 from mvm.io.scene_dir import write_scene  # noqa: E402
+from mvm.parallel import available_workers  # noqa: E402
 from mvm.rig.rigdir import read_rig  # noqa: E402
 
 
@@ -65,13 +67,16 @@ def main() -> None:
     parser.add_argument("--people", type=int, default=4)
     parser.add_argument("--instants", type=int, default=300)
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--workers", type=int, default=None, help="MVM_WORKERS of both commands")
     args = parser.parse_args()
+    if args.workers is not None:
+        os.environ["MVM_WORKERS"] = str(args.workers)
     with tempfile.TemporaryDirectory() as tmp:
         rig_dir = Path(tmp) / "rig"
         write_capture(rig_dir, args.cameras, args.people, args.instants)
         scenes = rig_to_scenes(rig_dir, Path(tmp) / "scenes")
         print(f"{args.cameras} cameras, {args.people} people, {args.instants} instants; "
-              f"{len(scenes)} scene directories")
+              f"{len(scenes)} scene directories; {available_workers()} worker(s)")
         results = {}
         for label, command in (("rig path: mvm rig reconstruct", ["rig", "reconstruct", str(rig_dir)]),
                                ("per-scene path: mvm reconstruct", ["reconstruct", *map(str, scenes)])):

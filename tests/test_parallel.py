@@ -89,3 +89,11 @@ def test_a_childs_log_records_are_handled_here(caplog):
     messages = [r.getMessage() for r in caplog.records]
     assert messages[:2] == ["chunk 1 done", "chunk 2 done"]
     assert any("second chunk warns" in m for m in messages[2:])
+
+
+def test_no_process_to_be_had_runs_the_chunk_here(monkeypatch):
+    def no_fork():
+        raise OSError(11, "Resource temporarily unavailable")
+
+    monkeypatch.setattr(os, "fork", no_fork)
+    assert fork_map(_work, [[1], [2]], workers=2) == [(1.0, PARENT), (4.0, PARENT)]

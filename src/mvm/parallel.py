@@ -59,27 +59,69 @@ def fork_map(fn: Callable[[Any], Any], chunks: Sequence, workers: int | None = N
     the first chunk)."""
     chunks = list(chunks)
     forked = min(len(chunks), available_workers(workers)) - 1 if hasattr(os, "fork") else 0
-    children = [_start(fn, chunk) for chunk in chunks[1:1 + forked]] if forked > 0 else []
+    children = [Forked(fn, chunk) for chunk in chunks[1:1 + max(forked, 0)]]
     try:
         results = [fn(chunks[0])] if chunks else []
-        results += [_collect(child, fn, chunk) for child, chunk in zip(children, chunks[1:])]
+        results += [child.result() for child in children]
         return results + [fn(chunk) for chunk in chunks[1 + len(children):]]
     finally:
-        for pid, fd in children:
-            _stop(pid, fd)
+        for child in children:
+            child.stop()
 
 
-def _start(fn: Callable, chunk) -> tuple[int, int]:
-    """Fork a child that computes ``fn(chunk)`` and writes ``(ok, value)`` pickled to a pipe;
-    returns ``(pid, read end)``."""
-    read, write = os.pipe()
-    pid = os.fork()
-    if pid:
+class Forked:
+    """``fn(chunk)`` computed in a forked child from the moment this is made (or here, by
+    :meth:`result`, where no process can be forked); :meth:`result` waits for it, :meth:`stop`
+    ends it. The child writes ``(ok, value, log records)`` pickled to a pipe and leaves."""
+
+    def __init__(self, fn: Callable[[Any], Any], chunk):
+        self.fn, self.chunk, self.pid, self.fd = fn, chunk, None, None
+        try:
+            read, write = os.pipe()
+            pid = os.fork()
+        except OSError:                                     # no process to be had: done here
+            return
+        if pid == 0:
+            os.close(read)
+            _child(fn, chunk, write)                        # never returns
         os.close(write)
-        return pid, read
+        self.pid, self.fd = pid, read
+
+    def result(self):
+        """The child's value (its exception raised here, its log records handled here first);
+        the chunk computed here if the child gave no answer (it died) or never ran."""
+        if self.fd is None:
+            return self.fn(self.chunk)
+        with os.fdopen(os.dup(self.fd), "rb") as pipe:
+            data = pipe.read()
+        try:
+            ok, value, records = pickle.loads(data)
+        except Exception:                                   # died before answering: redo it here
+            return self.fn(self.chunk)
+        for record in records:
+            logging.getLogger(record.name).handle(record)
+        if not ok:
+            raise value
+        return value
+
+    def stop(self) -> None:
+        """Close the pipe and reap the child (killed first if it is still running)."""
+        if self.fd is None:
+            return
+        os.close(self.fd)
+        self.fd = None
+        try:
+            if os.waitpid(self.pid, os.WNOHANG) == (0, 0):
+                os.kill(self.pid, signal.SIGKILL)
+                os.waitpid(self.pid, 0)
+        except ChildProcessError:
+            pass
+
+
+def _child(fn: Callable, chunk, write: int) -> None:
+    """In the forked child: compute ``fn(chunk)``, write the answer to ``write`` and exit."""
     status = 0
-    try:                                                    # the child: never returns
-        os.close(read)
+    try:
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         records = _keep_log_records()
         try:
@@ -123,30 +165,3 @@ def _keep_log_records() -> list:
     root.addHandler(_Kept(records))
     logging.captureWarnings(True)
     return records
-
-
-def _collect(child: tuple[int, int], fn: Callable, chunk):
-    """The child's result (its exception raised here); its chunk run here if it gave none."""
-    pid, fd = child
-    with os.fdopen(os.dup(fd), "rb") as pipe:
-        data = pipe.read()
-    try:
-        ok, value, records = pickle.loads(data)
-    except Exception:                                       # died before answering: redo it here
-        return fn(chunk)
-    for record in records:
-        logging.getLogger(record.name).handle(record)
-    if not ok:
-        raise value
-    return value
-
-
-def _stop(pid: int, fd: int) -> None:
-    """Close the pipe and reap the child (killed first if it is still running)."""
-    os.close(fd)
-    try:
-        if os.waitpid(pid, os.WNOHANG) == (0, 0):
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-    except ChildProcessError:
-        pass

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import command, config_options, fmt, out, read_config, report_failures, run_outcomes
+from mvm.cli.common import Number, command, config_options, fmt, print_table, read_config, report_failures, run_outcomes
 
 
 @command("reconstruct")
@@ -11,28 +11,35 @@ from mvm.cli.common import command, config_options, fmt, out, read_config, repor
 @config_options
 @click.option("-o", "--output", default="mvm", show_default=True,
               help="Name of the output folder inside each scene directory.")
-def reconstruct(scenes, config_path, sets, refine, output):
+@click.option("--workers", type=Number(int, ge=1), default=None,
+              help="Processes to reconstruct the scenes with (default: $MVM_WORKERS, else one per core; "
+                   "1: this process only).")
+def reconstruct(scenes, config_path, sets, refine, output, workers):
     """Reconstruct the 3D poses of one or more scene directories.
 
     Each SCENE holds sparse/ (a COLMAP model) and poses2d.json (COCO keypoints); the result is
     written to SCENE/<output>/poses3d.json. A scene that fails, for whatever reason, is reported
-    in one line and the others are still done; the exit status is 2 if any scene failed.
+    in one line and the others are still done; the exit status is 2 if any scene failed. The
+    scenes are shared by --workers processes.
     """
     from mvm.scenes import reconstruct_dirs
 
     config = read_config(config_path, sets, refine=refine)
-    rows, failed = run_outcomes(len(scenes), reconstruct_dirs(scenes, config, output), "reconstructing")
+    outcomes = reconstruct_dirs(scenes, config, output, workers=workers)
+    rows, failed = run_outcomes(len(scenes), outcomes, "reconstructing")
     if rows:
-        from rich.table import Table
-
-        table = Table(title="mvm reconstruct")
-        table.add_column("scene", overflow="fold")                          # a path is never cut
-        for column in ("persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s"):
-            table.add_column(column, justify="right")
-        for scene, r in rows:
-            m = r.metrics
-            table.add_row(str(scene), str(m["persons"]), str(m["matched_poses"]), str(m["unmatched_poses"]),
-                          fmt(m["E_R_px"]), fmt(m["outliers"], 1), fmt(m["G_k"], 1),
-                          fmt(r.timings["read_s"] + r.timings["total_s"]))
-        out().print(table)
+        recap(rows)
     report_failures(failed, len(scenes))
+
+
+#: Columns of the recap, one row per scene reconstructed.
+RECAP_COLUMNS = ("scene", "persons", "matched", "unmatched", "E_R px", "outliers", "|G_k|", "time s")
+
+
+def recap(rows) -> None:
+    """One row per scene reconstructed (:func:`mvm.cli.common.print_table`)."""
+    print_table("mvm reconstruct", RECAP_COLUMNS,
+                [(str(scene), str(r.metrics["persons"]), str(r.metrics["matched_poses"]),
+                  str(r.metrics["unmatched_poses"]), fmt(r.metrics["E_R_px"]), fmt(r.metrics["outliers"], 1),
+                  fmt(r.metrics["G_k"], 1), fmt(r.timings["read_s"] + r.timings["total_s"])) for scene, r in rows],
+                fold_first=True)

@@ -26,6 +26,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from mvm.core.assignment import min_cost_assignment
 from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
 from mvm.core.quality import row_nanmedian
 
@@ -122,7 +123,7 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
     pair's pose. Returns ``(n_poses,)`` person of each pose, -1 for none.
 
     Where every pose's best person is claimed by no other pose of its slot, the best persons
-    are the optimum; the other slots are solved with :func:`scipy.optimize.linear_sum_assignment`.
+    are the optimum; the other slots are solved by :func:`mvm.core.assignment.min_cost_assignment`.
     """
     out = np.full(n_poses, -1)
     ok = cost < gate
@@ -132,17 +133,14 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
     order = np.lexsort((cost, pose))                                 # best pair of each pose first
     first = np.r_[True, pose[order][1:] != pose[order][:-1]]
     best = order[first]                                              # (n,) the best pair of each pose
-    claim = np.stack([slot[best], person[best]], axis=1)
-    _, inverse, counts = np.unique(claim, axis=0, return_inverse=True, return_counts=True)
+    claim = slot[best].astype(np.int64) * (int(person.max()) + 1) + person[best]      # (slot, person) as one key
+    _, inverse, counts = np.unique(claim, return_inverse=True, return_counts=True)
     clash_slot = np.zeros(slot.max() + 1, dtype=bool)
-    clash_slot[slot[best][counts[inverse.reshape(-1)] > 1]] = True
+    clash_slot[slot[best][counts[inverse] > 1]] = True
     easy = best[~clash_slot[slot[best]]]
     out[pose[easy]] = person[easy]
     hard = np.flatnonzero(clash_slot[slot])
     if len(hard):
-        # Imported here: scipy.optimize costs 0.4 s to import, and most scenes have no clash.
-        from scipy.optimize import linear_sum_assignment
-
         hard = hard[np.argsort(slot[hard], kind="stable")]
         bounds = np.flatnonzero(np.diff(slot[hard])) + 1
         for rows in np.split(hard, bounds):
@@ -150,7 +148,7 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
             persons_u, c = np.unique(person[rows], return_inverse=True)
             matrix = np.full((len(poses_u), len(persons_u)), 1e6)
             matrix[r, c] = cost[rows]
-            i, j = linear_sum_assignment(matrix)
+            i, j = min_cost_assignment(matrix)
             good = matrix[i, j] < gate
             out[poses_u[i[good]]] = persons_u[j[good]]
     return out

@@ -98,12 +98,12 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
     ``association_hypotheses`` of the random hypotheses."""
     obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
-    rng = np.random.default_rng(config.seed)
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
-                                       config.min_parallax_deg, rng, use_ransac=config.ransac, initial=initial)
+                                       config.min_parallax_deg, config.seed, use_ransac=config.ransac,
+                                       initial=initial)
 
 
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:

@@ -87,13 +87,14 @@ def _pair_table(M: int) -> np.ndarray:
     return np.stack([i, j], -1)[i < j]
 
 
-def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of distinct valid views. ``valid: (P, M, J)`` -> two ``(P, J, H)`` view indices.
 
     A joint with ``n`` valid views has ``C(n, 2)`` distinct pairs: where they are at most
     ``hypotheses``, every pair is a hypothesis (cycled to fill ``H``); elsewhere ``hypotheses``
-    random pairs are drawn. ``H`` is ``hypotheses``, or ``max C(n, 2)`` when every joint is
-    enumerated (and no random number is drawn)."""
+    random pairs are drawn from ``rng``, a ``numpy.random.Generator`` or the seed of one. ``H``
+    is ``hypotheses``, or ``max C(n, 2)`` when every joint is enumerated (and no random number
+    is drawn: ``numpy.random``, 30 ms to import, is then never loaded)."""
     order = np.argsort(~valid, axis=1, kind="stable").transpose(0, 2, 1)    # (P, J, M) valid first
     count = valid.sum(axis=1)                                                # (P, J)
     pairs = count * (count - 1) // 2
@@ -106,6 +107,7 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng: np.random.Generator) 
     else:
         n = np.minimum(np.maximum(count, 2), valid.shape[1])[..., None]
         shape = count.shape + (hypotheses,)
+        rng = rng if hasattr(rng, "random") else np.random.default_rng(rng)
         a = np.floor(rng.random(shape) * n).astype(int)
         b = np.floor(rng.random(shape) * (n - 1)).astype(int)
         b = b + (b >= a)
@@ -134,7 +136,7 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
 
 def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
-                       rng: np.random.Generator | None = None, use_ransac: bool = True,
+                       rng: np.random.Generator | int | None = None, use_ransac: bool = True,
                        initial: np.ndarray | None = None) -> Triangulation:
     """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
 
@@ -146,9 +148,10 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
 
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
-    triangulation of nearly the same groups: few random hypotheses then suffice.
+    triangulation of nearly the same groups: few random hypotheses then suffice. ``rng``: a
+    ``numpy.random.Generator`` or the seed of one (None: 0), made only if pairs are drawn.
     """
-    rng = np.random.default_rng(0) if rng is None else rng
+    rng = 0 if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
     Pn, M, J = valid.shape
     if Pn == 0 or M == 0:
@@ -194,7 +197,7 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
 
 
 def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold_px: float,
-                    hypotheses: int, rng: np.random.Generator, initial: np.ndarray | None) -> np.ndarray:
+                    hypotheses: int, rng, initial: np.ndarray | None) -> np.ndarray:
     """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score).
     ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
     world points join the two-view hypotheses."""

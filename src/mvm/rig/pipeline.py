@@ -1,7 +1,6 @@
 """``RIG_DIR`` in; per-instant 3D poses (JSON Lines), one ``.trc`` per track and a recap out."""
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
@@ -10,6 +9,7 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import orjson
 
 from mvm.core.completion import FLAG_NAMES, INFERRED, MISSING, OBSERVED, complete_tracks, flag_names, interpolate_series
 from mvm.core.config import Config
@@ -84,9 +84,8 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
                 found.append({"id": int(ids[q]), "keypoints3d": kp, "flags": names[q],
                               "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
                               "views_per_joint": views[q], "reprojection_error_px": errors[q]})
-            out.append(json.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found},
-                                  allow_nan=False) + "\n")
-        return "".join(out)
+            out.append(orjson.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found}))
+        return b"\n".join(out).decode() + "\n" if out else ""
 
     return "".join(fork_map(lines, split(len(frames), available_workers(workers), min_size=100), workers))
 

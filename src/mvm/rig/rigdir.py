@@ -175,17 +175,12 @@ def _read_coco_source(path: Path, root: Path) -> tuple[np.ndarray, np.ndarray, n
     return frames[order], coco.keypoints[order], coco.score[order]
 
 
-def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(keypoints (K, 17, 3), scores (K,))`` of each OpenPose or OpenPifPaf file of ``files``,
-    read the guarded way inside the rig directory ``root`` (an OpenPose pose's score: the mean
-    confidence of its present joints)."""
+def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """``(keypoints (K, 17, 3), scores (K,) or None for OpenPose)`` of each OpenPose or OpenPifPaf
+    file of ``files``, read the guarded way inside the rig directory ``root``."""
     if fmt != "openpose":
         return [read_openpifpaf_frame(file, root=root) for file in files]
-    out = []
-    for kp in read_openpose_frames(files, root=root):
-        present = kp[..., 2] > 0
-        out.append((kp, np.where(present, kp[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)))
-    return out
+    return [(kp, None) for kp in read_openpose_frames(files, root=root)]
 
 
 def _read_sources(paths: list[Path], fmt: str, root: Path, start: int | None, stop: int | None,
@@ -211,8 +206,13 @@ def _read_sources(paths: list[Path], fmt: str, root: Path, start: int | None, st
     for files in listings:
         kps, scores = zip(*[next(per_file) for _ in files]) if files else ((), ())
         frames = np.repeat(np.array([f for f, _ in files], dtype=np.int64), [len(kp) for kp in kps])
-        out.append((frames, np.concatenate(kps) if kps else np.zeros((0, 17, 3)),
-                    np.concatenate(scores) if scores else np.zeros(0)))
+        keypoints = np.concatenate(kps) if kps else np.zeros((0, 17, 3))
+        if fmt == "openpose":                     # a pose's score: the mean confidence of its present joints
+            present = keypoints[..., 2] > 0
+            score = np.where(present, keypoints[..., 2], 0).sum(1) / np.maximum(present.sum(1), 1)
+        else:
+            score = np.concatenate(scores) if scores else np.zeros(0)
+        out.append((frames, keypoints, score))
     return out
 
 

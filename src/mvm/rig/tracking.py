@@ -1,6 +1,6 @@
 """Identities over time: each instant's persons linked to the previous ones by 3D distance
 (Hungarian assignment), with track ids that survive short gaps; optional temporal smoothing.
-Pure numpy/scipy, no I/O."""
+Pure numpy, no I/O."""
 from __future__ import annotations
 
 import warnings
@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.assignment import min_cost_assignment
 from mvm.rig.filters import butter_lowpass, filtfilt_many
 
 
@@ -30,17 +31,15 @@ def assign(cost: np.ndarray, feasible: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
     Where every row's cheapest feasible column is a different column, those pairs are the
     assignment (each row at its lowest cost, and every row that can be matched is: no
-    assignment does better), so ``scipy.optimize`` (about 0.3 s to import) is only imported for
-    real conflicts, e.g. two people crossing close."""
+    assignment does better); real conflicts (two people crossing close) go to
+    :func:`mvm.core.assignment.min_cost_assignment`."""
     r = np.flatnonzero(feasible.any(1))
     if not len(r):
         return r, np.zeros(0, dtype=np.intp)
     c = np.argmin(np.where(feasible, cost, np.inf), axis=1)[r]
     if len(np.unique(c)) == len(c):
         return r, c
-    from scipy.optimize import linear_sum_assignment
-
-    r, c = linear_sum_assignment(np.where(feasible, cost, 1e12))
+    r, c = min_cost_assignment(np.where(feasible, cost, 1e12))
     ok = feasible[r, c]
     return r[ok], c[ok]
 
