@@ -15,6 +15,7 @@ camera number (``cam_01`` and ``cam1_json``) when that number is unique on both 
 from __future__ import annotations
 
 import logging
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,7 +154,11 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
 def _source_format(path: Path) -> str:
     if path.is_file():
         return "coco"
-    first = min(path.glob("*.json"))
+    with os.scandir(path) as entries:                     # names only: no path object per file
+        names = [e.name for e in entries if e.name.endswith(".json") and not e.name.startswith(".")]
+    if not names:
+        raise InputError(path, None, "no .json pose files")
+    first = path / min(names)
     data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
         return "openpose"
