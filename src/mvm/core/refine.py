@@ -379,18 +379,17 @@ def model_decrease_bound(D: np.ndarray, g: np.ndarray) -> np.ndarray:
     the Gauss-Newton model ``H``, since ``H`` is ``D`` plus positive semidefinite terms (the
     prior's and the bones'). Infinite where a joint with a gradient has a singular block
     (seen in fewer than two views), 0 where nothing pulls."""
-    a, b, c = D[..., 0, 0], D[..., 1, 1], D[..., 2, 2]
-    d, e, f = D[..., 0, 1], D[..., 1, 2], D[..., 0, 2]
+    a, d, f, _, b, e, _, _, c = D.reshape(-1, 9).T                                 # rows of (P J,)
+    x, y, z = g.reshape(-1, 3).T
     # The adjugate of the symmetric block: D⁻¹ = adj / det.
     A, B, C = b * c - e * e, a * c - f * f, a * b - d * d
     Dx, E, F = f * e - d * c, d * f - a * e, d * e - b * f
     det = a * A + d * Dx + f * F
-    x, y, z = g[..., 0], g[..., 1], g[..., 2]
     quad = A * x * x + B * y * y + C * z * z + 2 * (Dx * x * y + E * y * z + F * x * z)
     regular = det > 1e-12 * (a + b + c) ** 3
     with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.where(regular, quad / np.where(regular, det, 1.0), np.where((g != 0).any(-1), np.inf, 0.0))
-    return 0.5 * q.sum(1)
+        q = np.where(regular, quad / np.where(regular, det, 1.0), np.where((x != 0) | (y != 0) | (z != 0), np.inf, 0.0))
+    return 0.5 * q.reshape(len(D), -1).sum(1)
 
 
 @functools.lru_cache(maxsize=8)
