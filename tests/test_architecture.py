@@ -13,16 +13,17 @@ SRC = REPO / "src" / "mvm"
 #: Package -> the mvm packages its modules may import (besides itself).
 ALLOWED: dict[str, set[str]] = {
     "errors": set(),
+    "parallel": set(),
     "core": {"errors"},
     "io": {"core", "errors"},
-    "scenes": {"core", "io", "errors"},
+    "scenes": {"core", "io", "parallel", "errors"},
     "net": {"core", "io", "eval", "errors"},
     "sim": {"core", "io", "net", "errors"},
     "eval": {"core", "io", "scenes", "sim", "rig", "errors"},
-    "rig": {"core", "io", "eval", "errors"},
+    "rig": {"core", "io", "eval", "parallel", "errors"},
     "video": {"core", "io", "scenes", "eval", "net", "errors"},
     "report": {"core", "io", "eval", "sim", "errors"},
-    "batch": {"core", "io", "scenes", "eval", "sim", "rig", "net", "video", "report", "errors"},
+    "batch": {"core", "io", "scenes", "eval", "sim", "rig", "net", "video", "report", "parallel", "errors"},
 }
 
 
