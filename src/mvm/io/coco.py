@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -80,25 +81,101 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
             raise InputError(path, key, "missing, or not a list")
     image_ids, names, sizes = _read_images(data["images"], path)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
-    ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
-    seen: set[int] = set()
-    for i, ann in enumerate(data["annotations"]):
-        row = _read_annotation(ann, path, f"annotations[{i}]", index, seen)
-        if row is None:
-            continue  # not a person
-        for column, value in zip((ann_ids, ann_image, kps, scores, apps), row):
-            column.append(value)
-    N = len(ann_ids)
+    columns = _annotations_at_once(data["annotations"], index)
+    if columns is None:                      # something to report: the first problem, by name
+        columns = _annotations_one_by_one(data["annotations"], path, index)
+    ann_ids, ann_image, keypoints, scores, apps = columns
     return CocoKeypoints(
         image_ids=np.array(image_ids, dtype=np.int64),
         file_names=tuple(names),
         sizes=np.array(sizes, dtype=float).reshape(-1, 2),
         ann_ids=np.array(ann_ids, dtype=np.int64),
         ann_image=np.array(ann_image, dtype=np.int64),
-        keypoints=np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3),
+        keypoints=keypoints,
         score=np.array(scores, dtype=float),
         appearance=_stack_appearance(apps, path),
     )
+
+
+def _annotations_one_by_one(annotations: list, path: Path, index: dict[int, int]) -> tuple:
+    """The person annotations checked one at a time (:func:`_read_annotation`): ids, image
+    indices, keypoints ``(N, 17, 3)``, scores and appearances (None each where absent); the
+    first problem raises :class:`InputError` naming its field."""
+    ann_ids, ann_image, kps, scores, apps = [], [], [], [], []
+    seen: set[int] = set()
+    for i, ann in enumerate(annotations):
+        row = _read_annotation(ann, path, f"annotations[{i}]", index, seen)
+        if row is None:
+            continue  # not a person
+        for column, value in zip((ann_ids, ann_image, kps, scores, apps), row):
+            column.append(value)
+    return ann_ids, ann_image, np.array(kps, dtype=float).reshape(len(kps), NUM_JOINTS, 3), scores, apps
+
+
+def _is_int(value) -> bool:
+    return type(value) is int and -(2 ** 63) <= value < 2 ** 63
+
+
+def _annotations_at_once(annotations: list, index: dict[int, int]) -> tuple | None:
+    """What :func:`_annotations_one_by_one` returns, with every check done on all annotations
+    at once (a few list passes and array operations instead of a dozen calls per
+    annotation); None where any check fails, for :func:`_annotations_one_by_one` to name the
+    first problem."""
+    if not all(type(ann) is dict for ann in annotations):
+        return None
+    ids = [ann.get("id") for ann in annotations]
+    image = [ann.get("image_id") for ann in annotations]
+    category = [ann.get("category_id", 1) for ann in annotations]
+    if not (all(map(_is_int, ids)) and all(map(_is_int, image)) and all(map(_is_int, category))
+            and len(set(ids)) == len(ids) and all(i in index for i in image)):
+        return None
+    person = [c == 1 for c in category]
+    people = annotations if all(person) else [a for a, p in zip(annotations, person) if p]
+    values = [ann.get("keypoints") for ann in people]
+    if not all(type(v) is list and len(v) == 3 * NUM_JOINTS for v in values):
+        return None
+    if people and not set(map(type, chain.from_iterable(values))) <= {float, int}:
+        return None
+    absent = np.array(["score" not in ann for ann in people], dtype=bool)
+    scores = [ann.get("score", 0) for ann in people]
+    if not set(map(type, scores)) <= {float, int}:
+        return None
+    try:
+        kp = np.array(values, dtype=float).reshape(len(people), NUM_JOINTS, 3)
+        given = np.array(scores, dtype=float)
+    except OverflowError:
+        return None
+    if not (np.isfinite(kp).all() and (kp[..., 2] >= 0).all() and np.isfinite(given).all()
+            and not (given < 0).any()):
+        return None
+    np.minimum(kp[..., 2], 1.0, out=kp[..., 2])           # as parse_keypoints: flags 1, 2 -> 1
+    kp[..., :2][kp[..., 2] == 0] = 0.0
+    for n in np.flatnonzero(absent):                       # as _read_annotation: the mean confidence
+        present = kp[n, :, 2] > 0
+        given[n] = float(kp[n, present, 2].mean()) if present.any() else 0.0
+    apps = _appearances_at_once(people)
+    if apps is None:
+        return None
+    rows = [i for i, p in enumerate(person) if p]
+    return [ids[i] for i in rows], [index[image[i]] for i in rows], kp, np.minimum(given, 1.0).tolist(), apps
+
+
+def _appearances_at_once(people: list) -> list | None:
+    """The appearance descriptors of ``people`` (annotation dicts) as :func:`_read_annotation`
+    gives them: ``[None] * N`` where none has one, ``N`` rows where all have one of the same
+    length; None otherwise (a problem to name, or a mix)."""
+    values = [ann.get("appearance") for ann in people]
+    if all(v is None for v in values):
+        return [None] * len(people)
+    if not all(type(v) is list for v in values) or len(set(map(len, values))) != 1 or not values[0]:
+        return None
+    if not set(map(type, chain.from_iterable(values))) <= {float, int}:
+        return None
+    try:
+        app = np.array(values, dtype=float)
+    except OverflowError:
+        return None
+    return list(app) if np.isfinite(app).all() else None
 
 
 def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[tuple[float, float]]]:
