@@ -60,24 +60,22 @@ def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     poses = np.asarray(poses, dtype=float)
     if poses.ndim < 2 or poses.shape[-2:] != (NUM_JOINTS, 3):
         raise ValueError(f"expected poses (..., 17, 3), got {poses.shape}")
-    # Few numpy calls (this runs at every re-linearization of the refinement, on a few poses):
-    # the same arithmetic, in the same order, as the formulas of the docstring.
-    lh, rh, ls, rs = np.moveaxis(poses[..., [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER], :], -2, 0)
+    lh, rh = poses[..., LEFT_HIP, :], poses[..., RIGHT_HIP, :]
+    ls, rs = poses[..., LEFT_SHOULDER, :], poses[..., RIGHT_SHOULDER, :]
     centre = 0.5 * (lh + rh)
     x = lh - rh
+    x_norm = np.linalg.norm(x, axis=-1, keepdims=True)
     up = 0.5 * (ls + rs) - centre
-    sides = np.stack([x, ls - lh, rs - rh])
-    norms = np.sqrt(np.add.reduce(sides * sides, axis=-1))                       # |x|, |ls − lh|, |rs − rh|
-    x_norm = norms[0][..., None]
-    scale = 0.5 * (norms[1] + norms[2])
+    scale = 0.5 * (np.linalg.norm(ls - lh, axis=-1) + np.linalg.norm(rs - rh, axis=-1))
     with np.errstate(invalid="ignore", divide="ignore"):
         x = x / x_norm
-        z = up - np.add.reduce(up * x, axis=-1, keepdims=True) * x
-        z_norm = np.sqrt(np.add.reduce(z * z, axis=-1, keepdims=True))
+        z = up - np.sum(up * x, axis=-1, keepdims=True) * x
+        z_norm = np.linalg.norm(z, axis=-1, keepdims=True)
         z = z / z_norm
-        y = z[..., [1, 2, 0]] * x[..., [2, 0, 1]] - z[..., [2, 0, 1]] * x[..., [1, 2, 0]]   # z × x
+        y = np.stack([z[..., 1] * x[..., 2] - z[..., 2] * x[..., 1], z[..., 2] * x[..., 0] - z[..., 0] * x[..., 2],
+                      z[..., 0] * x[..., 1] - z[..., 1] * x[..., 0]], axis=-1)                  # z × x
         rotation = np.stack([x, y, z], axis=-2)
-        degenerate = ~((x_norm[..., 0] > _EPS * scale) & (z_norm[..., 0] > _EPS * scale) & (scale > _EPS))
+    degenerate = ~((x_norm[..., 0] > _EPS * scale) & (z_norm[..., 0] > _EPS * scale) & (scale > _EPS))
     rotation[degenerate] = np.nan
     scale = np.where(degenerate, np.nan, scale)
     return rotation, centre, scale

@@ -164,6 +164,11 @@ class LinearPrior:
                            self.gram_body)
 
     @functools.cached_property
+    def _gathered(self) -> np.ndarray:
+        """``M_g`` of every person, ``(P, 3J, 3J)`` (gathered once, for few persons per group)."""
+        return self.M[self.which]
+
+    @functools.cached_property
     def _groups(self) -> list:
         """``(g, rows)`` of every group that has persons, but the last (persons without a prior)."""
         return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M) - 1]
@@ -172,7 +177,7 @@ class LinearPrior:
         """``M_g y`` (``M_gᵀ y`` if ``transpose``) of every person, ``y: (P, 3J)``. One product
         per group; with few persons per group, one gather of their matrices."""
         if len(self.which) <= 2 * len(self.M):
-            M = self.M[self.which]
+            M = self._gathered
             return np.matmul(y[:, None], M)[:, 0] if transpose else np.matmul(M, y[..., None])[..., 0]
         out = np.zeros_like(y)
         for g, rows in self._groups:
@@ -224,9 +229,11 @@ def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
     rotation, scale = frame[0], frame[2]                                          # (P, 3, 3), (P,)
     needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
     usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
-    component = np.full(Pn, -1)
     if prior is not None and weight > 0 and usable.any():
-        component[usable] = prior.best_component(canonicalize(poses[usable], tuple(f[usable] for f in frame)))
+        # Every person at once: the others' canonical poses are NaN, their component -1.
+        component = np.where(usable, prior.best_component(canonicalize(poses, frame)), -1)
+    else:
+        component = np.full(Pn, -1)
     usable &= component >= 0
     code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
     rows = np.flatnonzero(usable)
@@ -279,12 +286,26 @@ def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -
     J = X.shape[1]
     rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
     usable = which < len(keys)
-    M, gram = np.zeros((2, len(keys) + 1, 3 * J, 3 * J))
-    h = np.zeros((len(keys) + 1, 3 * J))
-    for g, key in enumerate(keys):
-        M[g], h[g], gram[g] = _group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), float(weight))
+    M, h, gram = _stacked_matrices(prior, keys.tobytes(), len(keys), J, float(weight))
     rotation = np.where(usable[:, None, None], rotation, np.eye(3))
     return LinearPrior(rotation, np.where(usable, scale, 1.0), which, M, h, gram)
+
+
+@functools.lru_cache(maxsize=32)
+def _stacked_matrices(prior, keys: bytes, groups: int, J: int, weight: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_group_matrices` of the ``groups`` (present joints, component) rows of ``keys``
+    (the ``(G, J + 1)`` int array's bytes), stacked with the zero group of the persons without
+    a prior: ``M, gram: (G + 1, 3J, 3J)``, ``h: (G + 1, 3J)`` (cached, read-only: the outer
+    iterations of a scene mostly meet the same groups again)."""
+    rows = np.frombuffer(keys, dtype=int).reshape(groups, J + 1)
+    M, gram = np.zeros((2, groups + 1, 3 * J, 3 * J))
+    h = np.zeros((groups + 1, 3 * J))
+    for g, key in enumerate(rows):
+        M[g], h[g], gram[g] = _group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), weight)
+    for a in (M, h, gram):
+        a.setflags(write=False)
+    return M, h, gram
 
 
 @dataclass(frozen=True)
