@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import functools
 import logging
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -57,12 +58,19 @@ EARLY_TOLERANCE_FACTOR = 30.0
 @dataclass
 class RefineResult:
     """``X: (P, J, 3)`` refined poses; ``fallback: (P,)`` bool, persons kept at their
-    triangulation because refinement made them worse; ``cost_before/after``: the objective."""
+    triangulation because refinement made them worse; ``cost_before/after``: the objective.
+
+    ``cost_after`` is evaluated when first read (``objective_after``, a function or the
+    number): it takes a re-linearization of the prior that reconstruction never needs."""
 
     X: np.ndarray
     fallback: np.ndarray
     cost_before: float
-    cost_after: float
+    objective_after: Callable[[], float] | float = field(repr=False, compare=False)
+
+    @functools.cached_property
+    def cost_after(self) -> float:
+        return float(self.objective_after() if callable(self.objective_after) else self.objective_after)
 
 
 @dataclass(frozen=True)
@@ -611,8 +619,11 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
-    X_fit = np.where(present[..., None], X, 0.0)
-    robust, _ = robust_terms(np.where(fallback[:, None, None, None], e0, e1), obs, robust_scale_px)
-    cost_after = (float(robust.sum() + prior_energy(X_fit, present, prior, prior_weight).sum())
-                  + _bone_cost(bones, X_fit))
-    return RefineResult(X, fallback, cost_before, cost_after)
+    X_fit, e_fit = np.where(present[..., None], X, 0.0), np.where(fallback[:, None, None, None], e0, e1)
+
+    def objective_after() -> float:                      # of copies: the caller may change X
+        robust, _ = robust_terms(e_fit, obs, robust_scale_px)
+        return (float(robust.sum() + prior_energy(X_fit, present, prior, prior_weight).sum())
+                + _bone_cost(bones, X_fit))
+
+    return RefineResult(X, fallback, cost_before, objective_after)
