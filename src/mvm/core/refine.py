@@ -408,17 +408,24 @@ def model_decrease_bound(D: np.ndarray, g: np.ndarray) -> np.ndarray:
     the Gauss-Newton model ``H``, since ``H`` is ``D`` plus positive semidefinite terms (the
     prior's and the bones'). Infinite where a joint with a gradient has a singular block
     (seen in fewer than two views), 0 where nothing pulls."""
-    a, d, f, _, b, e, _, _, c = D.reshape(-1, 9).T                                 # rows of (P J,)
-    x, y, z = g.reshape(-1, 3).T
-    # The adjugate of the symmetric block: D⁻¹ = adj / det.
-    A, B, C = b * c - e * e, a * c - f * f, a * b - d * d
-    Dx, E, F = f * e - d * c, d * f - a * e, d * e - b * f
-    det = a * A + d * Dx + f * F
-    quad = A * x * x + B * y * y + C * z * z + 2 * (Dx * x * y + E * y * z + F * x * z)
-    regular = det > 1e-12 * (a + b + c) ** 3
+    V, g3 = D.reshape(-1, 9), g.reshape(-1, 3)                                   # rows of (P J,)
+    # The adjugate of the symmetric block (D⁻¹ = adj / det), its six distinct entries at once:
+    # with a, d, f / b, e / c the upper triangle, bc − e², ac − f², ab − d², fe − dc, df − ae, de − bf.
+    cof = V.take(_COFACTOR[0], 1) * V.take(_COFACTOR[1], 1) - V.take(_COFACTOR[2], 1) * V.take(_COFACTOR[3], 1)
+    det = V[:, 0] * cof[:, 0] + V[:, 1] * cof[:, 3] + V[:, 2] * cof[:, 5]
+    quad = (cof * (g3.take(_PAIRS[0], 1) * g3.take(_PAIRS[1], 1))) @ _PAIR_WEIGHTS
+    regular = det > 1e-12 * (V[:, 0] + V[:, 4] + V[:, 8]) ** 3
     with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.where(regular, quad / np.where(regular, det, 1.0), np.where((x != 0) | (y != 0) | (z != 0), np.inf, 0.0))
+        q = np.where(regular, quad / np.where(regular, det, 1.0), np.where(g3.any(1), np.inf, 0.0))
     return 0.5 * q.reshape(len(D), -1).sum(1)
+
+
+#: Flat ``3 × 3`` indices of the products whose differences are the adjugate entries of
+#: :func:`model_decrease_bound`, and the pairs of gradient coordinates (with their weights in
+#: the quadratic form) that multiply them.
+_COFACTOR = np.array([[4, 0, 0, 2, 1, 1], [8, 8, 4, 5, 2, 5], [5, 2, 1, 1, 0, 4], [5, 2, 1, 8, 5, 2]])
+_PAIRS = np.array([[0, 1, 2, 0, 1, 0], [0, 1, 2, 1, 2, 2]])
+_PAIR_WEIGHTS = np.array([1.0, 1.0, 1.0, 2.0, 2.0, 2.0])
 
 
 @functools.lru_cache(maxsize=8)
