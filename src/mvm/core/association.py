@@ -104,7 +104,7 @@ def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.
             d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
         d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
         n = common.sum(1)
-        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0].astype(float)
+        value = d[np.arange(len(d)), np.maximum((n - 1) // 2, 0)].astype(float)
         return np.where(n >= min_common_keypoints, value, np.inf)
 
     cost = median(kp, uv, seen, size)
