@@ -112,10 +112,21 @@ def _matvec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _sum4(x: np.ndarray) -> np.ndarray:
+    """``x[0] + x[1] + x[2] + x[3]``, in that order."""
+    return x[0] + x[1] + x[2] + x[3]
+
+
 def _normalized(v: np.ndarray) -> np.ndarray:
-    norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3])
+    norm = np.sqrt(_sum4(v * v))
     with np.errstate(divide="ignore", invalid="ignore"):
         return v / norm
+
+
+#: Entries ``(i, i)``, ``(j, j)`` and ``(i, j)`` of the pairs ``i < j`` of a 4 × 4 matrix ``(16, ...)``.
+_PAIR_II = np.array([0, 0, 0, 5, 5, 10])
+_PAIR_JJ = np.array([5, 10, 15, 10, 15, 15])
+_PAIR_IJ = np.array([1, 2, 3, 6, 7, 11])
 
 
 def _power_null_vector(m: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
@@ -132,12 +143,16 @@ def _power_null_vector(m: np.ndarray, iterations: int) -> tuple[np.ndarray, np.n
     for _ in range(iterations):
         v = _normalized(_matvec(adj, v))
     Nv = _matvec(m, v)
-    rho = v[0] * Nv[0] + v[1] * Nv[1] + v[2] * Nv[2] + v[3] * Nv[3]
+    rho = _sum4(v * Nv)
     r = Nv - rho * v
-    residual = np.sqrt(r[0] ** 2 + r[1] ** 2 + r[2] ** 2 + r[3] ** 2)
-    e1 = m[0] + m[5] + m[10] + m[15]
-    e2 = sum(m[5 * i] * m[5 * j] - m[4 * i + j] * m[4 * i + j] for i in range(4) for j in range(i + 1, 4))
-    e3 = diagonal[0] + diagonal[1] + diagonal[2] + diagonal[3]
+    residual = np.sqrt(_sum4(r * r))
+    e1 = _sum4(m[[0, 5, 10, 15]])
+    off = m[_PAIR_IJ]
+    minors = m[_PAIR_II] * m[_PAIR_JJ] - off * off                          # (6, ...)
+    e2 = 0.0 + minors[0]
+    for k in range(1, 6):
+        e2 += minors[k]
+    e3 = _sum4(diagonal)
     e1r = e1 - rho
     e2r = e2 - rho * e1r
     e3r = e3 - rho * e2r
