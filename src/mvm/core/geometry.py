@@ -243,4 +243,4 @@ def ray_spread_deg(directions: np.ndarray, mask: np.ndarray) -> np.ndarray:
     cos_mean = np.where(mask, (d * mean[..., None, :]).sum(-1), 2.0)
     far = np.take_along_axis(d, np.argmin(cos_mean, axis=-1)[..., None, None], axis=-2)  # (..., 1, 3)
     cos = np.where(mask, (d * far).sum(-1), 1.0)
-    return np.degrees(np.arccos(np.clip(cos.min(axis=-1), -1.0, 1.0)))
+    return np.degrees(np.arccos(np.minimum(np.maximum(cos.min(axis=-1), -1.0), 1.0)))
