@@ -107,20 +107,19 @@ def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.
     """Median normalized keypoint distance, the pose as detected or, where that is at least
     ``swap_above``, left-right swapped back if that is closer.
     ``kp: (K, J, 3)``, ``uv: (K, J, 2)``, ``seen: (K, J)``, ``size: (K,)`` -> ``(K,)``."""
-    K = len(kp)
-    kp = np.concatenate([kp, kp[:, FLIP_PERMUTATION]])                    # as detected, then swapped
-    common = np.tile(seen, (2, 1)) & (kp[..., 2] >= keypoint_threshold)
-    diff = kp[..., :2] - np.tile(uv, (2, 1, 1))
-    with np.errstate(invalid="ignore"):
-        d = np.sqrt((diff * diff).sum(-1)) / np.tile(size, 2)[:, None]
-    d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
-    n = common.sum(1)
-    value = d[np.arange(len(d)), np.maximum((n - 1) // 2, 0)].astype(float)
-    median = np.where(n >= min_common_keypoints, value, np.inf)
-    cost = median[:K]
+    def median(kp, uv, seen, size):
+        common = seen & (kp[..., 2] >= keypoint_threshold)
+        with np.errstate(invalid="ignore"):
+            d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
+        d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
+        n = common.sum(1)
+        value = d[np.arange(len(d)), np.maximum((n - 1) // 2, 0)].astype(float)
+        return np.where(n >= min_common_keypoints, value, np.inf)
+
+    cost = median(kp, uv, seen, size)
     # Swapped back only where the pose as detected does not fit (a swap then shows).
-    far = cost >= swap_above
-    cost[far] = np.fmin(cost[far], median[K:][far])
+    far = np.flatnonzero(cost >= swap_above)
+    cost[far] = np.fmin(cost[far], median(kp[far][:, FLIP_PERMUTATION], uv[far], seen[far], size[far]))
     return cost
 
 
