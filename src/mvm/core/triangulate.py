@@ -5,6 +5,7 @@ A group is padded to ``M`` (its largest size) views; arrays have axes ``(P, M, J
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,11 +81,14 @@ class Triangulation:
     parallax_deg: np.ndarray
 
 
+@functools.lru_cache(maxsize=64)
 def _pair_table(M: int) -> np.ndarray:
     """``(C(M, 2), 2)`` the pairs ``i < j`` of ``M`` ranks ordered by ``j``: the first ``C(n, 2)``
-    are exactly the pairs of the first ``n`` ranks."""
+    are exactly the pairs of the first ``n`` ranks. Made once per ``M`` (read-only)."""
     j, i = np.divmod(np.arange(M * M), M)
-    return np.stack([i, j], -1)[i < j]
+    table = np.stack([i, j], -1)[i < j]
+    table.flags.writeable = False
+    return table
 
 
 def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, np.ndarray]:
