@@ -110,7 +110,7 @@ def test_smallest_eigenvector_on_nearly_degenerate_matrices():
 def test_smallest_eigenvector_in_chunks_is_elementwise(monkeypatch):
     """Solved a few matrices at a time (chunks that split the batch's axes unevenly), a batch
     of shape (10, 7, 9) gets the same vectors as all at once, and eigh's."""
-    import mvm.core.geometry as geometry
+    from mvm.core import geometry
 
     rng = np.random.default_rng(2)
     A = rng.normal(size=(7, 9, 6, 4))

@@ -71,7 +71,7 @@ def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndar
             available[x] = False
             open_ &= view != view[x]
             a = np.asarray(A[x], dtype=np.float32)
-            defined = a == a
+            defined = ~np.isnan(a)
             weight = w[x:x + 1]                                               # float64, as the blocks'
             weighted_sum += weight * np.where(defined, a, np.float32(0))          # Σ_p w_p A(x, p)
             total_weight += weight * defined                                      # Σ_p w_p [A defined]
