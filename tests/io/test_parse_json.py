@@ -48,3 +48,31 @@ def test_bad_json_is_one_line_naming_the_file(text, problem):
     with pytest.raises(InputError) as info:
         parse_json(text, "pose/cam1/0001.json")
     assert str(info.value).startswith(f"pose/cam1/0001.json: {problem}")
+
+
+def test_openpose_files_in_bulk_read_as_one_by_one(tmp_path):
+    """Plain files of two layouts, a file with no people and one that needs the person-by-person
+    reading give what each file read alone gives; a non-finite number is named in its file."""
+    from mvm.io.openpose import read_openpose_frame, read_openpose_frames
+
+    rng = np.random.default_rng(1)
+    texts = [{"people": [{"pose_keypoints_2d": rng.uniform(0, 900, 75).tolist()} for _ in range(3)]},
+             {"people": []},
+             {"people": [{"pose_keypoints_2d": rng.uniform(0, 900, 54).tolist()}]},
+             {"people": [{"pose_keypoints_2d": [int(v) for v in rng.integers(0, 900, 75)], "extra": 1}]},
+             {"people": [{"pose_keypoints_2d": rng.uniform(0, 900, 75).tolist()}, {"face": []}]}]
+    paths = []
+    for i, data in enumerate(texts[:4]):
+        paths.append(tmp_path / f"{i:04d}_keypoints.json")
+        paths[-1].write_text(json.dumps(data))
+    together = read_openpose_frames(paths, root=tmp_path)
+    for path, kp in zip(paths, together):
+        assert np.array_equal(kp, read_openpose_frame(path, root=tmp_path))
+    bad = tmp_path / "0004_keypoints.json"
+    bad.write_text(json.dumps(texts[4]))
+    with pytest.raises(InputError, match=r"0004_keypoints.json: people\[1\].pose_keypoints_2d: missing"):
+        read_openpose_frames(paths + [bad], root=tmp_path)
+    texts[0]["people"][1]["pose_keypoints_2d"][4] = 1e400
+    paths[0].write_text(json.dumps(texts[0]).replace("Infinity", "1e400"))
+    with pytest.raises(InputError, match=r"0000_keypoints.json: people\[1\].pose_keypoints_2d"):
+        read_openpose_frames(paths, root=tmp_path)

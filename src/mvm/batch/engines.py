@@ -16,11 +16,14 @@ from concurrent.futures.process import BrokenProcessPool
 from mvm.batch.clips import Clip
 from mvm.batch.stages import GPU_STAGES, BatchOptions, StageResult, run_stage
 from mvm.errors import InputError
+from mvm.parallel import WORKERS_ENV
 
 log = logging.getLogger(__name__)
 
 ENGINES = ("local", "ray")
-_SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+#: Set to 1 in every worker: one BLAS thread, and no worker processes of its own (mvm.parallel):
+#: the engine already keeps every core busy.
+_SINGLE_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS", WORKERS_ENV)
 
 
 def _lost(clip: Clip, stage: str, why: str) -> StageResult:

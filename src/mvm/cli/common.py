@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import logging
 import math
+import os
 import sys
 from contextlib import contextmanager
 
@@ -60,6 +61,27 @@ def refused(*kinds: type[Exception]):
         raise InputError(None, None, str(e)) from None
 
 
+def is_terminal(stream) -> bool:
+    """Whether ``stream`` is an interactive terminal (``FORCE_TERMINAL`` set to anything but
+    empty or 0 says yes), without importing rich: outside a terminal the commands print plain
+    lines and never need it."""
+    force = os.environ.get("FORCE_TERMINAL")
+    if force is not None:
+        return force not in ("", "0")
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+def say(text: str) -> None:
+    """A line of results on stdout: through rich (highlighted) on a terminal, plain elsewhere."""
+    if is_terminal(sys.stdout):
+        out().print(text)
+    else:
+        click.echo(text)
+
+
 @functools.cache
 def out():
     """The console of results (stdout)."""
@@ -94,8 +116,9 @@ class _NoBar:
     """The progress bar where stderr is not a terminal (a pipe, a log file): it draws nothing,
     as a transient rich bar would not there, and imports nothing."""
 
-    def __init__(self):
-        self.console = err()
+    @property
+    def console(self):
+        return err()
 
     def __enter__(self) -> _NoBar:
         return self
@@ -116,7 +139,7 @@ class _NoBar:
 def progress(*extra_columns):
     """A transient rich progress bar on stderr: description, bar, done/total, ``extra_columns``,
     time; nothing (:class:`_NoBar`) where stderr is not a terminal."""
-    if not err().is_terminal:
+    if not is_terminal(sys.stderr):
         return _NoBar()
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -168,7 +191,7 @@ def print_table(title: str | None, columns, rows, fold_first: bool = False) -> N
     as a ``# `` line, then tab-separated lines under a header line, for scripts to read (and
     without rich's layout, about 1 ms a row). ``fold_first``: the first column wraps rather
     than being cut (paths)."""
-    if not out().is_terminal:
+    if not is_terminal(sys.stdout):
         lines = [] if title is None else [f"# {title}"]
         click.echo("\n".join(lines + ["\t".join(row) for row in [tuple(columns), *rows]]))
         return

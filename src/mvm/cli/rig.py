@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import Group, config_options, fmt, out, parse_sets, print_table, progress, read_config
+from mvm.cli.common import Group, config_options, fmt, parse_sets, print_table, progress, read_config, say
 
 
 def read_rig_options(pairs: tuple[str, ...], **flags):
@@ -68,7 +68,7 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
                   *[fmt(r["excluded_per_camera"][n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])])
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
-        out().print(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
-                  "check its calibration, or raise ransac_threshold_px (--set ransac_threshold_px=...)")
-    out().print(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
-              f"{result.outputs['recap']}")
+        say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
+            "check its calibration, or raise ransac_threshold_px (--set ransac_threshold_px=...)")
+    say(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
+        f"{result.outputs['recap']}")

@@ -3,14 +3,13 @@
 writing a scene directory is :func:`mvm.scenes.reconstruct_dir`."""
 from __future__ import annotations
 
-import functools
 import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
 from mvm.core.affinity import affinity_bytes
+from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
 from mvm.core.pipeline import Reconstruction, reconstruct_poses
 from mvm.core.quality import scene_quality
@@ -104,7 +103,7 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
     check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
                           config, scene.name)
     # The hot paths are many small products: BLAS threads only contend with each other.
-    with _blas_controller().limit(limits=1, user_api="blas"):
+    with one_blas_thread():
         result = _scene_result(scene, config, reconstruct_poses(scene.cameras, scene.poses, config, prior, groups))
     if config.complete and len(result.persons):
         from mvm.core.completion import complete_persons
@@ -114,13 +113,6 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
         persons.keypoints3d, persons.flags = complete_persons(persons.keypoints3d, prior or shipped_prior(),
                                                               config.min_person_joints)
     return result
-
-
-@functools.cache
-def _blas_controller() -> ThreadpoolController:
-    """The BLAS libraries loaded by the time the first scene is reconstructed (numpy's and
-    scipy's), found once: looking them up costs more than a small scene's matching."""
-    return ThreadpoolController()
 
 
 def _scene_warnings(scene: Scene, config: Config) -> list[str]:

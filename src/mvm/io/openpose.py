@@ -77,10 +77,67 @@ def read_openpose_frame(path: str | Path, root: str | Path | None = None) -> np.
 
 def read_openpose_frames(paths, root: str | Path | None = None) -> list[np.ndarray]:
     """:func:`read_openpose_frame` of each of ``paths`` (files of one folder are read through
-    :func:`mvm.io.checks.read_many`, which checks the folder once) -> ``[(K_i, 17, 3)]``."""
+    :func:`mvm.io.checks.read_many`, which checks the folder once) -> ``[(K_i, 17, 3)]``.
+
+    The files whose people are plain lists of numbers of one layout are converted together, a
+    few array operations for all of them (per file they cost more than the parsing); any other
+    file, and any bulk conversion that finds a problem, goes through :func:`openpose_people`
+    file by file, so the first bad file in order is the one named."""
     paths = [p if isinstance(p, Path) else Path(p) for p in paths]
-    return [openpose_people(parse_json(decode_text(data, path), path), path)
-            for path, data in zip(paths, read_many(paths, root))]
+    out: list = []
+    plain: list[tuple[int, Path, dict, list]] = []                      # (index in out, path, data, values)
+    for path, data in zip(paths, read_many(paths, root)):
+        parsed = parse_json(decode_text(data, path), path)
+        values = _plain_values(parsed)
+        if values is None:
+            _convert_plain(plain, out)
+            out.append(openpose_people(parsed, path))
+        else:
+            plain.append((len(out), path, parsed, values))
+            out.append(None)
+    _convert_plain(plain, out)
+    return out
+
+
+def _plain_values(data) -> list | None:
+    """The ``pose_keypoints_2d`` lists of a parsed OpenPose file when every person has one, a
+    list of ints and floats of one layout's length; None otherwise."""
+    if not isinstance(data, dict) or type(data.get("people")) is not list:
+        return None
+    try:
+        values = [person["pose_keypoints_2d"] for person in data["people"]]
+    except (TypeError, KeyError):
+        return None
+    if not all(type(v) is list for v in values):
+        return None
+    lengths = set(map(len, values))
+    if len(lengths) > 1 or not lengths <= _LAYOUTS.keys():
+        return None
+    return values if set(map(type, chain.from_iterable(values))) <= {float, int} else None
+
+
+def _convert_plain(plain: list, out: list) -> None:
+    """Fill ``out`` at the files of ``plain`` (:func:`read_openpose_frames`) with their
+    ``(K, 17, 3)`` keypoints, converted in bulk per layout; then empty ``plain``."""
+    layouts: dict[int, list] = {}
+    for item in plain:
+        layouts.setdefault(len(item[3][0]) if item[3] else 0, []).append(item)
+    try:
+        for n, items in layouts.items():
+            if n == 0:
+                for index, *_ in items:
+                    out[index] = np.zeros((0, NUM_JOINTS, 3))
+                continue
+            flat = np.array([v for item in items for v in item[3]], dtype=float)          # (K, n)
+            if not np.isfinite(flat).all():
+                raise OverflowError
+            people = np.split(_coco17(flat), np.cumsum([len(item[3]) for item in items])[:-1])
+            for (index, *_), kp in zip(items, people):
+                out[index] = kp
+    except OverflowError:                            # a number too large or not finite: named file by file
+        for index, path, parsed, _ in plain:
+            out[index] = openpose_people(parsed, path)
+    plain.clear()
 
 
 def openpose_people(data, path: Path) -> np.ndarray:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
 from mvm.core.pipeline import Reconstruction, group_blocks, reconstruct_poses
 from mvm.core.prior import load_prior
@@ -139,7 +139,7 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
 
     # Whole batches per worker: the result does not depend on the number of workers.
     chunks = split(-(-len(instants) // batch_size), available_workers(workers), min_size=max(1, 32 // batch_size))
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         parts = fork_map(lambda batches: run(batches, progress if batches.start == 0 else None), chunks, workers)
     if progress is not None and len(chunks) > 1:
         progress(len(instants), len(instants))

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -47,10 +46,6 @@ class RigResult:
     timings: dict = field(default_factory=dict)
 
 
-def _number(v, digits=6):
-    return round(float(v), digits) if math.isfinite(v) else None
-
-
 def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, track: np.ndarray,
                   camera_names, flags: np.ndarray | None = None, workers: int | None = None) -> str:
     """One JSON object per instant: ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
@@ -63,27 +58,26 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
     bounds = np.searchsorted(persons.instant, np.arange(len(frames) + 1))
     flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING) if flags is None else np.asarray(flags)
     J = len(COCO_KEYPOINTS)
-    missing = [None, None, None, 0.0]
 
     def lines(instants: range) -> str:
         rows = slice(bounds[instants.start], bounds[instants.stop])
         names = flag_names(flags[rows])
         views = (persons.inliers[rows] & (flags[rows] == OBSERVED)[:, None, :]).sum(1).tolist()
-        coords = X[rows, :J].tolist()                                             # plain floats, one pass
-        scores = np.asarray(persons.scores[rows], dtype=float)[:, :J].tolist()
-        finite = np.isfinite(X[rows, :J]).all(-1).tolist()
+        # [x, y, z, score] rounded to 6 and 4 decimals, [NaN, NaN, NaN, 0] where missing; orjson
+        # writes NaN as null. Plain nested lists in one pass.
+        keypoints = np.concatenate([np.round(X[rows, :J], 6),
+                                    np.round(np.asarray(persons.scores[rows], dtype=float)[:, :J, None], 4)], axis=-1)
+        keypoints[~np.isfinite(X[rows, :J]).all(-1)] = (np.nan, np.nan, np.nan, 0.0)
+        keypoints = keypoints.tolist()
         members = persons.members[rows].tolist()
-        errors = [_number(e, 4) for e in np.asarray(persons.reprojection_error_px[rows], dtype=float).tolist()]
+        errors = np.round(np.asarray(persons.reprojection_error_px[rows], dtype=float), 4).tolist()
         ids = np.asarray(track[rows]).tolist()
         out = []
         for t in instants:
-            found = []
-            for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start):
-                kp = [[round(c[0], 6), round(c[1], 6), round(c[2], 6), round(score, 4)] if ok else list(missing)
-                      for c, score, ok in zip(coords[q], scores[q], finite[q])]
-                found.append({"id": int(ids[q]), "keypoints3d": kp, "flags": names[q],
-                              "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
-                              "views_per_joint": views[q], "reprojection_error_px": errors[q]})
+            found = [{"id": ids[q], "keypoints3d": keypoints[q], "flags": names[q],
+                      "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
+                      "views_per_joint": views[q], "reprojection_error_px": errors[q]}
+                     for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start)]
             out.append(orjson.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found}))
         return b"\n".join(out).decode() + "\n" if out else ""
 
