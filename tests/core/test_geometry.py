@@ -105,3 +105,24 @@ def test_smallest_eigenvector_on_nearly_degenerate_matrices():
     broken[0, 1] = np.nan
     out = smallest_eigenvector(broken)
     assert np.isnan(out[1]).all() and np.isfinite(out[[0, 2]]).all()
+
+
+def test_smallest_eigenvector_in_chunks_is_elementwise(monkeypatch):
+    """Solved a few matrices at a time (chunks that split the batch's axes unevenly), a batch
+    of shape (10, 7, 9) gets the same vectors as all at once, and eigh's."""
+    from mvm.core import geometry
+
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(7, 9, 6, 4))
+    N = A.swapaxes(-1, -2) @ A
+    N[3, 4] = np.nan                                                         # one unsolvable matrix
+    whole = geometry.smallest_eigenvector(_packed(N.reshape(-1, 4, 4)).reshape(10, 7, 9))
+    monkeypatch.setattr(geometry, "NULL_VECTOR_CHUNK", 5)
+    chunked = geometry.smallest_eigenvector(_packed(N.reshape(-1, 4, 4)).reshape(10, 7, 9))
+    assert chunked.shape == (7, 9, 4)
+    assert np.array_equal(whole, chunked, equal_nan=True)
+    assert np.isnan(chunked[3, 4]).all()
+    ok = np.ones((7, 9), dtype=bool)
+    ok[3, 4] = False
+    assert (_angle_to(chunked[ok], np.linalg.eigh(N[ok])[1][..., 0]) < 1e-8).all()
+    assert geometry.smallest_eigenvector(np.zeros((10, 0))).shape == (0, 4)

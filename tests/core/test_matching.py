@@ -187,6 +187,31 @@ def test_greedy_in_blocks_is_algorithm_1():
     assert sum(len(g) for g in groups) > 5                                   # the case is not empty
 
 
+def test_one_block_groups_as_the_blocks_do():
+    """A scene (one block, grouped on its own state) gets exactly the groups the batched
+    grouping gives its block, and the reference's, over random affinities with ties."""
+    from mvm.core.matching.greedy import greedy_groups_blocks
+
+    rng = np.random.default_rng(7)
+    checked = 0
+    for trial in range(20):
+        n = int(rng.integers(1, 25))
+        A = rng.uniform(0, 0.5, (n, n)).astype(np.float32)
+        A[rng.uniform(size=A.shape) < 0.2] = np.nan
+        A = np.where(np.isnan(A) | np.isnan(A.T), np.nan, (A + A.T) / 2)
+        w = rng.choice([0.3, 0.5, 0.8, 1.0], n)
+        view = rng.integers(0, 5, n)
+        alone = greedy_groups(A, w, view, 0.2, min_score=0.4, min_group_size=2)
+        # A second, empty block forces the batched path.
+        blocks = greedy_groups_blocks(np.stack([A, np.zeros_like(A)]), np.stack([w, np.zeros(n)]),
+                                      np.stack([view, np.full(n, -1)]), 0.2, min_score=0.4, min_group_size=2)
+        assert [g.tolist() for g in alone] == [g.tolist() for g in blocks[0]] == \
+            _algorithm1(A.astype(float), w, view, 0.2, 0.4, 2)
+        assert all(g.dtype == np.intp for g in alone)
+        checked += sum(len(g) for g in alone)
+    assert checked > 20                                                      # the cases are not empty
+
+
 def test_poses_in_too_few_views_make_no_group_and_are_not_matched(bank_poses):
     """The shortcut of :func:`mvm.core.pipeline.match` (eligible poses in fewer than
     ``min_group_size`` views make no group) gives what the grouping itself gives."""

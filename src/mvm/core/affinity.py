@@ -147,7 +147,9 @@ def _plucker_rays(cameras: Cameras, homogeneous: np.ndarray, view: np.ndarray) -
     K_inv = np.linalg.inv(cameras.K)
     to_world = np.einsum("vba,vbc->vac", cameras.R, K_inv)                        # R^T K^-1: (V, 3, 3)
     b = np.matmul(homogeneous, to_world[view].transpose(0, 2, 1))                   # R^T K^-1 x: (N, J, 3)
-    plucker = np.concatenate([np.cross(centers[view][:, None], b), b], axis=2)       # (N, J, 6)
+    c = centers[view][:, None]                                                          # (N, 1, 3)
+    moment = c[..., [1, 2, 0]] * b[..., [2, 0, 1]] - c[..., [2, 0, 1]] * b[..., [1, 2, 0]]  # C × b, as np.cross
+    plucker = np.concatenate([moment, b], axis=2)                                       # (N, J, 6)
     M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
                   np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
     return plucker, M
@@ -157,7 +159,8 @@ def _no_baseline(centers: np.ndarray, used: np.ndarray) -> np.ndarray:
     """``(V, V)`` bool: pairs of the ``used`` views whose centres coincide (no epipolar geometry),
     relative to the median distance between the used centres. ``centers: (V, 3)``."""
     baseline = np.linalg.norm(centers[used][:, None] - centers[used][None], axis=-1)
-    scale = np.median(baseline) if len(used) > 1 else 1.0
+    ordered = np.sort(baseline, axis=None)                                       # np.median's numbers
+    scale = (ordered[(len(ordered) - 1) // 2] + ordered[len(ordered) // 2]) / 2 if len(used) > 1 else 1.0
     no_baseline = np.zeros((len(centers), len(centers)), dtype=bool)
     no_baseline[np.ix_(used, used)] = baseline <= 1e-9 * max(scale, 1e-12)
     return no_baseline

@@ -68,8 +68,8 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     if K == 0:
         return np.zeros(0), np.zeros(0)
     # Project every person into every view used (Q·F·J points, far fewer than pairs·J).
-    frames, frame_of_pair = np.unique(frame[pose], return_inverse=True)
-    persons, person_of_pair = np.unique(person, return_inverse=True)
+    frames, frame_of_pair = _used(frame[pose], len(P))
+    persons, person_of_pair = _used(person, len(X))
     Xh = np.concatenate([X[persons], np.ones((len(persons), X.shape[1], 1))], axis=-1)   # (Q', J, 4)
     x = np.matmul(Xh[:, None], P[frames].transpose(0, 2, 1)[None])                      # (Q', F', J, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -93,6 +93,15 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     return cost, np.where(np.isfinite(cost), size, np.nan)
 
 
+def _used(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(index, return_inverse=True)`` of indices ``(K,)`` into ``size`` items, by a
+    table of the items used (no sort): the used items, increasing, and each entry's rank among them."""
+    used = np.zeros(size, dtype=bool)
+    used[index] = True
+    rank = np.cumsum(used) - 1
+    return np.flatnonzero(used), rank[index]
+
+
 def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.ndarray,
                      keypoint_threshold: float, min_common_keypoints: int, swap_above: float) -> np.ndarray:
     """Median normalized keypoint distance, the pose as detected or, where that is at least
@@ -104,7 +113,7 @@ def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.
             d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
         d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
         n = common.sum(1)
-        value = np.take_along_axis(d, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0].astype(float)
+        value = d[np.arange(len(d)), np.maximum((n - 1) // 2, 0)].astype(float)
         return np.where(n >= min_common_keypoints, value, np.inf)
 
     cost = median(kp, uv, seen, size)
@@ -131,12 +140,13 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
     if not len(cost):
         return out
     order = np.lexsort((cost, pose))                                 # best pair of each pose first
-    first = np.r_[True, pose[order][1:] != pose[order][:-1]]
+    sorted_pose = pose[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = sorted_pose[1:] != sorted_pose[:-1]
     best = order[first]                                              # (n,) the best pair of each pose
     claim = slot[best].astype(np.int64) * (int(person.max()) + 1) + person[best]      # (slot, person) as one key
-    _, inverse, counts = np.unique(claim, return_inverse=True, return_counts=True)
     clash_slot = np.zeros(slot.max() + 1, dtype=bool)
-    clash_slot[slot[best][counts[inverse] > 1]] = True
+    clash_slot[slot[best][_repeated(claim)]] = True
     easy = best[~clash_slot[slot[best]]]
     out[pose[easy]] = person[easy]
     hard = np.flatnonzero(clash_slot[slot])
@@ -152,6 +162,16 @@ def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slo
             good = matrix[i, j] < gate
             out[poses_u[i[good]]] = persons_u[j[good]]
     return out
+
+
+def _repeated(values: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: the entries of ``values: (n,)`` whose value occurs more than once."""
+    order = np.argsort(values, kind="stable")
+    same = values[order[1:]] == values[order[:-1]]
+    repeated = np.zeros(len(values), dtype=bool)
+    repeated[order[1:][same]] = True
+    repeated[order[:-1][same]] = True
+    return repeated
 
 
 def temporal_cost(keypoints: np.ndarray, frame: np.ndarray, sequence: np.ndarray, assignment: np.ndarray,
@@ -184,7 +204,7 @@ def temporal_cost(keypoints: np.ndarray, frame: np.ndarray, sequence: np.ndarray
     gap = np.full(K, np.inf)
     for idx in (left, right):
         inside = (idx >= 0) & (idx < len(held))
-        idx_c = np.clip(idx, 0, len(held) - 1)
+        idx_c = np.minimum(np.maximum(idx, 0), len(held) - 1)
         same = inside & (key_person[idx_c] == person)
         g = np.where(same, np.abs(key_pos[idx_c] - sequence[frame[pose]]), np.inf)
         better = (g < gap) & (g <= max_gap) & (g > 0)

@@ -61,61 +61,98 @@ def dlt_terms(points: np.ndarray, P: np.ndarray) -> np.ndarray:
     return np.stack([(rows[:, i] * rows[:, j]).sum(0) for i, j in PACKED_4X4])
 
 
-def _adjugate(m: list) -> list:
-    """Adjugate of symmetric 4 × 4 matrices given as the 16 entries ``m[i][j]`` (arrays), by
-    2 × 2 minors: ``adj[i][j]`` (symmetric; only ``j >= i`` are computed, mirrored)."""
-    s0, s1, s2 = m[0][0] * m[1][1] - m[1][0] * m[0][1], m[0][0] * m[1][2] - m[1][0] * m[0][2], \
-        m[0][0] * m[1][3] - m[1][0] * m[0][3]
-    s3, s4, s5 = m[0][1] * m[1][2] - m[1][1] * m[0][2], m[0][1] * m[1][3] - m[1][1] * m[0][3], \
-        m[0][2] * m[1][3] - m[1][2] * m[0][3]
-    c5, c4, c3 = m[2][2] * m[3][3] - m[3][2] * m[2][3], m[2][1] * m[3][3] - m[3][1] * m[2][3], \
-        m[2][1] * m[3][2] - m[3][1] * m[2][2]
-    c2, c1 = m[2][0] * m[3][3] - m[3][0] * m[2][3], m[2][0] * m[3][2] - m[3][0] * m[2][2]
-    a = [[None] * 4 for _ in range(4)]
-    a[0][0] = m[1][1] * c5 - m[1][2] * c4 + m[1][3] * c3
-    a[0][1] = -m[0][1] * c5 + m[0][2] * c4 - m[0][3] * c3
-    a[0][2] = m[3][1] * s5 - m[3][2] * s4 + m[3][3] * s3
-    a[0][3] = -m[2][1] * s5 + m[2][2] * s4 - m[2][3] * s3
-    a[1][1] = m[0][0] * c5 - m[0][2] * c2 + m[0][3] * c1
-    a[1][2] = -m[3][0] * s5 + m[3][2] * s2 - m[3][3] * s1
-    a[1][3] = m[2][0] * s5 - m[2][2] * s2 + m[2][3] * s1
-    a[2][2] = m[3][0] * s4 - m[3][1] * s2 + m[3][3] * s0
-    a[2][3] = -m[2][0] * s4 + m[2][1] * s2 - m[2][3] * s0
-    a[3][3] = m[2][0] * s3 - m[2][1] * s1 + m[2][2] * s0
-    for i in range(4):
-        for j in range(i):
-            a[i][j] = a[j][i]
-    return a
+#: The 2 × 2 minors of rows 0, 1 (``s``) and rows 2, 3 (``c``) of a 4 × 4 matrix, by column
+#: pair ``(i, j)``: ``m[r][i] m[r + 1][j] − m[r + 1][i] m[r][j]``. Rows of :data:`_MINORS`, in this
+#: order: s01 s02 s03 s12 s13 s23, then c23 c13 c12 c03 c02.
+_MINOR_COLUMNS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (2, 3), (1, 3), (1, 2), (0, 3), (0, 2)])
+_MINOR_ROW = np.array([0] * 6 + [2] * 5)
+S0, S1, S2, S3, S4, S5, C5, C4, C3, C2, C1 = range(11)
+
+#: The upper triangle of the adjugate, entry ``(i, j)`` as ``sign · (m_a q_a − m_b q_b + m_c q_c)``
+#: with ``m_*`` entries (row, column) of the matrix and ``q_*`` minors (Laplace expansion by
+#: complementary minors).
+_ADJUGATE = (
+    ((0, 0), +1, ((1, 1), C5), ((1, 2), C4), ((1, 3), C3)),
+    ((0, 1), -1, ((0, 1), C5), ((0, 2), C4), ((0, 3), C3)),
+    ((0, 2), +1, ((3, 1), S5), ((3, 2), S4), ((3, 3), S3)),
+    ((0, 3), -1, ((2, 1), S5), ((2, 2), S4), ((2, 3), S3)),
+    ((1, 1), +1, ((0, 0), C5), ((0, 2), C2), ((0, 3), C1)),
+    ((1, 2), -1, ((3, 0), S5), ((3, 2), S2), ((3, 3), S1)),
+    ((1, 3), +1, ((2, 0), S5), ((2, 2), S2), ((2, 3), S1)),
+    ((2, 2), +1, ((3, 0), S4), ((3, 1), S2), ((3, 3), S0)),
+    ((2, 3), -1, ((2, 0), S4), ((2, 1), S2), ((2, 3), S0)),
+    ((3, 3), +1, ((2, 0), S3), ((2, 1), S1), ((2, 2), S0)),
+)
+_ADJ_SIGN = np.array([sign for _, sign, *_ in _ADJUGATE], dtype=float)
+_ADJ_ENTRY = np.array([[4 * i + j for (i, j), _ in terms] for _, _, *terms in _ADJUGATE]).T     # (3, 10)
+_ADJ_MINOR = np.array([[q for _, q in terms] for _, _, *terms in _ADJUGATE]).T                  # (3, 10)
+#: Packed index (:data:`PACKED_4X4`) of each of the 16 entries of a symmetric 4 × 4 matrix.
+_UNPACK = np.array([[PACKED_4X4.index((min(i, j), max(i, j))) for j in range(4)] for i in range(4)]).ravel()
 
 
-def _matvec(m: list, v: list) -> list:
-    return [m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2] + m[i][3] * v[3] for i in range(4)]
+def _adjugate(m: np.ndarray) -> np.ndarray:
+    """Adjugate of symmetric 4 × 4 matrices ``m: (16, ...)`` (entry ``4 i + j`` first) ->
+    ``(16, ...)``, by 2 × 2 minors, every minor and every entry of the upper triangle in one
+    step each (mirrored below)."""
+    rows = 4 * _MINOR_ROW[:, None] + _MINOR_COLUMNS                          # (11, 2)
+    minors = m[rows[:, 0]] * m[rows[:, 1] + 4] - m[rows[:, 0] + 4] * m[rows[:, 1]]   # (11, ...)
+    e, q = _ADJ_ENTRY, _ADJ_MINOR
+    upper = m[e[0]] * minors[q[0]] - m[e[1]] * minors[q[1]] + m[e[2]] * minors[q[2]]   # (10, ...)
+    upper *= _ADJ_SIGN.reshape((10,) + (1,) * (m.ndim - 1))
+    return upper[_UNPACK]
 
 
-def _normalized(v: list) -> list:
-    norm = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3])
+def _matvec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``m: (16, ...)`` 4 × 4 matrices times ``v: (4, ...)`` vectors -> ``(4, ...)``, the four
+    products of each row summed in column order."""
+    m = m.reshape((4, 4) + m.shape[1:])
+    out = m[:, 0] * v[0]
+    for j in range(1, 4):
+        out += m[:, j] * v[j]
+    return out
+
+
+def _sum4(x: np.ndarray) -> np.ndarray:
+    """``x[0] + x[1] + x[2] + x[3]``, in that order."""
+    return x[0] + x[1] + x[2] + x[3]
+
+
+def _normalized(v: np.ndarray) -> np.ndarray:
+    norm = np.sqrt(_sum4(v * v))
     with np.errstate(divide="ignore", invalid="ignore"):
-        return [c / norm for c in v]
+        return v / norm
 
 
-def _power_null_vector(m: list, iterations: int) -> tuple[list, np.ndarray]:
-    """Smallest eigenvector of the symmetric PSD matrices ``m[i][j]`` (entries scaled to trace 1)
-    by power iteration on the adjugate, whose eigenvalues are ``λ₂λ₃λ₄ >= λ₁λ₃λ₄ >= …`` (same
-    eigenvectors): each step shrinks the error by ``λ₁ / λ₂``. Returns the unit vector (4 arrays)
-    and ``ok``: the Davis–Kahan bound ``‖N v − ρ v‖ / (λ₂ − ρ)`` is below :data:`NULL_VECTOR_TOLERANCE`,
-    with ``λ₂ >= e₃' / e₂'`` from the elementary symmetric functions of ``λ₂, λ₃, λ₄``."""
+#: Entries ``(i, i)``, ``(j, j)`` and ``(i, j)`` of the pairs ``i < j`` of a 4 × 4 matrix ``(16, ...)``.
+_PAIR_II = np.array([0, 0, 0, 5, 5, 10])
+_PAIR_JJ = np.array([5, 10, 15, 10, 15, 15])
+_PAIR_IJ = np.array([1, 2, 3, 6, 7, 11])
+
+
+def _power_null_vector(m: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """Smallest eigenvector of the symmetric PSD matrices ``m: (16, ...)`` (entries scaled to
+    trace 1) by power iteration on the adjugate, whose eigenvalues are ``λ₂λ₃λ₄ >= λ₁λ₃λ₄ >= …``
+    (same eigenvectors): each step shrinks the error by ``λ₁ / λ₂``. Returns the unit vector
+    ``(4, ...)`` and ``ok``: the Davis–Kahan bound ``‖N v − ρ v‖ / (λ₂ − ρ)`` is below
+    :data:`NULL_VECTOR_TOLERANCE`, with ``λ₂ >= e₃' / e₂'`` from the elementary symmetric
+    functions of ``λ₂, λ₃, λ₄``."""
     adj = _adjugate(m)
-    diagonal = np.stack([adj[i][i] for i in range(4)])
+    diagonal = adj[[0, 5, 10, 15]]
     start = np.argmax(diagonal, axis=0)                                      # the largest column of adj
-    v = [np.choose(start, adj[i]) for i in range(4)]
+    v = np.take_along_axis(adj.reshape((4, 4) + adj.shape[1:]), start[None, None], axis=1)[:, 0]
     for _ in range(iterations):
         v = _normalized(_matvec(adj, v))
     Nv = _matvec(m, v)
-    rho = sum(v[i] * Nv[i] for i in range(4))
-    residual = np.sqrt(sum((Nv[i] - rho * v[i]) ** 2 for i in range(4)))
-    e1 = m[0][0] + m[1][1] + m[2][2] + m[3][3]
-    e2 = sum(m[i][i] * m[j][j] - m[i][j] * m[i][j] for i in range(4) for j in range(i + 1, 4))
-    e3 = diagonal.sum(0)
+    rho = _sum4(v * Nv)
+    r = Nv - rho * v
+    residual = np.sqrt(_sum4(r * r))
+    e1 = _sum4(m[[0, 5, 10, 15]])
+    off = m[_PAIR_IJ]
+    minors = m[_PAIR_II] * m[_PAIR_JJ] - off * off                          # (6, ...)
+    e2 = 0.0 + minors[0]
+    for k in range(1, 6):
+        e2 += minors[k]
+    e3 = _sum4(diagonal)
     e1r = e1 - rho
     e2r = e2 - rho * e1r
     e3r = e3 - rho * e2r
@@ -141,23 +178,33 @@ def smallest_eigenvector(packed: np.ndarray, iterations: int = 2) -> np.ndarray:
     array([0., 1., 0., 0.])
     """
     packed = np.asarray(packed, dtype=float)
+    flat = packed.reshape(10, -1)
+    vectors = np.empty((flat.shape[1], 4))
+    for start in range(0, flat.shape[1], NULL_VECTOR_CHUNK):
+        vectors[start:start + NULL_VECTOR_CHUNK] = _smallest_eigenvectors(flat[:, start:start + NULL_VECTOR_CHUNK],
+                                                                          iterations)
+    return vectors.reshape(packed.shape[1:] + (4,))
+
+
+#: :func:`smallest_eigenvector` solves this many matrices at a time: its temporaries (about a
+#: hundred per matrix) then stay in cache, whatever the batch.
+NULL_VECTOR_CHUNK = 2**14
+
+
+def _smallest_eigenvectors(packed: np.ndarray, iterations: int) -> np.ndarray:
+    """:func:`smallest_eigenvector` of ``packed: (10, n)`` -> ``(n, 4)``."""
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         scale = packed[0] + packed[4] + packed[7] + packed[9]
         unit = packed / np.where(scale > 0, scale, 1.0)
-        m = [[None] * 4 for _ in range(4)]
-        for k, (i, j) in enumerate(PACKED_4X4):
-            m[i][j] = m[j][i] = unit[k]
-        v, ok = _power_null_vector(m, iterations)
-    vectors = np.stack(v, axis=-1)
+        v, ok = _power_null_vector(unit[_UNPACK], iterations)
+    vectors = v.T
     bad = ~ok
     if bad.any():
-        full = np.empty(packed.shape[1:] + (4, 4))
-        for k, (i, j) in enumerate(PACKED_4X4):
-            full[..., i, j] = full[..., j, i] = packed[k]
-        chosen = full[bad]
+        chosen = np.moveaxis(packed[:, bad][_UNPACK].reshape(4, 4, -1), 2, 0)     # (b, 4, 4)
         finite = np.isfinite(chosen).all(axis=(-2, -1))
         fixed = np.full(chosen.shape[:-1], np.nan)
-        fixed[finite] = np.linalg.eigh(chosen[finite])[1][..., :, 0]
+        if finite.any():
+            fixed[finite] = np.linalg.eigh(chosen[finite])[1][..., :, 0]
         vectors[bad] = fixed
     return vectors
 
@@ -211,4 +258,4 @@ def ray_spread_deg(directions: np.ndarray, mask: np.ndarray) -> np.ndarray:
     cos_mean = np.where(mask, (d * mean[..., None, :]).sum(-1), 2.0)
     far = np.take_along_axis(d, np.argmin(cos_mean, axis=-1)[..., None, None], axis=-2)  # (..., 1, 3)
     cos = np.where(mask, (d * far).sum(-1), 1.0)
-    return np.degrees(np.arccos(np.clip(cos.min(axis=-1), -1.0, 1.0)))
+    return np.degrees(np.arccos(np.minimum(np.maximum(cos.min(axis=-1), -1.0), 1.0)))

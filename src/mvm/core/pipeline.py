@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,7 +88,7 @@ def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
     eligible in fewer views make none (e.g. the few false positives the association leaves
     over), and their affinity need not be computed."""
     eligible = np.where(np.isfinite(score), score, 0.0) >= config.min_pose_score     # as the grouping reads it
-    return len(np.unique(view[eligible])) >= max(config.min_group_size, 1)
+    return np.count_nonzero(np.bincount(view[eligible])) >= max(config.min_group_size, 1)
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
@@ -119,16 +118,21 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
 
     P = len(X)
     i, j = np.nonzero((block[:, None] == block[None]) & ~np.eye(P, dtype=bool))
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)                      # all-NaN rows
-        torso = np.nanmean(np.stack([np.linalg.norm(X[:, LEFT_SHOULDER] - X[:, LEFT_HIP], axis=-1),
-                                     np.linalg.norm(X[:, RIGHT_SHOULDER] - X[:, RIGHT_HIP], axis=-1)]), axis=0)
-        diff = np.linalg.norm(X[i] - X[j], axis=-1)                          # (K, J)
-        mirrored = np.linalg.norm(X[i] - X[j][:, FLIP_PERMUTATION], axis=-1)
-        mean = np.fmin(np.nanmean(diff, axis=-1), np.nanmean(mirrored, axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):                    # all-NaN rows: NaN
+        bones = X[:, [LEFT_SHOULDER, RIGHT_SHOULDER]] - X[:, [LEFT_HIP, RIGHT_HIP]]
+        torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
+        diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])       # as is, mirrored: (2, K, J, 3)
+        mean = _nanmean(np.sqrt((diff * diff).sum(-1)), axis=-1)              # (2, K)
         close = np.zeros((P, P), dtype=bool)
-        close[i, j] = mean < max_relative_distance * np.fmax(torso[i], torso[j])
+        close[i, j] = np.fmin(mean[0], mean[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
     return close
+
+
+def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
+    """``np.nanmean(a, axis)``, the same numbers (NaN where a slice has none), without its
+    warning machinery."""
+    missing = np.isnan(a)
+    return np.where(missing, 0.0, a).sum(axis) / (~missing).sum(axis)
 
 
 def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,

@@ -48,6 +48,7 @@ def row_nanmedian(a: np.ndarray) -> np.ndarray:
     masked arrays and costs several times more."""
     s = np.sort(a, axis=1)
     n = (~np.isnan(a)).sum(1)
-    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[:, None], axis=1)[:, 0]
-    hi = np.take_along_axis(s, np.minimum(n // 2, a.shape[1] - 1)[:, None], axis=1)[:, 0]
+    rows = np.arange(len(s))
+    lo = s[rows, np.maximum((n - 1) // 2, 0)]
+    hi = s[rows, np.minimum(n // 2, a.shape[1] - 1)]
     return np.where(n > 0, (lo + hi) / 2, np.nan)

@@ -5,6 +5,7 @@ A group is padded to ``M`` (its largest size) views; arrays have axes ``(P, M, J
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,11 +81,14 @@ class Triangulation:
     parallax_deg: np.ndarray
 
 
+@functools.lru_cache(maxsize=64)
 def _pair_table(M: int) -> np.ndarray:
     """``(C(M, 2), 2)`` the pairs ``i < j`` of ``M`` ranks ordered by ``j``: the first ``C(n, 2)``
-    are exactly the pairs of the first ``n`` ranks."""
+    are exactly the pairs of the first ``n`` ranks. Made once per ``M`` (read-only)."""
     j, i = np.divmod(np.arange(M * M), M)
-    return np.stack([i, j], -1)[i < j]
+    table = np.stack([i, j], -1)[i < j]
+    table.flags.writeable = False
+    return table
 
 
 def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +122,8 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, 
         slot = np.arange(shape[-1]) % np.maximum(pairs, 1)[..., None]        # (P, J, H)
         a = np.where(enumerate_all[..., None], table[slot, 0] * (pairs[..., None] > 0), a)
         b = np.where(enumerate_all[..., None], table[slot, 1] * (pairs[..., None] > 0), b)
-    return np.take_along_axis(order, a, axis=2), np.take_along_axis(order, b, axis=2)
+    p, j = np.ogrid[:shape[0], :shape[1]]
+    return order[p[..., None], j[..., None], a], order[p[..., None], j[..., None], b]
 
 
 def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndarray, np.ndarray]:
@@ -203,7 +208,9 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
     world points join the two-view hypotheses."""
     a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
     # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
-    X_h = solve_dlt(np.take_along_axis(terms, a[None], axis=-1) + np.take_along_axis(terms, b[None], axis=-1), a != b)
+    p, j = np.ogrid[:a.shape[0], :a.shape[1]]
+    p, j = p[..., None], j[..., None]
+    X_h = solve_dlt(terms[:, p, j, a] + terms[:, p, j, b], a != b)
     if initial is not None:
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
@@ -212,4 +219,5 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
                                                threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
     cost[~np.isfinite(X_h).all(-1)] = np.inf
     best = np.argmin(cost, axis=-1)                                           # (P, J)
-    return np.take_along_axis(ok & (err < threshold_px), best[:, None, :, None], axis=3)[..., 0]
+    p, m, j = np.ogrid[:ok.shape[0], :ok.shape[1], :ok.shape[2]]
+    return (ok & (err < threshold_px))[p, m, j, best[:, None]]

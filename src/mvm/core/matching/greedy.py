@@ -43,8 +43,45 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
     if A.shape != (N, N) or np.shape(view) != (N,):
         raise ValueError(f"greedy_groups: expected A (N, N) and view (N,) with N = {N}, "
                          f"got {A.shape} and {np.shape(view)}")
-    return greedy_groups_blocks(A[None], np.asarray(score)[None], np.asarray(view)[None], tau, min_score,
-                                min_group_size)[0]
+    w = np.asarray(score, dtype=float)
+    w = np.where(np.isfinite(w), w, 0.0)
+    view = np.asarray(view)
+    return _one_block(A, w, view, (view >= 0) & (w >= min_score), tau, min_group_size)
+
+
+def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndarray, tau: float,
+               min_group_size: int) -> list[np.ndarray]:
+    """The steps of :func:`greedy_groups_blocks` for a single block (a scene), on ``(n,)`` state
+    and scalars: the same choices and the same sums, without the per-step gathers of the
+    batched version, whose fixed cost dominates on a few dozen poses. ``A: (n, n)``; ``w, view,
+    eligible: (n,)``."""
+    n = len(w)
+    available = eligible.copy()
+    groups: list[np.ndarray] = []
+    while True:
+        seed = int(np.argmax(np.where(available, w, -np.inf))) if n else 0
+        if not n or not available[seed]:
+            return groups
+        members = [seed]
+        open_ = available.copy()
+        weighted_sum = np.zeros(n)
+        total_weight = np.zeros(n)
+        x = seed
+        while True:
+            available[x] = False
+            open_ &= view != view[x]
+            a = np.asarray(A[x], dtype=np.float32)
+            defined = ~np.isnan(a)
+            weight = w[x:x + 1]                                               # float64, as the blocks'
+            weighted_sum += weight * np.where(defined, a, np.float32(0))          # Σ_p w_p A(x, p)
+            total_weight += weight * defined                                      # Σ_p w_p [A defined]
+            x = int(np.argmax(np.where(open_, w * weighted_sum, -np.inf)))
+            total = total_weight[x]
+            if not (open_[x] and weighted_sum[x] >= tau * total and total != 0):
+                break
+            members.append(x)
+        if len(members) >= min_group_size:
+            groups.append(np.array(members, dtype=np.intp))
 
 
 def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float,
@@ -60,6 +97,9 @@ def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau
         return [[] for _ in range(B)]
     w = np.asarray(score, dtype=float)
     w = np.where(np.isfinite(w), w, 0.0)
+    if B == 1:
+        view = np.asarray(view)
+        return [_one_block(A[0], w[0], view[0], (view[0] >= 0) & (w[0] >= min_score), tau, min_group_size)]
     state = _Growth(eligible=(view >= 0) & (w >= min_score), joined=np.full((B, n), -1), seed=np.zeros((B, n), bool),
                     weighted_sum=np.zeros((B, n)), total_weight=np.zeros((B, n)), open_=np.zeros((B, n), bool),
                     growing=np.zeros(B, bool), done=np.zeros(B, bool))
