@@ -602,11 +602,9 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
                        np.asarray(inliers, bool) & present[:, None, :])
     if not obs.fit.any():
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
-    use_prior = prior is not None and prior_weight > 0
     bones = (BoneTerms.build(bone_lengths, bone_weight, present)
              if bone_lengths is not None and bone_weight > 0 else None)
-    prior = prior if use_prior else None
-
+    prior = prior if prior is not None and prior_weight > 0 else None
     X = np.where(present[..., None], X0, 0.0)
     e0, _ = obs.reprojection(X)
     robust, sqrt_w = robust_terms(e0, obs, robust_scale_px)
