@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import SEED, Number, command, config_options, fmt, measure_table, out, read_config, refused
+from mvm.cli.common import SEED, Number, command, config_options, fmt, measure_table, out, read_config, refused, say
 
 
 def scene_options(f):
@@ -87,7 +87,7 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
          " / ".join(fmt(report["timings"][k], 3) for k in ("matching_s", "triangulation_s", "refinement_s"))),
         ("time: whole demo (s)", fmt(time.perf_counter() - t)),
     ])
-    out().print(f"scene: {report['scene']}  result: {report['poses3d']}  ground truth: {report['ground_truth']}")
+    say(f"scene: {report['scene']}  result: {report['poses3d']}  ground truth: {report['ground_truth']}")
 
 
 @command("bench")
@@ -118,4 +118,4 @@ def bench_cmd(quick, out_dir, refine, trajectories):
         table.add_row(row["method"], f"{row['E_R_px']:.1f}", f"{row['G_k']:.1f}", f"{row['f1']:.3f}",
                       f"{row['mpjpe_mm']:.1f}", f"{row['matching_s']:.3f}")
     out().print(table)
-    out().print(f"tables: {path}")
+    say(f"tables: {path}")

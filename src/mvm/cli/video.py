@@ -17,10 +17,10 @@ from mvm.cli.common import (
     command,
     err,
     measure_table,
-    out,
     rate_column,
     read_config,
     refused,
+    say,
     stage_progress,
 )
 from mvm.cli.common import fmt as _f
@@ -217,4 +217,4 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
                                                                    ("frames", "sfm", "detect", "reconstruct"))),
     ]
     measure_table(f"mvm run: {scene}", rows)
-    out().print(f"result: {rec.path}")
+    say(f"result: {rec.path}")
