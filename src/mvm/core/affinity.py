@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.core.geometry import skew
+from mvm.core.geometry import cross, skew
 from mvm.core.scene import Cameras, Poses2D
 
 #: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
@@ -147,9 +147,7 @@ def _plucker_rays(cameras: Cameras, homogeneous: np.ndarray, view: np.ndarray) -
     K_inv = np.linalg.inv(cameras.K)
     to_world = np.einsum("vba,vbc->vac", cameras.R, K_inv)                        # R^T K^-1: (V, 3, 3)
     b = np.matmul(homogeneous, to_world[view].transpose(0, 2, 1))                   # R^T K^-1 x: (N, J, 3)
-    c = centers[view][:, None]                                                          # (N, 1, 3)
-    moment = c[..., [1, 2, 0]] * b[..., [2, 0, 1]] - c[..., [2, 0, 1]] * b[..., [1, 2, 0]]  # C × b, as np.cross
-    plucker = np.concatenate([moment, b], axis=2)                                       # (N, J, 6)
+    plucker = np.concatenate([cross(centers[view][:, None], b), b], axis=2)          # (N, J, 6)
     M = np.einsum("vba,vbc,vcd->vad", K_inv, cameras.R,
                   np.concatenate([np.broadcast_to(np.eye(3), (len(cameras), 3, 3)), -skew(centers)], axis=2))
     return plucker, M

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
+from mvm.core.geometry import cross
 from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
 from mvm.core.shipped import read_arrays
 from mvm.errors import InputError
@@ -72,9 +73,7 @@ def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         z = up - np.sum(up * x, axis=-1, keepdims=True) * x
         z_norm = np.linalg.norm(z, axis=-1, keepdims=True)
         z = z / z_norm
-        y = np.stack([z[..., 1] * x[..., 2] - z[..., 2] * x[..., 1], z[..., 2] * x[..., 0] - z[..., 0] * x[..., 2],
-                      z[..., 0] * x[..., 1] - z[..., 1] * x[..., 0]], axis=-1)                  # z × x
-        rotation = np.stack([x, y, z], axis=-2)
+        rotation = np.stack([x, cross(z, x), z], axis=-2)
     degenerate = ~((x_norm[..., 0] > _EPS * scale) & (z_norm[..., 0] > _EPS * scale) & (scale > _EPS))
     rotation[degenerate] = np.nan
     scale = np.where(degenerate, np.nan, scale)
