@@ -43,10 +43,8 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
     if A.shape != (N, N) or np.shape(view) != (N,):
         raise ValueError(f"greedy_groups: expected A (N, N) and view (N,) with N = {N}, "
                          f"got {A.shape} and {np.shape(view)}")
-    w = np.asarray(score, dtype=float)
-    w = np.where(np.isfinite(w), w, 0.0)
-    view = np.asarray(view)
-    return _one_block(A, w, view, (view >= 0) & (w >= min_score), tau, min_group_size)
+    return greedy_groups_blocks(A[None], np.asarray(score)[None], np.asarray(view)[None], tau, min_score,
+                                min_group_size)[0]
 
 
 def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndarray, tau: float,
@@ -54,13 +52,13 @@ def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndar
     """The steps of :func:`greedy_groups_blocks` for a single block (a scene), on ``(n,)`` state
     and scalars: the same choices and the same sums, without the per-step gathers of the
     batched version, whose fixed cost dominates on a few dozen poses. ``A: (n, n)``; ``w, view,
-    eligible: (n,)``."""
+    eligible: (n,)``, ``n >= 1``."""
     n = len(w)
     available = eligible.copy()
     groups: list[np.ndarray] = []
     while True:
-        seed = int(np.argmax(np.where(available, w, -np.inf))) if n else 0
-        if not n or not available[seed]:
+        seed = int(np.argmax(np.where(available, w, -np.inf)))
+        if not available[seed]:
             return groups
         members = [seed]
         open_ = available.copy()
