@@ -27,21 +27,13 @@ def pose_distance(a: np.ndarray, b: np.ndarray, min_joints: int | np.ndarray = 1
 
 def assign(cost: np.ndarray, feasible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The minimum-cost assignment of rows to columns among the ``feasible`` pairs (Hungarian):
-    ``cost, feasible: (R, C)`` -> the rows and columns ``(K,), (K,)`` of the pairs kept.
-
-    Where every row's cheapest feasible column is a different column, those pairs are the
-    assignment (each row at its lowest cost, and every row that can be matched is: no
-    assignment does better); real conflicts (two people crossing close) go to
-    :func:`mvm.core.assignment.min_cost_assignment`."""
-    r = np.flatnonzero(feasible.any(1))
-    if not len(r):
-        return r, np.zeros(0, dtype=np.intp)
-    c = np.argmin(np.where(feasible, cost, np.inf), axis=1)[r]
-    if len(np.unique(c)) == len(c):
-        return r, c
-    r, c = min_cost_assignment(np.where(feasible, cost, 1e12))
-    ok = feasible[r, c]
-    return r[ok], c[ok]
+    ``cost, feasible: (R, C)`` -> the rows and columns ``(K,), (K,)`` of the pairs kept, as many
+    as can be, then the cheapest (:func:`mvm.core.assignment.min_cost_assignment` of the rows
+    that have a feasible column)."""
+    rows = np.flatnonzero(feasible.any(1))
+    r, c = min_cost_assignment(np.where(feasible, cost, 1e12)[rows])
+    ok = feasible[rows[r], c]
+    return rows[r][ok], c[ok]
 
 
 @dataclass
