@@ -306,24 +306,6 @@ def each_isolated(items, work, failed: list, console=None):
             yield item, result
 
 
-def run_each(items, work, label: str = "") -> tuple[list, list]:
-    """:func:`each_isolated` under a progress bar; returns ``([(item, result)], [failed item])``."""
-    done, failed = [], []
-    items = list(items)
-    with progress() as bar:
-        task = bar.add_task(label, total=len(items))
-
-        def step(item):
-            bar.update(task, description=f"{label} {getattr(item, 'name', item)}".strip())
-            try:
-                return work(item)
-            finally:
-                bar.advance(task)
-
-        done = list(each_isolated(items, step, failed, bar.console))
-    return done, failed
-
-
 def run_outcomes(total: int, outcomes, label: str = "") -> tuple[list, list]:
     """A progress bar over ``outcomes``, ``(item, result or Exception)`` pairs from a library
     driver that isolates its items itself (e.g. :func:`mvm.scenes.reconstruct_dirs`); each
