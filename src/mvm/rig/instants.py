@@ -101,7 +101,7 @@ def reconstruct_batch(cameras: Cameras, poses: Poses2D, config: Config, prior=No
 
 
 def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None = None,
-                         prior=None, batch_size: int = 64,
+                         prior=None, batch_size: int = 32,
                          progress: Callable[[int, int], None] | None = None,
                          workers: int | None = None) -> InstantPersons:
     """Reconstruct the persons of every instant of ``poses`` (``poses.view``: the camera,
