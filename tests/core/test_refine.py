@@ -94,17 +94,27 @@ def test_damped_steps_in_the_body_basis_are_the_world_steps():
     assert np.all(steps[~np.repeat(present, 3, axis=1)] == 0)
 
 
-def test_spd_solve_solves_every_system_including_indefinite_ones():
-    """Cholesky per matrix against LU; an indefinite and a negative definite matrix (Cholesky
-    fails on them) are still solved."""
+def test_spd_solve_solves_every_system_even_beside_a_singular_one():
+    """Every system of the batch is solved (``A x = b``), an indefinite and a negative definite
+    one included; a batch holding an exactly singular matrix, which numpy's batched solve
+    refuses whole, is solved matrix by matrix, that one in the least-squares sense."""
     rng = np.random.default_rng(5)
     A = rng.normal(size=(5, 9, 9))
     H = A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(9)
     H[1] = -H[1]
     H[3, 0, 0] = -50.0
     b = rng.normal(size=(5, 9))
-    expected = np.linalg.solve(H, b[..., None])[..., 0]
-    np.testing.assert_allclose(spd_solve(H.copy(), b), expected, rtol=1e-10, atol=1e-12)
+    for singular in (False, True):
+        if singular:
+            H[2, 4, :] = H[2, :, 4] = 0.0                              # a coordinate nothing depends on
+        x = spd_solve(H.copy(), b)
+        for p in range(len(H)):
+            if singular and p == 2:
+                # least squares: the residual is orthogonal to the columns (and 0 where it can be)
+                np.testing.assert_allclose(H[p].T @ (H[p] @ x[p] - b[p]), 0.0, atol=1e-9)
+                assert x[p, 4] == pytest.approx(0.0, abs=1e-12)           # the minimum-norm solution
+            else:
+                np.testing.assert_allclose(H[p] @ x[p], b[p], rtol=1e-9, atol=1e-10)
 
 
 def test_prior_energy_is_the_linearized_priors_at_its_point():
