@@ -37,7 +37,7 @@ from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.pipeline import instants_config
 from mvm.rig.rigdir import read_rig
-from mvm.rig.skeleton import observations, refine_tracks, track_bone_lengths
+from mvm.rig.skeleton import OUTER_ITERATIONS, TOLERANCE, observations, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import track_persons
 
 
@@ -78,10 +78,11 @@ def main() -> None:
         cpu, wall, _ = best_of(args.repeats, lambda: refine_tracks(persons, track, detections, cameras, config,
                                                                    prior, options.bone_weight))
         xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
-        solved.append(0)
+        solved.append(0)                                         # refine_tracks' own solve, counted once
         whole = refine.refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale_px,
                                     config.refine_max_iterations, bone_lengths=track_bone_lengths(persons.X, track),
-                                    bone_weight=options.bone_weight, tolerance=1e-5)
+                                    bone_weight=options.bone_weight, outer_iterations=OUTER_ITERATIONS,
+                                    tolerance=TOLERANCE)
         print(f"refine_tracks, {len(persons)} persons: {cpu:.3f} s CPU, {wall:.3f} s wall (best of {args.repeats}); "
               f"objective {whole.cost_before:.6g} -> {whole.cost_after:.9g}; "
               f"persons solved {solved[-1] / len(persons):.2f} x all")
