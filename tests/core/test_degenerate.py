@@ -320,6 +320,22 @@ def test_writer_refuses_nan_and_writes_nothing(tmp_path):
     with pytest.raises(ValueError, match=r"persons\[0\]\.keypoints3d\[1\]\[2\]: refusing to write a non-finite"):
         atomic_write_json(path, {"persons": [{"keypoints3d": [[0.0, 1.0, 2.0], [1.0, 2.0, math.inf]]}]})
     assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ValueError, match=r"json: x: refusing to write a non-finite"):
+        atomic_write_json(path, {1: np.float64(1.5), "x": np.float64(np.nan)}, pretty=True)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("pretty", [False, True])
+def test_writer_reads_back_what_it_was_given(tmp_path, pretty):
+    """Both formatters (orjson, and the standard library for what orjson refuses: numpy
+    floats, keys that are not strings) write JSON that reads back to the same values."""
+    plain = {"a": [1, 2.5, -1.234567891e-7, None, True], "b": {"c": "é", "d": []}, "e": 1e300}
+    path = tmp_path / "plain.json"
+    atomic_write_json(path, plain, pretty=pretty)
+    assert json.loads(path.read_text(encoding="utf-8")) == plain
+    assert ("\n  " in path.read_text(encoding="utf-8")) == pretty
+    atomic_write_json(path, {1: np.float64(0.1), "n": [np.float64(-2.0)]}, pretty=pretty)
+    assert json.loads(path.read_text()) == {"1": 0.1, "n": [-2.0]}
 
 
 @pytest.mark.parametrize("field,change", [

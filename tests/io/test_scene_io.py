@@ -151,3 +151,32 @@ def test_reads_legacy_colmap_text_layout(tmp_path):
     assert np.allclose(model.cameras.R[1], [[0, 0, 1], [0, 1, 0], [-1, 0, 0]], atol=1e-6)
     assert np.allclose(model.cameras.centers[1], [2.0, 0.0, -0.5], atol=1e-6)
     assert np.allclose(model.points3d, [[0.5, 0.2, 3.0]])
+
+
+@pytest.mark.parametrize("binary", [True, False])
+def test_a_model_read_again_is_the_same_and_its_own(tmp_path, binary):
+    """Scenes of one rig share their model: the second is not parsed again, yet every read
+    gives the model of its own files, arrays of its own, and a malformed copy is still refused."""
+    rng = np.random.default_rng(3)
+    cams = random_cameras(rng, 4)
+    for name in ("a", "b"):
+        write_colmap(tmp_path / name, cams, binary=binary)
+    first, second = read_colmap(tmp_path / "a"), read_colmap(tmp_path / "b")
+    assert second.cameras.names == cams.names
+    assert np.allclose(second.cameras.t, cams.t, atol=1e-9)
+    first.cameras.t[:] = 0.0                                  # a caller's edit stays its own
+    assert np.allclose(read_colmap(tmp_path / "b").cameras.t, cams.t, atol=1e-9)
+
+    moved = type(cams)(cams.K, cams.R, cams.t + 1.0, cams.size, cams.names)
+    write_colmap(tmp_path / "c", moved, binary=binary)
+    assert np.allclose(read_colmap(tmp_path / "c").cameras.t, moved.t, atol=1e-9)
+
+    ext = "bin" if binary else "txt"
+    for name in ("cameras", "images", "points3D"):
+        (tmp_path / "d" / f"{name}.{ext}").parent.mkdir(exist_ok=True)
+        (tmp_path / "d" / f"{name}.{ext}").write_bytes((tmp_path / "c" / f"{name}.{ext}").read_bytes())
+    images = tmp_path / "d" / f"images.{ext}"
+    images.write_bytes(images.read_bytes() + b"\n1 garbage\n")
+    read_colmap(tmp_path / "c")
+    with pytest.raises(InputError):
+        read_colmap(tmp_path / "d")

@@ -18,7 +18,7 @@ def _write(out: Path | None, result: dict) -> None:
         from mvm.io.files import atomic_write_json
         from mvm.net.train import finite_or_none
 
-        atomic_write_json(out, finite_or_none(result), indent=1)
+        atomic_write_json(out, finite_or_none(result), pretty=True)
         click.echo(f"{out}")
 
 

@@ -104,5 +104,5 @@ def write_crowd_report(result, out: str | Path, command: str, seconds: float) ->
     atomic_write_text(out / "crowd.csv", _csv(result.rows))
     atomic_write_text(out / "crowd_sweeps.csv", _csv(result.sweep_rows))
     atomic_write_json(out / "crowd.json", {"command": command, "seconds": seconds, "rows": result.rows,
-                                           "sweep_rows": result.sweep_rows}, indent=1)
+                                           "sweep_rows": result.sweep_rows}, pretty=True)
     return out / "crowd.md"

@@ -9,7 +9,7 @@ import numpy as np
 
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
-from mvm.io.colmap_check import check_model
+from mvm.io.colmap_check import check_model, model_files
 
 log = logging.getLogger(__name__)
 
@@ -51,12 +51,34 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
     """Read a COLMAP model (text or binary) from ``sparse`` (or ``sparse/0``).
 
     The files are checked first (:func:`mvm.io.colmap_check.check_model`): a malformed model
-    raises one :class:`InputError` instead of reaching pycolmap.
+    raises one :class:`InputError` instead of reaching pycolmap. A model whose files are
+    byte for byte those of the model read last (the scenes of one rig, exported instant by
+    instant, share their calibration) is not checked and parsed again: its cameras are copied.
     """
+    model_dir = find_model_dir(Path(sparse))
+    files = model_files(model_dir)
+    global _last
+    if _last is not None and _last[0] == files:
+        model = _last[1]
+    else:
+        check_model(model_dir, files)
+        model = _parse(model_dir)
+        _last = files, model
+    if model.unregistered:
+        log.warning("%s: %d images have no pose and are ignored", model_dir, len(model.unregistered))
+    cameras = model.cameras
+    copied = Cameras(cameras.K.copy(), cameras.R.copy(), cameras.t.copy(), cameras.size.copy(), cameras.names)
+    return ColmapModel(copied, model.colmap_cameras, model.points3d.copy(), model.unregistered)
+
+
+#: ``(files, model)``: the content of the model read last (:func:`model_files`) and what it gave.
+_last: tuple[tuple[str, dict[str, bytes]], ColmapModel] | None = None
+
+
+def _parse(model_dir: Path) -> ColmapModel:
+    """The model in ``model_dir`` through pycolmap (its files already checked)."""
     import pycolmap
 
-    model_dir = find_model_dir(Path(sparse))
-    check_model(model_dir)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises ValueError/RuntimeError with C++ context
@@ -79,8 +101,6 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
         size.append((camera.width, camera.height))
         names.append(image.name)
         cams.append(camera)
-    if unregistered:
-        log.warning("%s: %d images have no pose and are ignored", model_dir, len(unregistered))
     if len(set(names)) != len(names):
         raise InputError(model_dir, "images", "duplicate image names")
     points = np.array([p.xyz for p in rec.points3D.values()], dtype=float).reshape(-1, 3)

@@ -67,18 +67,32 @@ class _Model:
     points2d: dict = field(default_factory=dict)        # image id -> number of 2D points
 
 
-def check_model(model_dir: str | Path) -> str:
-    """Check every file of the COLMAP model in ``model_dir``; return its format (``bin``/``txt``)."""
+def model_files(model_dir: str | Path) -> tuple[str, dict[str, bytes]]:
+    """The format of the COLMAP model in ``model_dir`` (``bin``/``txt``) and the content of
+    each of its files, in the order they are checked: ``{"cameras": b"...", ...}`` (the
+    optional ``rigs`` and ``frames`` where present). Files are read the guarded way
+    (:func:`mvm.io.checks.read_bytes`)."""
     model_dir = Path(model_dir)
     ext = model_format(model_dir)
-    model = _Model()
-    check = _BINARY if ext == "bin" else _TEXT
+    files = {}
     for name in OPTIONAL_FILES[:1] + FILES[:1] + OPTIONAL_FILES[1:] + FILES[1:]:
         path = model_dir / f"{name}.{ext}"
         if name in OPTIONAL_FILES and not (path.exists() or path.is_symlink()):
             continue
-        check[name](read_bytes(path), path, model)
-    rigs, frames = ((model_dir / f"{name}.{ext}").exists() for name in OPTIONAL_FILES)
+        files[name] = read_bytes(path)
+    return ext, files
+
+
+def check_model(model_dir: str | Path, files: tuple[str, dict[str, bytes]] | None = None) -> str:
+    """Check every file of the COLMAP model in ``model_dir``; return its format (``bin``/``txt``).
+    ``files``: what :func:`model_files` read of it, else it is read here."""
+    model_dir = Path(model_dir)
+    ext, content = files or model_files(model_dir)
+    model = _Model()
+    check = _BINARY if ext == "bin" else _TEXT
+    for name, data in content.items():
+        check[name](data, model_dir / f"{name}.{ext}", model)
+    rigs, frames = (name in content for name in OPTIONAL_FILES)
     if rigs != frames:
         have, need = ("rigs", "frames") if rigs else ("frames", "rigs")
         raise InputError(model_dir / f"{need}.{ext}", None,

@@ -138,7 +138,7 @@ def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: d
 
 
 def write_poses3d(path: str | Path, document: dict) -> None:
-    atomic_write_json(path, document, indent=1)
+    atomic_write_json(path, document, pretty=True)
 
 
 def load_poses3d_document(path: str | Path, root: str | Path | None = None) -> dict:

@@ -138,5 +138,5 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
                 atomic_write_bytes(out / f"{path.stem}.overlay.jpg", buf.tobytes())
     if out is not None:
         atomic_write_json(out / "predictions.json", {"format": PREDICTIONS_FORMAT, "checkpoint": str(checkpoint),
-                                                     "keypoints": list(COCO_KEYPOINTS), "images": results}, indent=1)
+                                                     "keypoints": list(COCO_KEYPOINTS), "images": results}, pretty=True)
     return results

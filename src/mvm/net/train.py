@@ -384,7 +384,7 @@ def save_checkpoint(out_dir: Path, step: int, model: PoseNet, ema: EMA, optimize
     atomic_write_bytes(pt, data)
     atomic_write_json(js, finite_or_none({"format": CHECKPOINT_FORMAT, "model": _unwrap(model).spec.to_dict(),
                                           "step": step, "torch": torch.__version__, "weights_bytes": len(data),
-                                          **meta}), indent=1)
+                                          **meta}), pretty=True)
     return pt
 
 

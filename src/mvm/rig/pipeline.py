@@ -244,7 +244,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
         atomic_write_json(folder / "recap.json", {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
                                                  "config": asdict(config), "options": asdict(options),
                                                  "calibration": rig.calibration.metadata.get("source"),
-                                                 "pose_format": rig.pose_format}, indent=1)
+                                                 "pose_format": rig.pose_format}, pretty=True)
 
     replace_output_set(build, out_dir)
     outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})

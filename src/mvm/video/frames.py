@@ -196,7 +196,7 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
                        kept, kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped)
     document = index.to_json()
     document["options"] = asdict(options)
-    atomic_write_json(index_path, document, indent=1)
+    atomic_write_json(index_path, document, pretty=True)
     return index
 
 

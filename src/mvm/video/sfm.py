@@ -202,7 +202,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     _warn_unregistered(report, scene)
     document = report.to_json()
     document["options"] = asdict(options)
-    atomic_write_json(report_path, document, indent=1)
+    atomic_write_json(report_path, document, pretty=True)
     return report
 
 
@@ -257,7 +257,7 @@ def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
     names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))
     report = _report(rec, names, f"colmap:{model_dir}")
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), indent=1)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
     return report
 
 
@@ -299,7 +299,7 @@ def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
                        [n for n, k in zip(index.names, ok) if not k], float("nan"),
                        float(np.mean(cameras.focal)), 0, cameras.centers)
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), indent=1)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
     return report
 
 
