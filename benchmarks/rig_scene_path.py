@@ -9,11 +9,13 @@ cameras as its views: ``sparse/`` and ``poses2d.json``). Then ``mvm rig reconstr
 ``mvm reconstruct SCENE...`` (every scene in one command) each run in a fresh process, with
 their defaults (``--workers N`` sets ``$MVM_WORKERS``, the processes either command may use);
 the best wall and CPU seconds (children included) of ``--repeats`` runs are printed, and their
-ratio (the per-scene path should stay within 3x of the rig path). BLAS is limited to one thread.
+ratio (the per-scene path should stay within 3x of the rig path), and the mean stage timings
+the scenes' ``poses3d.json`` record. BLAS is limited to one thread.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import subprocess
@@ -87,6 +89,17 @@ def main() -> None:
                   f"({args.instants / wall:6.1f} instants/s wall; best of {args.repeats})")
         (rig_wall, rig_cpu), (scene_wall, scene_cpu) = results.values()
         print(f"per-scene / rig: {scene_wall / rig_wall:.2f}x wall, {scene_cpu / rig_cpu:.2f}x CPU (goal: under 3x)")
+        print(stage_costs(scenes))
+
+
+def stage_costs(scenes: list[Path]) -> str:
+    """The mean of the stage timings each scene's ``poses3d.json`` records (the last run's;
+    ``refinement_s`` is the scene's share of its batch's solve; writing is not timed there)."""
+    totals: dict[str, float] = {}
+    for scene in scenes:
+        for stage, seconds in json.loads((scene / "mvm" / "poses3d.json").read_text())["timings_s"].items():
+            totals[stage] = totals.get(stage, 0.0) + seconds
+    return "per scene (ms): " + ", ".join(f"{stage[:-2]} {1000 * s / len(scenes):.1f}" for stage, s in totals.items())
 
 
 if __name__ == "__main__":

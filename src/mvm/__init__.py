@@ -5,8 +5,11 @@ The Python API mirrors the command line::
 
     import mvm
     result = mvm.reconstruct_dir("scene/")           # mvm reconstruct scene/
+    for path, outcome in mvm.reconstruct_dirs(["a/", "b/"]):     # mvm reconstruct a/ b/
+        ...                                          # a Result, or the error of that scene
     scene = mvm.read_scene("scene/")
     result = mvm.reconstruct(scene, mvm.Config(tau=0.25))
+    results = mvm.reconstruct_many([scene, ...])     # many scenes, one refinement solve
 
 ``import mvm`` is cheap: the names below are imported on first use.
 """
@@ -27,14 +30,17 @@ _EXPORTS = {
     "InputError": "mvm.errors",
     "Result": "mvm.core.reconstruct",
     "reconstruct": "mvm.core.reconstruct",
+    "reconstruct_many": "mvm.core.reconstruct",
     "reconstruct_dir": "mvm.scenes",
+    "reconstruct_dirs": "mvm.scenes",
     "read_poses3d": "mvm.io.scene_dir",
     "read_scene": "mvm.io.scene_dir",
     "write_scene": "mvm.io.scene_dir",
 }
 
 __all__ = ["Cameras", "Config", "InputError", "Persons3D", "Poses2D", "Result", "Scene", "__version__",
-           "load_config", "read_poses3d", "read_scene", "reconstruct", "reconstruct_dir", "write_scene"]
+           "load_config", "read_poses3d", "read_scene", "reconstruct", "reconstruct_dir", "reconstruct_dirs",
+           "reconstruct_many", "write_scene"]
 
 
 def __getattr__(name: str):

@@ -1,9 +1,9 @@
-"""The scene-directory driver: read ``scene/``, reconstruct it (:func:`mvm.core.reconstruct.reconstruct`),
+"""The scene-directory driver: read ``scene/``, reconstruct it (:func:`mvm.core.reconstruct.reconstruct_many`),
 write ``scene/<output>/poses3d.json`` under a lock (the directory contract: docs/architecture.md).
 
 :func:`reconstruct_dir` does one scene; :func:`reconstruct_dirs` does many on the machine's cores
-(forked workers, :mod:`mvm.parallel`), each scene's output written (its lock, its fsyncs) while
-the next scene is read and computed.
+(forked workers, :mod:`mvm.parallel`), small scenes a batch at a time, each batch's outputs
+written (their locks, their fsyncs) while the next batch is read and computed.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from functools import partial
 from pathlib import Path
 
 from mvm.core.config import Config
-from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct, validate_scene
+from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
 from mvm.errors import InputError
 from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
 from mvm.io.scene_dir import output_dir, poses3d_document, read_scene, write_poses3d
@@ -25,6 +25,10 @@ from mvm.parallel import Forked, available_workers, split
 
 #: Fewest scenes worth a worker process of their own (a fork costs about a third of a small scene).
 MIN_SCENES_PER_WORKER = 4
+#: Most scenes reconstructed together (:func:`mvm.core.reconstruct.reconstruct_many`).
+BATCH_SCENES = 32
+#: A batch is closed once its scenes hold this many 2D poses.
+BATCH_POSES = 1000
 
 
 def reconstruct_dir(path: str | Path, config: Config | None = None, output: str = "mvm",
@@ -34,9 +38,11 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
     Bad input raises :class:`~mvm.errors.InputError` naming the file before anything is written.
     """
     config = config or Config()
-    result, out_dir, document = _compute(Path(path), config, output, prior)
+    [(_, outcome, out_dir, document)] = _reconstructed([_read(Path(path), config, output)], config, prior)
+    if isinstance(outcome, Exception):
+        raise outcome
     _write(out_dir, document, config)
-    return result
+    return outcome
 
 
 def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, output: str = "mvm",
@@ -44,6 +50,11 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     """:func:`reconstruct_dir` of every scene of ``paths``, in order: yields ``(path, outcome)``,
     the outcome a :class:`Result` or the exception that scene raised (any ``Exception``: one
     scene's failure is its own, and the next scene is done).
+
+    Scenes are read one by one and reconstructed a batch at a time
+    (:func:`mvm.core.reconstruct.reconstruct_many`: one refinement solve for the batch, the
+    numbers of one scene at a time to rounding): up to :data:`BATCH_SCENES` scenes, fewer once
+    their 2D poses reach :data:`BATCH_POSES` (a large scene is a batch of its own).
 
     ``workers`` processes share the scenes (:func:`mvm.parallel.available_workers`: by default
     ``$MVM_WORKERS`` or the cores; ``1`` does everything in this process; at least
@@ -54,8 +65,8 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     its share done here: no scene is lost. The files, the outcomes and their order are those of
     one process.
 
-    In each process one writer thread writes a scene's ``poses3d.json`` while the next scene is
-    read and computed (writing waits on the disk: the fsyncs of
+    In each process one writer thread writes a batch's ``poses3d.json`` files while the next
+    batch is read and computed (writing waits on the disk: the fsyncs of
     :func:`mvm.io.files.atomic_write_bytes`); a scene is yielded once its file is written, so
     that its outcome is final.
     """
@@ -65,8 +76,8 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     if len(shares) < 2:
         yield from _stream(paths, config, output, prior)
         return
-    first = _attempt(paths[0], config, output, prior)     # imports and caches loaded once, before the fork
-    work = partial(_share, config=config, output=output, prior=prior)
+    first = _reconstructed([_read(Path(paths[0]), config, output)], config, prior)   # imports and caches
+    work = partial(_share, config=config, output=output, prior=prior)                # loaded once, before the fork
     children = []
     try:                                                  # forked before this call starts its writer thread
         for r in shares[1:]:
@@ -79,27 +90,71 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
             child.stop()
 
 
-def _stream(paths: list, config: Config, output: str, prior, first: tuple | None = None) -> Iterator[tuple]:
-    """``(path, outcome)`` of ``first`` (an :func:`_attempt` already made) and of ``paths``, in
-    order, one writer thread writing a scene's file while the next one is computed."""
-    attempts = (_attempt(path, config, output, prior) for path in paths)
+def _stream(paths: list, config: Config, output: str, prior, first: list | None = None) -> Iterator[tuple]:
+    """``(path, outcome)`` of ``first`` (a batch :func:`_reconstructed` already made) and of
+    ``paths``, in order, one writer thread writing a batch's files while the next is computed."""
+    batches = itertools.chain([first] if first else [], _batches(paths, config, output, prior))
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="mvm-writer") as writer:
-        pending = None
-        for path, outcome, out_dir, document in itertools.chain([first] if first else [], attempts):
-            write = writer.submit(_write, out_dir, document, config) if document is not None else None
-            if pending is not None:
-                yield _finished(*pending)
-            pending = (path, outcome, write)
-        if pending is not None:
-            yield _finished(*pending)
+        pending: list = []
+        for batch in batches:
+            writes = [(path, outcome, writer.submit(_write, out_dir, document, config) if document is not None
+                       else None) for path, outcome, out_dir, document in batch]
+            yield from (_finished(*p) for p in pending)
+            pending = writes
+        yield from (_finished(*p) for p in pending)
 
 
-def _attempt(path, config: Config, output: str, prior) -> tuple:
-    """``(path, result, output folder, document)`` of one scene, or ``(path, exception, None, None)``."""
+def _batches(paths: list, config: Config, output: str, prior) -> Iterator[list[tuple]]:
+    """The scenes of ``paths`` read one by one and reconstructed a batch at a time: lists of
+    ``(path, outcome, output folder, document)`` (:func:`_reconstructed`)."""
+    batch, poses = [], 0
+    for path in paths:
+        batch.append(_read(Path(path), config, output))
+        poses += len(batch[-1][1].poses) if not isinstance(batch[-1][1], Exception) else 0
+        if len(batch) >= BATCH_SCENES or poses >= BATCH_POSES:
+            yield _reconstructed(batch, config, prior)
+            batch, poses = [], 0
+    if batch:
+        yield _reconstructed(batch, config, prior)
+
+
+def _read(path: Path, config: Config, output: str) -> tuple:
+    """``(path, scene, output folder, seconds to read)`` of a scene read and checked, or
+    ``(path, exception, None, None)``."""
     try:
-        return (path, *_compute(Path(path), config, output, prior))
+        t = time.perf_counter()
+        scene = read_scene(path)
+        out_dir = output_dir(path, output)
+        read_s = time.perf_counter() - t
+        validate_scene(scene, str(path))
+        check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
+                              config, str(path / "poses2d.json"))
+        return path, scene, out_dir, read_s
     except Exception as e:                                # noqa: BLE001 - this scene's failure, reported in order
         return path, e, None, None
+
+
+def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
+    """``(path, result, output folder, poses3d.json document)`` of each scene :func:`_read`
+    in ``batch``, reconstructed together, or ``(path, exception, None, None)``."""
+    scenes = [scene for _, scene, _, _ in batch if not isinstance(scene, Exception)]
+    results = iter(reconstruct_many(scenes, config, prior))
+    out = []
+    for path, scene, out_dir, read_s in batch:
+        outcome = scene if isinstance(scene, Exception) else next(results)
+        if isinstance(outcome, Exception):
+            out.append((path, outcome, None, None))
+            continue
+        try:
+            outcome.timings = {"read_s": read_s, **outcome.timings}
+            document = poses3d_document(outcome.persons, scene.poses, outcome.metrics,
+                                        {"warnings": list(outcome.warnings),
+                                         "timings_s": {k: round(v, 4) for k, v in outcome.timings.items()},
+                                         "config": asdict(config)})
+            out.append((path, outcome, out_dir, document))
+        except Exception as e:                            # noqa: BLE001 - this scene's failure, reported in order
+            out.append((path, e, None, None))
+    return out
 
 
 def _share(paths: list, config: Config, output: str, prior) -> list[tuple]:
@@ -126,24 +181,6 @@ def _finished(path, outcome, write: Future | None) -> tuple:
         except Exception as e:
             return path, e
     return path, outcome
-
-
-def _compute(path: Path, config: Config, output: str, prior) -> tuple[Result, Path, dict]:
-    """Read and reconstruct one scene: its result, output folder and ``poses3d.json`` document."""
-    t = time.perf_counter()
-    scene = read_scene(path)
-    out_dir = output_dir(path, output)
-    read_s = time.perf_counter() - t
-    validate_scene(scene, str(path))
-    check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
-                          config, str(path / "poses2d.json"))
-    result = reconstruct(scene, config, prior)
-    result.timings = {"read_s": read_s, **result.timings}
-    document = poses3d_document(result.persons, scene.poses, result.metrics,
-                                {"warnings": list(result.warnings),
-                                 "timings_s": {k: round(v, 4) for k, v in result.timings.items()},
-                                 "config": asdict(config)})
-    return result, out_dir, document
 
 
 def _write(out_dir: Path, document: dict, config: Config) -> None:

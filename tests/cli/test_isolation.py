@@ -26,18 +26,18 @@ def scenes(tmp_path_factory, bank_poses):
 
 
 def test_any_error_is_the_scene_s_own(scenes, monkeypatch):
-    import mvm.scenes as core
+    import mvm.core.reconstruct as core
 
-    real = core.reconstruct
+    real = core._triangulated
 
-    def flaky(scene, *args, **kwargs):
+    def flaky(scene, *args, **kwargs):            # the scenes are reconstructed in one batch
         if scene.name == "bug":
             raise RuntimeError("an unexpected bug\nwith two lines")
         if scene.name == "oserror":
             raise PermissionError(13, "Permission denied", str(scenes["oserror"]))
         return real(scene, *args, **kwargs)
 
-    monkeypatch.setattr(core, "reconstruct", flaky)
+    monkeypatch.setattr(core, "_triangulated", flaky)
     order = ["loop", "bug", "good", "oserror"]
     result = CliRunner().invoke(main, ["reconstruct", *(str(scenes[n]) for n in order), "--no-refine"])
     assert result.exit_code == 2, result.output

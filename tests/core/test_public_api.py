@@ -12,6 +12,8 @@ def test_every_public_name_resolves():
         assert getattr(mvm, name) is not None, name
     assert mvm.reconstruct_dir.__module__ == "mvm.scenes"
     assert mvm.reconstruct.__module__ == "mvm.core.reconstruct"
+    assert mvm.reconstruct_many.__module__ == "mvm.core.reconstruct"
+    assert mvm.reconstruct_dirs.__module__ == "mvm.scenes"
 
 
 def test_import_mvm_loads_no_heavy_module():

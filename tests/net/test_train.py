@@ -207,10 +207,10 @@ def test_resume_after_a_kill_between_the_weights_and_the_metadata(tiny_data, tmp
 
     real = train_module.atomic_write_json
 
-    def killed(path, obj, indent=None):
+    def killed(path, obj, pretty=False):
         if "0000004" in str(path):
             raise KeyboardInterrupt("killed")
-        real(path, obj, indent)
+        real(path, obj, pretty)
 
     monkeypatch.setattr(train_module, "atomic_write_json", killed)
     with pytest.raises(KeyboardInterrupt):

@@ -11,7 +11,7 @@ import numpy as np
 from mvm.core.affinity import affinity_bytes
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, reconstruct_poses
+from mvm.core.pipeline import Reconstruction, Triangulated, refine_all, triangulate_poses
 from mvm.core.quality import scene_quality
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
@@ -99,12 +99,51 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
             e.g. from a baseline or the true grouping.
     """
     config = config or Config()
+    # The hot paths are many small products: BLAS threads only contend with each other.
+    with one_blas_thread():
+        [rec] = refine_all([_triangulated(scene, config, groups)], config, prior)
+        return _finished(scene, config, rec, prior)
+
+
+def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=None) -> list[Result | Exception]:
+    """:func:`reconstruct` of each of ``scenes``, their refinements solved together
+    (:func:`mvm.core.pipeline.refine_all`): the numbers of :func:`reconstruct` to rounding, in
+    a fraction of the time where scenes are small (the one-instant scenes of a rig). Returns,
+    in order, each scene's :class:`Result` or the exception it raised: one scene's failure is
+    its own."""
+    config = config or Config()
+    outcomes: list = [None] * len(scenes)
+    parts = {}
+    with one_blas_thread():
+        for i, scene in enumerate(scenes):
+            try:
+                parts[i] = _triangulated(scene, config, None)
+            except Exception as e:                        # noqa: BLE001 - this scene's failure, in its place
+                outcomes[i] = e
+        try:
+            recs = dict(zip(parts, refine_all(list(parts.values()), config, prior)))
+        except Exception:                                 # noqa: BLE001 - found again below, scene by scene
+            recs = {}
+        for i, part in parts.items():
+            try:
+                rec = recs[i] if i in recs else refine_all([part], config, prior)[0]
+                outcomes[i] = _finished(scenes[i], config, rec, prior)
+            except Exception as e:                        # noqa: BLE001 - this scene's failure, in its place
+                outcomes[i] = e
+    return outcomes
+
+
+def _triangulated(scene: Scene, config: Config, groups: list[np.ndarray] | None) -> Triangulated:
+    """The scene checked, and its pipeline up to the refinement."""
     validate_scene(scene)
     check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
                           config, scene.name)
-    # The hot paths are many small products: BLAS threads only contend with each other.
-    with one_blas_thread():
-        result = _scene_result(scene, config, reconstruct_poses(scene.cameras, scene.poses, config, prior, groups))
+    return triangulate_poses(scene.cameras, scene.poses, config, groups)
+
+
+def _finished(scene: Scene, config: Config, rec: Reconstruction, prior) -> Result:
+    """The scene's result from its refined reconstruction, completed when ``config.complete``."""
+    result = _scene_result(scene, config, rec)
     if config.complete and len(result.persons):
         from mvm.core.completion import complete_persons
         from mvm.core.prior import shipped_prior
