@@ -12,11 +12,11 @@ from mvm.errors import InputError
 from mvm.sim.rig import detect_views, ring_cameras, walking_people
 
 
-def one_instant_scenes(count: int, seed: int = 0) -> tuple[list[Scene], np.ndarray]:
-    """``count`` one-instant scenes of 3 people walking in a 5-camera ring (detector noise,
-    dropouts, false poses): the scenes and the true joints ``(count, 3, 17, 3)``."""
+def one_instant_scenes(count: int, seed: int = 0, views: int = 5) -> tuple[list[Scene], np.ndarray]:
+    """``count`` one-instant scenes of 3 people walking in a ring of ``views`` cameras (detector
+    noise, dropouts, false poses): the scenes and the true joints ``(count, 3, 17, 3)``."""
     rng = np.random.default_rng(seed)
-    cameras = ring_cameras(5)
+    cameras = ring_cameras(views)
     truth = walking_people(3, count, rng)
     scenes = []
     for t in range(count):
@@ -27,7 +27,10 @@ def one_instant_scenes(count: int, seed: int = 0) -> tuple[list[Scene], np.ndarr
 
 
 def test_scenes_together_give_what_each_gives_alone():
-    scenes, truth = one_instant_scenes(6)
+    """Scenes of 5 and of 7 views (persons padded to different widths, solved apart), and a
+    bad scene among them."""
+    five, seven = one_instant_scenes(4), one_instant_scenes(3, seed=2, views=7)
+    scenes, truth = five[0][:2] + seven[0] + five[0][2:], np.concatenate([five[1][:2], seven[1], five[1][2:]])
     bad = Scene("bad", Cameras(scenes[0].cameras.K, scenes[0].cameras.R, scenes[0].cameras.t * np.nan,
                                scenes[0].cameras.size, scenes[0].cameras.names), scenes[0].poses)
     together = reconstruct_many(scenes[:3] + [bad] + scenes[3:], Config())
