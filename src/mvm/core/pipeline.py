@@ -6,7 +6,8 @@ Arrays in, arrays out, no I/O. The 2D poses are split into independent *blocks*
 (:meth:`mvm.core.scene.Poses2D.blocks`): a scene of one moving camera is one block, a batch of
 rig instants has one block per instant. Matching and merging stay within a block;
 triangulation and refinement treat the persons of every block as one set (they are
-independent), so a batch of instants costs one vectorized solve.
+independent), so a batch of instants costs one vectorized solve; :func:`refine_all` does the
+same for the persons of many scenes (:func:`triangulate_poses` of each, then one refinement).
 
 Each step is a function of the previous step's arrays, so that a step is one call between two
 others: :func:`associate_poses` changes ``groups`` and returns their new triangulation; the
@@ -195,6 +196,10 @@ def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
     return out
 
 
+#: What a refinement that fails outright raises (bad numbers the fallback cannot catch person by person).
+_SOLVE_FAILURES = (ValueError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError)
+
+
 def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulation, config: Config,
                          prior=None) -> tuple[np.ndarray, np.ndarray]:
     """Refinement (Eq. bundle) with a fallback: a person whose refined pose is worse, not
@@ -206,10 +211,6 @@ def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulati
     except _SOLVE_FAILURES as e:
         log.warning("refinement failed (%s); kept the triangulation of every person", e)
         return X, tri.inliers.any(axis=(1, 2))
-
-
-#: What a refinement that fails outright raises (bad numbers the fallback cannot catch person by person).
-_SOLVE_FAILURES = (ValueError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError)
 
 
 def _refine(X, xy, conf, P, inliers, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
@@ -351,8 +352,8 @@ def refine_all(parts: list[Triangulated], config: Config, prior=None) -> list[Re
 
     Persons are independent, and one vectorized solve of many costs little more than one of a
     few: the persons of all parts whose groups are padded to the same number of views are
-    solved together (on a rig exported as one-instant scenes, a quarter of the time of a solve
-    per scene), each with the numbers it would get alone to rounding (1e-15). Should such a
+    solved together (on a rig exported as one-instant scenes, a quarter to a third of the time
+    of a solve per scene), each with the numbers it would get alone to rounding (1e-15). Should such a
     solve fail outright, each part is solved again on its own, so that the failure stays in
     its part. A part's ``refinement_s`` is its persons' share of the time."""
     refined = [(p.tri.X, np.zeros(len(p.groups), dtype=bool)) for p in parts]
