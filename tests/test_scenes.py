@@ -9,7 +9,7 @@ import pytest
 
 from mvm.core.config import Config
 from mvm.errors import InputError
-from mvm.io.scene_dir import write_scene
+from mvm.io.scene_dir import read_scene, write_scene
 from mvm.sim.simulate import SimConfig, simulate
 
 
@@ -44,6 +44,35 @@ def test_many_scenes_give_what_one_at_a_time_gives(three, tmp_path):
         np.testing.assert_array_equal(result.persons.keypoints3d, single.persons.keypoints3d)
         assert len(result.persons) == len(truths[path.name].poses3d)                # both people found
         assert not list((path / "many").glob(".*.tmp"))                            # no temporary left
+
+
+def test_refined_in_batches_as_one_at_a_time(three, monkeypatch):
+    """Scenes refined together give each scene's numbers to rounding; a batch closes at
+    ``BATCH_SCENES`` scenes or ``BATCH_POSES`` 2D poses."""
+    from mvm import scenes
+    from mvm.scenes import reconstruct_dir, reconstruct_dirs
+
+    root, _ = three
+    paths = [root / n for n in ("a", "b", "c", "a")]
+    sizes, real = [], scenes.reconstruct_many
+
+    def recorded(batch, *args, **kwargs):
+        sizes.append([s.name for s in batch])
+        return real(batch, *args, **kwargs)
+
+    monkeypatch.setattr(scenes, "reconstruct_many", recorded)
+    monkeypatch.setattr(scenes, "BATCH_SCENES", 3)
+    outcomes = list(reconstruct_dirs(paths, Config(), "batched", workers=1))
+    assert sizes == [["a", "b", "c"], ["a"]]
+    poses = [len(read_scene(p).poses) for p in paths]
+    sizes.clear()
+    monkeypatch.setattr(scenes, "BATCH_POSES", max(poses) + 1)      # any two scenes reach it
+    list(reconstruct_dirs(paths, Config(), "batched", workers=1))
+    assert sizes == [["a", "b"], ["c", "a"]]
+    for path, result in outcomes:
+        alone = reconstruct_dir(path, Config(), "alone")
+        np.testing.assert_allclose(result.persons.keypoints3d, alone.persons.keypoints3d, rtol=0, atol=1e-9)
+        assert result.metrics == pytest.approx(alone.metrics, rel=1e-9, nan_ok=True)
 
 
 def test_a_scene_that_fails_to_read_or_write_is_its_own_failure(three, monkeypatch):

@@ -27,8 +27,10 @@ from mvm.parallel import Forked, available_workers, split
 MIN_SCENES_PER_WORKER = 4
 #: Most scenes reconstructed together (:func:`mvm.core.reconstruct.reconstruct_many`).
 BATCH_SCENES = 32
-#: A batch is closed once its scenes hold this many 2D poses.
-BATCH_POSES = 1000
+#: A batch is closed once its scenes hold this many 2D poses, or this many sparse 3D points
+#: (a large scene is a batch of its own: its results come as soon as it is done, and a batch
+#: holds little memory).
+BATCH_POSES, BATCH_POINTS = 1000, 100_000
 
 
 def reconstruct_dir(path: str | Path, config: Config | None = None, output: str = "mvm",
@@ -54,7 +56,7 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     Scenes are read one by one and reconstructed a batch at a time
     (:func:`mvm.core.reconstruct.reconstruct_many`: one refinement solve for the batch, the
     numbers of one scene at a time to rounding): up to :data:`BATCH_SCENES` scenes, fewer once
-    their 2D poses reach :data:`BATCH_POSES` (a large scene is a batch of its own).
+    their 2D poses reach :data:`BATCH_POSES` or their sparse points :data:`BATCH_POINTS`.
 
     ``workers`` processes share the scenes (:func:`mvm.parallel.available_workers`: by default
     ``$MVM_WORKERS`` or the cores; ``1`` does everything in this process; at least
@@ -107,13 +109,15 @@ def _stream(paths: list, config: Config, output: str, prior, first: list | None 
 def _batches(paths: list, config: Config, output: str, prior) -> Iterator[list[tuple]]:
     """The scenes of ``paths`` read one by one and reconstructed a batch at a time: lists of
     ``(path, outcome, output folder, document)`` (:func:`_reconstructed`)."""
-    batch, poses = [], 0
+    batch, poses, points = [], 0, 0
     for path in paths:
         batch.append(_read(Path(path), config, output))
-        poses += len(batch[-1][1].poses) if not isinstance(batch[-1][1], Exception) else 0
-        if len(batch) >= BATCH_SCENES or poses >= BATCH_POSES:
+        scene = batch[-1][1]
+        if not isinstance(scene, Exception):
+            poses, points = poses + len(scene.poses), points + len(scene.points3d)
+        if len(batch) >= BATCH_SCENES or poses >= BATCH_POSES or points >= BATCH_POINTS:
             yield _reconstructed(batch, config, prior)
-            batch, poses = [], 0
+            batch, poses, points = [], 0, 0
     if batch:
         yield _reconstructed(batch, config, prior)
 
