@@ -21,7 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+sys.path[:0] = [str(TESTS), str(TESTS / "io")]                  # helpers, test_faults
 
 from test_faults import FAULTS, copy_scene, output_of, persons_of, stale_temporaries, start, state, write_test_scene  # noqa: E402
 

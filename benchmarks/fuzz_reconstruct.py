@@ -22,7 +22,8 @@ from pathlib import Path
 
 from hypothesis import HealthCheck, given, seed, settings
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+sys.path[:0] = [str(TESTS), str(TESTS / "core")]                  # helpers, test_fuzz_reconstruct
 
 from test_fuzz_reconstruct import base_scenes, cases, cli_cases, run_case, run_cli_case  # noqa: E402
 
