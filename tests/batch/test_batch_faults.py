@@ -128,6 +128,32 @@ def test_killed_driver_then_rerun(root):
             json.loads(path.read_text())
 
 
+def _open_manifest(root: Path, start, answers) -> None:
+    start.wait()
+    try:
+        Manifest(root, create=True).close()
+        answers.put("ok")
+    except Exception as e:                                    # noqa: BLE001 - reported to the test
+        answers.put(f"{type(e).__name__}: {e}")
+
+
+def test_runs_that_create_the_manifest_at_once_all_open_it(tmp_path):
+    """Four runs creating one manifest at the same moment (SQLite refuses the switch to WAL
+    while another connection holds the new file, without waiting): every one opens it."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")
+    for trial in range(8):
+        start, answers = context.Barrier(4), context.Queue()
+        runs = [context.Process(target=_open_manifest, args=(tmp_path / str(trial), start, answers))
+                for _ in range(4)]
+        for run in runs:
+            run.start()
+        for run in runs:
+            run.join(60)
+        assert [answers.get(timeout=5) for _ in runs] == ["ok"] * 4
+
+
 def test_two_drivers_share_one_root(root):
     """Two runs started together on the same root split the clips: each (clip, stage) is
     committed once, by one of them."""

@@ -34,6 +34,8 @@ MANIFEST = Path(".mvm") / "manifest.sqlite"
 STATES = ("pending", "running", "done", "failed", "skipped")
 #: Seconds a claim stays valid without being renewed.
 LEASE_S = 120.0
+#: Seconds a run waits for the others to let it open the manifest.
+OPEN_TIMEOUT_S = 60.0
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS clips (
@@ -87,16 +89,31 @@ class Manifest:
             raise InputError(self.path, None, "no manifest: run `mvm batch` on this directory first")
         if create:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self.db = sqlite3.connect(self.path, timeout=60.0, isolation_level=None)
-            if create:
-                self.db.execute("PRAGMA journal_mode=WAL")
-                self.db.execute("PRAGMA synchronous=FULL")
-                self.db.executescript(f"BEGIN IMMEDIATE;\n{_SCHEMA}\nCOMMIT;")      # readers see all tables or none
-            self._check_schema()
-        except (sqlite3.DatabaseError, UnicodeDecodeError) as e:
-            raise self._unreadable(e) from None
+        deadline = time.monotonic() + OPEN_TIMEOUT_S
+        while True:
+            db = None
+            try:
+                db = self.db = sqlite3.connect(self.path, timeout=OPEN_TIMEOUT_S, isolation_level=None)
+                self._open(create)
+                break
+            except (sqlite3.DatabaseError, UnicodeDecodeError) as e:
+                if db is not None:
+                    db.close()
+                # Switching a new database to WAL while another run opens it fails at once with
+                # "database is locked", without SQLite's busy timeout: try again until it expires.
+                locked = isinstance(e, sqlite3.OperationalError) and "locked" in str(e)
+                if not locked or time.monotonic() > deadline:
+                    raise self._unreadable(e) from None
+                time.sleep(0.05)
         self.db.row_factory = sqlite3.Row
+
+    def _open(self, create: bool) -> None:
+        """Set the journal up and create the tables (``create``), then check them."""
+        if create:
+            self.db.execute("PRAGMA journal_mode=WAL")
+            self.db.execute("PRAGMA synchronous=FULL")
+            self.db.executescript(f"BEGIN IMMEDIATE;\n{_SCHEMA}\nCOMMIT;")      # readers see all tables or none
+        self._check_schema()
 
     def _unreadable(self, error: Exception) -> InputError:
         """The one-line refusal of a manifest SQLite cannot read (or whose text is not UTF-8)."""
