@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mvm.errors import InputError
-from mvm.parallel import available_workers, fork_map, split
+from mvm.parallel import Forked, available_workers, fork_map, split
 
 PARENT = os.getpid()
 
@@ -112,3 +112,12 @@ def test_no_process_to_be_had_runs_the_chunk_here(monkeypatch):
 
     monkeypatch.setattr(os, "fork", no_fork)
     assert fork_map(_work, [[1], [2]], workers=2) == [(1.0, PARENT), (4.0, PARENT)]
+
+
+def test_without_fork_every_chunk_runs_here(monkeypatch):
+    """Where the system has no fork (Windows), asking for workers runs everything here."""
+    monkeypatch.delattr(os, "fork")
+    assert fork_map(_work, [[1], [2]], workers=2) == [(1.0, PARENT), (4.0, PARENT)]
+    handle = Forked(_work, [3])
+    assert handle.result() == (9.0, PARENT)
+    handle.stop()

@@ -58,7 +58,7 @@ def fork_map(fn: Callable[[Any], Any], chunks: Sequence, workers: int | None = N
     write to the terminal or to shared files from a child (its progress is the caller's, from
     the first chunk)."""
     chunks = list(chunks)
-    forked = min(len(chunks), available_workers(workers)) - 1 if hasattr(os, "fork") else 0
+    forked = min(len(chunks), available_workers(workers)) - 1
     children = [Forked(fn, chunk) for chunk in chunks[1:1 + max(forked, 0)]]
     try:
         results = [fn(chunks[0])] if chunks else []
@@ -76,10 +76,14 @@ class Forked:
 
     def __init__(self, fn: Callable[[Any], Any], chunk):
         self.fn, self.chunk, self.pid, self.fd = fn, chunk, None, None
+        if not hasattr(os, "fork"):                         # not POSIX: done here
+            return
+        read, write = os.pipe()
         try:
-            read, write = os.pipe()
             pid = os.fork()
         except OSError:                                     # no process to be had: done here
+            os.close(read)
+            os.close(write)
             return
         if pid == 0:
             os.close(read)
