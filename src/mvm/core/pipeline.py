@@ -353,9 +353,10 @@ def refine_all(parts: list[Triangulated], config: Config, prior=None) -> list[Re
     Persons are independent, and one vectorized solve of many costs little more than one of a
     few: the persons of all parts whose groups are padded to the same number of views are
     solved together (on a rig exported as one-instant scenes, a quarter to a third of the time
-    of a solve per scene), each with the numbers it would get alone to rounding (1e-15). Should such a
-    solve fail outright, each part is solved again on its own, so that the failure stays in
-    its part. A part's ``refinement_s`` is its persons' share of the time."""
+    of a solve per scene), each with the numbers it would get alone to rounding (1e-15). A
+    solve of several parts that fails outright raises
+    (:func:`mvm.core.reconstruct.reconstruct_many` then solves each part alone). A part's
+    ``refinement_s`` is its persons' share of the time."""
     refined = [(p.tri.X, np.zeros(len(p.groups), dtype=bool)) for p in parts]
     seconds = np.zeros(len(parts))
     if config.refine:
@@ -380,14 +381,12 @@ def _same_width(parts: list[Triangulated]) -> list[list[int]]:
 
 
 def _refine_together(parts: list[Triangulated], config: Config, prior) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(X, fallback)`` of each part, its refinement solved with the others' (parts of one width)."""
+    """``(X, fallback)`` of each part, its refinement solved with the others' (parts of one
+    width; one part alone gets :func:`refine_with_fallback`'s fallback for a failed solve)."""
     if len(parts) == 1:
         return [refine_with_fallback(parts[0].tri.X, parts[0].obs, parts[0].tri, config, prior)]
     arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers)
                                                    for p in parts])]
-    try:
-        X, fallback = _refine(*arrays, config, prior)
-    except _SOLVE_FAILURES:
-        return [refine_with_fallback(p.tri.X, p.obs, p.tri, config, prior) for p in parts]
+    X, fallback = _refine(*arrays, config, prior)
     bounds = np.cumsum([len(p.groups) for p in parts])[:-1]
     return list(zip(np.split(X, bounds), np.split(fallback, bounds)))

@@ -122,8 +122,8 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
                 outcomes[i] = e
         try:
             recs = dict(zip(parts, refine_all(list(parts.values()), config, prior)))
-        except Exception:                                 # noqa: BLE001 - found again below, scene by scene
-            recs = {}
+        except Exception:                                 # noqa: BLE001 - each scene solved alone below,
+            recs = {}                                     # its failure its own
         for i, part in parts.items():
             try:
                 rec = recs[i] if i in recs else refine_all([part], config, prior)[0]
