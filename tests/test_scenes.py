@@ -187,6 +187,7 @@ def test_a_killed_or_missing_worker_loses_no_scene(nine, tmp_path, monkeypatch):
     config = Config(refine=False)
     reference = list(reconstruct_dirs(nine, config, "ref", workers=1))
     monkeypatch.setattr(scenes, "read_scene", killed_in_worker)
+    monkeypatch.setattr(scenes, "BATCH_SCENES", 1)                  # the worker writes s4, s5 before s7
     outcomes = {"killed": list(reconstruct_dirs(nine, config, "killed", workers=2))}
 
     def no_fork():
