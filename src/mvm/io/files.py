@@ -132,6 +132,24 @@ def first_non_finite(obj, where: str = "") -> str | None:
     return None
 
 
+def _all_finite(obj) -> bool:
+    """Whether every number in ``obj`` (dicts, lists, tuples, numbers) is finite: the test of
+    :func:`first_non_finite` without the paths it builds on the way."""
+    if isinstance(obj, float):
+        return math.isfinite(obj)
+    if isinstance(obj, dict):
+        obj = obj.values()
+    elif not isinstance(obj, (list, tuple)):
+        return True
+    for value in obj:
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                return False
+        elif isinstance(value, (dict, list, tuple)) and not _all_finite(value):
+            return False
+    return True
+
+
 SIGNIFICANT_DIGITS = 10
 """Significant digits of a number in a JSON output: relative precision 1e-10, whatever the
 unit of the model (a coordinate of 1.234e-7 keeps its digits; fixed decimals would erase it)."""
@@ -150,11 +168,11 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
     names the file and the first offending field, and nothing is written.
 
     orjson formats the common case (str keys; str, int, float, bool, None, list, dict): a
-    scene's ``poses3d.json`` in 0.03 ms, where the standard library's indented writer takes
-    1–2 ms. The standard library formats whatever orjson refuses."""
-    where = first_non_finite(obj)
-    if where:
-        raise ValueError(f"{path}: {where}: refusing to write a non-finite number")
+    scene's ``poses3d.json`` in 0.1 ms with the check of its numbers, where the standard
+    library's indented writer takes 0.7–2 ms. The standard library formats whatever orjson
+    refuses."""
+    if not _all_finite(obj):
+        raise ValueError(f"{path}: {first_non_finite(obj)}: refusing to write a non-finite number")
     try:
         data = orjson.dumps(obj, option=orjson.OPT_INDENT_2 if pretty else 0)
     except TypeError:
