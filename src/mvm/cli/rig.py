@@ -40,7 +40,8 @@ def rig() -> None:
               help="Write inferred joints into the .trc files too (default: observed and interpolated only).")
 @click.option("--frame-rate", type=float, default=None, help="Rig frame rate in Hz (default 30).")
 @click.option("--workers", type=int, default=None,
-              help="Processes to read, reconstruct and refine with (default: one per core; 1: this process only).")
+              help="Processes to read, reconstruct and refine with (default: $MVM_WORKERS, else one per core; "
+                   "1: this process only).")
 @click.option("--rig-set", "rig_sets", multiple=True, metavar="KEY=VALUE",
               help="Override one rig setting (batch_size, max_link_distance_m, max_gap, up, ...).")
 @config_options
