@@ -6,7 +6,18 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import SEED, Number, command, config_options, fmt, measure_table, out, read_config, refused, say
+from mvm.cli.common import (
+    SEED,
+    Number,
+    command,
+    config_options,
+    fmt,
+    measure_table,
+    print_table,
+    read_config,
+    refused,
+    say,
+)
 
 
 def scene_options(f):
@@ -99,8 +110,6 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
               help="Folder of real camera paths (*.txt) used by some clips.")
 def bench_cmd(quick, out_dir, refine, trajectories):
     """Reproduce the paper's Tables 1-2 on simulated clips with ground truth, plus sweeps."""
-    from rich.table import Table
-
     from mvm.core.config import Config
     from mvm.eval.bench import run_bench
     from mvm.eval.bench_files import write_bench_report
@@ -111,11 +120,9 @@ def bench_cmd(quick, out_dir, refine, trajectories):
     seconds = time.perf_counter() - t
     command_line = "mvm bench" + (" --quick" if quick else "") + (" --refine" if refine else "")
     path = write_bench_report(result, out_dir, command_line, seconds)
-    table = Table(title=f"mvm bench: Table 1 ({len({r['clip'] for r in result.rows})} clips, {seconds:.0f} s)")
-    for column in ("method", "E_R px", "|G_k|", "F1", "MPJPE mm", "matching s"):
-        table.add_column(column, justify="left" if column == "method" else "right")
-    for row in result.table1 + result.table1_short[:1]:
-        table.add_row(row["method"], f"{row['E_R_px']:.1f}", f"{row['G_k']:.1f}", f"{row['f1']:.3f}",
-                      f"{row['mpjpe_mm']:.1f}", f"{row['matching_s']:.3f}")
-    out().print(table)
+    print_table(f"mvm bench: Table 1 ({len({r['clip'] for r in result.rows})} clips, {seconds:.0f} s)",
+                ("method", "E_R px", "|G_k|", "F1", "MPJPE mm", "matching s"),
+                [(row["method"], f"{row['E_R_px']:.1f}", f"{row['G_k']:.1f}", f"{row['f1']:.3f}",
+                  f"{row['mpjpe_mm']:.1f}", f"{row['matching_s']:.3f}")
+                 for row in result.table1 + result.table1_short[:1]])
     say(f"tables: {path}")
