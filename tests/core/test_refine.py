@@ -9,7 +9,7 @@ from scipy.optimize import least_squares
 
 from mvm.core.geometry import project
 from mvm.core.keypoints import bone_lengths
-from mvm.core.prior import shipped_prior
+from mvm.core.prior import canonicalize, shipped_prior
 from mvm.core.refine import (
     BoneTerms,
     InnerProblem,
@@ -107,7 +107,9 @@ def test_spd_solve_solves_every_system_even_beside_a_singular_one():
     for singular in (False, True):
         if singular:
             H[2, 4, :] = H[2, :, 4] = 0.0                              # a coordinate nothing depends on
-        x = spd_solve(H.copy(), b)
+        before = H.copy()
+        x = spd_solve(H, b)
+        assert np.array_equal(H, before)                                # the systems are left as they were
         for p in range(len(H)):
             if singular and p == 2:
                 # least squares: the residual is orthogonal to the columns (and 0 where it can be)
@@ -126,10 +128,15 @@ def test_prior_energy_is_the_linearized_priors_at_its_point():
     x, present, problem = _inner_problem(X0, xy, conf, P, inliers, truth)
     x = x + np.where(np.repeat(present, 3, axis=1), np.random.default_rng(2).normal(0, 0.02, x.shape), 0.0)
     np.testing.assert_allclose(normal_equations(x, problem)[0], 0.5 * (residuals(x, problem) ** 2).sum(1), rtol=1e-12)
-    X = x.reshape(len(x), -1, 3)
-    energy = prior_energy(X, present, shipped_prior(), 10.0)
-    np.testing.assert_allclose(energy, linearized_prior(X, present, shipped_prior(), 10.0).energy(x), rtol=1e-9)
-    assert energy[2] == 0.0 and np.all(energy[[0, 1, 3]] > 0)
+    X, prior = x.reshape(len(x), -1, 3), shipped_prior()
+    energy = prior_energy(X, present, prior, 10.0)
+    canonical = canonicalize(np.where(present[..., None], X, np.nan))     # the prior's own terms, by hand
+    component = prior.best_component(canonical)
+    for p in (0, 1, 3):
+        mean, W, _ = prior.whitening(present[p], int(component[p]))
+        r = W @ (canonical[p][present[p]].ravel() - mean)
+        assert energy[p] == pytest.approx(0.5 * 10.0 * r @ r, rel=1e-9)
+    assert energy[2] == 0.0
 
 
 def test_levenberg_marquardt_reaches_the_minimum_of_an_independent_solver():

@@ -15,6 +15,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.core.geometry import cross, skew
+from mvm.core.quality import row_nanmedian
 from mvm.core.scene import Cameras, Poses2D
 
 #: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
@@ -157,8 +158,7 @@ def _no_baseline(centers: np.ndarray, used: np.ndarray) -> np.ndarray:
     """``(V, V)`` bool: pairs of the ``used`` views whose centres coincide (no epipolar geometry),
     relative to the median distance between the used centres. ``centers: (V, 3)``."""
     baseline = np.linalg.norm(centers[used][:, None] - centers[used][None], axis=-1)
-    ordered = np.sort(baseline, axis=None)                                       # np.median's numbers
-    scale = (ordered[(len(ordered) - 1) // 2] + ordered[len(ordered) // 2]) / 2 if len(used) > 1 else 1.0
+    scale = row_nanmedian(baseline.reshape(1, -1))[0] if len(used) > 1 else 1.0
     no_baseline = np.zeros((len(centers), len(centers)), dtype=bool)
     no_baseline[np.ix_(used, used)] = baseline <= 1e-9 * max(scale, 1e-12)
     return no_baseline

@@ -68,8 +68,8 @@ def dlt_terms(points: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 
 #: The 2 × 2 minors of rows 0, 1 (``s``) and rows 2, 3 (``c``) of a 4 × 4 matrix, by column
-#: pair ``(i, j)``: ``m[r][i] m[r + 1][j] − m[r + 1][i] m[r][j]``. Rows of :data:`_MINORS`, in this
-#: order: s01 s02 s03 s12 s13 s23, then c23 c13 c12 c03 c02.
+#: pair ``(i, j)``: ``m[r][i] m[r + 1][j] − m[r + 1][i] m[r][j]``, in this order (the names
+#: below index them): s01 s02 s03 s12 s13 s23, then c23 c13 c12 c03 c02.
 _MINOR_COLUMNS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3), (2, 3), (1, 3), (1, 2), (0, 3), (0, 2)])
 _MINOR_ROW = np.array([0] * 6 + [2] * 5)
 S0, S1, S2, S3, S4, S5, C5, C4, C3, C2, C1 = range(11)
