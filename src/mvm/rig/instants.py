@@ -108,7 +108,8 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
     ``poses.instant`` set), ``batch_size`` instants at a time, the batches split in contiguous
     runs over ``workers`` processes (:func:`mvm.parallel.fork_map`; default: the cores available).
 
-    ``progress(done, total)`` is called after each batch with counts of instants.
+    ``progress(done, total)`` is called with counts of instants after each batch of this
+    process's share (the first), then once all shares are done.
     """
     config = config or Config()
     if poses.instant is None:

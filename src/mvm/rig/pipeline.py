@@ -14,7 +14,7 @@ from mvm.core.completion import FLAG_NAMES, INFERRED, MISSING, OBSERVED, complet
 from mvm.core.config import Config
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
-from mvm.io.files import atomic_write_json, atomic_write_text
+from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, split
 from mvm.rig.instants import InstantPersons, reconstruct_instants
@@ -47,8 +47,8 @@ class RigResult:
 
 
 def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, track: np.ndarray,
-                  camera_names, flags: np.ndarray | None = None, workers: int | None = None) -> str:
-    """One JSON object per instant: ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
+                  camera_names, flags: np.ndarray | None = None, workers: int | None = None) -> bytes:
+    """One JSON object per instant, a line each (UTF-8): ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
     [[x, y, z, score] | [null, null, null, 0]], "flags" (per joint: "observed", "interpolated",
     "inferred" or "missing"), "members" {camera: pose index in that camera's frame},
     "views_per_joint" (inlier 2D keypoints of the observed joints), "reprojection_error_px"}]}``.
@@ -59,7 +59,7 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
     flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING) if flags is None else np.asarray(flags)
     J = len(COCO_KEYPOINTS)
 
-    def lines(instants: range) -> str:
+    def lines(instants: range) -> bytes:
         rows = slice(bounds[instants.start], bounds[instants.stop])
         names = flag_names(flags[rows])
         views = (persons.inliers[rows] & (flags[rows] == OBSERVED)[:, None, :]).sum(1).tolist()
@@ -79,9 +79,9 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
                       "views_per_joint": views[q], "reprojection_error_px": errors[q]}
                      for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start)]
             out.append(orjson.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found}))
-        return b"\n".join(out).decode() + "\n" if out else ""
+        return b"\n".join(out) + b"\n" if out else b""
 
-    return "".join(fork_map(lines, split(len(frames), available_workers(workers), min_size=100), workers))
+    return b"".join(fork_map(lines, split(len(frames), available_workers(workers), min_size=100), workers))
 
 
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
@@ -236,7 +236,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     outputs = {}
 
     def build(folder: Path) -> None:
-        atomic_write_text(folder / "poses3d.jsonl", lines)
+        atomic_write_bytes(folder / "poses3d.jsonl", lines)
         outputs["tracks"] = [out_dir / "tracks" / p.name
                              for p in write_tracks(folder / "tracks", rig.frames, X, persons.instant, track,
                                                    options, flags)]
