@@ -149,20 +149,14 @@ def openpose_people(data, path: Path) -> np.ndarray:
     people = data["people"]
     if not people:
         return np.zeros((0, NUM_JOINTS, 3))
-    try:
-        values = [person["pose_keypoints_2d"] for person in people]
-    except (TypeError, KeyError):
-        values = None
-    if values is not None and all(type(v) is list for v in values):
-        lengths = set(map(len, values))
-        numeric = set(map(type, chain.from_iterable(values))) <= {float, int}
-        if len(lengths) == 1 and lengths <= _LAYOUTS.keys() and numeric:
-            try:
-                flat = np.array(values, dtype=float)                                          # (K, n)
-            except OverflowError:
-                flat = None
-            if flat is not None and np.isfinite(flat).all():
-                return _coco17(flat)
+    values = _plain_values(data)
+    if values:
+        try:
+            flat = np.array(values, dtype=float)                                              # (K, n)
+        except OverflowError:
+            flat = None
+        if flat is not None and np.isfinite(flat).all():
+            return _coco17(flat)
     out = []
     for k, person in enumerate(people):
         if not isinstance(person, dict) or "pose_keypoints_2d" not in person:

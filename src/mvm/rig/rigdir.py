@@ -15,7 +15,6 @@ camera number (``cam_01`` and ``cam1_json``) when that number is unique on both 
 from __future__ import annotations
 
 import logging
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -151,19 +150,21 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
     return sources
 
 
-def _source_format(path: Path) -> str:
+def _source_format(path: Path) -> tuple[str, list[tuple[int, Path]]]:
+    """The format of one camera's pose source (a COCO file, or a folder of OpenPose or
+    OpenPifPaf files, told by its first file) and its per-frame files (:func:`frame_files`;
+    none for COCO)."""
     if path.is_file():
-        return "coco"
-    with os.scandir(path) as entries:                     # names only: no path object per file
-        names = [e.name for e in entries if e.name.endswith(".json") and not e.name.startswith(".")]
-    if not names:
+        return "coco", []
+    files = frame_files(path, "*.json")
+    if not files:
         raise InputError(path, None, "no .json pose files")
-    first = path / min(names)
+    first = files[0][1]
     data = load_json(first, root=path)
     if isinstance(data, dict) and "people" in data:
-        return "openpose"
+        return "openpose", files
     if isinstance(data, list):
-        return "openpifpaf"
+        return "openpifpaf", files
     raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
 
 
@@ -188,11 +189,13 @@ def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.
     return [(kp, None) for kp in read_openpose_frames(files, root=root)]
 
 
-def _read_sources(paths: list[Path], fmt: str, root: Path, start: int | None, stop: int | None,
+def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: str, root: Path,
+                  start: int | None, stop: int | None,
                   workers: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """The 2D poses of each camera's source of ``paths`` with a frame number in ``[start, stop)``
-    (None: open): ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. Per-frame files
-    outside the range are not read; the files of all cameras are read on ``workers`` processes
+    """The 2D poses of each camera's source of ``paths`` (its per-frame ``files``,
+    :func:`_source_format`) with a frame number in ``[start, stop)`` (None: open):
+    ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. Per-frame files outside the range
+    are not read; the files of all cameras are read on ``workers`` processes
     (:func:`mvm.parallel.fork_map`)."""
     low, high = -np.inf if start is None else start, np.inf if stop is None else stop
     if fmt == "coco":
@@ -202,7 +205,7 @@ def _read_sources(paths: list[Path], fmt: str, root: Path, start: int | None, st
             keep = (f >= low) & (f < high)
             out.append((f[keep], kp[keep], score[keep]))
         return out
-    listings = [[(f, file) for f, file in frame_files(path, "*.json") if low <= f < high] for path in paths]
+    listings = [[(f, file) for f, file in listing if low <= f < high] for listing in files]
     flat = [file for files in listings for _, file in files]
     parts = fork_map(lambda r: _read_frame_files(flat[r.start:r.stop], fmt, root),
                      split(len(flat), available_workers(workers), min_size=100), workers)
@@ -262,11 +265,12 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     start, stop = parse_frames(frames)
     used = sorted(matched)                                                # calibration order
     entries = list(sources)
-    formats = {_source_format(sources[entries[matched[c]]]) for c in used}
-    if len(formats) > 1:
-        raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(formats)}")
-    fmt = formats.pop()
-    read = _read_sources([sources[entries[matched[c]]] for c in used], fmt, rig_dir, start, stop, workers)
+    paths = [sources[entries[matched[c]]] for c in used]
+    formats, files = zip(*map(_source_format, paths))
+    if len(set(formats)) > 1:
+        raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(set(formats))}")
+    fmt = formats[0]
+    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers)
     kps = [kp for _, kp, _ in read]
     scores = [score for _, _, score in read]
     frame_of = [f for f, _, _ in read]
