@@ -154,14 +154,20 @@ def test_reads_legacy_colmap_text_layout(tmp_path):
 
 
 @pytest.mark.parametrize("binary", [True, False])
-def test_a_model_read_again_is_the_same_and_its_own(tmp_path, binary):
+def test_a_model_read_again_is_the_same_and_its_own(tmp_path, binary, monkeypatch):
     """Scenes of one rig share their model: the second is not parsed again, yet every read
     gives the model of its own files, arrays of its own, and a malformed copy is still refused."""
+    import mvm.io.colmap as colmap
+
+    monkeypatch.setattr(colmap, "_last", None)
+    parsed, real = [], colmap._parse
+    monkeypatch.setattr(colmap, "_parse", lambda model_dir: parsed.append(model_dir.name) or real(model_dir))
     rng = np.random.default_rng(3)
     cams = random_cameras(rng, 4)
     for name in ("a", "b"):
         write_colmap(tmp_path / name, cams, binary=binary)
     first, second = read_colmap(tmp_path / "a"), read_colmap(tmp_path / "b")
+    assert parsed == ["a"]
     assert second.cameras.names == cams.names
     assert np.allclose(second.cameras.t, cams.t, atol=1e-9)
     first.cameras.t[:] = 0.0                                  # a caller's edit stays its own
@@ -180,3 +186,4 @@ def test_a_model_read_again_is_the_same_and_its_own(tmp_path, binary):
     read_colmap(tmp_path / "c")
     with pytest.raises(InputError):
         read_colmap(tmp_path / "d")
+    assert parsed == ["a", "c"]
