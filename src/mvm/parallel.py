@@ -69,6 +69,13 @@ def fork_map(fn: Callable[[Any], Any], chunks: Sequence, workers: int | None = N
             child.stop()
 
 
+def fork_map_ranges(fn: Callable[[range], Any], n: int, min_size: int = 1, workers: int | None = None) -> list:
+    """:func:`fork_map` of ``fn`` over ``n`` items in contiguous ranges (:func:`split`: one per
+    worker, at least ``min_size`` items each where ``n`` allows)."""
+    workers = available_workers(workers)
+    return fork_map(fn, split(n, workers, min_size), workers)
+
+
 class Forked:
     """``fn(chunk)`` computed in a forked child from the moment this is made (or here, by
     :meth:`result`, where no process can be forked); :meth:`result` waits for it, :meth:`stop`

@@ -19,7 +19,7 @@ from mvm.core.config import Config
 from mvm.core.pipeline import Reconstruction, group_blocks, reconstruct_poses
 from mvm.core.prior import load_prior
 from mvm.core.scene import Cameras, Poses2D
-from mvm.parallel import available_workers, fork_map, split
+from mvm.parallel import fork_map_ranges
 
 log = logging.getLogger(__name__)
 
@@ -139,9 +139,9 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
         return parts
 
     # Whole batches per worker: the result does not depend on the number of workers.
-    chunks = split(-(-len(instants) // batch_size), available_workers(workers), min_size=max(1, 32 // batch_size))
     with one_blas_thread():
-        parts = fork_map(lambda batches: run(batches, progress if batches.start == 0 else None), chunks, workers)
-    if progress is not None and len(chunks) > 1:
+        parts = fork_map_ranges(lambda batches: run(batches, progress if batches.start == 0 else None),
+                                -(-len(instants) // batch_size), max(1, 32 // batch_size), workers)
+    if progress is not None and len(parts) > 1:
         progress(len(instants), len(instants))
     return InstantPersons.concatenate([p for part in parts for p in part], len(cameras))

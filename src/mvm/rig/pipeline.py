@@ -16,7 +16,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.trc import to_opensim, write_trc
-from mvm.parallel import available_workers, fork_map, split
+from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.outputs import replace_output_set
@@ -81,7 +81,7 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
             out.append(orjson.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found}))
         return b"\n".join(out) + b"\n" if out else b""
 
-    return b"".join(fork_map(lines, split(len(frames), available_workers(workers), min_size=100), workers))
+    return b"".join(fork_map_ranges(lines, len(frames), 100, workers))
 
 
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:

@@ -27,7 +27,7 @@ from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
 from mvm.io.checks import load_json
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_files, frame_number, read_openpose_frames
-from mvm.parallel import available_workers, fork_map, split
+from mvm.parallel import fork_map_ranges
 from mvm.rig.instants import rig_poses
 
 log = logging.getLogger(__name__)
@@ -207,8 +207,7 @@ def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: s
         return out
     listings = [[(f, file) for f, file in listing if low <= f < high] for listing in files]
     flat = [file for files in listings for _, file in files]
-    parts = fork_map(lambda r: _read_frame_files(flat[r.start:r.stop], fmt, root),
-                     split(len(flat), available_workers(workers), min_size=100), workers)
+    parts = fork_map_ranges(lambda r: _read_frame_files(flat[r.start:r.stop], fmt, root), len(flat), 100, workers)
     per_file = iter([read for part in parts for read in part])
     out = []
     for files in listings:
