@@ -6,7 +6,8 @@ reconstruction, tracking, the rigid-skeleton refinement, smoothing, completion a
 Synthetic capture written as a rig directory (Calib.toml + one OpenPose JSON per camera and
 frame): cameras on a ring, people walking, detector errors as in the Panoptic evaluation.
 Each configuration runs ``--repeats`` times; the best wall time and the best CPU time of the
-process are printed (on a machine shared with other work the CPU time is the steadier figure).
+process and its workers are printed (on a machine shared with other work the CPU time is the
+steadier figure).
 Then the ``mvm rig reconstruct`` command in fresh processes (imports included; best of
 ``--repeats``). BLAS is limited to one thread; the pipeline uses one worker process per core
 (``mvm.parallel``) unless told otherwise.
