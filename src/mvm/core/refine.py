@@ -60,17 +60,17 @@ class RefineResult:
     """``X: (P, J, 3)`` refined poses; ``fallback: (P,)`` bool, persons kept at their
     triangulation because refinement made them worse; ``cost_before/after``: the objective.
 
-    ``cost_after`` is evaluated when first read (``objective_after``, a function or the
-    number): it takes a re-linearization of the prior that reconstruction never needs."""
+    ``cost_after`` is evaluated when first read (by ``objective_after``): it takes a
+    re-linearization of the prior that reconstruction never needs."""
 
     X: np.ndarray
     fallback: np.ndarray
     cost_before: float
-    objective_after: Callable[[], float] | float = field(repr=False, compare=False)
+    objective_after: Callable[[], float] = field(repr=False, compare=False)
 
     @functools.cached_property
     def cost_after(self) -> float:
-        return float(self.objective_after() if callable(self.objective_after) else self.objective_after)
+        return float(self.objective_after())
 
 
 @dataclass(frozen=True)
@@ -601,7 +601,7 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     obs = Observations.build(np.asarray(xy, dtype=float), np.asarray(P, dtype=float), np.asarray(conf, dtype=float),
                        np.asarray(inliers, bool) & present[:, None, :])
     if not obs.fit.any():
-        return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, 0.0)
+        return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, lambda: 0.0)
     bones = (BoneTerms.build(bone_lengths, bone_weight, present)
              if bone_lengths is not None and bone_weight > 0 else None)
     prior = prior if prior is not None and prior_weight > 0 else None
