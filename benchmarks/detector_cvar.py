@@ -2,7 +2,7 @@
 detector's 2D poses are across frames (lower: more consistent).
 
 Given scene directories (each detected with one detector and reconstructed), prints C_var at
-τ = 0.5 and 0.9 for each (:func:`mvm.net.evaluate.evaluate_cvar`, as ``mvm evaluate cvar``),
+τ = 0.5 and 0.9 for each (:func:`mvm.eval.cvar.evaluate_cvar`, as ``mvm evaluate cvar``),
 with the detector that ``poses2d.json`` records:
 
     mvm detect clip_rtmo --detector rtmo && mvm reconstruct clip_rtmo
@@ -20,7 +20,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from mvm.net.evaluate import evaluate_cvar
+from mvm.eval.cvar import evaluate_cvar
 
 
 def detector_of(scene: Path) -> str:

@@ -28,9 +28,9 @@ import numpy as np
 
 from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED
 from mvm.core.config import Config
-from mvm.eval.metrics import match_persons, pose_errors
-from mvm.eval.mocap import pcp
 from mvm.eval.panoptic import evaluate, load_sample, simulate_detections, spread_cameras
+from mvm.metrics.mocap_scores import pcp
+from mvm.metrics.poses import match_persons, pose_errors
 from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.pipeline import completion_prior, instants_config, track_and_complete

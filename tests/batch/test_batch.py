@@ -14,9 +14,9 @@ from click.testing import CliRunner
 
 from mvm.batch import Manifest, batch_status, discover_clips, run_batch
 from mvm.batch.stages import StageResult
-from mvm.eval.metrics import match_persons, pose_errors
 from mvm.io.ground_truth import read_ground_truth, write_simulation
 from mvm.io.scene_dir import read_poses3d
+from mvm.metrics.poses import match_persons, pose_errors
 from mvm.sim.simulate import SimConfig, simulate
 
 #: What makes a clip broken, and the text its recorded error must hold.

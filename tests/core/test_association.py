@@ -11,7 +11,7 @@ from mvm.core.association import assign_per_frame, associate, reprojection_cost
 from mvm.core.config import Config
 from mvm.core.pipeline import merge_duplicates, triangulate_groups
 from mvm.core.reconstruct import reconstruct
-from mvm.eval.metrics import matching_precision_recall
+from mvm.metrics.poses import matching_precision_recall
 from mvm.sim.simulate import SimConfig, simulate
 
 #: A frozen crowd on a 50° arc with two close pairs of standing and seated people, where the

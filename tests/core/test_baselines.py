@@ -13,7 +13,7 @@ from mvm.core.matching.baselines import (
     shortest_path_groups,
 )
 from mvm.core.matching.registry import AFFINITIES, MATCHERS, affinity_matrix, get_matcher, match_with
-from mvm.eval.metrics import matching_precision_recall
+from mvm.metrics.poses import matching_precision_recall
 from mvm.sim.simulate import SimConfig, simulate
 
 from helpers import standing_poses

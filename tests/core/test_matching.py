@@ -7,7 +7,7 @@ from mvm.core.affinity import affinity, epipolar_distance
 from mvm.core.geometry import project
 from mvm.core.matching import greedy_groups
 from mvm.core.scene import Poses2D
-from mvm.eval.metrics import matching_precision_recall
+from mvm.metrics.poses import matching_precision_recall
 
 from helpers import STANDING, random_cameras
 

@@ -7,9 +7,9 @@ from click.testing import CliRunner
 
 from mvm.cli.main import main
 from mvm.core.scene import Persons3D
+from mvm.eval.cvar import evaluate_cvar
 from mvm.io.ground_truth import write_simulation
 from mvm.io.scene_dir import poses3d_document, write_poses3d
-from mvm.net.evaluate import evaluate_cvar
 from mvm.sim.simulate import SimConfig, simulate
 
 

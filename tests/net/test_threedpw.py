@@ -6,7 +6,7 @@ import pytest
 
 from mvm.core.keypoints import INDEX
 from mvm.errors import InputError
-from mvm.eval.network import COMMON14_NAMES, threedpw_pa_mpjpe
+from mvm.metrics.network import COMMON14_NAMES, threedpw_pa_mpjpe
 from mvm.net import evaluate as net_evaluate
 from mvm.net.threedpw import COCO18_TO_COMMON14, SMPL_TO_COMMON14, read_3dpw, read_sequence
 

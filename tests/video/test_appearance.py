@@ -62,7 +62,7 @@ def test_pool_features_averages_along_limbs():
 def _matching(bank_poses, identical: bool, use_appearance: bool) -> tuple[float, float]:
     from mvm.core.config import Config
     from mvm.core.pipeline import match
-    from mvm.eval.metrics import matching_precision_recall
+    from mvm.metrics.poses import matching_precision_recall
     from mvm.sim.simulate import SimConfig, simulate
 
     sim = SimConfig(people=8, frames=30, crowd_radius=1.4, min_separation=0.6, identical_clothes=identical,

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from mvm.eval.metrics import similarity_transform
 from mvm.io.colmap import read_colmap
+from mvm.metrics.poses import similarity_transform
 from mvm.sim.video import RenderConfig, render_video
 
 FRAMES = 40

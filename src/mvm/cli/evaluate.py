@@ -14,11 +14,19 @@ from mvm.cli.common import Group
 
 
 def _write(out: Path | None, result: dict) -> None:
+    """Write ``result`` (NaN for a figure that could not be computed) as JSON (``null`` for NaN)."""
     if out is not None:
-        from mvm.io.files import atomic_write_json
         from mvm.net.train import finite_or_none
 
-        atomic_write_json(out, finite_or_none(result), pretty=True)
+        _write_json(out, finite_or_none(result))
+
+
+def _write_json(out: Path | None, document: dict) -> None:
+    """Write ``document`` (finite numbers, None where missing) as JSON."""
+    if out is not None:
+        from mvm.io.files import atomic_write_json
+
+        atomic_write_json(out, document, pretty=True)
         click.echo(f"{out}")
 
 
@@ -113,7 +121,7 @@ def coco_cmd(annotations: Path, images: Path | None, checkpoint: Path | None, de
 @_out
 def cvar_cmd(scenes: tuple[Path, ...], taus: tuple[float, ...], output_name: str, label: str, out: Path | None) -> None:
     """Table 5: C_var of the 2D poses of reconstructed SCENES (run on the detector's poses2d.json)."""
-    from mvm.net.evaluate import evaluate_cvar
+    from mvm.eval.cvar import evaluate_cvar
 
     taus = taus or (0.5, 0.9)
     result = evaluate_cvar(list(scenes), taus, output_name)
@@ -121,4 +129,4 @@ def cvar_cmd(scenes: tuple[Path, ...], taus: tuple[float, ...], output_name: str
     click.echo(f"{label:<32} | " + " | ".join(f"{_number(result['C_var'][str(t)], digits=4):>11}" for t in taus))
     for name in result["missing"]:
         click.echo(f"missing: {name}: {result['missing'][name]}")
-    _write(out, result)
+    _write_json(out, result)

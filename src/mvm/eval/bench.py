@@ -21,7 +21,7 @@ from mvm.core.config import Config
 from mvm.core.matching.baselines import BaselineConfig
 from mvm.core.matching.registry import affinity_matrix, get_matcher
 from mvm.core.reconstruct import reconstruct
-from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
+from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
 from mvm.sim.simulate import SimConfig, simulate
 
 log = logging.getLogger(__name__)

@@ -5,7 +5,7 @@ RANSAC/DLT triangulation, no refinement), geometry only and with appearance. No 
 ``benchmarks/crowd.py`` prints the tables and writes the files.
 
 Every row reports pairwise matching precision and recall, the persons estimated, found (within
-:data:`mvm.eval.metrics.MATCH_DISTANCE_M` of a true person) and true, MPJPE (mean and median over
+:data:`mvm.metrics.poses.MATCH_DISTANCE_M` of a true person) and true, MPJPE (mean and median over
 the persons found), E_R (px, beside the paper's 14.6 px on real videos) and the time, for the
 method and for the oracle on the same scene.
 """
@@ -19,7 +19,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.core.reconstruct import reconstruct
-from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, matching_precision_recall, person_errors
+from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, matching_precision_recall, person_errors
 from mvm.sim.simulate import SimConfig, crowd_radius, simulate
 
 #: The paper's mean reprojection error on its real videos (Table 1, MVM). [px]

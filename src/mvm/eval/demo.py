@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 
 from mvm.core.config import Config
-from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
 from mvm.io.ground_truth import write_simulation
+from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
 from mvm.scenes import reconstruct_dir
 from mvm.sim.simulate import SimConfig, simulate
 

@@ -13,11 +13,11 @@ import numpy as np
 from mvm.core.config import Config
 from mvm.core.scene import Cameras, Poses2D
 from mvm.errors import InputError
-from mvm.eval.metrics import MATCH_DISTANCE_M, match_persons, pose_errors
-from mvm.eval.mocap import average_precision, pcp
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.mocap import read_panoptic_coco19, read_panoptic_ids
 from mvm.io.panoptic_calib import read_panoptic_calibration
+from mvm.metrics.mocap_scores import average_precision, pcp
+from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, pose_errors
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.detector import DetectorErrors, pose_scores
 from mvm.sim.rig import detect_views

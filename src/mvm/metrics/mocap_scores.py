@@ -1,5 +1,5 @@
 """The motion-capture field's standard metrics: PCP as on Shelf/Campus (per actor) and AP at
-25–150 mm as on Panoptic. Pure numpy/scipy, no I/O. MPJPE and PA-MPJPE are in :mod:`mvm.eval.metrics`.
+25–150 mm as on Panoptic. Pure numpy/scipy, no I/O. MPJPE and PA-MPJPE are in :mod:`mvm.metrics.poses`.
 
 A limb end is a joint, or the mean of several joints (``(a, b)`` with ``a``, ``b`` tuples of
 joint indices), so skeletons without a pelvis or neck joint still define the hip-to-head limb.

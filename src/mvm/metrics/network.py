@@ -1,4 +1,5 @@
-"""Evaluation of the network: PA-MPJPE (3DPW protocol), OKS AP (pycocotools), C_var, depth error.
+"""Metrics of the monocular network: PA-MPJPE (3DPW protocol), 2D matching of detections, OKS AP
+(pycocotools), C_var, relative depth error.
 
 All functions take arrays and return numbers; none reads files.
 """
@@ -9,7 +10,9 @@ import io
 
 import numpy as np
 
+from mvm.core.geometry import dlt_terms, solve_dlt
 from mvm.core.keypoints import INDEX
+from mvm.metrics.poses import pa_mpjpe
 
 #: The 14 joints common to COCO and SMPL, in this order: the 12 limb joints of COCO, the
 #: neck (mid-shoulders) and the head (the nose).
@@ -26,50 +29,14 @@ def coco_to_common14(points: np.ndarray) -> np.ndarray:
     return np.concatenate([p[..., _LIMBS14, :], neck[..., None, :], p[..., INDEX["nose"], None, :]], axis=-2)
 
 
-def procrustes_align(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Similarity transform (scale, rotation, translation) of each ``pred`` onto its ``gt``.
-
-    ``pred, gt: (N, J, 3)``; ``mask: (N, J)`` joints used for the fit (default: finite in both).
-    Returns the aligned ``pred (N, J, 3)``.
-    """
-    pred, gt = np.asarray(pred, dtype=float), np.asarray(gt, dtype=float)
-    if pred.shape != gt.shape or pred.ndim != 3 or pred.shape[-1] != 3:
-        raise ValueError(f"procrustes_align: expected two (N, J, 3) arrays, got {pred.shape} and {gt.shape}")
-    if mask is None:
-        mask = np.isfinite(pred).all(-1) & np.isfinite(gt).all(-1)
-    w = mask.astype(float)[..., None]                                     # (N, J, 1)
-    n = np.maximum(w.sum(1, keepdims=True), 1)
-    P, G = np.nan_to_num(pred), np.nan_to_num(gt)
-    mp, mg = (w * P).sum(1, keepdims=True) / n, (w * G).sum(1, keepdims=True) / n
-    X, Y = (P - mp) * w, (G - mg) * w
-    U, S, Vt = np.linalg.svd(np.einsum("nji,njk->nik", X, Y))           # X^T Y = U S Vt
-    D = np.ones_like(S)
-    D[:, -1] = np.sign(np.linalg.det(U @ Vt))
-    R = np.einsum("nij,nj,njk->nik", U, D, Vt)                           # rotates rows of X onto Y
-    var = (X ** 2).sum((1, 2))
-    scale = (S * D).sum(1) / np.maximum(var, 1e-12)
-    return scale[:, None, None] * np.einsum("nji,nik->njk", pred - mp, R) + mg
-
-
-def pa_mpjpe(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """Procrustes-aligned mean per-joint position error of each pose.
-
-    ``pred, gt: (N, J, 3)`` (NaN joints ignored) -> ``(N,)`` in the unit of ``gt``.
-    """
-    mask = np.isfinite(pred).all(-1) & np.isfinite(gt).all(-1)
-    aligned = procrustes_align(pred, gt, mask)
-    err = np.linalg.norm(aligned - np.nan_to_num(gt), axis=-1)
-    with np.errstate(invalid="ignore"):
-        return np.where(mask.sum(1) >= 3, (err * mask).sum(1) / np.maximum(mask.sum(1), 1), np.nan)
-
-
 def threedpw_pa_mpjpe(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray, clip: np.ndarray,
                       track: np.ndarray, min_visible: int = 7) -> tuple[float, dict]:
     """PA-MPJPE in the 3DPW protocol of the paper.
 
-    Poses with fewer than ``min_visible`` visible 2D joints (of the 14) are ignored; the error
-    of each remaining pose is averaged per tracked person per clip, then over the tracks (a
-    clip with two people counts twice).
+    Poses with fewer than ``min_visible`` visible 2D joints (of the 14) are ignored, and so are
+    predictions that lack a joint (the error is over all 14); the error of each remaining pose
+    is averaged per tracked person per clip, then over the tracks (a clip with two people counts
+    twice).
 
     Args:
         pred, gt: ``(N, 14, 3)`` in ``COMMON14_NAMES`` order (see :func:`coco_to_common14`).
@@ -82,7 +49,8 @@ def threedpw_pa_mpjpe(pred: np.ndarray, gt: np.ndarray, visible: np.ndarray, cli
     if pred.shape[1:] != (14, 3) or gt.shape != pred.shape:
         raise ValueError(f"expected pred and gt of shape (N, 14, 3), got {pred.shape} and {gt.shape}")
     keep = np.asarray(visible, bool).sum(1) >= min_visible
-    errors = pa_mpjpe(pred[keep], gt[keep])
+    complete = np.isfinite(pred[keep]).all((1, 2))
+    errors = np.where(complete, pa_mpjpe(pred[keep], gt[keep]), np.nan)
     keys = list(zip(np.asarray(clip)[keep].tolist(), np.asarray(track)[keep].tolist()))
     per_track: dict = {}
     for key, e in zip(keys, errors):
@@ -168,15 +136,6 @@ def oks_ap(ground_truth: dict, detections: list[dict]) -> dict[str, float]:
     return {n: float(max(v, 0.0)) for n, v in zip(names, ev.stats)}
 
 
-def _triangulate_pairs(P1: np.ndarray, P2: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
-    """Two-view DLT. ``P1, P2: (M, 3, 4)``, ``x1, x2: (M, 2)`` -> ``(M, 3)``."""
-    A = np.stack([x1[:, 0, None] * P1[:, 2] - P1[:, 0], x1[:, 1, None] * P1[:, 2] - P1[:, 1],
-                  x2[:, 0, None] * P2[:, 2] - P2[:, 0], x2[:, 1, None] * P2[:, 2] - P2[:, 1]], axis=1)
-    X = np.linalg.svd(A)[2][:, -1]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return X[:, :3] / X[:, 3:]
-
-
 def c_var(projections: np.ndarray, keypoints: np.ndarray, tau: float) -> float:
     """Consistency C_var of a 2D detector over a scene (the paper's Eq. var).
 
@@ -201,7 +160,8 @@ def c_var(projections: np.ndarray, keypoints: np.ndarray, tau: float) -> float:
     p, q, j = np.nonzero(pair_ok)
     if len(p) == 0:
         return float("nan")
-    X = _triangulate_pairs(Pm[u[q]], Pm[v[q]], kp[p, u[q], j, :2], kp[p, v[q], j, :2])
+    terms = dlt_terms(kp[..., :2], Pm[None, :, None])                  # (10, P, V, J) per view
+    X = solve_dlt(terms[:, p, u[q], j] + terms[:, p, v[q], j])            # (pairs, 3) two-view DLT
     group = p * kp.shape[2] + j
     _, inv = np.unique(group, return_inverse=True)
     G = inv.max() + 1

@@ -1,6 +1,7 @@
-"""Ground-truth metrics: matching precision/recall, persons found, MPJPE, PA-MPJPE. Pure
-numpy/scipy, no I/O. The paper's proxies without ground truth (E_R, outliers, |G_k|) are in
-:mod:`mvm.core.quality`; the motion-capture field's PCP and AP in :mod:`mvm.eval.mocap`."""
+"""Ground-truth metrics of 3D poses: matching precision/recall, persons found, MPJPE, PA-MPJPE
+and the similarity (Procrustes) alignment behind it. Pure numpy/scipy, no I/O. The paper's
+proxies without ground truth (E_R, outliers, |G_k|) are in :mod:`mvm.core.quality`; the
+motion-capture field's PCP and AP in :mod:`mvm.metrics.mocap_scores`."""
 from __future__ import annotations
 
 import numpy as np
@@ -36,25 +37,54 @@ def matching_precision_recall(groups: list[np.ndarray], true_person: np.ndarray)
     return float(precision), float(recall)
 
 
-def similarity_transform(source: np.ndarray, target: np.ndarray, scale: bool = True
-                         ) -> tuple[float, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama). ``source, target: (N, 3)``
-    -> ``s``, ``R: (3, 3)``, ``t: (3,)`` (``s = 1`` without ``scale``)."""
-    mu_a, mu_b = source.mean(0), target.mean(0)
-    A0, B0 = source - mu_a, target - mu_b
-    U, S, Vt = np.linalg.svd(B0.T @ A0)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    s = (S * np.diag(D)).sum() / (A0**2).sum() if scale else 1.0
-    return s, R, mu_b - s * R @ mu_a
+def similarity_transform(source: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None,
+                         scale: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama), batched.
+
+    ``source, target: (..., N, 3)``; ``mask: (..., N)`` the points of the fit (default: finite
+    in both) -> ``s: (...)``, ``R: (..., 3, 3)``, ``t: (..., 3)`` (``s = 1`` without ``scale``).
+    """
+    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
+    if source.shape != target.shape or source.ndim < 2 or source.shape[-1] != 3:
+        raise ValueError(f"similarity_transform: expected two (..., N, 3) arrays, got {source.shape} and "
+                         f"{target.shape}")
+    if mask is None:
+        mask = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
+    w = np.asarray(mask, dtype=float)[..., None]                                  # (..., N, 1)
+    n = np.maximum(w.sum(-2, keepdims=True), 1)
+    A, B = np.nan_to_num(source), np.nan_to_num(target)
+    mu_a, mu_b = (w * A).sum(-2, keepdims=True) / n, (w * B).sum(-2, keepdims=True) / n
+    A0, B0 = (A - mu_a) * w, (B - mu_b) * w
+    U, S, Vt = np.linalg.svd(np.einsum("...ji,...jk->...ik", B0, A0))            # B0ᵀ A0 = U S Vt
+    D = np.ones_like(S)
+    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
+    R = (U * D[..., None, :]) @ Vt
+    s = (S * D).sum(-1) / np.maximum((A0 ** 2).sum((-2, -1)), 1e-12) if scale else np.ones(S.shape[:-1])
+    t = mu_b[..., 0, :] - s[..., None] * np.einsum("...ij,...j->...i", R, mu_a[..., 0, :])
+    return s, R, t
 
 
-def procrustes_align(source: np.ndarray, target: np.ndarray, scale: bool = True) -> np.ndarray:
-    """Similarity-align ``source: (J, 3)`` to ``target: (J, 3)`` over joints finite in both;
-    returns the aligned source ``(J, 3)``."""
-    ok = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
-    s, R, t = similarity_transform(source[ok], target[ok], scale)
-    return s * source @ R.T + t
+def procrustes_align(source: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None,
+                     scale: bool = True) -> np.ndarray:
+    """``source: (..., J, 3)`` similarity-aligned onto ``target: (..., J, 3)`` by
+    :func:`similarity_transform` over ``mask: (..., J)`` (default: the joints finite in both)
+    -> ``(..., J, 3)`` (NaN where ``source`` is)."""
+    source = np.asarray(source, dtype=float)
+    s, R, t = similarity_transform(source, target, mask, scale)
+    return s[..., None, None] * np.einsum("...ij,...kj->...ki", R, source) + t[..., None, :]
+
+
+def pa_mpjpe(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Procrustes-aligned mean per-joint position error of each pose.
+
+    ``estimate, truth: (..., J, 3)`` (NaN joints ignored) -> ``(...)`` in the unit of ``truth``,
+    NaN for a pose with fewer than 3 joints finite in both.
+    """
+    estimate, truth = np.asarray(estimate, dtype=float), np.asarray(truth, dtype=float)
+    mask = np.isfinite(estimate).all(-1) & np.isfinite(truth).all(-1)
+    error = np.linalg.norm(procrustes_align(estimate, truth, mask) - truth, axis=-1)
+    count = mask.sum(-1)
+    return np.where(count >= 3, np.where(mask, error, 0.0).sum(-1) / np.maximum(count, 1), np.nan)
 
 
 def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float = np.inf) -> list[tuple[int, int]]:
@@ -73,16 +103,15 @@ def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float =
 def person_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
     """MPJPE and PA-MPJPE (in the units of the inputs) of every matched pair ``(p, g)`` with at
     least 3 joints finite in both: ``(K,)`` each."""
-    mpjpe, pa = [], []
-    for p, g in pairs:
-        e, t = estimate[p], truth[g]
-        ok = np.isfinite(e).all(-1) & np.isfinite(t).all(-1)
-        if ok.sum() < 3:
-            continue
-        mpjpe.append(np.linalg.norm(e[ok] - t[ok], axis=-1).mean())
-        aligned = procrustes_align(e, t)
-        pa.append(np.linalg.norm(aligned[ok] - t[ok], axis=-1).mean())
-    return np.array(mpjpe, dtype=float), np.array(pa, dtype=float)
+    if not pairs:
+        return np.zeros(0), np.zeros(0)
+    p, g = np.array(pairs).T
+    e, t = np.asarray(estimate, dtype=float)[p], np.asarray(truth, dtype=float)[g]       # (K', J, 3)
+    ok = np.isfinite(e).all(-1) & np.isfinite(t).all(-1)
+    kept = ok.sum(-1) >= 3
+    e, t, ok = e[kept], t[kept], ok[kept]
+    distance = np.where(ok, np.linalg.norm(e - t, axis=-1), 0.0)
+    return distance.sum(-1) / ok.sum(-1), pa_mpjpe(e, t)
 
 
 def pose_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> dict:

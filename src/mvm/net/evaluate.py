@@ -9,15 +9,7 @@ import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
 from mvm.errors import InputError
-from mvm.eval.network import (
-    c_var,
-    coco_to_common14,
-    keypoints_per_view,
-    match_poses_2d,
-    oks_ap,
-    relative_depth_error,
-    threedpw_pa_mpjpe,
-)
+from mvm.metrics.network import coco_to_common14, match_poses_2d, oks_ap, relative_depth_error, threedpw_pa_mpjpe
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
 from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth
 from mvm.net.model import PoseNet, fields_from_raw
@@ -169,9 +161,9 @@ def evaluate_3dpw(model: PoseNet, data, input_size: int = 385, decoder: DecoderC
     """PA-MPJPE of ``model`` on 3DPW poses (the paper's Table 3 protocol).
 
     Each image is run once; its detections are matched to the true people by their 2D
-    joints (:func:`mvm.eval.network.match_poses_2d`); the 14 common joints of each matched
+    joints (:func:`mvm.metrics.network.match_poses_2d`); the 14 common joints of each matched
     pose are Procrustes-aligned to the truth; errors are averaged per tracked person per
-    clip, then over the data set (:func:`mvm.eval.network.threedpw_pa_mpjpe`). Subjects with
+    clip, then over the data set (:func:`mvm.metrics.network.threedpw_pa_mpjpe`). Subjects with
     fewer than ``min_visible`` visible joints are ignored; a true person without a matching
     detection is counted in ``missed`` (and gets no error).
 
@@ -210,41 +202,3 @@ def evaluate_3dpw(model: PoseNet, data, input_size: int = 385, decoder: DecoderC
     return {"PA_MPJPE_mm": 1000.0 * error, "tracks": len(per_track), "poses": int(used.sum()),
             "missed": int((evaluated & eligible & ~found).sum()), "ignored": int((evaluated & ~eligible).sum()),
             "images": len(images), "per_track_mm": {f"{c}/{t}": 1000.0 * e for (c, t), e in per_track.items()}}
-
-
-def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 0.9),
-                  output_name: str = "mvm") -> dict:
-    """The paper's Table 5: C_var of the 2D poses of reconstructed scenes.
-
-    For each scene, the 2D poses that the reconstruction grouped into each person
-    (``<scene>/<output_name>/poses3d.json``) are triangulated pairwise per joint
-    (:func:`mvm.eval.network.c_var`); the table value is the mean over scenes, in squared
-    units of each scene's model. Run it on scenes whose ``poses2d.json`` came from the
-    detector under test.
-
-    Returns:
-        ``{"C_var": {tau: mean or None}, "scenes": {name: {tau: value or None}}, "missing": {…}}``.
-    """
-    from mvm.io.scene_dir import read_poses3d, read_scene
-
-    per_scene, missing = {}, {}
-    for scene_dir in map(Path, scene_dirs):
-        poses3d = scene_dir / output_name / "poses3d.json"
-        if not poses3d.is_file():
-            raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
-        scene = read_scene(scene_dir)
-        persons = read_poses3d(poses3d, scene.poses)
-        kp = keypoints_per_view(scene.poses.keypoints, scene.poses.view, scene.poses.score, persons.members,
-                                len(scene.cameras))
-        values = {}
-        for tau in taus:
-            v = c_var(scene.cameras.P, kp, tau)
-            values[str(tau)] = float(v) if np.isfinite(v) else None
-            if values[str(tau)] is None:
-                missing[f"{scene_dir.name}@{tau}"] = "no joint of any person seen in three views above tau"
-        per_scene[scene_dir.name] = values
-    table = {}
-    for tau in map(str, taus):
-        vals = [v[tau] for v in per_scene.values() if v[tau] is not None]
-        table[tau] = float(np.mean(vals)) if vals else None
-    return {"C_var": table, "scenes": per_scene, "missing": missing}

@@ -11,7 +11,7 @@ import numpy as np
 
 from mvm.core.geometry import project
 from mvm.core.keypoints import NUM_JOINTS
-from mvm.eval.metrics import match_persons, matching_precision_recall, pose_errors, procrustes_align
+from mvm.metrics.poses import match_persons, matching_precision_recall, pose_errors, procrustes_align
 
 #: Colour of 2D poses that belong to no person (RGB).
 UNMATCHED_RGB = (150, 150, 150)

@@ -246,7 +246,7 @@ def report_html(result: SceneResult, strip: str, strip_on_frames: bool, max_poin
     colors = analysis.person_colors(len(result.persons))
     comparison = None
     if result.truth is not None and result.true_person is not None:
-        from mvm.eval.metrics import MATCH_DISTANCE_M
+        from mvm.metrics.poses import MATCH_DISTANCE_M
 
         comparison = analysis.compare_with_truth(result.persons.keypoints3d, result.persons.members,
                                                  result.truth.poses3d, result.true_person, MATCH_DISTANCE_M)
