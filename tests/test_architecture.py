@@ -1,5 +1,5 @@
 """The package layers of docs/architecture.md: a module may import only the packages its layer allows
-(``mvm`` itself, for ``__version__``, everywhere)."""
+(``mvm`` itself, for ``__version__``, everywhere), and the packages' real imports form no cycle."""
 from __future__ import annotations
 
 import ast
@@ -15,17 +15,18 @@ ALLOWED: dict[str, set[str]] = {
     "errors": set(),
     "parallel": set(),
     "core": {"errors"},
+    "metrics": {"core", "errors"},
     "io": {"core", "errors"},
     "scenes": {"core", "io", "parallel", "errors"},
-    "net": {"core", "io", "eval", "errors"},
+    "net": {"core", "io", "metrics", "errors"},
     "sim": {"core", "io", "net", "errors"},
-    "eval": {"core", "io", "scenes", "sim", "rig", "errors"},
-    "rig": {"core", "io", "eval", "parallel", "errors"},
-    "video": {"core", "io", "scenes", "eval", "net", "errors"},
-    "report": {"core", "io", "eval", "sim", "errors"},
-    "batch": {"core", "io", "scenes", "eval", "sim", "rig", "net", "video", "report", "parallel", "errors"},
+    "eval": {"core", "io", "metrics", "scenes", "sim", "rig", "errors"},
+    "rig": {"core", "io", "metrics", "parallel", "errors"},
+    "video": {"core", "io", "scenes", "metrics", "net", "errors"},
+    "report": {"core", "io", "metrics", "sim", "errors"},
+    "batch": {"core", "io", "scenes", "metrics", "eval", "sim", "rig", "net", "video", "report", "parallel",
+              "errors"},
 }
-
 
 def _imports(path) -> set[str]:
     """The top-level mvm packages that ``path`` imports: ``mvm.core.scene`` -> ``core``."""
@@ -50,6 +51,63 @@ def test_package_imports_only_its_layers(package):
              for f in files}
     wrong = {f: names for f, names in wrong.items() if names}
     assert not wrong, f"imports across layers (docs/architecture.md): {wrong}"
+
+
+def _package_of(path) -> str:
+    """``src/mvm/core/scene.py`` -> ``core``; ``src/mvm/scenes.py`` -> ``scenes``."""
+    return path.relative_to(SRC).parts[0].removesuffix(".py")
+
+
+def import_graph() -> dict[str, dict[str, list[str]]]:
+    """The packages' real imports, top-level and inside functions alike: ``{package: {imported
+    package: [modules that import it]}}`` (``mvm`` itself, ``__init__`` and ``__main__`` left out)."""
+    graph: dict[str, dict[str, list[str]]] = {}
+    for path in sorted(SRC.rglob("*.py")):
+        package = _package_of(path)
+        if package in ("__init__", "__main__"):
+            continue
+        for imported in _imports(path) - {package, "mvm"}:
+            graph.setdefault(package, {}).setdefault(imported, []).append(str(path.relative_to(SRC)))
+    return graph
+
+
+def find_cycle(graph: dict[str, dict[str, list[str]]]) -> list[str] | None:
+    """A cycle of ``graph`` as the packages along it, first one repeated at the end
+    (``["eval", "sim", "net", "eval"]``), or None."""
+    state: dict[str, str] = {}                                               # "open" on the path, "done"
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = "open"
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == "open":
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        path.pop()
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def test_find_cycle_names_the_cycle():
+    assert find_cycle({"a": {"b": []}, "b": {"c": []}, "c": {}}) is None
+    assert find_cycle({"a": {"b": []}, "b": {"c": []}, "c": {"a": []}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"x": {"y": []}, "y": {"y2": []}, "y2": {"y": []}}) == ["y", "y2", "y"]
+
+
+def test_package_imports_form_no_cycle():
+    graph = import_graph()
+    assert {"core", "metrics", "eval", "net", "sim"} <= set(graph)                  # the graph was read
+    cycle = find_cycle(graph)
+    if cycle:
+        steps = [f"{a} -> {b} ({', '.join(graph[a][b])})" for a, b in zip(cycle, cycle[1:])]
+        pytest.fail("the package imports form a cycle " + " -> ".join(cycle) + ":\n  " + "\n  ".join(steps))
 
 
 def test_every_package_has_a_layer():
