@@ -11,7 +11,7 @@ import numpy as np
 
 from mvm.core.geometry import project
 from mvm.core.keypoints import NUM_JOINTS
-from mvm.metrics.poses import match_persons, matching_precision_recall, pose_errors, procrustes_align
+from mvm.metrics.poses import match_persons, matching_precision_recall, pa_mpjpe, pose_errors
 
 #: Colour of 2D poses that belong to no person (RGB).
 UNMATCHED_RGB = (150, 150, 150)
@@ -115,7 +115,7 @@ def compare_with_truth(X: np.ndarray, members: list[np.ndarray], truth: np.ndarr
         ok = np.isfinite(d)
         if ok.sum() >= 3:
             mpjpe[p] = d[ok].mean()
-            pa[p] = np.linalg.norm(procrustes_align(X[p], truth[g])[ok] - truth[g][ok], axis=-1).mean()
+            pa[p] = pa_mpjpe(X[p], truth[g])
     precision, recall = matching_precision_recall(members, np.asarray(true_person))
     overall = pose_errors(X, truth, pairs)
     with np.errstate(invalid="ignore"):
