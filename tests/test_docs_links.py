@@ -52,3 +52,16 @@ def test_links_and_anchors_resolve(page):
 def test_slug_follows_github():
     assert slug("Whole data sets: `mvm batch` and `mvm status`") == "whole-data-sets-mvm-batch-and-mvm-status"
     assert slug("The paper's Tables 1–2 on simulated clips") == "the-papers-tables-12-on-simulated-clips"
+
+
+def test_readme_names_every_dependency_and_extra():
+    """The README's install section agrees with pyproject.toml: every dependency and extra is named."""
+    import tomllib
+
+    project = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))["project"]
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    requirements = project["dependencies"] + [r for extra in project["optional-dependencies"].values() for r in extra]
+    names = {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0] for r in requirements}
+    missing = sorted(n for n in names if n not in readme)
+    missing += sorted(f"[{e}]" for e in project["optional-dependencies"] if f"`{e}`" not in readme)
+    assert not missing, f"README.md does not name these dependencies or extras of pyproject.toml: {missing}"
