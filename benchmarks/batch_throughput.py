@@ -9,7 +9,7 @@ Clips are simulated scenes the size of the paper's (85.9 frames and about 4 peop
 fresh copy of the clips, so every stage really runs. The estimate scales the measured
 core-seconds per clip to ``--sequences`` × ``--clips-per-sequence`` clips on ``--nodes`` ×
 ``--cores-per-node`` workers at the parallel efficiency measured here; ``--sfm-core-seconds``
-adds the SfM stage's cost per clip (the README's figure: 158 s on 2 cores for 100 frames) and
+adds the SfM stage's cost per clip (the figure of docs/results.md: 158 s on 2 cores for 100 frames) and
 ``--detect-core-seconds`` the network's detection on CPU (8 s per frame), which a simulated
 clip does not have.
 """
@@ -58,9 +58,9 @@ def main() -> None:
     parser.add_argument("--nodes", type=int, default=16)
     parser.add_argument("--cores-per-node", type=int, default=32)
     parser.add_argument("--sfm-core-seconds", type=float, default=158 * 2 * 86 / 100,
-                        help="Core-seconds of SfM per clip (default: the README's 158 s × 2 cores, scaled to 86 frames).")
+                        help="Core-seconds of SfM per clip (default: docs/results.md's 158 s × 2 cores, scaled to 86 frames).")
     parser.add_argument("--detect-core-seconds", type=float, default=8.0 * 86,
-                        help="Core-seconds of the network's detection per clip on CPU (default: the README's "
+                        help="Core-seconds of the network's detection per clip on CPU (default: docs/results.md's "
                              "8 s per frame × 86 frames; on a GPU node it is a small fraction).")
     args = parser.parse_args()
 

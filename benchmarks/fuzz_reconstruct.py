@@ -3,7 +3,7 @@ and on disk (``mvm reconstruct`` on damaged scene directories).
 
 Prints the cases tried, how many gave a result and how many were refused with a one-line
 ``InputError``, and every uncaught exception (type, place, one failing case). The contract
-(see ``tests/test_fuzz_reconstruct.py``): a valid result with finite-or-null numbers, or an
+(see ``tests/core/test_fuzz_reconstruct.py``): a valid result with finite-or-null numbers, or an
 ``InputError``; nothing else.
 
     python benchmarks/fuzz_reconstruct.py                  # 10,000 in memory + 300 on disk

@@ -1,4 +1,4 @@
-"""The rig evaluation tables on the real CMU Panoptic sample (README, "Synchronized rigs").
+"""The rig evaluation tables on the real CMU Panoptic sample (docs/results.md, "Synchronized camera rigs").
 
     python benchmarks/rig_panoptic.py [--seeds 3] [--refine] [--skip-cameras]
 

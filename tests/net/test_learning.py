@@ -5,11 +5,9 @@ trains the network of ``configs/train_cpu_tiny.toml`` (a narrow ResNet-18 at 96 
 hundred steps on one thread, and checks on held-out renders that OKS AP rises far above the
 untrained network's and that the relative depth error falls far below the untrained
 network's and below the flat baseline (every joint of a person at the same depth).
-About 70 s on two CPU cores; set ``MVM_SKIP_LEARNING=1`` to skip it.
+About 70 s on two CPU cores, so marked slow: ``pytest -m "not slow"`` leaves it out.
 The longer run with the figures of ``docs/network.md`` is ``benchmarks/train_synthetic.py``.
 """
-import os
-
 import pytest
 import torch
 
@@ -24,7 +22,7 @@ CONFIG = REPO / "configs" / "train_cpu_tiny.toml"
 STEPS = 500
 IMAGES = 500                                            # training renders; 40 held out
 
-pytestmark = pytest.mark.skipif(os.environ.get("MVM_SKIP_LEARNING") == "1", reason="MVM_SKIP_LEARNING=1")
+pytestmark = pytest.mark.slow
 
 
 def test_network_learns_pose_and_depth(tmp_path):

@@ -14,6 +14,7 @@ from mvm.sim.video import RenderConfig, render_video
 
 FRAMES = 40
 
+pytestmark = pytest.mark.slow                          # SfM of the rendered clip: about 30 s
 
 
 def coco_results(truth, rng, noise_px: float = 0.5) -> list[dict]:

@@ -2,7 +2,7 @@
 
 Every case starts from a valid file made by the project's writers (or in the format's
 published layout) and breaks one thing. ``expected.toml`` (written by hand, not by this
-script) holds the exact error line each case must produce; ``tests/test_bad_inputs.py``
+script) holds the exact error line each case must produce; ``tests/io/test_bad_inputs.py``
 checks them. Run from the repository root: ``python tests/data/bad/make_corpus.py``.
 """
 from __future__ import annotations
