@@ -16,7 +16,7 @@ from mvm.cli.common import Group
 def _write(out: Path | None, result: dict) -> None:
     if out is not None:
         from mvm.io.files import atomic_write_json
-        from mvm.net.train import finite_or_none
+        from mvm.net.metrics_log import finite_or_none
 
         atomic_write_json(out, finite_or_none(result), pretty=True)
         click.echo(f"{out}")
@@ -41,7 +41,7 @@ _device = click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), d
 
 def _load(checkpoint: Path, device: str, input_size: int | None):
     from mvm.net.predict import load_model
-    from mvm.net.train import select_device
+    from mvm.net.distributed import select_device
 
     model, meta = load_model(checkpoint, device=str(select_device(device)))
     return model, input_size or int(meta.get("config", {}).get("input_size", 385))
