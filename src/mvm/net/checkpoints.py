@@ -126,7 +126,8 @@ def latest_checkpoint(out_dir: str | Path) -> Path | None:
     return found[-1] if found else None
 
 
-def prune_checkpoints(out_dir: str | Path, keep_last: int, keep_best: str = "", higher_is_better: bool = True) -> list[Path]:
+def prune_checkpoints(out_dir: str | Path, keep_last: int, keep_best: str = "",
+                      higher_is_better: bool = True) -> list[Path]:
     """Delete complete checkpoint pairs beyond the ``keep_last`` most recent (0: keep all).
 
     With ``keep_best`` (a validation metric, e.g. ``"AP"``), the checkpoint with the best

@@ -66,7 +66,8 @@ def _train(cfg: TrainConfig, resume, progress, dist: Distributed) -> Path:
         LOG.info("nothing to do: the checkpoint is at step %d of %d", step, cfg.steps)
         return resumed
     if dist.world > 1:
-        model = torch.nn.parallel.DistributedDataParallel(model, device_ids=[device.index] if device.type == "cuda" else None)
+        model = torch.nn.parallel.DistributedDataParallel(
+            model, device_ids=[device.index] if device.type == "cuda" else None)
     loader = training_loader(cfg, step, dist.rank, dist.world)
     weights = LossWeights(cfg.lambda_pif, cfg.lambda_paf, cfg.lambda_pdf, cfg.background_weight,
                           cfg.depth_log_scale, cfg.depth_loss)
