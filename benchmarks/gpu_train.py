@@ -30,9 +30,13 @@ import numpy as np
 import torch
 
 from mvm.net.data import AugmentConfig, KeypointDataset, collate, read_annotations
+from mvm.net.distributed import select_device
+from mvm.net.ema import EMA
 from mvm.net.losses import LossWeights, total_loss
+from mvm.net.metrics_log import read_metrics_log
 from mvm.net.model import ModelSpec, PoseNet
-from mvm.net.train import EMA, DataSource, TrainConfig, make_optimizer, read_metrics_log, select_device, train
+from mvm.net.train import make_optimizer, train
+from mvm.net.train_config import DataSource, TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 

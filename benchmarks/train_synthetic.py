@@ -26,9 +26,11 @@ from pathlib import Path
 
 import torch
 
+from mvm.net.checkpoints import read_checkpoint
 from mvm.net.evaluate import evaluate
 from mvm.net.model import PoseNet
-from mvm.net.train import DataSource, load_config, read_checkpoint, train
+from mvm.net.train import train
+from mvm.net.train_config import DataSource, load_config
 from mvm.sim.images import demo_datasets
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ from mvm.metrics.poses import similarity_transform
 from mvm.sim.video import RenderConfig, default_people, render_video
 from mvm.video.detect import detect_scene
 from mvm.video.frames import FrameOptions, extract_frames
-from mvm.video.pipeline import reconstruct_scene
+from mvm.video.run import reconstruct_scene
 from mvm.video.sfm import SfmOptions, run_sfm
 
 

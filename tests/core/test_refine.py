@@ -9,6 +9,8 @@ from scipy.optimize import least_squares
 
 from mvm.core.geometry import project
 from mvm.core.keypoints import bone_lengths
+from mvm.core.linearized_prior import linearized_prior, prior_energy
+from mvm.core.lm import levenberg_marquardt, spd_solve
 from mvm.core.prior import canonicalize, shipped_prior
 from mvm.core.refine import (
     BoneTerms,
@@ -16,14 +18,10 @@ from mvm.core.refine import (
     Observations,
     damped_steps,
     hessian,
-    levenberg_marquardt,
-    linearized_prior,
     normal_equations,
-    prior_energy,
     refine_poses,
     residuals,
     robust_terms,
-    spd_solve,
 )
 
 from helpers import STANDING, random_cameras

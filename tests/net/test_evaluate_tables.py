@@ -39,8 +39,10 @@ def test_evaluate_coco_prints_the_table_row(tmp_path):
 
 def test_rendered_simulation_exports_and_trains(tmp_path):
     """simulate -> render frames -> export (true grouping) -> one training step on the frames."""
+    from mvm.net.checkpoints import read_checkpoint
     from mvm.net.supervision import export_supervision
-    from mvm.net.train import DataSource, TrainConfig, read_checkpoint, train
+    from mvm.net.train import train
+    from mvm.net.train_config import DataSource, TrainConfig
     from mvm.sim.video import render_frames
 
     scene, truth = simulate(SimConfig.preset("clean", people=2, frames=4, seed=3, image_width=640, image_height=360))

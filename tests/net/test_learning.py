@@ -11,9 +11,11 @@ The longer run with the figures of ``docs/network.md`` is ``benchmarks/train_syn
 import pytest
 import torch
 
+from mvm.net.checkpoints import read_checkpoint
 from mvm.net.evaluate import evaluate
 from mvm.net.model import PoseNet
-from mvm.net.train import DataSource, load_config, read_checkpoint, train
+from mvm.net.train import train
+from mvm.net.train_config import DataSource, load_config
 from mvm.sim import images
 
 from helpers import REPO

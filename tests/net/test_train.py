@@ -10,20 +10,12 @@ from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.errors import InputError
 from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.predict import load_model, predict
-from mvm.net.train import (
-    EMA,
-    MixtureSampler,
-    config_from_dict,
-    finite_or_none,
-    latest_checkpoint,
-    learning_rate,
-    list_checkpoints,
-    load_config,
-    prune_checkpoints,
-    read_checkpoint,
-    read_metrics_log,
-    train,
-)
+from mvm.net.checkpoints import latest_checkpoint, list_checkpoints, prune_checkpoints, read_checkpoint
+from mvm.net.ema import EMA
+from mvm.net.metrics_log import finite_or_none, read_metrics_log
+from mvm.net.sampling import MixtureSampler
+from mvm.net.train import learning_rate, train
+from mvm.net.train_config import config_from_dict, load_config
 from mvm.sim import images
 
 from helpers import REPO
@@ -203,16 +195,16 @@ def test_two_d_only_validation_trains_and_checkpoints(tiny_data, tmp_path):
 def test_resume_after_a_kill_between_the_weights_and_the_metadata(tiny_data, tmp_path, monkeypatch):
     out = tmp_path / "run"
     train(_config(tiny_data, out, steps=2))
-    import mvm.net.train as train_module
+    import mvm.net.checkpoints as checkpoints
 
-    real = train_module.atomic_write_json
+    real = checkpoints.atomic_write_json
 
     def killed(path, obj, pretty=False):
         if "0000004" in str(path):
             raise KeyboardInterrupt("killed")
         real(path, obj, pretty)
 
-    monkeypatch.setattr(train_module, "atomic_write_json", killed)
+    monkeypatch.setattr(checkpoints, "atomic_write_json", killed)
     with pytest.raises(KeyboardInterrupt):
         train(_config(tiny_data, out, steps=4), resume="auto")
     monkeypatch.undo()
@@ -361,11 +353,101 @@ def test_plot_draws_the_curves(tiny_data, tmp_path):
 
 
 @pytest.mark.parametrize("override, message", [
-    ({"seed": -1}, "--set: seed: must be a finite number >= 0, got -1"),
-    ({"lr": float("nan")}, "--set: lr: must be a finite number >= 0, got nan"),
-    ({"steps": "abc"}, "--set: steps: expected a number, got 'abc'"),
+    ({"seed": -1}, "--set: seed: must be >= 0, got -1"),
+    ({"lr": float("nan")}, "--set: lr: expected float, got nan"),
+    ({"lr": 0}, "--set: lr: must be > 0, got 0.0"),
+    ({"steps": "abc"}, "--set: steps: expected int, got 'abc'"),
+    ({"input_size": 0}, "--set: input_size: must be >= 16, got 0"),
+    ({"stride": 32}, "--set: stride: expected one of 8, 16, got 32"),
+    ({"flip": 1.5}, "--set: flip: must be <= 1, got 1.5"),
 ])
 def test_bad_training_setting_names_its_source(override, message):
     with pytest.raises(InputError) as e:
         load_config(REPO / "configs" / "train_cpu_tiny.toml", override)
     assert str(e.value) == message
+
+
+@pytest.mark.parametrize("section, values, message", [
+    ("optim", {"steps": "ten"}, "c.toml: steps: expected int, got 'ten'"),                   # wrong type
+    ("optim", {"lr": True}, "c.toml: lr: expected float, got True"),
+    ("output", {"device": 1}, "c.toml: device: expected str, got 1"),
+    ("optim", {"ema_decay": 1.5}, "c.toml: ema_decay: must be <= 1, got 1.5"),                # out of range
+    ("optim", {"batch_size": 0}, "c.toml: batch_size: must be >= 1, got 0"),
+    ("optim", {"lr_decay": "step"}, "c.toml: lr_decay: expected one of 'none', 'cosine', got 'step'"),
+    ("data", {"input_size": 0}, "c.toml: input_size: must be >= 16, got 0"),
+    ("data", {"crop_min": 0.9, "crop_max": 0.8}, "c.toml: crop_min: must be <= crop_max (0.8), got 0.9"),
+    ("data", {"train": [{"annotations": "a.json", "scale_min": 0}]},
+     "c.toml: train[0].scale_min: must be > 0, got 0.0"),
+    ("data", {"train": [{"annotations": "a.json", "weight": "heavy"}]},
+     "c.toml: train[0].weight: expected float, got 'heavy'"),
+    ("data", {"train": [{"images": "x"}]}, "c.toml: train[0]: expected a table with 'annotations'"),
+    ("data", {"val": {"annotations": "a.json", "colour": 1}},
+     "c.toml: val.colour: unknown setting (known: annotations, images, people_only, scale_max, scale_min, "
+     "start_step, use_depth, weight)"),
+])
+def test_bad_training_setting_in_a_file_is_one_line_naming_it(section, values, message):
+    with pytest.raises(InputError) as e:
+        config_from_dict({section: values}, "c.toml")
+    assert str(e.value) == message
+
+
+def test_out_dir_naming_a_file_is_refused(tmp_path):
+    (tmp_path / "run").write_text("not a directory")
+    with pytest.raises(InputError) as e:
+        config_from_dict({"output": {"out_dir": str(tmp_path / "run")}}, "c.toml")
+    assert str(e.value) == f"c.toml: out_dir: {tmp_path / 'run'} is a file, expected a directory"
+    assert config_from_dict({"output": {"out_dir": str(tmp_path)}}).out_dir == str(tmp_path)   # a directory is fine
+
+
+def test_training_settings_are_checked_when_built_in_python_too():
+    from mvm.net.train_config import DataSource, TrainConfig
+
+    with pytest.raises(InputError, match="^input_size: must be >= 16, got 0$"):
+        TrainConfig(input_size=0)
+    with pytest.raises(InputError, match="^momentum: must be < 1, got 1.0$"):
+        TrainConfig().replace(momentum=1.0)
+    with pytest.raises(InputError, match=r"^train: expected a list of tables"):
+        TrainConfig(train=("a.json",))
+    with pytest.raises(InputError, match="^scale_min: must be <= scale_max"):
+        DataSource("a.json", scale_min=2.0)
+    cfg = config_from_dict({"optim": {"lr": 1, "steps": 10.0}})              # TOML numbers as the fields' types
+    assert cfg.lr == 1.0 and isinstance(cfg.lr, float) and cfg.steps == 10 and isinstance(cfg.steps, int)
+
+
+def _checkpoint_pair(tmp_path, state):
+    pt = tmp_path / "c.pt"
+    torch.save(state, pt)
+    pt.with_suffix(".json").write_text(json.dumps({"format": "mvm.net.checkpoint/1", "model": {}}))
+    return pt
+
+
+class _NotATensor:
+    """A class torch refuses to unpickle with ``weights_only=True``."""
+
+
+@pytest.mark.parametrize("state, message", [
+    ({"model": 5}, "model: not a checkpoint: expected a state dict (names to tensors), got int"),
+    ({"model": {"w": torch.zeros(2)}, "ema": {"w": [1.0, 2.0]}},
+     "ema: not a checkpoint: expected a state dict (names to tensors), 'w' is list"),
+    ({"ema": {}}, "not a checkpoint: expected a dict with a 'model' state dict"),
+    ([torch.zeros(2)], "not a checkpoint: expected a dict with a 'model' state dict"),
+    ({"model": _NotATensor()}, "not a checkpoint: it holds objects other than tensors "
+                               "(checkpoints are read as tensors only)"),
+])
+def test_a_checkpoint_that_is_not_a_dict_of_tensors_is_one_line_naming_it(tmp_path, state, message):
+    pt = _checkpoint_pair(tmp_path, state)
+    with pytest.raises(InputError) as e:
+        read_checkpoint(pt)
+    assert str(e.value) == f"{pt}: {message}" and "\n" not in str(e.value)
+    assert "weights_only" not in str(e.value)
+
+
+def test_a_damaged_checkpoint_is_one_line_naming_it(tmp_path):
+    pt = _checkpoint_pair(tmp_path, {"model": {"w": torch.zeros(1000)}})
+    assert read_checkpoint(pt)[0]["model"]["w"].shape == (1000,)            # the intact file reads
+    data = pt.read_bytes()
+    for damaged in (data[: len(data) // 2], b"", b"junk"):
+        pt.write_bytes(damaged)
+        with pytest.raises(InputError) as e:
+            read_checkpoint(pt)
+        assert str(e.value) == f"{pt}: not a checkpoint: not a torch file, or truncated"

@@ -124,7 +124,7 @@ def _tiny_checkpoint(path):
     torch = pytest.importorskip("torch", reason="torch is an optional dependency")
     try:
         from mvm.net.model import ModelSpec, PoseNet
-        from mvm.net.train import CHECKPOINT_FORMAT
+        from mvm.net.checkpoints import CHECKPOINT_FORMAT
     except ImportError as e:
         pytest.skip(f"the pose network is not available: {e}")
     torch.manual_seed(0)

@@ -92,7 +92,7 @@ def test_camera_centres_and_poses_match_truth(run_result, capsys):
 
 
 def test_rerun_skips_done_stages(run_result, tmp_path):
-    from mvm.video.pipeline import run_video
+    from mvm.video.run import run_video
 
     truth, scene, _ = run_result
     before = (scene / "mvm" / "poses3d.json").stat().st_mtime_ns

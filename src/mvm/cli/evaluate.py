@@ -16,7 +16,7 @@ from mvm.cli.common import Group
 def _write(out: Path | None, result: dict) -> None:
     """Write ``result`` (NaN for a figure that could not be computed) as JSON (``null`` for NaN)."""
     if out is not None:
-        from mvm.net.train import finite_or_none
+        from mvm.net.metrics_log import finite_or_none
 
         _write_json(out, finite_or_none(result))
 
@@ -49,7 +49,7 @@ _device = click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), d
 
 def _load(checkpoint: Path, device: str, input_size: int | None):
     from mvm.net.predict import load_model
-    from mvm.net.train import select_device
+    from mvm.net.distributed import select_device
 
     model, meta = load_model(checkpoint, device=str(select_device(device)))
     return model, input_size or int(meta.get("config", {}).get("input_size", 385))

@@ -70,7 +70,8 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
 
     Several GPUs: torchrun --nproc-per-node N -m mvm train CONFIG (batch_size per GPU).
     """
-    from mvm.net.train import load_config, train
+    from mvm.net.train import train
+    from mvm.net.train_config import load_config
 
     cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
     if plot:

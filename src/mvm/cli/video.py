@@ -194,7 +194,7 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
             vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
             cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
-    from mvm.video.pipeline import run_video
+    from mvm.video.run import run_video
 
     with refused(ValueError):
         options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,

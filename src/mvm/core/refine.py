@@ -15,17 +15,15 @@ nonlinear least-squares problem per person (:func:`residuals`, pure functions of
 its unknowns are the person's present joints (at most 17 × 3); each reprojection row touches
 one joint, the linearized prior rows only that person and each bone row two of its joints.
 In a person's body basis the prior's rows are a matrix shared by every person of the same
-(present joints, component) group (:class:`LinearPrior`), so its dense share of the normal
-equations is one matrix per group, never built per person. Persons are independent, so the
-Gauss-Newton normal equations are one dense ``3J × 3J`` system per person, padded (absent
-joints: identity rows, they stay NaN) and assembled for all persons at once from the group's
-matrix and ``3 × 3`` blocks (:func:`normal_equations`, :func:`damped_steps`). A batched
-Levenberg-Marquardt (:func:`levenberg_marquardt`) solves them together: every person has its
-own damping, accepts or rejects its own steps and stops on its own tolerance, with the
-``ftol`` / ``xtol`` meaning of ``scipy.optimize.least_squares``, or as soon as a bound on what
+(present joints, component) group (:class:`mvm.core.linearized_prior.LinearPrior`), so its
+dense share of the normal equations is one matrix per group, never built per person. Persons
+are independent, so the Gauss-Newton normal equations are one dense ``3J × 3J`` system per
+person, padded (absent joints: identity rows, they stay NaN) and assembled for all persons at
+once from the group's matrix and ``3 × 3`` blocks (:func:`normal_equations`,
+:func:`damped_steps`). The batched Levenberg-Marquardt of :mod:`mvm.core.lm` solves them
+together, every person on its own damping and tolerance, stopping as soon as a bound on what
 any step could still gain (:func:`model_decrease_bound`) falls under it. Where the time goes
-is the damped ``3J × 3J`` solves, so a step solves only the persons still active, and each
-trial point is evaluated once, its normal equations with its cost.
+is the damped ``3J × 3J`` solves, so a step solves only the persons still active.
 """
 from __future__ import annotations
 
@@ -36,8 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvm.core.keypoints import BONES, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
-from mvm.core.prior import body_frame, canonicalize
+from mvm.core.keypoints import BONES
+from mvm.core.linearized_prior import LinearPrior, linearized_prior, prior_energy
+from mvm.core.lm import levenberg_marquardt, spd_solve
 from mvm.core.quality import row_nanmedian
 
 log = logging.getLogger(__name__)
@@ -47,9 +46,6 @@ _BONES = np.array(BONES)
 _INCIDENCE = np.zeros((len(BONES), 17))
 _INCIDENCE[np.arange(len(BONES)), _BONES[:, 0]] = 1.0
 _INCIDENCE[np.arange(len(BONES)), _BONES[:, 1]] = -1.0
-#: Initial damping of every person, relative to the diagonal of its normal equations.
-INITIAL_DAMPING = 1e-3
-_MIN_DAMPING, _MAX_DAMPING = 1e-9, 1e12
 #: The inner solves of the outer iterations before the last stop at this multiple of the
 #: tolerance: their robust weights, body frames and components are replaced anyway.
 EARLY_TOLERANCE_FACTOR = 30.0
@@ -145,178 +141,6 @@ class Observations:
 
 
 @dataclass(frozen=True)
-class LinearPrior:
-    """The linearized prior of every person, in its body basis.
-
-    A person's canonical coordinates ``y_j = R (X_j − pelvis) / s`` are linear in its joints
-    once the frame ``R, s`` is held fixed: its prior residuals are ``M_g (x̂ / s) − h_g`` with
-    ``x̂ = (R X_j)_j`` the joints in the body basis, flattened joint-major, and ``M_g: (3J, 3J)``,
-    ``h_g: (3J,)`` shared by every person of the same (present joints, mixture component) group
-    ``g`` (the whitening, the pelvis subtraction and ``√weight``; zero rows beyond the present
-    coordinates). Nothing per person is ``3J × 3J``: residuals are one product per group, and
-    the prior's share of the normal equations in the body basis is the group's ``M_gᵀ M_g / s²``.
-
-    ``rotation: (P, 3, 3)`` ``R`` (identity without a prior), ``scale: (P,)`` ``s`` (1 without);
-    ``which: (P,)`` each person's group (``G``: none); ``M: (G + 1, 3J, 3J)``, ``h: (G + 1, 3J)``
-    and ``gram_body: (G + 1, 3J, 3J)``, the ``M_gᵀ M_g`` (the last group's: zero)."""
-
-    rotation: np.ndarray
-    scale: np.ndarray
-    which: np.ndarray
-    M: np.ndarray
-    h: np.ndarray
-    gram_body: np.ndarray
-
-    def take(self, persons: np.ndarray) -> LinearPrior:
-        return LinearPrior(self.rotation[persons], self.scale[persons], self.which[persons], self.M, self.h,
-                           self.gram_body)
-
-    @functools.cached_property
-    def _gathered(self) -> np.ndarray:
-        """``M_g`` of every person, ``(P, 3J, 3J)`` (gathered once, for few persons per group)."""
-        return self.M[self.which]
-
-    @functools.cached_property
-    def _groups(self) -> list:
-        """``(g, rows)`` of every group that has persons, but the last (persons without a prior)."""
-        return [(g, np.flatnonzero(self.which == g)) for g in np.unique(self.which) if g < len(self.M) - 1]
-
-    def _times(self, y: np.ndarray, transpose: bool = False) -> np.ndarray:
-        """``M_g y`` (``M_gᵀ y`` if ``transpose``) of every person, ``y: (P, 3J)``. One product
-        per group; with few persons per group, one gather of their matrices."""
-        if len(self.which) <= 2 * len(self.M):
-            M = self._gathered
-            return np.matmul(y[:, None], M)[:, 0] if transpose else np.matmul(M, y[..., None])[..., 0]
-        out = np.zeros_like(y)
-        for g, rows in self._groups:
-            out[rows] = y[rows] @ (self.M[g] if transpose else self.M[g].T)
-        return out
-
-    def to_body(self, x: np.ndarray) -> np.ndarray:
-        """``x: (P, 3J)`` world coordinates (or gradients) -> ``(P, 3J)`` rotated into each
-        person's body basis."""
-        return np.matmul(x.reshape(len(x), -1, 3), np.swapaxes(self.rotation, 1, 2)).reshape(len(x), -1)
-
-    def to_world(self, x: np.ndarray) -> np.ndarray:
-        """The inverse rotation of :meth:`to_body`."""
-        return np.matmul(x.reshape(len(x), -1, 3), self.rotation).reshape(len(x), -1)
-
-    def residuals(self, x: np.ndarray) -> np.ndarray:
-        """``(P, 3J)`` at ``x: (P, 3J)``; zero for persons without a prior."""
-        return self._times(self.to_body(x) / self.scale[:, None]) - self.h[self.which]
-
-    def energy_gradient(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Half the squared residuals per person ``(P,)`` and their gradient by ``x``, ``(P, 3J)``."""
-        r = self.residuals(x)
-        return 0.5 * np.einsum("pn,pn->p", r, r), self.to_world(self._times(r, transpose=True)) / self.scale[:, None]
-
-    def energy(self, x: np.ndarray) -> np.ndarray:
-        """Half the squared residuals per person, ``(P,)``: at the point of linearization,
-        ``weight · ½ |W (X̃ − μ)|²`` of the max-mixture component, the prior's share of the
-        objective."""
-        r = self.residuals(x)
-        return 0.5 * np.einsum("pn,pn->p", r, r)
-
-    def gram(self) -> np.ndarray:
-        """The prior's share of the normal equations in world coordinates, ``Rᵀ M_gᵀ M_g R / s²``
-        per joint block, ``(P, 3J, 3J)`` (the solver works in the body basis and never forms it)."""
-        Pn, n = len(self.which), self.gram_body.shape[1]
-        H = (self.gram_body[self.which] / (self.scale**2)[:, None, None]).reshape(Pn, n // 3, 3, n)
-        H = np.matmul(np.swapaxes(self.rotation, 1, 2)[:, None], H).reshape(Pn, n, n // 3, 3)
-        return np.matmul(H, self.rotation[:, None]).reshape(Pn, n, n)
-
-
-def _prior_groups(X: np.ndarray, present: np.ndarray, prior, weight: float):
-    """The body frames of ``X: (P, J, 3)`` (``present: (P, J)``), and the (present joints,
-    max-mixture component) pair of every person the prior applies to (both hips and shoulders
-    present). Returns ``rotation: (P, 3, 3)``, ``scale: (P,)``, ``keys: (G, J + 1)`` int
-    (present joints, component) and ``which: (P,)``, each person's row of ``keys`` (``G``: none)."""
-    Pn, J, _ = X.shape
-    poses = np.where(present[..., None], X, np.nan)
-    frame = body_frame(poses)
-    rotation, scale = frame[0], frame[2]                                          # (P, 3, 3), (P,)
-    needed = [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]
-    usable = present[:, needed].all(1) & np.isfinite(rotation).all((1, 2)) & (scale > 0)
-    if prior is not None and weight > 0 and usable.any():
-        # Every person at once: the others' canonical poses are NaN, their component -1.
-        component = np.where(usable, prior.best_component(canonicalize(poses, frame)), -1)
-    else:
-        component = np.full(Pn, -1)
-    usable &= component >= 0
-    code = (present.astype(np.int64) << np.arange(J)).sum(1) * (1 + max(component.max(), 0)) + component
-    rows = np.flatnonzero(usable)
-    groups: dict = {}                                      # code -> (group, first person); a few groups
-    group = [groups.setdefault(c, (len(groups), p))[0] for c, p in zip(code[rows].tolist(), rows.tolist())]
-    first = np.array([p for _, p in groups.values()], dtype=int)
-    keys = np.concatenate([present[first], component[first, None]], axis=1).astype(int)
-    which = np.full(Pn, len(groups))
-    which[rows] = group
-    return rotation, scale, keys, which
-
-
-def prior_energy(X: np.ndarray, present: np.ndarray, prior, weight: float) -> np.ndarray:
-    """``weight · E_P`` of the max-mixture component (up to its constant) at ``X: (P, J, 3)``,
-    ``(P,)`` (0 without a prior): :meth:`LinearPrior.energy` of :func:`linearized_prior` at ``X``."""
-    return linearized_prior(X, present, prior, weight).energy(X.reshape(len(X), -1))
-
-
-@functools.lru_cache(maxsize=256)
-def _group_matrices(prior, present: bytes, component: int, weight: float
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The linearized prior of one (present joints, component) group (:class:`LinearPrior`):
-    ``M: (3J, 3J)``, ``h: (3J,)`` and ``Mᵀ M`` (cached, read-only). ``present``: the ``(J,)``
-    bool mask's bytes."""
-    mask = np.frombuffer(present, dtype=bool)
-    J = len(mask)
-    mean, W, _ = prior.whitening(mask, component)
-    root = np.sqrt(weight)
-    # W @ (C ⊗ I) with C = I − ½ (1 e_lh^T + 1 e_rh^T), the pelvis subtraction, on the
-    # coordinates of all J joints (zero columns for absent ones), and W @ μ.
-    block = W.reshape(len(W), -1, 3)
-    M = np.zeros((3 * J, J, 3))
-    M[:len(W), mask] = root * block
-    M[:len(W), [LEFT_HIP, RIGHT_HIP]] -= 0.5 * root * block.sum(axis=1)[:, None]
-    M = M.reshape(3 * J, 3 * J)
-    h = np.zeros(3 * J)
-    h[:len(W)] = root * (W @ mean)
-    out = (M, h, M.T @ M)
-    for a in out:
-        a.setflags(write=False)
-    return out
-
-
-def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float) -> LinearPrior:
-    """Linearize ``weight · E_P`` at ``X: (P, J, 3)`` for every person that has both hips and
-    shoulders: the prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame
-    ``R, s`` held fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose
-    negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
-    each (present joints, component) pair is built once (:class:`LinearPrior`)."""
-    J = X.shape[1]
-    rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
-    usable = which < len(keys)
-    M, h, gram = _stacked_matrices(prior, keys.tobytes(), len(keys), J, float(weight))
-    rotation = np.where(usable[:, None, None], rotation, np.eye(3))
-    return LinearPrior(rotation, np.where(usable, scale, 1.0), which, M, h, gram)
-
-
-@functools.lru_cache(maxsize=32)
-def _stacked_matrices(prior, keys: bytes, groups: int, J: int, weight: float
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_group_matrices` of the ``groups`` (present joints, component) rows of ``keys``
-    (the ``(G, J + 1)`` int array's bytes), stacked with the zero group of the persons without
-    a prior: ``M, gram: (G + 1, 3J, 3J)``, ``h: (G + 1, 3J)`` (cached, read-only: the outer
-    iterations of a scene mostly meet the same groups again)."""
-    rows = np.frombuffer(keys, dtype=int).reshape(groups, J + 1)
-    M, gram = np.zeros((2, groups + 1, 3 * J, 3 * J))
-    h = np.zeros((groups + 1, 3 * J))
-    for g, key in enumerate(rows):
-        M[g], h[g], gram[g] = _group_matrices(prior, key[:J].astype(bool).tobytes(), int(key[J]), weight)
-    for a in (M, h, gram):
-        a.setflags(write=False)
-    return M, h, gram
-
-
-@dataclass(frozen=True)
 class BoneTerms:
     """Soft bone-length terms ``√w (|X_a − X_b| − L) / L`` (a relative error, weight ``w`` in
     pixels²) of the :data:`mvm.core.keypoints.BONES` ``(a, b)``. ``target: (P, B)`` lengths
@@ -361,6 +185,15 @@ class InnerProblem:
     def take(self, persons: np.ndarray) -> InnerProblem:
         return InnerProblem(self.obs.take(persons), self.sqrt_w[persons], self.prior.take(persons),
                             None if self.bones is None else self.bones.take(persons))
+
+    def normal_equations(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`normal_equations` at ``x: (P, 3J)`` (the solver's interface,
+        :class:`mvm.core.lm.BatchedLeastSquares`)."""
+        return normal_equations(x, self)
+
+    def damped_steps(self, blocks: np.ndarray, grad: np.ndarray, damping: np.ndarray) -> np.ndarray:
+        """:func:`damped_steps` of these persons (the solver's interface)."""
+        return damped_steps(self.prior, blocks, grad, damping)
 
 
 def residuals(x: np.ndarray, problem: InnerProblem) -> np.ndarray:
@@ -475,71 +308,6 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
     return -prior.to_world(step)
 
 
-def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``x: (P, n)`` with ``A x = b`` for ``A: (P, n, n)`` (the damped normal equations,
-    symmetric positive definite; not modified), ``b: (P, n)``: numpy's batched LAPACK solve.
-    numpy rather than scipy's Cholesky (``posv``): importing scipy.linalg costs more than the
-    whole refinement of a rig sequence, and the solve count matters more than the routine. A
-    batch holding an exactly singular matrix is solved matrix by matrix, that one by least
-    squares."""
-    try:
-        return np.linalg.solve(A, b[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        x = np.empty(b.shape)
-        for p in range(len(A)):
-            try:
-                x[p] = np.linalg.solve(A[p], b[p])
-            except np.linalg.LinAlgError:
-                x[p] = np.linalg.lstsq(A[p], b[p], rcond=None)[0]
-        return x
-
-
-def levenberg_marquardt(x: np.ndarray, problem: InnerProblem, max_steps: int,
-                        tolerance: float) -> np.ndarray:
-    """Minimize every person's half sum of squared :func:`residuals` from ``x: (P, 3J)``.
-
-    Each person has its own damping (relative to its normal equations' diagonal: divided by 3
-    after an accepted step, multiplied by 10 after a rejected one) and stops on its own when
-    no step can lower its Gauss-Newton model by more than ``tolerance`` times its cost (the
-    bound of :func:`model_decrease_bound`, checked wherever the normal equations are built,
-    so a converged person costs no solve), when an accepted step lowers its cost by less than
-    that, or a step is shorter than ``tolerance · (tolerance + |x_p|)`` (the ``ftol`` and
-    ``xtol`` of ``scipy.optimize.least_squares``), or after ``max_steps`` steps. A trial point
-    gets its normal equations with its cost (most steps are accepted: one evaluation per step),
-    kept where the step is accepted; only the persons still active are solved. Returns
-    ``(P, 3J)``."""
-    x = x.copy()
-    cost, grad, blocks, reach = normal_equations(x, problem)
-    damping = np.full(len(x), INITIAL_DAMPING)
-    active = np.isfinite(cost) & ~(reach <= tolerance * cost)
-    sub, idx = problem, np.arange(len(x))
-    for _ in range(max_steps):
-        if not active.any():
-            break
-        if not active[idx].all():
-            idx = np.flatnonzero(active)
-            sub = problem.take(idx)
-        start, current, mu = x[idx], cost[idx], damping[idx]
-        step = damped_steps(sub.prior, blocks[idx], grad[idx], mu)
-        trial = start + step
-        trial_cost, trial_grad, trial_blocks, reach = normal_equations(trial, sub)
-        better = trial_cost < current
-        small_step = _norms(step) <= tolerance * (tolerance + _norms(start))
-        small_gain = better & (current - trial_cost <= tolerance * current)
-        damping[idx] = np.clip(np.where(better, mu / 3.0, mu * 10.0), _MIN_DAMPING, _MAX_DAMPING)
-        active[idx] = ~(small_step | small_gain)
-        x[idx[better]], cost[idx[better]] = trial[better], trial_cost[better]
-        moved = better & active[idx]
-        grad[idx[moved]], blocks[idx[moved]] = trial_grad[moved], trial_blocks[moved]
-        active[idx[moved]] = ~(reach[moved] <= tolerance * trial_cost[moved])
-    return x
-
-
-def _norms(x: np.ndarray) -> np.ndarray:
-    """Euclidean norms of the rows of ``x: (P, n)``, ``(P,)``."""
-    return np.sqrt(np.einsum("pn,pn->p", x, x))
-
-
 def robust_terms(e: np.ndarray, obs: Observations, robust_scale_px: float) -> tuple[np.ndarray, np.ndarray]:
     """The soft-L1 reprojection terms of residuals ``e: (P, M, J, 2)`` (:meth:`Observations.reprojection`):
     ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
@@ -591,7 +359,7 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
             are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
             relative length error (0: no bone term).
         tolerance: relative change of a person's cost, and of its joints, at which its inner
-            solve stops (the ``ftol``, ``xtol`` of :func:`levenberg_marquardt`), in the last
+            solve stops (the ``ftol``, ``xtol`` of :func:`mvm.core.lm.levenberg_marquardt`), in the last
             outer iteration; the earlier ones stop at :data:`EARLY_TOLERANCE_FACTOR` times it.
     Returns :class:`RefineResult`.
     """

@@ -1,4 +1,4 @@
-"""Training curves from a run's ``metrics.jsonl`` (see :class:`mvm.net.train.MetricsLog`)."""
+"""Training curves from a run's ``metrics.jsonl`` (see :class:`mvm.net.metrics_log.MetricsLog`)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,7 +40,7 @@ def plot_metrics(metrics: str | Path, out: str | Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mvm.net.train import read_metrics_log
+    from mvm.net.metrics_log import read_metrics_log
 
     metrics, out = Path(metrics), Path(out)
     if not metrics.is_file():

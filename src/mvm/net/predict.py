@@ -17,13 +17,14 @@ import torch
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.net.checkpoints import read_checkpoint
 from mvm.net.data import load_image
 from mvm.net.decoder import DecoderConfig, normalize_depth
+from mvm.net.distributed import select_device
 from mvm.net.evaluate import run_model
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
 from mvm.net.model import ModelSpec, PoseNet
 from mvm.net.scale import calibrate, lift
-from mvm.net.train import read_checkpoint, select_device
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"
