@@ -16,8 +16,8 @@ is negative. Entries of another category than 1 (person) are left out.
   error naming the file, the entry and the id;
 - :func:`results_frame_index`, detections of a scene's frames (``mvm detect --import``): a
   string is a frame's file name (or its stem); an **integer is the frame's 1-based position
-  in the scene's frame list** (the frames in the order of ``frames.json``, else of their
-  sorted names), not a COCO image id; a result whose frame is not in the scene is left out.
+  in the scene's frame list** (the frames in the order of ``frames.json``, else the images
+  of ``frames/`` sorted by the number in their names), not a COCO image id; a result whose frame is not in the scene is left out.
 """
 from __future__ import annotations
 
