@@ -236,3 +236,43 @@ def test_a_rig_camera_given_a_results_list_is_one_line(tmp_path):
     path = _write(tmp_path, _results(), "cam_1.json")
     with pytest.raises(InputError, match=r"cam_1\.json: a COCO results list"):
         _source_format(path, tmp_path)
+
+
+def _same(a, b) -> None:
+    for x, y in zip(a, b):
+        if x is None or y is None:
+            assert x is y
+        elif isinstance(x, list):
+            assert len(x) == len(y) and all((u is None and v is None) or np.array_equal(u, v) for u, v in zip(x, y))
+        else:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_data_set_checked_at_once_as_one_by_one():
+    """The all-at-once reading of a data set gives exactly what the per-annotation reading
+    gives, and hands every annotation with a problem to it (which names the problem)."""
+    from mvm.io.coco_dataset import _dataset_at_once, _dataset_one_by_one
+
+    rng = np.random.default_rng(5)
+    annotations = _dataset()["annotations"] + [
+        {"id": 4, "image_id": 1, "category_id": 1, "keypoints": [float(v) for v in rng.uniform(0, 2, 51)],
+         "bbox": [3, 4, 0, 5], "keypoint_depths": rng.uniform(0, 2, 17).tolist(), "has_3d": [1, 0] * 8 + [True],
+         "keypoint_flags": ["observed", "inferred"] * 8 + ["missing"]},
+        {"id": 5, "image_id": 2, "category_id": 1, "keypoints": list(KP), "keypoint_depths": [0.5] * 17,
+         "bbox": [1.5, 2, 3, 4], "iscrowd": False},
+        {"id": 6, "image_id": 2, "category_id": 2}]
+    index = {1: 0, 2: 1}
+    fast = _dataset_at_once(annotations, index)
+    assert fast is not None and fast[8] is not None and np.isfinite(fast[7]).sum() > 0
+    _same(fast, _dataset_one_by_one(annotations, "x.json", index))
+    bad = [lambda a: a[2].update(iscrowd=2), lambda a: a[2].update(iscrowd="1"), lambda a: a[0].update(bbox=[1, 2]),
+           lambda a: a[0].update(bbox=[1, 2, "3", 4]), lambda a: a[3].update(keypoint_depths=None),
+           lambda a: a[3]["keypoint_depths"].__setitem__(0, -1.0), lambda a: a[3]["has_3d"].__setitem__(0, 2),
+           lambda a: a[3].update(has_3d=None), lambda a: a[3]["keypoint_flags"].__setitem__(0, "seen"),
+           lambda a: a[3]["keypoint_flags"].pop(), lambda a: a[1].update(id=1), lambda a: a[1].update(image_id=3)]
+    for spoil in bad:
+        spoiled = json.loads(json.dumps(annotations))
+        spoil(spoiled)
+        assert _dataset_at_once(spoiled, index) is None, spoil
+        with pytest.raises(InputError):
+            _dataset_one_by_one(spoiled, "x.json", index)

@@ -14,6 +14,7 @@ The checks are those of :mod:`mvm.io.coco` (the same messages), plus these field
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,7 @@ from mvm.io.checks import numbers
 from mvm.io.coco import (
     CocoKeypoints,
     _annotation_head,
+    _annotations_at_once,
     _load_document,
     _person,
     _read_images,
@@ -63,9 +65,26 @@ def read_coco_dataset(path: str | Path, root: str | Path | None = None) -> CocoD
     data = _load_document(path, root)
     image_ids, names, sizes = _read_images(data["images"], path, allow_parent=True)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
+    columns = _dataset_at_once(data["annotations"], index)
+    if columns is None:                      # something to report: the first problem, by name
+        columns = _dataset_one_by_one(data["annotations"], path, index)
+    ann_ids, ann_image, keypoints, scores, apps, crowd, boxes, depths, flags = columns
+    people = CocoKeypoints(
+        image_ids=np.array(image_ids, dtype=np.int64), file_names=tuple(names),
+        sizes=np.array(sizes, dtype=float).reshape(-1, 2), ann_ids=np.array(ann_ids, dtype=np.int64),
+        ann_image=np.array(ann_image, dtype=np.int64), keypoints=keypoints, score=np.array(scores, dtype=float),
+        appearance=_stack_appearance(apps, path))
+    return CocoDataset(people, crowd, boxes, depths, flags, data)
+
+
+def _dataset_one_by_one(annotations: list, path: Path, index: dict[int, int]) -> tuple:
+    """The person annotations checked one at a time: ids, image indices, keypoints
+    ``(N, 17, 3)``, scores, appearances (None each where absent), crowd ``(N,)``, boxes
+    ``(N, 4)``, depths ``(N, 17)`` and flags ``(N, 17)`` or None; the first problem raises
+    :class:`InputError` naming its field."""
     seen: set[int] = set()
     rows: list[tuple] = []
-    for i, ann in enumerate(data["annotations"]):
+    for i, ann in enumerate(annotations):
         field = f"annotations[{i}]"
         ann_id, image, category = _annotation_head(ann, path, field, index, seen)
         if category != 1:
@@ -79,18 +98,107 @@ def read_coco_dataset(path: str | Path, root: str | Path | None = None) -> CocoD
                      _depths(ann, kp, path, field), _flags(ann.get("keypoint_flags"), path, f"{field}.keypoint_flags")))
     ann_ids, ann_image, kps, scores, apps, crowd, boxes, depths, flags = (list(c) for c in zip(*rows)) if rows else [[]] * 9
     N = len(rows)
-    people = CocoKeypoints(
-        image_ids=np.array(image_ids, dtype=np.int64), file_names=tuple(names),
-        sizes=np.array(sizes, dtype=float).reshape(-1, 2), ann_ids=np.array(ann_ids, dtype=np.int64),
-        ann_image=np.array(ann_image, dtype=np.int64), keypoints=np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3),
-        score=np.array(scores, dtype=float), appearance=_stack_appearance(apps, path))
     has_flags = any(f is not None for f in flags)
-    return CocoDataset(
-        people=people, crowd=np.array(crowd, dtype=bool), boxes=np.array(boxes, dtype=float).reshape(N, 4),
-        depths=np.array(depths, dtype=float).reshape(N, NUM_JOINTS),
-        flags=np.array([np.full(NUM_JOINTS, MISSING, np.int8) if f is None else f for f in flags],
-                       dtype=np.int8).reshape(N, NUM_JOINTS) if has_flags else None,
-        document=data)
+    return (ann_ids, ann_image, np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3), scores, apps,
+            np.array(crowd, dtype=bool), np.array(boxes, dtype=float).reshape(N, 4),
+            np.array(depths, dtype=float).reshape(N, NUM_JOINTS),
+            np.array([np.full(NUM_JOINTS, MISSING, np.int8) if f is None else f for f in flags],
+                     dtype=np.int8).reshape(N, NUM_JOINTS) if has_flags else None)
+
+
+_ABSENT = object()
+_NO_KEYPOINTS = [0] * (3 * NUM_JOINTS)
+_FLAG_OF = {name: i for i, name in enumerate(FLAG_NAMES)}
+
+
+def _dataset_at_once(annotations: list, index: dict[int, int]) -> tuple | None:
+    """What :func:`_dataset_one_by_one` returns, with every check done on all annotations at
+    once (:func:`mvm.io.coco._annotations_at_once` and array operations: a COCO training set
+    holds hundreds of thousands); None where any check fails, for the one-by-one reading to
+    name the first problem."""
+    prepared = [{**ann, "keypoints": _NO_KEYPOINTS, "score": 0, "appearance": None}
+                if type(ann) is dict and "keypoints" not in ann and ann.get("iscrowd") else ann for ann in annotations]
+    columns = _annotations_at_once(prepared, index)
+    if columns is None:
+        return None
+    people = [ann for ann in annotations if ann.get("category_id", 1) == 1]
+    kp = columns[2]
+    crowd = [ann.get("iscrowd", 0) for ann in people]
+    if not all(type(c) in (int, bool) and c in (0, 1) for c in crowd):
+        return None
+    boxes = _rows_at_once([ann.get("bbox") for ann in people], 4)
+    if boxes is None:
+        return None
+    with np.errstate(invalid="ignore"):
+        degenerate = ~((boxes[:, 2] > 0) & (boxes[:, 3] > 0) & np.isfinite(boxes[:, :2] + boxes[:, 2:]).all(1))
+    boxes[:, 2:] += boxes[:, :2]
+    boxes[degenerate] = np.nan
+    depths = _depths_at_once(people, kp)
+    flags = _flags_at_once([ann.get("keypoint_flags") for ann in people])
+    if depths is None or flags is False:
+        return None
+    return (*columns, np.array(crowd, dtype=bool), boxes, depths, flags)
+
+
+def _rows_at_once(values: list, n: int) -> np.ndarray | None:
+    """``values`` (lists of ``n`` numbers, or None: absent) -> ``(N, n)``, NaN rows where
+    absent; None where any present value is not ``n`` finite numbers."""
+    present = [k for k, v in enumerate(values) if v is not None]
+    rows = [values[k] for k in present]
+    if not all(type(v) is list and len(v) == n for v in rows):
+        return None
+    if rows and not set(map(type, chain.from_iterable(rows))) <= {float, int}:
+        return None
+    out = np.full((len(values), n), np.nan)
+    if rows:
+        try:
+            out[present] = np.array(rows, dtype=float)
+        except OverflowError:
+            return None
+        if not np.isfinite(out[present]).all():
+            return None
+    return out
+
+
+def _depths_at_once(people: list, kp: np.ndarray) -> np.ndarray | None:
+    """:func:`_depths` of every annotation of ``people`` (keypoints ``kp: (N, 17, 3)``) ->
+    ``(N, 17)``; None where any is not plain."""
+    values = [ann.get("keypoint_depths", _ABSENT) for ann in people]
+    if all(v is _ABSENT for v in values):
+        return np.full((len(people), NUM_JOINTS), np.nan)
+    if any(v is None for v in values):
+        return None
+    d = _rows_at_once([None if v is _ABSENT else v for v in values], NUM_JOINTS)
+    if d is None or (d < 0).any():
+        return None
+    flags = [ann.get("has_3d", _ABSENT) for ann in people]
+    given = [k for k, v in enumerate(flags) if v is not _ABSENT]
+    if not all(type(flags[k]) is list and len(flags[k]) == NUM_JOINTS for k in given):
+        return None
+    if not all(type(v) in (int, bool) and v in (0, 1) for k in given for v in flags[k]):
+        return None
+    with np.errstate(invalid="ignore"):
+        has = d > 0
+        has[given] = np.array([flags[k] for k in given], dtype=bool).reshape(-1, NUM_JOINTS)
+        return np.where(has & (d > 0) & (kp[..., 2] > 0), d, np.nan)
+
+
+def _flags_at_once(values: list):
+    """:func:`_flags` of every annotation -> ``(N, 17)`` int8 (``MISSING`` where absent), None
+    where none has flags, False where any is not 17 known names."""
+    if all(v is None for v in values):
+        return None
+    out = np.full((len(values), NUM_JOINTS), MISSING, dtype=np.int8)
+    for k, names in enumerate(values):
+        if names is None:
+            continue
+        if type(names) is not list or len(names) != NUM_JOINTS:
+            return False
+        try:
+            out[k] = [_FLAG_OF[name] for name in names]
+        except (KeyError, TypeError):
+            return False
+    return out
 
 
 def _crowd(value, path: Path, field: str) -> bool:
