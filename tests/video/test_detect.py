@@ -11,7 +11,9 @@ from click.testing import CliRunner
 
 from mvm.errors import InputError
 from mvm.io.coco import read_coco_keypoints
-from mvm.video.detect import DetectOptions, detect_format, detect_scene, read_coco_results
+from mvm.io.coco_results import read_coco_results
+from mvm.io.pose_format import pose_format
+from mvm.video.detect import DetectOptions, detect_scene
 
 #: COCO-17 joint -> BODY_25 index (BODY_25: 0 nose, 1 neck, 2-4 right arm, 5-7 left arm, 8 mid-hip,
 #: 9-11 right leg, 12-14 left leg, 15/16 right/left eye, 17/18 right/left ear, 19-24 feet).
@@ -51,7 +53,7 @@ def test_openpifpaf_directory(scene, tmp_path_factory):
         preds = [{"keypoints": kp[f, p].reshape(-1).tolist(), "bbox": [0, 0, 10, 10], "score": 0.8,
                   "category_id": 1} for p in range(2)]
         (source / f"{name}.predictions.json").write_text(json.dumps(preds))
-    assert detect_format(source) == "openpifpaf"
+    assert pose_format(source)[0] == "openpifpaf"
     detect_scene(scene_dir, source)
     _check(scene_dir, kp)
 
@@ -68,7 +70,7 @@ def test_openpose_body25_directory(scene, tmp_path_factory):
             people.append({"person_id": [-1], "pose_keypoints_2d": body.reshape(-1).tolist(),
                            "face_keypoints_2d": [], "hand_left_keypoints_2d": [], "hand_right_keypoints_2d": []})
         (source / f"{name[:-4]}_keypoints.json").write_text(json.dumps({"version": 1.3, "people": people}))
-    assert detect_format(source) == "openpose"
+    assert pose_format(source)[0] == "openpose"
     detect_scene(scene_dir, source, options=DetectOptions(appearance="none"))
     _check(scene_dir, kp, appearance=False)
 
@@ -84,7 +86,7 @@ def test_coco_results_by_name_and_by_position(scene, tmp_path):
     results.append({"image_id": "not_a_frame.jpg", "category_id": 1, "keypoints": [0] * 51, "score": 0.5})
     path = tmp_path / "results.json"
     path.write_text(json.dumps(results))
-    assert detect_format(path) == "coco-results"
+    assert pose_format(path)[0] == "coco-results"
     detect_scene(scene_dir, path)
     _check(scene_dir, kp)
     # done work is skipped unless forced
@@ -102,7 +104,7 @@ def test_bad_coco_results_name_the_file(tmp_path, content, field):
     path = tmp_path / "bad.json"
     path.write_text(content)
     with pytest.raises(InputError) as info:
-        read_coco_results(path, NAMES)
+        read_coco_results(path)
     message = str(info.value)
     assert str(path) in message and field in message and "\n" not in message
 

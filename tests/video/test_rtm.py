@@ -262,10 +262,10 @@ def test_default_detector_uses_the_cached_published_model(models, tmp_path, monk
 
 
 def test_without_a_detector_installed_one_line_says_what_to_install(tmp_path, monkeypatch):
-    import mvm.video.detect
+    import mvm.video.detectors
     from mvm.cli.video import detect_cmd
 
-    monkeypatch.setattr(mvm.video.detect, "available_detector", lambda: None)
+    monkeypatch.setattr(mvm.video.detectors, "available_detector", lambda: None)
     _scene(tmp_path, [_frame(100, 100, 10, 10)])
     result = CliRunner().invoke(detect_cmd, [str(tmp_path)])
     assert result.exit_code == 2

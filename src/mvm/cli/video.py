@@ -84,7 +84,8 @@ def _frame_options(rate, max_frames, width, blur_ratio):
 
 def _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance):
     """The detection settings; when no detector is named, the installed one (rtmo)."""
-    from mvm.video.detect import DetectOptions, available_detector
+    from mvm.video.detect import DetectOptions
+    from mvm.video.detectors import available_detector
 
     if source is not None and (detector or checkpoint):
         raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")

@@ -1,4 +1,23 @@
-"""COCO keypoint files (the *dataset* format, as OpenPifPaf and the scene contract use it)."""
+"""COCO keypoint files (the *dataset* format: ``images``, ``annotations``, ``categories``), read
+and written.
+
+Two readers share one set of checks, every problem one :class:`~mvm.errors.InputError` line
+naming the file and the field: the file is read the guarded way (:func:`mvm.io.checks.read_bytes`:
+a regular file of bounded size); image ids and annotation ids are unique integers, an
+annotation names an image of the file, keypoints are 51 finite numbers, scores finite and
+not negative, file names relative (:mod:`mvm.io.paths`).
+
+- :func:`read_coco_keypoints`: the 2D poses of a scene (``poses2d.json``), of a rig camera or
+  of imported detections; a ``file_name`` must stay below its folder.
+- :func:`read_coco_dataset`: a training or validation set, with crowds (``iscrowd``, possibly
+  without keypoints), boxes, and the supervision fields ``keypoint_depths``, ``has_3d`` and
+  ``keypoint_flags``; a ``file_name`` may climb above the file's folder (``--link none``
+  exports and merged sets name the frames where they are).
+
+The writers: :func:`coco_keypoints_document` (a scene's ``poses2d.json``),
+:func:`annotation_record` and :func:`empty_dataset` (supervision data sets). COCO *results*
+files are :mod:`mvm.io.coco_results`.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,10 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.completion import MISSING, flag_names
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.errors import InputError
 from mvm.io.checks import integer, load_json, number, numbers
 from mvm.io.paths import check_name
+
+SUPERVISION_FORMAT = "mvm.net.supervision/1"
+"""``info.format`` of a supervision data set (:func:`empty_dataset`)."""
 
 
 @dataclass(frozen=True)
@@ -34,14 +57,6 @@ class CocoKeypoints:
     appearance: np.ndarray | None
 
 
-def _number(value, path, field) -> float:
-    return number(value, path, field)
-
-
-def _int(value, path, field) -> int:
-    return integer(value, path, field)
-
-
 def parse_keypoints(values, path, field) -> np.ndarray:
     """A flat list of 51 numbers -> ``(17, 3)`` with v in [0, 1]; coordinates of missing joints zeroed."""
     if not isinstance(values, list):
@@ -50,9 +65,15 @@ def parse_keypoints(values, path, field) -> np.ndarray:
                  f"{3 * NUM_JOINTS} numbers (17 keypoints × x, y, v)").reshape(NUM_JOINTS, 3)
     if np.any(kp[:, 2] < 0):
         raise InputError(path, field, "negative keypoint confidence")
-    kp[:, 2] = np.minimum(kp[:, 2], 1.0)  # COCO ground truth flags 1, 2 -> 1
-    kp[kp[:, 2] == 0, :2] = 0.0
-    return kp
+    return as_confidence(kp)
+
+
+def as_confidence(keypoints: np.ndarray) -> np.ndarray:
+    """COCO keypoints ``(..., 17, 3)`` (v >= 0), changed in place and returned: v clipped to 1
+    (the ground-truth visibility flags 1 and 2 read as 1), a joint of v = 0 at 0, 0."""
+    np.minimum(keypoints[..., 2], 1.0, out=keypoints[..., 2])
+    keypoints[..., :2][keypoints[..., 2] == 0] = 0.0
+    return keypoints
 
 
 def _size(image: dict, key: str, path, field) -> float:
@@ -73,12 +94,7 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
     inside that folder once its links are resolved (:func:`mvm.io.checks.read_bytes`).
     """
     path = Path(path)
-    data = load_json(path, root)
-    if not isinstance(data, dict):
-        raise InputError(path, None, "expected a JSON object with 'images' and 'annotations'")
-    for key in ("images", "annotations"):
-        if not isinstance(data.get(key), list):
-            raise InputError(path, key, "missing, or not a list")
+    data = _load_document(path, root)
     image_ids, names, sizes = _read_images(data["images"], path)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
     columns = _annotations_at_once(data["annotations"], index)
@@ -95,6 +111,17 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
         score=np.array(scores, dtype=float),
         appearance=_stack_appearance(apps, path),
     )
+
+
+def _load_document(path: Path, root) -> dict:
+    """The parsed COCO file ``path``: an object with the lists ``images`` and ``annotations``."""
+    data = load_json(path, root)
+    if not isinstance(data, dict):
+        raise InputError(path, None, "expected a JSON object with 'images' and 'annotations'")
+    for key in ("images", "annotations"):
+        if not isinstance(data.get(key), list):
+            raise InputError(path, key, "missing, or not a list")
+    return data
 
 
 def _annotations_one_by_one(annotations: list, path: Path, index: dict[int, int]) -> tuple:
@@ -148,8 +175,7 @@ def _annotations_at_once(annotations: list, index: dict[int, int]) -> tuple | No
     if not (np.isfinite(kp).all() and (kp[..., 2] >= 0).all() and np.isfinite(given).all()
             and not (given < 0).any()):
         return None
-    np.minimum(kp[..., 2], 1.0, out=kp[..., 2])           # as parse_keypoints: flags 1, 2 -> 1
-    kp[..., :2][kp[..., 2] == 0] = 0.0
+    as_confidence(kp)                                      # as parse_keypoints
     for n in np.flatnonzero(absent):                       # as _read_annotation: the mean confidence
         present = kp[n, :, 2] > 0
         given[n] = float(kp[n, present, 2].mean()) if present.any() else 0.0
@@ -178,8 +204,10 @@ def _appearances_at_once(people: list) -> list | None:
     return list(app) if np.isfinite(app).all() else None
 
 
-def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[tuple[float, float]]]:
-    """The ``images`` list -> ids, file names, (width, height); ids and names unique."""
+def _read_images(images: list, path: Path, allow_parent: bool = False
+                 ) -> tuple[list[int], list[str], list[tuple[float, float]]]:
+    """The ``images`` list -> ids, file names, (width, height); ids and names unique, names
+    relative and below the file's folder (``allow_parent``: or above it through ``..``)."""
     image_ids, names, sizes, seen = [], [], [], set()
     for i, image in enumerate(images):
         field = f"images[{i}]"
@@ -189,7 +217,7 @@ def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[t
         name = image.get("file_name")
         if not isinstance(name, str) or not name:
             raise InputError(path, f"{field}.file_name", "missing, or not a string")
-        check_name(name, path, f"{field}.file_name")
+        check_name(name, path, f"{field}.file_name", allow_parent)
         if image_id in seen:
             raise InputError(path, f"{field}.id", f"duplicate image id {image_id}")
         seen.add(image_id)
@@ -205,6 +233,16 @@ def _read_images(images: list, path: Path) -> tuple[list[int], list[str], list[t
 def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: set[int]):
     """One annotation -> ``(id, image index, keypoints (17, 3), score, appearance or None)``,
     or None when it is not a person. ``seen``: annotation ids so far (updated)."""
+    ann_id, image, category = _annotation_head(ann, path, field, index, seen)
+    if category != 1:
+        return None
+    return (ann_id, image, *_person(ann, path, field))
+
+
+def _annotation_head(ann, path: Path, field: str, index: dict[int, int], seen: set[int]) -> tuple[int, int, int]:
+    """The annotation ``ann`` -> ``(id, image index, category)``: an object whose ``id`` is
+    unique (``seen``, updated), whose ``image_id`` is one of ``index`` and whose
+    ``category_id`` (default 1, a person) is an integer."""
     if not isinstance(ann, dict):
         raise InputError(path, field, "expected an object")
     ann_id = integer(ann.get("id"), path, f"{field}.id")
@@ -217,8 +255,12 @@ def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: s
     category = ann.get("category_id", 1)
     if isinstance(category, bool) or not isinstance(category, int):
         raise InputError(path, f"{field}.category_id", f"expected an integer, got {type(category).__name__}")
-    if category != 1:
-        return None
+    return ann_id, index[image_id], category
+
+
+def _person(ann: dict, path: Path, field: str) -> tuple[np.ndarray, float, np.ndarray | None]:
+    """A person annotation's ``keypoints (17, 3)`` (:func:`parse_keypoints`), score (default:
+    the mean confidence of its present joints; clipped to 1) and appearance ``(D,)`` or None."""
     kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
     present = kp[:, 2] > 0
     default_score = float(kp[present, 2].mean()) if present.any() else 0.0
@@ -230,7 +272,7 @@ def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: s
         if not isinstance(app, list) or not app:
             raise InputError(path, f"{field}.appearance", "expected a non-empty list of numbers")
         app = numbers(app, path, f"{field}.appearance")
-    return ann_id, index[image_id], kp, min(score, 1.0), app
+    return kp, min(score, 1.0), app
 
 
 def _stack_appearance(apps: list, path: Path) -> np.ndarray | None:
@@ -277,3 +319,34 @@ def coco_keypoints_document(file_names, sizes, ann_image, keypoints, score, ann_
             ann["appearance"] = [round(float(v), 5) for v in appearance[n]]
         annotations.append(ann)
     return {"images": images, "annotations": annotations, "categories": [COCO_PERSON_CATEGORY]}
+
+
+def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths: np.ndarray | None,
+                      person_id: int | None = None, flags: np.ndarray | None = None) -> dict:
+    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``,
+    ``flags: (17,)`` how each 3D joint was obtained (written as ``keypoint_flags`` names)."""
+    kp = np.asarray(keypoints, dtype=float)
+    vis = kp[:, 2] > 0
+    x0, y0 = kp[vis, :2].min(axis=0)
+    x1, y1 = kp[vis, :2].max(axis=0)
+    rec = {"id": int(ann_id), "image_id": int(image_id), "category_id": 1,
+           "keypoints": [round(float(v), 2) for v in kp.reshape(-1)],
+           "num_keypoints": int(vis.sum()),
+           "bbox": [round(float(x0), 2), round(float(y0), 2), round(float(x1 - x0), 2), round(float(y1 - y0), 2)],
+           "area": round(float((x1 - x0) * (y1 - y0)), 2), "iscrowd": 0}
+    if depths is not None:
+        d = np.where(vis, np.asarray(depths, dtype=float), 0.0)
+        rec["keypoint_depths"] = [round(float(v), 5) for v in d]
+        rec["has_3d"] = [int(v) for v in (d > 0)]
+    if person_id is not None:
+        rec["person_id"] = int(person_id)
+    if flags is not None:
+        rec["keypoint_flags"] = flag_names(np.where(vis, flags, MISSING))
+    return rec
+
+
+def empty_dataset(description: str) -> dict:
+    """A supervision data set without images yet (``info.format``: :data:`SUPERVISION_FORMAT`)."""
+    return {"info": {"format": SUPERVISION_FORMAT, "description": description,
+                     "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; 0: missing"},
+            "images": [], "annotations": [], "categories": [COCO_PERSON_CATEGORY]}

@@ -17,10 +17,12 @@ from mvm.errors import InputError
 _DRIVE = re.compile(r"^[A-Za-z]:")
 
 
-def name_problem(name: str) -> str | None:
+def name_problem(name: str, allow_parent: bool = False) -> str | None:
     """Why ``name`` cannot name a file below a folder, or None when it can.
 
     Both ``/`` and ``\\`` count as separators, so a Windows name is judged the same way.
+    With ``allow_parent``, a relative name may climb above its folder with ``..`` (a data set
+    that names frames kept elsewhere, relative to itself); an absolute name is refused still.
     """
     if not isinstance(name, str) or not name:
         return "empty file name"
@@ -30,17 +32,17 @@ def name_problem(name: str) -> str | None:
     if posix.startswith("/") or _DRIVE.match(posix):
         return f"absolute path {name!r} is not allowed (names are relative to the scene)"
     normal = posixpath.normpath(posix)
-    if normal == ".." or normal.startswith("../"):
+    if not allow_parent and (normal == ".." or normal.startswith("../")):
         return f"path {name!r} leads outside the scene directory"
     if normal == ".":
         return f"{name!r} does not name a file"
     return None
 
 
-def check_name(name: str, source: str | Path, field: str) -> str:
-    """Return ``name`` when it is a safe relative file name; raise :class:`InputError` naming
-    ``source`` and ``field`` otherwise."""
-    problem = name_problem(name)
+def check_name(name: str, source: str | Path, field: str, allow_parent: bool = False) -> str:
+    """Return ``name`` when it is a safe relative file name (:func:`name_problem`); raise
+    :class:`InputError` naming ``source`` and ``field`` otherwise."""
+    problem = name_problem(name, allow_parent)
     if problem:
         raise InputError(source, field, problem)
     return name

@@ -1,8 +1,8 @@
 """COCO keypoint data sets (2D-only or with per-keypoint depth) and the training augmentations.
 
 An annotation may carry ``keypoint_depths`` (17 relative depths, 0 where missing) and
-``has_3d`` (17 flags), as written by :func:`mvm.net.supervision.export_supervision`. Without them
-the PDF gets no target (the paper's 2D-only pretraining).
+``has_3d`` (17 flags), as written by :func:`mvm.net.supervision.export_supervision` and read by
+:mod:`mvm.io.coco_dataset`. Without them the PDF gets no target (the paper's 2D-only pretraining).
 
 Augmentations (Section 5 of the paper): a square crop whose side is ``crop_min``–``crop_max``
 of the image's short edge at a random position, a horizontal flip that swaps left and right
@@ -24,9 +24,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
-from mvm.errors import InputError
-from mvm.io.checks import load_json_object
+from mvm.core.keypoints import FLIP_PERMUTATION
+from mvm.io.coco_dataset import read_coco_dataset
 from mvm.io.images import read_image
 from mvm.net.encoder import EncoderConfig, encode
 from mvm.net.model import IMAGE_MEAN, IMAGE_STD
@@ -70,77 +69,39 @@ class Annotations:
 
 def read_annotations(path: str | Path, images_dir: str | Path | None = None, min_keypoints: int = 1,
                      people_only: bool = False) -> Annotations:
-    """Read a COCO keypoints file; images are found under ``images_dir`` (default: the file's directory).
+    """Read a COCO keypoints file (:func:`mvm.io.coco_dataset.read_coco_dataset`: every
+    problem one line naming the file and the field); images are found under ``images_dir``
+    (default: the file's directory).
 
     Persons with fewer than ``min_keypoints`` visible joints, and crowds, become ignore boxes
     (from their ``bbox``); ``people_only`` drops the images without any person annotation.
     """
     path = Path(path)
-    doc = load_json_object(path, what="a COCO keypoints object")
-    for key in ("images", "annotations"):
-        if not isinstance(doc.get(key), list):
-            raise InputError(path, key, "missing, or not a list")
+    data = read_coco_dataset(path)
+    people = data.people
     root = Path(images_dir) if images_dir is not None else path.parent
-    index = {}
-    for i, im in enumerate(doc["images"]):
-        if not isinstance(im, dict) or "id" not in im or not isinstance(im.get("file_name"), str):
-            raise InputError(path, f"images[{i}]", "expected an object with 'id' and 'file_name'")
-        index[im["id"]] = i
-    kps = [[] for _ in doc["images"]]
-    deps = [[] for _ in doc["images"]]
-    ignore = [[] for _ in doc["images"]]
-    people = np.zeros(len(doc["images"]), bool)
-    for i, ann in enumerate(doc["annotations"]):
-        field = f"annotations[{i}]"
-        if not isinstance(ann, dict) or ann.get("category_id", 1) != 1:
-            continue
-        if ann.get("image_id") not in index:
-            raise InputError(path, f"{field}.image_id", f"no image with id {ann.get('image_id')!r}")
-        people[index[ann["image_id"]]] = True
-        box = _box(ann.get("bbox"))
-        if ann.get("iscrowd", 0):
-            if box is not None:
-                ignore[index[ann["image_id"]]].append(box)
-            continue
-        kp = np.asarray(ann.get("keypoints", [0.0] * 3 * NUM_JOINTS), dtype=float)
-        if kp.shape != (3 * NUM_JOINTS,) or not np.isfinite(kp).all():
-            raise InputError(path, f"{field}.keypoints", f"expected {3 * NUM_JOINTS} finite numbers")
-        kp = kp.reshape(NUM_JOINTS, 3)
-        if (kp[:, 2] > 0).sum() < min_keypoints:
-            if box is not None:
-                ignore[index[ann["image_id"]]].append(box)
-            continue
-        d = np.full(NUM_JOINTS, np.nan)
-        if "keypoint_depths" in ann:
-            d = np.asarray(ann["keypoint_depths"], dtype=float)
-            if d.shape != (NUM_JOINTS,):
-                raise InputError(path, f"{field}.keypoint_depths", f"expected {NUM_JOINTS} numbers, got {d.size}")
-            has = np.asarray(ann.get("has_3d", d > 0), dtype=bool)
-            d = np.where(has & (d > 0) & (kp[:, 2] > 0), d, np.nan)
-        kps[index[ann["image_id"]]].append(kp)
-        deps[index[ann["image_id"]]].append(d)
-    keep = np.nonzero(people)[0] if people_only else np.arange(len(doc["images"]))
+    I = len(people.file_names)
+    labelled = ~data.crowd & ((people.keypoints[:, :, 2] > 0).sum(1) >= min_keypoints)
+    ignored = ~labelled & np.isfinite(data.boxes).all(1)
+    keep = np.unique(people.ann_image) if people_only else np.arange(I)
     if people_only:
-        LOG.info("%s: %d of %d images show people", path, len(keep), len(doc["images"]))
+        LOG.info("%s: %d of %d images show people", path, len(keep), I)
+
+    def per_image(values: np.ndarray, rows: np.ndarray) -> list[np.ndarray]:
+        """``values[rows]`` grouped by image, in file order, for the images ``keep``."""
+        image = people.ann_image[rows]
+        order = np.argsort(image, kind="stable")
+        parts = np.split(values[rows][order], np.cumsum(np.bincount(image, minlength=I))[:-1])
+        return [parts[i] for i in keep]
+
     return Annotations(
-        image_ids=np.array([doc["images"][i]["id"] for i in keep]),
-        paths=tuple(root / doc["images"][i]["file_name"] for i in keep),
-        keypoints=tuple(np.array(kps[i], dtype=float).reshape(-1, NUM_JOINTS, 3) for i in keep),
-        depths=tuple(np.array(deps[i], dtype=float).reshape(-1, NUM_JOINTS) for i in keep),
-        document=doc,
-        ignore=tuple(np.array(ignore[i], dtype=float).reshape(-1, 4) for i in keep),
+        image_ids=people.image_ids[keep],
+        paths=tuple(root / people.file_names[i].replace("\\", "/") for i in keep),
+        keypoints=tuple(per_image(people.keypoints, labelled)),
+        depths=tuple(per_image(data.depths, labelled)),
+        document=data.document,
+        ignore=tuple(per_image(data.boxes, ignored)),
     )
-
-
-def _box(bbox) -> np.ndarray | None:
-    """COCO ``[x, y, w, h]`` -> ``[x0, y0, x1, y1]``, None when absent or degenerate."""
-    try:
-        x, y, w, h = (float(v) for v in bbox)
-    except (TypeError, ValueError):
-        return None
-    if not (np.isfinite([x, y, w, h]).all() and w > 0 and h > 0):
-        return None
-    return np.array([x, y, x + w, y + h])
 
 
 def load_image(path: Path) -> np.ndarray:

@@ -50,23 +50,18 @@ def oks(a: np.ndarray, b: np.ndarray, area: float) -> float:
 
 
 def evaluate_detections(annotations: str | Path, detections: str | Path) -> dict[str, float]:
-    """OKS AP of a COCO results file (``[{"image_id", "keypoints", "score"}]``) on a COCO keypoints file."""
-    import json
+    """OKS AP of a COCO results file (``[{"image_id", "keypoints", "score"}]``, read by
+    :func:`mvm.io.coco_results.read_coco_results`: ``image_id`` an image id of ``annotations``,
+    or a file name) on a COCO keypoints file."""
+    from mvm.io.coco_dataset import read_coco_dataset
+    from mvm.io.coco_results import read_coco_results, results_image_index
 
-    ann = read_annotations(annotations)
-    path = Path(detections)
-    try:
-        dets = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, ValueError) as e:
-        raise InputError(path, None, f"cannot read as JSON: {e}") from None
-    if not isinstance(dets, list):
-        raise InputError(path, None, "expected a list of detections")
-    for i, d in enumerate(dets):
-        if not isinstance(d, dict) or len(d.get("keypoints", ())) != 51 or "image_id" not in d or "score" not in d:
-            raise InputError(path, f"[{i}]", "expected {image_id, keypoints: 51 numbers, score}")
-    return oks_ap(ann.document, dets)
+    truth = read_coco_dataset(annotations)
+    results = read_coco_results(detections, require_score=True)
+    image = results_image_index(results, detections, truth.people.image_ids, truth.people.file_names)
+    dets = [{"image_id": int(truth.people.image_ids[i]), "keypoints": kp.reshape(-1).tolist(), "score": float(score)}
+            for i, kp, score in zip(image, results.keypoints, results.score)]
+    return oks_ap(truth.document, dets)
 
 
 def missing_reasons(result: dict[str, float]) -> dict[str, str]:

@@ -18,16 +18,17 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from mvm.core.completion import INFERRED, MISSING, complete_persons, flag_names
-from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
+from mvm.core.completion import INFERRED, complete_persons
+from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
-from mvm.io.checks import check_input_file, integer, load_json_object, read_bytes
+from mvm.io.checks import check_input_file, read_bytes
+from mvm.io.coco import annotation_record, empty_dataset
+from mvm.io.coco_dataset import read_coco_dataset
 from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_bytes, atomic_write_json, make_dir
 
 LOG = logging.getLogger(__name__)
 
-FORMAT = "mvm.net.supervision/1"
 LINK_MODES = ("symlink", "copy", "none")
 ANNOTATIONS_FILE = "annotations.json"
 
@@ -70,30 +71,6 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
     return keypoints, depths
 
 
-def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths: np.ndarray | None,
-                      person_id: int | None = None, flags: np.ndarray | None = None) -> dict:
-    """One COCO annotation with the supervision fields. ``keypoints: (17, 3)``, ``depths: (17,)``,
-    ``flags: (17,)`` how each 3D joint was obtained (written as ``keypoint_flags`` names)."""
-    kp = np.asarray(keypoints, dtype=float)
-    vis = kp[:, 2] > 0
-    x0, y0 = kp[vis, :2].min(axis=0)
-    x1, y1 = kp[vis, :2].max(axis=0)
-    rec = {"id": int(ann_id), "image_id": int(image_id), "category_id": 1,
-           "keypoints": [round(float(v), 2) for v in kp.reshape(-1)],
-           "num_keypoints": int(vis.sum()),
-           "bbox": [round(float(x0), 2), round(float(y0), 2), round(float(x1 - x0), 2), round(float(y1 - y0), 2)],
-           "area": round(float((x1 - x0) * (y1 - y0)), 2), "iscrowd": 0}
-    if depths is not None:
-        d = np.where(vis, np.asarray(depths, dtype=float), 0.0)
-        rec["keypoint_depths"] = [round(float(v), 5) for v in d]
-        rec["has_3d"] = [int(v) for v in (d > 0)]
-    if person_id is not None:
-        rec["person_id"] = int(person_id)
-    if flags is not None:
-        rec["keypoint_flags"] = flag_names(np.where(vis, flags, MISSING))
-    return rec
-
-
 def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:
     """Boxes ``(M, 4)`` (``x0, y0, x1, y1``) of the 2D poses of ``view`` that no reconstructed
     person holds (``persons.members``: annotation ids): people MVM saw but did not reconstruct,
@@ -117,12 +94,6 @@ def ignore_record(ann_id: int, image_id: int, box: np.ndarray) -> dict:
     return {"id": int(ann_id), "image_id": int(image_id), "category_id": 1, "keypoints": [0] * (3 * NUM_JOINTS),
             "num_keypoints": 0, "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
             "area": round((x1 - x0) * (y1 - y0), 2), "iscrowd": 0}
-
-
-def empty_dataset(description: str) -> dict:
-    return {"info": {"format": FORMAT, "description": description,
-                     "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; 0: missing"},
-            "images": [], "annotations": [], "categories": [COCO_PERSON_CATEGORY]}
 
 
 def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
@@ -240,27 +211,9 @@ def _place_frame(name: str, scene: str, frames: Path | None, out_dir: Path, tmp:
 
 
 def _source_dataset(path: Path) -> tuple[list[dict], list[dict]]:
-    """The images and annotations of one supervision file, checked: every image has an integer
-    ``id`` (unique) and a ``file_name``, every annotation names one of those images."""
-    data = load_json_object(path, what="a COCO keypoints object")
-    for key in ("images", "annotations"):
-        if not isinstance(data.get(key), list):
-            raise InputError(path, key, "missing, or not a list")
-    ids = set()
-    for i, image in enumerate(data["images"]):
-        if not isinstance(image, dict):
-            raise InputError(path, f"images[{i}]", "expected an object")
-        image_id = integer(image.get("id"), path, f"images[{i}].id")
-        if image_id in ids:
-            raise InputError(path, f"images[{i}].id", f"duplicate image id {image_id}")
-        ids.add(image_id)
-        if not isinstance(image.get("file_name"), str) or not image["file_name"]:
-            raise InputError(path, f"images[{i}].file_name", "missing, or not a string")
-    for i, ann in enumerate(data["annotations"]):
-        if not isinstance(ann, dict):
-            raise InputError(path, f"annotations[{i}]", "expected an object")
-        if ann.get("image_id") not in ids:
-            raise InputError(path, f"annotations[{i}].image_id", f"no image with id {ann.get('image_id')!r}")
+    """The images and annotations of one supervision file, checked by
+    :func:`mvm.io.coco_dataset.read_coco_dataset`."""
+    data = read_coco_dataset(path).document
     return data["images"], data["annotations"]
 
 
@@ -289,8 +242,7 @@ def merge_datasets(paths: Iterable[str | Path], out: str | Path,
         for image in images:
             image_id += 1
             remap[image["id"]] = image_id
-            src = Path(image["file_name"])
-            full = src if src.is_absolute() else path.parent / src
+            full = path.parent / image["file_name"]
             merged["images"].append({**image, "id": image_id,
                                      "file_name": Path(os.path.relpath(full, out.parent)).as_posix()})
         for ann in annotations:

@@ -24,9 +24,10 @@ import numpy as np
 from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
-from mvm.io.checks import load_json
+from mvm.io.coco import read_coco_keypoints
 from mvm.io.openpifpaf import read_openpifpaf_frame
-from mvm.io.openpose import frame_files, frame_number, read_openpose_frames
+from mvm.io.openpose import frame_number, read_openpose_frames
+from mvm.io.pose_format import pose_format
 from mvm.parallel import fork_map_ranges
 from mvm.rig.instants import rig_poses
 
@@ -150,29 +151,19 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
     return sources
 
 
-def _source_format(path: Path) -> tuple[str, list[tuple[int, Path]]]:
-    """The format of one camera's pose source (a COCO file, or a folder of OpenPose or
-    OpenPifPaf files, told by its first file) and its per-frame files (:func:`frame_files`;
-    none for COCO)."""
-    if path.is_file():
-        return "coco", []
-    files = frame_files(path, "*.json")
-    if not files:
-        raise InputError(path, None, "no .json pose files")
-    first = files[0][1]
-    data = load_json(first, root=path)
-    if isinstance(data, dict) and "people" in data:
-        return "openpose", files
-    if isinstance(data, list):
-        return "openpifpaf", files
-    raise InputError(first, None, "neither OpenPose ('people') nor OpenPifPaf (a list of predictions)")
+def _source_format(path: Path, root: Path) -> tuple[str, list[tuple[int, Path]]]:
+    """The format of one camera's pose source (:func:`mvm.io.pose_format.pose_format`: a COCO
+    keypoints file, or a folder of OpenPose or OpenPifPaf files) and its per-frame files."""
+    fmt, files = pose_format(path, root)
+    if fmt == "coco-results":
+        raise InputError(path, None, "a COCO results list: a camera's poses are a COCO keypoints file "
+                                     "(images, annotations) or a folder of per-frame files")
+    return fmt, files
 
 
 def _read_coco_source(path: Path, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 2D poses of one camera's COCO keypoints file, by frame number: ``(frames (N,),
     keypoints (N, 17, 3), scores (N,))``."""
-    from mvm.io.coco import read_coco_keypoints
-
     coco = read_coco_keypoints(path, root=root)
     frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
                                for i, n in enumerate(coco.file_names)], dtype=np.int64)
@@ -265,7 +256,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     used = sorted(matched)                                                # calibration order
     entries = list(sources)
     paths = [sources[entries[matched[c]]] for c in used]
-    formats, files = zip(*map(_source_format, paths))
+    formats, files = zip(*(_source_format(path, rig_dir) for path in paths))
     if len(set(formats)) > 1:
         raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(set(formats))}")
     fmt = formats[0]

@@ -1,15 +1,9 @@
 """2D poses of every frame and their appearance -> ``SCENE/poses2d.json`` (docs/architecture.md).
 
-Detectors (one interface, :func:`detect_scene`; :data:`DETECTORS`):
-
-- ``rtmo``: RTMO, one-stage bottom-up multi-person (:mod:`mvm.video.rtm`, ONNX Runtime);
-- ``rtmpose``: a YOLOX person detector then RTMPose, top-down (same);
-- ``mvm``: the project's PifPaf-style network from a local checkpoint (``mvm.net``), whose
-  features give the appearance (pooled along the limbs);
-- imported detections: OpenPifPaf ``--json-output`` files (one per image), OpenPose JSON
-  (BODY_25, COCO-18; one per frame), a COCO results JSON (a list of
-  ``{"image_id", "category_id", "keypoints", "score"}``; ``image_id`` a frame's file name, or
-  its 1-based position in the scene's frame list) or a COCO keypoints dataset file.
+Detectors (one interface, :func:`detect_scene`; :data:`DETECTORS`): ``rtmo``, ``rtmpose``
+and ``mvm`` (:mod:`mvm.video.detectors`), or ``import``: detections made elsewhere
+(:mod:`mvm.video.importers`: OpenPifPaf, OpenPose, a COCO results file whose ``image_id`` is a
+frame's file name or its 1-based position in the scene's frame list, a COCO keypoints file).
 
 For the RTM detectors and imported detections the appearance is the colour descriptor of the
 frame (:mod:`mvm.video.appearance`). Keypoints are the 17 COCO keypoints in frame pixels.
@@ -23,25 +17,25 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-import cv2
 import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
-from mvm.io.checks import load_json
-from mvm.io.coco import coco_keypoints_document, parse_keypoints, read_coco_keypoints
+from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.files import atomic_write_json
 from mvm.io.images import UndecodableImage, read_image
 from mvm.io.paths import resolve_in
-from mvm.video.appearance import colour_descriptor, pool_features
-from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
-from mvm.video.models import MODES, RTMO, RTMPOSE, YOLOX, resolve_model, sha256
+from mvm.io.pose_format import pose_format
+from mvm.video.appearance import colour_descriptor
+from mvm.video.detectors import FrameDetector, make_detector
+from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
+from mvm.video.importers import import_detections
+from mvm.video.models import MODES
 from mvm.video.rtm import RtmOptions
 
 log = logging.getLogger(__name__)
 
 POSES2D = "poses2d.json"
-FORMATS = ("coco-results", "coco", "openpifpaf", "openpose")
 APPEARANCE = ("auto", "colour", "network", "none")
 DETECTORS = ("rtmo", "rtmpose", "mvm", "import")
 DEVICES = ("cpu", "cuda")
@@ -110,223 +104,6 @@ class FramePoses:
     appearance: np.ndarray | None = None
     source: str = ""
     skipped: tuple[str, ...] = ()
-
-
-# --------------------------------------------------------------------------- importers
-
-
-def detect_format(path: str | Path) -> str:
-    """Guess the format of an import source: one of :data:`FORMATS`."""
-    path = Path(path)
-    if path.is_dir():
-        if any(path.glob("*.predictions.json")):
-            return "openpifpaf"
-        if any(path.glob("*_keypoints.json")):
-            return "openpose"
-        first = next(iter(sorted(path.glob("*.json"))), None)
-        if first is None:
-            raise InputError(path, None, "no JSON files to import")
-        data = load_json(first)
-        return "openpose" if isinstance(data, dict) and "people" in data else "openpifpaf"
-    if not path.is_file():
-        raise InputError(path, None, "file or directory not found")
-    data = load_json(path)
-    if isinstance(data, list):
-        return "coco-results"
-    if isinstance(data, dict) and "annotations" in data:
-        return "coco"
-    raise InputError(path, None, "expected a COCO results list or a COCO keypoints dataset")
-
-
-def _frame_numbers(scene: Path, names: list[str]) -> dict[int, int]:
-    """Frame number -> index into ``names`` (numbers from frames.json, else from the names)."""
-    from mvm.io.openpose import frame_number
-
-    if (scene / FRAMES_INDEX).is_file():
-        index = read_frame_index(scene)
-        number_of = dict(zip(index.names, index.numbers.tolist()))
-        return {int(number_of[n]): i for i, n in enumerate(names) if n in number_of}
-    return {frame_number(n): i for i, n in enumerate(names)}
-
-
-def _from_per_frame(per_frame: dict, numbers: dict[int, int], source: Path):
-    keypoints, image, score = [], [], []
-    unknown = sorted(set(per_frame) - set(numbers))
-    if unknown:
-        log.warning("%s: detections for %d frames not in the scene are ignored (e.g. frame %d)",
-                    source, len(unknown), unknown[0])
-    for number, value in per_frame.items():
-        if number not in numbers:
-            continue
-        kp, sc = value if isinstance(value, tuple) else (value, None)
-        if sc is None:
-            present = kp[:, :, 2] > 0
-            sc = np.where(present, kp[:, :, 2], 0).sum(1) / np.maximum(present.sum(1), 1)
-        keypoints.append(kp)
-        score.append(sc)
-        image.append(np.full(len(kp), numbers[number]))
-    return (np.concatenate(keypoints) if keypoints else np.zeros((0, NUM_JOINTS, 3)),
-            np.concatenate(image).astype(np.int64) if image else np.zeros(0, np.int64),
-            np.concatenate(score) if score else np.zeros(0))
-
-
-def read_coco_results(path: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A COCO results JSON -> ``keypoints: (N, 17, 3)``, ``image: (N,)`` index into ``names``,
-    ``score: (N,)``. ``image_id`` is a file name (or its stem), or a 1-based position."""
-    path = Path(path)
-    data = load_json(path)
-    if not isinstance(data, list):
-        raise InputError(path, None, "expected a JSON list of results")
-    by_name = {n: i for i, n in enumerate(names)}
-    by_name.update({Path(n).stem: i for i, n in enumerate(names)})
-    keypoints, image, score = [], [], []
-    missing = 0
-    for k, item in enumerate(data):
-        field = f"[{k}]"
-        if not isinstance(item, dict):
-            raise InputError(path, field, "expected an object")
-        if item.get("category_id", 1) != 1:
-            continue
-        image_id = item.get("image_id")
-        if isinstance(image_id, str):
-            index = by_name.get(image_id, by_name.get(Path(image_id).stem))
-        elif isinstance(image_id, int) and not isinstance(image_id, bool):
-            index = image_id - 1 if 1 <= image_id <= len(names) else None
-        else:
-            raise InputError(path, f"{field}.image_id", f"expected a file name or an integer, got {image_id!r}")
-        if index is None:
-            missing += 1
-            continue
-        kp = parse_keypoints(item.get("keypoints"), path, f"{field}.keypoints")
-        s = item.get("score")
-        if s is None:
-            present = kp[:, 2] > 0
-            s = float(kp[present, 2].mean()) if present.any() else 0.0
-        if isinstance(s, bool) or not isinstance(s, (int, float)) or not np.isfinite(s) or s < 0:
-            raise InputError(path, f"{field}.score", f"expected a number >= 0, got {s!r}")
-        keypoints.append(kp)
-        image.append(index)
-        score.append(min(float(s), 1.0))
-    if missing:
-        log.warning("%s: %d results name images that are not in the scene and are ignored", path, missing)
-    N = len(keypoints)
-    return (np.array(keypoints).reshape(N, NUM_JOINTS, 3), np.array(image, dtype=np.int64),
-            np.array(score, dtype=float))
-
-
-def import_detections(source: str | Path, scene: str | Path, names: list[str],
-                      fmt: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Read detections of the frames ``names`` of ``scene`` from ``source`` in format ``fmt``
-    (guessed when None) -> ``keypoints (N, 17, 3)``, ``image (N,)``, ``score (N,)``."""
-    source, scene = Path(source), Path(scene)
-    fmt = fmt or detect_format(source)
-    if fmt not in FORMATS:
-        raise InputError(source, None, f"unknown format {fmt!r} (known: {', '.join(FORMATS)})")
-    if fmt == "coco-results":
-        return read_coco_results(source, names)
-    if fmt == "coco":
-        coco = read_coco_keypoints(source)
-        by_name = {n: i for i, n in enumerate(names)}
-        index = np.array([by_name.get(coco.file_names[i], -1) for i in coco.ann_image], dtype=np.int64)
-        if (index < 0).any():
-            log.warning("%s: %d poses are in images not in the scene and are ignored", source, int((index < 0).sum()))
-        keep = index >= 0
-        return coco.keypoints[keep], index[keep], coco.score[keep]
-    numbers = _frame_numbers(scene, names)
-    if fmt == "openpifpaf":
-        from mvm.io.openpifpaf import read_openpifpaf_dir
-
-        return _from_per_frame(read_openpifpaf_dir(source), numbers, source)
-    from mvm.io.openpose import read_openpose_dir
-
-    return _from_per_frame(read_openpose_dir(source), numbers, source)
-
-
-# --------------------------------------------------------------------------- detectors
-
-
-@dataclass
-class FrameDetector:
-    """A detector: ``run(frames)`` -> per frame ``(keypoints (K, 17, 3), score (K,),
-    appearance (K, D) or None)``; ``info`` is recorded in ``poses2d.json``."""
-
-    run: Callable[[list[np.ndarray]], list[tuple]]
-    info: dict
-
-
-def _model_info(path: Path, given: str | Path | None = None, url: str | None = None) -> dict:
-    """What ``poses2d.json`` records of a model: the ONNX file's name and SHA-256, and where it
-    came from (the path given, or the published URL)."""
-    return {"file": path.name, "sha256": sha256(path), "from": str(given) if given is not None else url}
-
-
-def _rtm_detector(options: DetectOptions) -> FrameDetector:
-    from mvm.video.rtm import Rtmo, RtmPose
-
-    if options.detector == "rtmo":
-        spec = RTMO[options.mode]
-        path = resolve_model(spec, options.model, options.download)
-        model = Rtmo(path, options.device, spec.size, options.rtm)
-        models = [_model_info(path, options.model, spec.url)]
-    else:
-        person_spec, pose_spec = YOLOX[options.mode], RTMPOSE[options.mode]
-        person = resolve_model(person_spec, options.person_model, options.download)
-        pose = resolve_model(pose_spec, options.model, options.download)
-        model = RtmPose(person, pose, options.device, person_spec.size, pose_spec.size, pose_spec.mean,
-                        pose_spec.std, options.rtm)
-        models = [_model_info(person, options.person_model, person_spec.url),
-                  _model_info(pose, options.model, pose_spec.url)]
-
-    def run(frames):
-        return [(kp, sc, None) for kp, sc in model(frames)]
-
-    return FrameDetector(run, {"detector": options.detector, "models": models, "device": options.device})
-
-
-def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDetector:
-    """The network of ``mvm.net`` (imported lazily: torch is an optional dependency). The
-    appearance pools the backbone's last feature map (the paper's "last conv layer") along
-    the limbs."""
-    try:
-        from mvm.net.evaluate import run_model
-        from mvm.net.predict import load_model
-    except ImportError as e:
-        raise InputError(checkpoint, None, f"the pose network (mvm.net) is not available: {e}") from None
-    model, _ = load_model(checkpoint, device=options.device)
-    captured = {}
-    model.backbone.register_forward_hook(lambda module, inputs, output: captured.__setitem__("features", output))
-
-    def one(image: np.ndarray):
-        rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-        poses, _, scale = run_model(model, rgb, options.input_size)
-        kp, score = poses.keypoints, poses.score
-        features = captured["features"][0].float().cpu().numpy()          # (C, h, w) of the letterboxed input
-        boxed = kp.copy()
-        boxed[:, :, :2] = (kp[:, :, :2] + 0.5) * scale - 0.5
-        app = pool_features(features, boxed, model.spec.stride, options.keypoint_threshold)
-        return kp, score, app
-
-    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
-    return FrameDetector(lambda frames: [one(f) for f in frames], info)
-
-
-def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:
-    """The detector ``options.detector`` (``rtmo``, ``rtmpose`` or ``mvm`` with ``checkpoint``)."""
-    if options.detector == "mvm":
-        if checkpoint is None:
-            raise InputError(None, "--checkpoint", "the mvm detector needs its checkpoint")
-        return _network_detector(checkpoint, options)
-    if options.detector in ("rtmo", "rtmpose"):
-        return _rtm_detector(options)
-    raise ValueError(f"detector {options.detector!r}: expected rtmo, rtmpose or mvm")
-
-
-def available_detector() -> str | None:
-    """The detector ``mvm run`` uses when none is named: ``rtmo`` when ONNX Runtime is
-    installed, else None."""
-    import importlib.util
-
-    return "rtmo" if importlib.util.find_spec("onnxruntime") is not None else None
 
 
 # --------------------------------------------------------------------------- the stage
@@ -489,8 +266,9 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     registered = _registered_names(scene)
     names = _frame_names(scene, registered)
     if kind == "import":
+        fmt = fmt or pose_format(source)[0]
         imported = import_detections(source, scene, names, fmt)
-        detector, info = None, {"detector": "import", "format": fmt or detect_format(source), "file": str(source)}
+        detector, info = None, {"detector": "import", "format": fmt, "file": str(source)}
     else:
         imported, detector = None, make_detector(replace(options, detector=kind), checkpoint)
         info = detector.info

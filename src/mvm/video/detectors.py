@@ -1,0 +1,110 @@
+"""Detectors: a frame batch in, per frame the 2D poses found (and an appearance, where the
+detector gives one) out; ``info`` says what ran, for ``poses2d.json``.
+
+- ``rtmo``: RTMO, one-stage bottom-up multi-person (:mod:`mvm.video.rtm`, ONNX Runtime);
+- ``rtmpose``: a YOLOX person detector then RTMPose, top-down (same);
+- ``mvm``: the project's PifPaf-style network from a local checkpoint (``mvm.net``, imported
+  lazily: torch is an optional dependency), whose features give the appearance (pooled
+  along the limbs).
+
+The settings are :class:`mvm.video.detect.DetectOptions`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable
+
+import cv2
+import numpy as np
+
+from mvm.errors import InputError
+from mvm.video.appearance import pool_features
+from mvm.video.models import RTMO, RTMPOSE, YOLOX, resolve_model, sha256
+
+if TYPE_CHECKING:
+    from mvm.video.detect import DetectOptions
+
+
+@dataclass
+class FrameDetector:
+    """A detector: ``run(frames)`` -> per frame ``(keypoints (K, 17, 3), score (K,),
+    appearance (K, D) or None)``; ``info`` is recorded in ``poses2d.json``."""
+
+    run: Callable[[list[np.ndarray]], list[tuple]]
+    info: dict
+
+
+def _model_info(path: Path, given: str | Path | None = None, url: str | None = None) -> dict:
+    """What ``poses2d.json`` records of a model: the ONNX file's name and SHA-256, and where it
+    came from (the path given, or the published URL)."""
+    return {"file": path.name, "sha256": sha256(path), "from": str(given) if given is not None else url}
+
+
+def _rtm_detector(options: DetectOptions) -> FrameDetector:
+    from mvm.video.rtm import Rtmo, RtmPose
+
+    if options.detector == "rtmo":
+        spec = RTMO[options.mode]
+        path = resolve_model(spec, options.model, options.download)
+        model = Rtmo(path, options.device, spec.size, options.rtm)
+        models = [_model_info(path, options.model, spec.url)]
+    else:
+        person_spec, pose_spec = YOLOX[options.mode], RTMPOSE[options.mode]
+        person = resolve_model(person_spec, options.person_model, options.download)
+        pose = resolve_model(pose_spec, options.model, options.download)
+        model = RtmPose(person, pose, options.device, person_spec.size, pose_spec.size, pose_spec.mean,
+                        pose_spec.std, options.rtm)
+        models = [_model_info(person, options.person_model, person_spec.url),
+                  _model_info(pose, options.model, pose_spec.url)]
+
+    def run(frames):
+        return [(kp, sc, None) for kp, sc in model(frames)]
+
+    return FrameDetector(run, {"detector": options.detector, "models": models, "device": options.device})
+
+
+def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDetector:
+    """The network of ``mvm.net`` (imported lazily: torch is an optional dependency). The
+    appearance pools the backbone's last feature map (the paper's "last conv layer") along
+    the limbs."""
+    try:
+        from mvm.net.evaluate import run_model
+        from mvm.net.predict import load_model
+    except ImportError as e:
+        raise InputError(checkpoint, None, f"the pose network (mvm.net) is not available: {e}") from None
+    model, _ = load_model(checkpoint, device=options.device)
+    captured = {}
+    model.backbone.register_forward_hook(lambda module, inputs, output: captured.__setitem__("features", output))
+
+    def one(image: np.ndarray):
+        rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        poses, _, scale = run_model(model, rgb, options.input_size)
+        kp, score = poses.keypoints, poses.score
+        features = captured["features"][0].float().cpu().numpy()          # (C, h, w) of the letterboxed input
+        boxed = kp.copy()
+        boxed[:, :, :2] = (kp[:, :, :2] + 0.5) * scale - 0.5
+        app = pool_features(features, boxed, model.spec.stride, options.keypoint_threshold)
+        return kp, score, app
+
+    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
+    return FrameDetector(lambda frames: [one(f) for f in frames], info)
+
+
+def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:
+    """The detector ``options.detector`` (``rtmo``, ``rtmpose`` or ``mvm`` with ``checkpoint``)."""
+    if options.detector == "mvm":
+        if checkpoint is None:
+            raise InputError(None, "--checkpoint", "the mvm detector needs its checkpoint")
+        return _network_detector(checkpoint, options)
+    if options.detector in ("rtmo", "rtmpose"):
+        return _rtm_detector(options)
+    raise ValueError(f"detector {options.detector!r}: expected rtmo, rtmpose or mvm")
+
+
+def available_detector() -> str | None:
+    """The detector ``mvm run`` uses when none is named: ``rtmo`` when ONNX Runtime is
+    installed, else None."""
+    import importlib.util
+
+    return "rtmo" if importlib.util.find_spec("onnxruntime") is not None else None
