@@ -22,7 +22,7 @@ from mvm.net.decoder import DecoderConfig, normalize_depth
 from mvm.net.evaluate import run_model
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
 from mvm.net.model import ModelSpec, PoseNet
-from mvm.net.scale import calibrate, lift
+from mvm.net.lift import calibrate, lift
 from mvm.net.train import read_checkpoint, select_device
 
 LOG = logging.getLogger(__name__)
