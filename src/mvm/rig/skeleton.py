@@ -14,7 +14,6 @@ from mvm.core.scene import Cameras, Poses2D
 from mvm.rig.instants import InstantPersons
 
 
-
 def track_bone_lengths(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> np.ndarray:
     """The median length of every bone over each track's instants, given to each person.
 
