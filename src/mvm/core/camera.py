@@ -18,10 +18,15 @@ module builds ``P`` from ``K, R, t`` and adds the lens.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import cv2
 import numpy as np
 
 from mvm.core.geometry import project as project_with_matrices
+
+if TYPE_CHECKING:                                   # scene.py builds its P matrices here
+    from mvm.core.scene import Cameras
 
 #: Stopping rule of OpenCV's iterative undistortion (iterations, change in normalized coordinates).
 UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-8)
@@ -53,8 +58,8 @@ def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
     return pixels, depth
 
 
-def project_views(cameras, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Project world points into every view of pinhole ``cameras`` (:class:`~mvm.core.scene.Cameras`).
+def project_views(cameras: Cameras, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points into every view of pinhole ``cameras``.
 
     ``points: (..., 3)`` -> pixels ``(V, ..., 2)`` and depths ``(V, ...)``.
     """
