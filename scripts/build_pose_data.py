@@ -27,10 +27,12 @@ except ImportError:
     sys.path.insert(0, str(REPO / "src"))
 
 from mvm.core.keypoints import COCO_KEYPOINTS, MEAN_BONE_LENGTHS_M, bone_lengths  # noqa: E402
+from mvm.core.kinematics import asf_to_coco17, forward_kinematics  # noqa: E402
 from mvm.core.posebank import LABELS, Z_UP_FROM_Y_DOWN, Z_UP_FROM_Y_UP, classify_poses, select_distinct, to_bank_frame  # noqa: E402
 from mvm.core.prior import COMPONENTS, REG_COVAR, canonicalize, fit_pose_prior  # noqa: E402
+from mvm.io.asf_amc import read_asf, read_motion  # noqa: E402
 from mvm.io.files import atomic_write_bytes  # noqa: E402
-from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf, read_panoptic_coco19, read_panoptic_ids  # noqa: E402
+from mvm.io.panoptic_bodies import read_panoptic_coco19, read_panoptic_ids  # noqa: E402
 
 #: Poses whose bone lengths fall outside these multiples of the adult means are
 #: reconstruction failures (a few Panoptic bodies) and are left out. [1]
@@ -43,7 +45,7 @@ def read_cmu(root: Path, frame_step: int) -> tuple[np.ndarray, list[str], int]:
     for asf in sorted(root.glob("*/*.asf")):
         skeleton = read_asf(asf)
         for amc in sorted(asf.parent.glob("*.amc")):
-            positions, rotations = forward_kinematics(skeleton, read_amc(amc))
+            positions, rotations = forward_kinematics(skeleton, *read_motion(amc, skeleton))
             keep = np.arange(0, len(positions), frame_step)
             poses.append(asf_to_coco17(positions[keep], rotations[keep], skeleton) @ Z_UP_FROM_Y_UP.T)
             sources += [f"{amc.stem}:{i + 1}" for i in keep]

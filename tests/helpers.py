@@ -52,10 +52,11 @@ def cmu_walk(z_up: bool = True):
     folder = SHARED_DATA / "cmu_mocap" / "02"
     if not (folder / "02_01.amc").is_file():
         pytest.skip(f"CMU motion capture absent: {folder}")
-    from mvm.io.mocap import asf_to_coco17, forward_kinematics, read_amc, read_asf
+    from mvm.core.kinematics import asf_to_coco17, forward_kinematics
+    from mvm.io.asf_amc import read_asf, read_motion
 
     skeleton = read_asf(folder / "02.asf")
-    positions, rotations = forward_kinematics(skeleton, read_amc(folder / "02_01.amc"))
+    positions, rotations = forward_kinematics(skeleton, *read_motion(folder / "02_01.amc", skeleton))
     walk = asf_to_coco17(positions[::4], rotations[::4], skeleton)             # 120 Hz -> 30 Hz
     if not z_up:
         return walk

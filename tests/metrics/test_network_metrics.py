@@ -6,7 +6,7 @@ from mvm.core.keypoints import BONES, MEAN_BONE_LENGTHS_M
 from mvm.core.geometry import triangulate_dlt
 from mvm.metrics import network as metrics
 from mvm.metrics.poses import pa_mpjpe
-from mvm.net import scale
+from mvm.net.lift import calibrate, lift
 
 
 def _rotation(rng):
@@ -120,19 +120,6 @@ def test_c_var_is_the_spread_of_the_pairwise_triangulations():
     assert np.isnan(metrics.c_var(P, kp, 1.5))                                      # no joint above tau
 
 
-def test_scale_calibration_closed_form():
-    rng = np.random.default_rng(4)
-    l = rng.uniform(0.1, 0.5, 12)
-    s = scale.optimal_scale(l)
-    expected = (MEAN_BONE_LENGTHS_M * l).sum() / (l * l).sum()
-    assert s == pytest.approx(expected)
-    # s* minimizes Σ ½ (s l − l̄)²: the derivative vanishes there
-    assert ((s * l - MEAN_BONE_LENGTHS_M) * l).sum() == pytest.approx(0.0, abs=1e-12)
-    l[3] = np.nan
-    ok = np.isfinite(l)
-    assert scale.optimal_scale(l) == pytest.approx((MEAN_BONE_LENGTHS_M[ok] * l[ok]).sum() / (l[ok] ** 2).sum())
-
-
 def test_lift_and_calibrate_recover_a_metric_pose():
     rng = np.random.default_rng(5)
     from mvm.sim.images import random_poses
@@ -143,8 +130,8 @@ def test_lift_and_calibrate_recover_a_metric_pose():
     uv = X @ K.T
     kp = np.concatenate([uv[:, :2] / uv[:, 2:], np.ones((17, 1))], -1)[None]
     rel = X[:, 2] / np.median(X[:, 2])
-    lifted = scale.lift(kp, rel[None], K)
-    metric, s = scale.calibrate(lifted)
+    lifted = lift(kp, rel[None], K)
+    metric, s = calibrate(lifted)
     np.testing.assert_allclose(metric[0], X, atol=1e-9)
     assert s[0] == pytest.approx(np.median(X[:, 2]))
 

@@ -6,8 +6,9 @@ import pytest
 
 from mvm.core.config import Config
 from mvm.core.prior import PosePrior
+from mvm.core.keypoints import bone_lengths
 from mvm.rig.instants import reconstruct_instants, rig_poses
-from mvm.rig.skeleton import bone_length_cv, bone_lengths, refine_tracks, track_bone_lengths
+from mvm.rig.skeleton import bone_length_cv, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import link_tracks
 from mvm.sim.detector import DetectorErrors, pose_scores
 from mvm.sim.rig import detect_views, ring_cameras

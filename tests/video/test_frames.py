@@ -9,7 +9,7 @@ import pytest
 from mvm.errors import InputError
 from mvm.sim.people import STANDING
 from mvm.video.frames import FrameOptions, extract_frames, read_frame_index, sample_indices, sharp_mask
-from mvm.video.scale import people_scale
+from mvm.video.metric_scale import people_scale
 
 
 def test_sample_indices_rate_and_count():

@@ -1,4 +1,5 @@
-"""The 17 COCO keypoints: names, skeleton, left/right symmetry and body proportions.
+"""The 17 COCO keypoints: names, skeleton, left/right symmetry, body proportions and the metric
+scale they give (the paper's s*).
 
 Every array in mvm that has a joint axis uses this order (``J = 17``).
 """
@@ -77,6 +78,27 @@ def pelvis(points: np.ndarray) -> np.ndarray:
 
 def bone_lengths(points: np.ndarray) -> np.ndarray:
     """Lengths of ``BONES``. ``points: (..., 17, D)`` -> ``(..., 12)`` (NaN where a joint is NaN)."""
+    points = np.asarray(points, dtype=float)
     a = points[..., [b[0] for b in BONES], :]
     b = points[..., [b[1] for b in BONES], :]
     return np.linalg.norm(a - b, axis=-1)
+
+
+def optimal_scale(lengths: np.ndarray, mean_lengths: np.ndarray = MEAN_BONE_LENGTHS_M) -> np.ndarray:
+    """The scale that best matches bone lengths to the mean adult ones (the paper's Eq. scale):
+    ``s* = Σ l̄_b l_b / Σ l_b²`` over the finite bones of positive length, the minimum of
+    ``Σ_b ½ (s l_b − l̄_b)²``.
+
+    ``lengths: (..., B)`` (NaN: missing bone), ``mean_lengths: (B,)`` (default the ``12`` of
+    :data:`MEAN_BONE_LENGTHS_M`) -> ``(...)``; NaN where no bone is finite.
+
+    >>> float(optimal_scale(MEAN_BONE_LENGTHS_M / 2.0))
+    2.0
+    """
+    l = np.asarray(lengths, dtype=float)
+    mean = np.broadcast_to(np.asarray(mean_lengths, dtype=float), l.shape)
+    ok = np.isfinite(l) & (l > 0)
+    num = np.where(ok, mean * l, 0.0).sum(-1)
+    den = np.where(ok, l * l, 0.0).sum(-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / den, np.nan)

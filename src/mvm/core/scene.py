@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mvm.core.camera import projection_matrix
 from mvm.core.keypoints import NUM_JOINTS
 
 
@@ -50,7 +51,7 @@ class Cameras:
     @property
     def P(self) -> np.ndarray:
         """Projection matrices ``K [R | t]``: ``(V, 3, 4)``."""
-        return self.K @ np.concatenate([self.R, self.t[:, :, None]], axis=2)
+        return projection_matrix(self.K, self.R, self.t)
 
     @property
     def centers(self) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Evaluation on the real CMU Panoptic sample: real cameras and real 3D poses, 2D detections
 simulated from them with a detector's errors (:mod:`mvm.sim.rig`), reconstructed with a
 subset of the HD cameras and scored with MPJPE, PA-MPJPE, PCP, AP and the fraction of persons
-found. World in metres (the files' centimetres / 100, read by :mod:`mvm.io.mocap`)."""
+found. World in metres (the files' centimetres / 100, read by :mod:`mvm.io.panoptic_bodies`)."""
 from __future__ import annotations
 
 import time
@@ -14,7 +14,7 @@ from mvm.core.config import Config
 from mvm.core.scene import Cameras, Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration
-from mvm.io.mocap import read_panoptic_coco19, read_panoptic_ids
+from mvm.io.panoptic_bodies import read_panoptic_coco19, read_panoptic_ids
 from mvm.io.panoptic_calib import read_panoptic_calibration
 from mvm.metrics.mocap_scores import average_precision, pcp
 from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, pose_errors

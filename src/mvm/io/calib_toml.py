@@ -16,7 +16,8 @@ One table per camera and an optional ``[metadata]`` table::
     error = 0.0
 
 ``distortions`` are OpenCV coefficients: ``[k1, k2, p1, p2]`` (Pose2Sim), ``[k1, k2, p1, p2, k3]``
-(anipose) or longer; with ``fisheye = true``, OpenCV fisheye ``[k1, k2, k3, k4]``. Cameras are
+(anipose) or longer; with ``fisheye = true``, OpenCV fisheye ``[k1, k2, k3, k4]`` (the lens model of
+:mod:`mvm.core.camera`, which applies and undoes them). Cameras are
 returned in file order and addressed by ``name`` (the table's key when ``name`` is absent).
 """
 from __future__ import annotations
@@ -175,34 +176,3 @@ def write_calib_toml(path: str | Path, calibration: RigCalibration) -> None:
     """Write ``calibration`` as Calib.toml, atomically."""
     atomic_write_text(path, calib_toml_text(calibration))
 
-
-def undistort_points(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray, fisheye: bool = False) -> np.ndarray:
-    """Undo lens distortion of pixels of one camera. ``xy: (..., 2)`` -> ``(..., 2)`` pixels of the
-    pinhole camera ``K`` (NaN stays NaN)."""
-    xy = np.asarray(xy, dtype=float)
-    distortion = np.asarray(distortion, dtype=float).reshape(-1)
-    if not len(distortion) or not np.any(distortion):
-        return xy.copy()
-    flat = xy.reshape(-1, 1, 2)
-    if fisheye:
-        out = cv2.fisheye.undistortPoints(flat, K, distortion, P=K)
-    else:
-        out = cv2.undistortPoints(flat, K, distortion, R=None, P=K,
-                                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-8))
-    return out.reshape(xy.shape)
-
-
-def distort_points(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray, fisheye: bool = False) -> np.ndarray:
-    """Apply lens distortion to pinhole pixels (the inverse of :func:`undistort_points`).
-    ``xy: (..., 2)`` -> ``(..., 2)``."""
-    xy = np.asarray(xy, dtype=float)
-    distortion = np.asarray(distortion, dtype=float).reshape(-1)
-    if not len(distortion) or not np.any(distortion):
-        return xy.copy()
-    h = np.concatenate([xy.reshape(-1, 2), np.ones((xy[..., 0].size, 1))], axis=1) @ np.linalg.inv(K).T
-    zero = np.zeros(3)
-    if fisheye:
-        out, _ = cv2.fisheye.projectPoints(h.reshape(-1, 1, 3), zero, zero, K, distortion)
-    else:
-        out, _ = cv2.projectPoints(h.reshape(-1, 1, 3), zero, zero, K, distortion)
-    return out.reshape(xy.shape)

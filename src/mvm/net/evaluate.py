@@ -142,7 +142,7 @@ def predict_3d(model: PoseNet, image: np.ndarray, K: np.ndarray, input_size: int
                decoder: DecoderConfig = DecoderConfig()) -> tuple[np.ndarray, np.ndarray]:
     """People of one image: 2D joints ``(P, 17, 3)`` and camera-frame 3D joints ``(P, 17, 3)``
     (relative depths back-projected through ``K (3, 3)``, scaled by the bone lengths s*)."""
-    from mvm.net.scale import calibrate, lift
+    from mvm.net.lift import calibrate, lift
 
     poses, _, _ = run_model(model, image, input_size, decoder)
     if len(poses) == 0:

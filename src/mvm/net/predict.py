@@ -24,7 +24,7 @@ from mvm.net.distributed import select_device
 from mvm.net.evaluate import run_model
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
 from mvm.net.model import ModelSpec, PoseNet
-from mvm.net.scale import calibrate, lift
+from mvm.net.lift import calibrate, lift
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"

@@ -18,6 +18,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
+from mvm.core.camera import project
 from mvm.core.completion import INFERRED, complete_persons
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
@@ -51,11 +52,7 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
     if reference not in ("image", "person"):
         raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
     X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
-    cam = X @ np.asarray(R, dtype=float).T + np.asarray(t, dtype=float)    # (P, 17, 3)
-    z = cam[..., 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        uvw = cam @ np.asarray(K, dtype=float).T
-        uv = uvw[..., :2] / uvw[..., 2:3]
+    uv, z = project(X, K, R, t)                                            # (P, 17, 2), (P, 17)
     w, h = float(size[0]), float(size[1])
     ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
           & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.camera import undistort as undo_lens
 from mvm.core.scene import Poses2D
 from mvm.errors import InputError
-from mvm.io.calib_toml import RigCalibration, read_calib_toml, undistort_points
+from mvm.io.calib_toml import RigCalibration, read_calib_toml
 from mvm.io.coco import read_coco_keypoints
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_number, read_openpose_frames
@@ -303,6 +304,6 @@ def undistort(calibration: RigCalibration, keypoints: np.ndarray, camera: np.nda
     K = calibration.cameras.K
     for v in np.unique(camera):
         rows = camera == v
-        xy = undistort_points(out[rows, :, :2], K[v], calibration.distortions[v], bool(calibration.fisheye[v]))
+        xy = undo_lens(out[rows, :, :2], K[v], calibration.distortions[v], bool(calibration.fisheye[v]))
         out[rows, :, :2] = np.where(present[rows][..., None], xy, 0.0)
     return out

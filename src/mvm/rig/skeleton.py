@@ -8,19 +8,10 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.blas import one_blas_thread
-from mvm.core.keypoints import BONES
+from mvm.core.keypoints import BONES, bone_lengths
 from mvm.core.quality import reprojection_errors
 from mvm.core.scene import Cameras, Poses2D
 from mvm.rig.instants import InstantPersons
-
-_BONES = np.array(BONES)
-
-
-def bone_lengths(X: np.ndarray) -> np.ndarray:
-    """``X: (Q, 17, 3)`` -> ``(Q, B)`` lengths of :data:`mvm.core.keypoints.BONES` (NaN where an
-    end is missing)."""
-    X = np.asarray(X, dtype=float)
-    return np.linalg.norm(X[:, _BONES[:, 0]] - X[:, _BONES[:, 1]], axis=-1)
 
 
 def track_bone_lengths(X: np.ndarray, track: np.ndarray, min_count: int = 3) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.camera import project_views
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
 
@@ -17,11 +18,7 @@ MIN_DEPTH_M = 0.1
 def project_people(cameras: Cameras, poses3d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact projections of ``poses3d: (G, 17, 3)`` in every view: ``uv: (V, G, 17, 2)`` px
     and camera depths ``(V, G, 17)``."""
-    G = len(poses3d)
-    homogeneous = np.concatenate([poses3d, np.ones((G, NUM_JOINTS, 1))], axis=2)
-    x = np.einsum("vab,gjb->vgja", cameras.P, homogeneous)
-    depth = x[..., 2]
-    return x[..., :2] / depth[..., None], depth
+    return project_views(cameras, poses3d)
 
 
 def in_frame(uv: np.ndarray, depth: np.ndarray, width: float, height: float) -> np.ndarray:

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.camera import distort, project_views
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
-from mvm.io.calib_toml import distort_points
 from mvm.sim.detector import DetectorErrors, detect_people, pose_scores
 from mvm.sim.people import STANDING
 from mvm.sim.tours import cameras_looking_at
@@ -64,11 +64,7 @@ def detect_views(cameras: Cameras, poses3d: np.ndarray, rng: np.random.Generator
         ``keypoints (N, 17, 3)`` (distorted pixels when ``distortions``), ``camera (N,)``,
         ``person (N,)`` (-1: a false detection).
     """
-    G = len(poses3d)
-    homogeneous = np.concatenate([np.nan_to_num(poses3d), np.ones((G, NUM_JOINTS, 1))], axis=2)
-    x = np.stack([homogeneous @ P.T for P in cameras.P]).reshape(len(cameras), G, NUM_JOINTS, 3)
-    depth = x[..., 2]
-    uv = x[..., :2] / depth[..., None]
+    uv, depth = project_views(cameras, np.nan_to_num(poses3d))                    # (V, G, 17, 2), (V, G, 17)
     found = detect_people(uv, depth, cameras.size, cameras.focal, errors, rng,
                           present=np.isfinite(poses3d).all(-1))
     keypoints, camera = found.keypoints, found.view
@@ -76,6 +72,6 @@ def detect_views(cameras: Cameras, poses3d: np.ndarray, rng: np.random.Generator
         for v in np.unique(camera):
             rows = camera == v
             present = keypoints[rows, :, 2] > 0
-            xy = distort_points(keypoints[rows, :, :2], cameras.K[v], distortions[v])
+            xy = distort(keypoints[rows, :, :2], cameras.K[v], distortions[v])
             keypoints[rows, :, :2] = np.where(present[..., None], xy, 0.0)
     return keypoints, camera, found.person

@@ -18,7 +18,7 @@ from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_replace_dir, atomic_write_json
 from mvm.video.detect import DetectOptions, FramePoses, detect_scene
 from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
-from mvm.video.scale import people_scale
+from mvm.video.metric_scale import people_scale
 from mvm.video.sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
 
 log = logging.getLogger(__name__)

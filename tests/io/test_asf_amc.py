@@ -1,29 +1,17 @@
-"""ASF/AMC and Panoptic readers: hand-computed forward kinematics, real-data sanity, clear errors."""
+"""ASF/AMC readers: hand-computed forward kinematics of a parsed skeleton, real-data sanity, clear errors."""
 from __future__ import annotations
-
-import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, bone_lengths
 from mvm.errors import InputError
-from mvm.io.mocap import (
-    INCH_M,
-    asf_to_coco17,
-    euler_matrices,
-    forward_kinematics,
-    read_amc,
-    read_asf,
-    read_panoptic_coco19,
-    read_panoptic_ids,
-)
+from mvm.core.kinematics import asf_to_coco17, forward_kinematics
+from mvm.io.asf_amc import INCH_M, motion_arrays, read_amc, read_asf, read_motion
 
 from helpers import SHARED_DATA  # noqa: E402
 
 CMU = SHARED_DATA / "cmu_mocap"
-PANOPTIC = SHARED_DATA / "panoptic" / "160906_band1" / "hdPose3d_stage1_coco19"
 
 # Lengths in inches (:units length 1.0), so that metres = value * 0.0254.
 TINY_ASF = """\
@@ -104,23 +92,6 @@ def tiny(tmp_path):
     return read_asf(tmp_path / "tiny.asf"), read_amc(tmp_path / "tiny.amc")
 
 
-def test_euler_order_xyz_applies_x_first():
-    r = euler_matrices(np.radians([90.0, 0.0, 90.0]), "XYZ")
-    # Rz(90) · Rx(90) · e_y = Rz(90) · e_z = e_z (the other order would give -e_x)
-    np.testing.assert_allclose(r @ [0, 1, 0], [0, 0, 1], atol=1e-12)
-    np.testing.assert_allclose(euler_matrices(np.radians([90.0, 0.0, 90.0]), "ZYX") @ [0, 1, 0], [-1, 0, 0], atol=1e-12)
-
-
-@pytest.mark.parametrize("order", ["XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX"])
-def test_euler_matrices_match_scipy(order):
-    from scipy.spatial.transform import Rotation
-
-    angles = np.random.default_rng(0).uniform(-np.pi, np.pi, (5, 3))        # about x, y, z
-    in_order = angles[:, ["XYZ".index(a) for a in order]]
-    expected = Rotation.from_euler(order.lower(), in_order).as_matrix()       # extrinsic: fixed axes
-    np.testing.assert_allclose(euler_matrices(angles, order), expected, atol=1e-12)
-
-
 def test_tiny_skeleton_is_parsed(tiny):
     skeleton, frames = tiny
     assert skeleton.names == ("root", "a", "c", "b")          # parents before children
@@ -133,7 +104,7 @@ def test_tiny_skeleton_is_parsed(tiny):
 
 def test_forward_kinematics_matches_hand_computation(tiny):
     skeleton, frames = tiny
-    positions, rotations = forward_kinematics(skeleton, frames)
+    positions, rotations = forward_kinematics(skeleton, *motion_arrays(skeleton, frames))
     s = INCH_M
     root = np.array([10, 20, 30]) * s
     # a: R_root · Rx(90) · (0, 10, 0) = Ry(90) · (0, 0, 10) = (10, 0, 0)
@@ -186,8 +157,9 @@ def test_unknown_bone_in_a_motion(tiny, tmp_path):
     skeleton, _ = tiny
     path = tmp_path / "extra.amc"
     path.write_text(TINY_AMC + "3\nroot 0 0 0 0 0 0\nd 1 2 3\n")
-    with pytest.raises(InputError, match="bones not in the skeleton: d"):
-        forward_kinematics(skeleton, read_amc(path))
+    with pytest.raises(InputError, match="bones not in the skeleton: d") as error:
+        read_motion(path, skeleton)
+    assert str(path) in str(error.value)
 
 
 def test_wrong_number_of_values_is_an_input_error(tiny, tmp_path):
@@ -195,7 +167,7 @@ def test_wrong_number_of_values_is_an_input_error(tiny, tmp_path):
     path = tmp_path / "short.amc"
     path.write_text(TINY_AMC.replace("c 90 90", "c 90"))
     with pytest.raises(InputError, match="bone c"):
-        forward_kinematics(skeleton, read_amc(path))
+        read_motion(path, skeleton)
 
 
 # --- real CMU data ---------------------------------------------------------------------------
@@ -204,7 +176,7 @@ def _real(subject: str, motion: str):
     if not CMU.is_dir():
         pytest.skip(f"the real mocap data ({CMU}) is not in this checkout")
     skeleton = read_asf(CMU / subject / f"{subject}.asf")
-    return skeleton, forward_kinematics(skeleton, read_amc(CMU / subject / f"{motion}.amc"))
+    return skeleton, forward_kinematics(skeleton, *read_motion(CMU / subject / f"{motion}.amc", skeleton))
 
 
 def test_real_bone_lengths_are_constant_and_plausible():
@@ -237,50 +209,3 @@ def test_real_face_points_are_rigid_and_in_front():
     assert np.all(np.sum((coco[:, INDEX["nose"]] - ears) * forward, axis=-1) > 0)
     # left ear on the body's left
     assert np.all(np.sum((coco[:, INDEX["left_ear"]] - coco[:, INDEX["right_ear"]]) * hip_axis, axis=-1) > 0)
-
-
-# --- Panoptic --------------------------------------------------------------------------------
-
-def _panoptic_file(path: Path, bodies) -> Path:
-    path.write_text(json.dumps({"version": 0.7, "bodies": bodies}))
-    return path
-
-
-def test_panoptic_reader_converts_and_maps(tmp_path):
-    # joint k of joints19 at (k, 100 + k, -k) cm, confidence 0.5; joint 8 (left ankle) not reconstructed
-    joints = []
-    for k in range(19):
-        joints += [k, 100 + k, -k, -1 if k == 8 else 0.5]
-    poses = read_panoptic_coco19(_panoptic_file(tmp_path / "b.json", [{"id": 7, "joints19": joints}]))
-    assert poses.shape == (1, 17, 3)
-    coco_from_panoptic = {"nose": 1, "left_eye": 15, "right_eye": 17, "left_ear": 16, "right_ear": 18,
-                          "left_shoulder": 3, "right_shoulder": 9, "left_elbow": 4, "right_elbow": 10,
-                          "left_wrist": 5, "right_wrist": 11, "left_hip": 6, "right_hip": 12,
-                          "left_knee": 7, "right_knee": 13, "right_ankle": 14}
-    for name, k in coco_from_panoptic.items():
-        np.testing.assert_allclose(poses[0, INDEX[name]], [k / 100, 1 + k / 100, -k / 100])
-    assert np.isnan(poses[0, INDEX["left_ankle"]]).all()
-    assert read_panoptic_ids(tmp_path / "b.json") == [7]
-
-
-def test_panoptic_reader_errors(tmp_path):
-    with pytest.raises(InputError, match=r"bodies\[0\].joints19: expected 76 numbers"):
-        read_panoptic_coco19(_panoptic_file(tmp_path / "short.json", [{"id": 0, "joints19": [1, 2, 3]}]))
-    with pytest.raises(InputError, match="bodies"):
-        read_panoptic_coco19(_panoptic_file(tmp_path / "none.json", None))
-    (tmp_path / "broken.json").write_text("{")
-    with pytest.raises(InputError, match="not valid JSON"):
-        read_panoptic_coco19(tmp_path / "broken.json")
-
-
-def test_panoptic_real_values():
-    path = PANOPTIC / "body3DScene_00000168.json"
-    if not path.is_file():
-        pytest.skip(f"the real Panoptic data ({path}) is not in this checkout")
-    poses = read_panoptic_coco19(path)
-    assert poses.shape == (3, 17, 3)
-    # body 0: nose (104.413, -117.401, -25.8053) cm; its left ankle has confidence -1
-    np.testing.assert_allclose(poses[0, INDEX["nose"]], [1.04413, -1.17401, -0.258053])
-    np.testing.assert_allclose(poses[0, INDEX["right_ankle"]], [0.698839, -0.0969057, 0.0289286])
-    assert np.isnan(poses[0, INDEX["left_ankle"]]).all()
-    assert read_panoptic_ids(path) == [0, 1, 2]

@@ -1,15 +1,15 @@
-"""Metric scale from the people themselves (in the manner of the paper's Eq. for s*).
+"""Metric scale of a video's reconstruction from the people themselves (the paper's s*).
 
 SfM is up to scale. With ``l_b`` the median length of bone ``b`` over the reconstructed
-persons (model units) and ``l̄_b`` the average adult length (metres), the scale minimizing
-``Σ_b ½ (s l_b − l̄_b)²`` is ``s* = Σ_b l̄_b l_b / Σ_b l_b²`` metres per model unit. The
-median over persons keeps one badly reconstructed person from moving it.
+persons (model units) and ``l̄_b`` the average adult length (metres), ``s*``
+(:func:`mvm.core.keypoints.optimal_scale`) is in metres per model unit. The median over persons
+keeps one badly reconstructed person from moving it.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths
+from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths, optimal_scale
 
 
 def people_scale(poses3d: np.ndarray, min_persons: int = 1) -> tuple[float, int]:
@@ -30,6 +30,4 @@ def people_scale(poses3d: np.ndarray, min_persons: int = 1) -> tuple[float, int]
     if not measured.any():
         return float("nan"), 0
     median = np.nanmedian(lengths[:, measured], axis=0)
-    mean = MEAN_BONE_LENGTHS_M[measured]
-    s = float((mean * median).sum() / (median**2).sum())
-    return s, int(measured.sum())
+    return float(optimal_scale(median, MEAN_BONE_LENGTHS_M[measured])), int(measured.sum())

@@ -1,0 +1,119 @@
+"""A pinhole camera with an OpenCV lens: projection, lens distortion and its inverse.
+
+Arrays in, arrays out; no I/O. Conventions (those of :class:`mvm.core.scene.Cameras`): world ->
+camera ``x_cam = R X + t``, projection matrices ``P = K [R | t]``, pixels of the pinhole camera
+``K`` unless distorted by a lens.
+
+A lens is a vector of OpenCV coefficients: ``[k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[,
+tx, ty]]]]]`` (4, 5, 8, 12 or 14 numbers), or with ``fisheye`` OpenCV's fisheye model ``[k1, k2,
+k3, k4]``. An empty or all-zero vector is no lens: the pixels stay as they are.
+
+Every projection in mvm comes down to :func:`mvm.core.geometry.project` (``P`` matrices); this
+module builds ``P`` from ``K, R, t`` and adds the lens.
+
+>>> K = np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]])
+>>> pixels, depth = project(np.array([0.2, -0.1, 2.0]), K, np.eye(3), np.zeros(3))
+>>> pixels, float(depth)
+(array([60., 35.]), 2.0)
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from mvm.core.geometry import project as project_with_matrices
+
+if TYPE_CHECKING:                                   # scene.py builds its P matrices here
+    from mvm.core.scene import Cameras
+
+#: Stopping rule of OpenCV's iterative undistortion (iterations, change in normalized coordinates).
+UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-8)
+
+
+def projection_matrix(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``P = K [R | t]``. ``K, R: (..., 3, 3)``, ``t: (..., 3)`` -> ``(..., 3, 4)``."""
+    R = np.asarray(R, dtype=float)
+    t = np.asarray(t, dtype=float)
+    return np.asarray(K, dtype=float) @ np.concatenate([R, t[..., :, None]], axis=-1)
+
+
+def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+            distortion: np.ndarray | None = None, fisheye: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points into one camera.
+
+    Args:
+        points: ``(..., 3)`` world coordinates (NaN: missing).
+        K, R, t: ``(3, 3)``, ``(3, 3)``, ``(3,)`` the camera, ``x_cam = R X + t``.
+        distortion: the lens (see the module), or None for a pinhole camera.
+        fisheye: OpenCV's fisheye lens model.
+    Returns:
+        pixels ``(..., 2)`` (distorted by the lens; meaningful where the depth is > 0) and depths
+        ``(...)``: camera z, <= 0 behind the camera. NaN points give NaN.
+    """
+    pixels, depth = project_with_matrices(points, projection_matrix(K, R, t))
+    if distortion is not None:
+        pixels = distort(pixels, K, distortion, fisheye)
+    return pixels, depth
+
+
+def project_views(cameras: Cameras, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points into every view of pinhole ``cameras``.
+
+    ``points: (..., 3)`` -> pixels ``(V, ..., 2)`` and depths ``(V, ...)``.
+    """
+    points = np.asarray(points, dtype=float)
+    P = cameras.P.reshape((len(cameras),) + (1,) * (points.ndim - 1) + (3, 4))
+    return project_with_matrices(points[None], P)
+
+
+def has_lens(distortion: np.ndarray | None) -> bool:
+    """Whether ``distortion`` moves any pixel (not None, not empty, not all zero)."""
+    return distortion is not None and bool(np.any(np.asarray(distortion, dtype=float)))
+
+
+def _finite_rows(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``xy: (..., 2)`` -> the finite points ``(n, 2)`` and their mask ``(...)``."""
+    finite = np.isfinite(xy).all(-1)
+    return xy[finite].reshape(-1, 2), finite
+
+
+def undistort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fisheye: bool = False) -> np.ndarray:
+    """Undo the lens of one camera: distorted pixels ``xy: (..., 2)`` -> ``(..., 2)`` pixels of the
+    pinhole camera ``K: (3, 3)`` (NaN stays NaN). OpenCV's iterative inversion
+    (:data:`UNDISTORT_CRITERIA`)."""
+    xy = np.asarray(xy, dtype=float)
+    if not has_lens(distortion):
+        return xy.copy()
+    distortion = np.asarray(distortion, dtype=float).reshape(-1)
+    points, finite = _finite_rows(xy)
+    out = np.full(xy.shape, np.nan)
+    if len(points):
+        flat = points.reshape(-1, 1, 2)
+        if fisheye:
+            moved = cv2.fisheye.undistortPoints(flat, K, distortion, P=K)
+        else:
+            moved = cv2.undistortPoints(flat, K, distortion, R=None, P=K, criteria=UNDISTORT_CRITERIA)
+        out[finite] = moved.reshape(-1, 2)
+    return out
+
+
+def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fisheye: bool = False) -> np.ndarray:
+    """Apply the lens of one camera (the inverse of :func:`undistort`): pixels of the pinhole
+    camera ``K: (3, 3)``, ``xy: (..., 2)`` -> distorted pixels ``(..., 2)`` (NaN stays NaN)."""
+    xy = np.asarray(xy, dtype=float)
+    if not has_lens(distortion):
+        return xy.copy()
+    distortion = np.asarray(distortion, dtype=float).reshape(-1)
+    points, finite = _finite_rows(xy)
+    out = np.full(xy.shape, np.nan)
+    if len(points):
+        rays = np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.linalg.inv(K).T
+        zero = np.zeros(3)
+        if fisheye:
+            moved, _ = cv2.fisheye.projectPoints(rays.reshape(-1, 1, 3), zero, zero, K, distortion)
+        else:
+            moved, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), zero, zero, K, distortion)
+        out[finite] = moved.reshape(-1, 2)
+    return out
