@@ -4,8 +4,9 @@
 (``os.system``) as it is read. :func:`load_pickle` reads the file the guarded way
 (:func:`mvm.io.checks.read_bytes`: a regular file of bounded size, no FIFO) and unpickles it
 with :class:`RestrictedUnpickler`, which admits only what a pickle of numpy arrays needs:
-``numpy.ndarray``, ``numpy.dtype``, numpy's reconstruct helpers and scalars, and the byte
-encoding helper of Python 2 pickles. Dicts, lists, tuples, strings and numbers need no class.
+``numpy.ndarray``, ``numpy.dtype``, numpy's reconstruct helpers and scalars, sets, complex
+numbers and the byte encoding helper of Python 2 pickles (latin-1 only). Dicts, lists, tuples,
+strings and numbers need no class.
 Anything else is refused in one :class:`InputError` line naming the file and the type.
 
 An array is allocated only as large as the file could fill: a pickle that asks for a
@@ -78,7 +79,8 @@ class RestrictedUnpickler(pickle.Unpickler):
             return codecs.encode(text, "latin-1", errors)
 
         self._allowed = {("numpy", "ndarray"): ndarray, ("numpy", "dtype"): np.dtype,
-                         ("_codecs", "encode"): encode}
+                         ("_codecs", "encode"): encode, ("builtins", "set"): set,
+                         ("builtins", "frozenset"): frozenset, ("builtins", "complex"): complex}
         for package in ("numpy.core", "numpy._core"):
             self._allowed[(f"{package}.multiarray", "_reconstruct")] = reconstruct_array
             self._allowed[(f"{package}.multiarray", "scalar")] = multiarray.scalar
