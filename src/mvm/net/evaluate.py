@@ -59,21 +59,19 @@ def oks(a: np.ndarray, b: np.ndarray, area: float) -> float:
 
 def evaluate_detections(annotations: str | Path, detections: str | Path) -> dict[str, float]:
     """OKS AP of a COCO results file (``[{"image_id", "keypoints", "score"}]``) on a COCO keypoints file."""
-    import json
+    from mvm.io.checks import integer, load_json, number, numbers
 
     ann = read_annotations(annotations)
     path = Path(detections)
-    try:
-        dets = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except (OSError, ValueError) as e:
-        raise InputError(path, None, f"cannot read as JSON: {e}") from None
+    dets = load_json(path)
     if not isinstance(dets, list):
         raise InputError(path, None, "expected a list of detections")
     for i, d in enumerate(dets):
-        if not isinstance(d, dict) or len(d.get("keypoints", ())) != 51 or "image_id" not in d or "score" not in d:
+        if not isinstance(d, dict) or not {"image_id", "keypoints", "score"} <= d.keys():
             raise InputError(path, f"[{i}]", "expected {image_id, keypoints: 51 numbers, score}")
+        integer(d["image_id"], path, f"[{i}].image_id")
+        numbers(d["keypoints"], path, f"[{i}].keypoints", lengths=(51,))
+        number(d["score"], path, f"[{i}].score")
     return oks_ap(ann.document, dets)
 
 
