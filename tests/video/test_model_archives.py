@@ -172,3 +172,9 @@ def test_a_fifo_as_model_is_refused_without_blocking(tmp_path, cache):
     os.mkfifo(tmp_path / "m.zip")
     with pytest.raises(InputError, match="FIFO"):
         resolve_model(SPEC, tmp_path / "m.zip")
+
+
+def test_a_member_without_a_name_is_refused(tmp_path, cache):
+    archive = _zip(tmp_path / "m.zip", [(zipfile.ZipInfo(""), b"x"), ("m.onnx", MODEL)])
+    with pytest.raises(InputError, match="empty name"):
+        resolve_model(SPEC, archive)

@@ -171,9 +171,11 @@ _SPECIAL_MEMBERS = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISCHR, "a charact
 
 
 def _member_problem(info: zipfile.ZipInfo) -> str | None:
-    """Why the zip member ``info`` may not be unpacked, or None: an absolute name, a name with a
-    ``..`` component, a symbolic link, a device or another special file."""
+    """Why the zip member ``info`` may not be unpacked, or None: an empty or absolute name, a name
+    with a ``..`` component, a symbolic link, a device or another special file."""
     name = info.filename
+    if not name.strip("/"):
+        return "an empty name"
     posix = name.replace("\\", "/")
     if "\x00" in name or posix.startswith("/") or _DRIVE.match(posix):
         return "an absolute name (members are unpacked below the cache folder)"
