@@ -7,10 +7,10 @@ import struct
 import numpy as np
 import pytest
 
-from helpers import random_cameras
-
 from mvm.errors import InputError
 from mvm.io.colmap import read_colmap, write_colmap
+
+from helpers import random_cameras
 
 
 @pytest.fixture

@@ -10,15 +10,15 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from mvm.errors import InputError  # noqa: E402
-from mvm.io.images import UndecodableImage, read_image  # noqa: E402
+from mvm.errors import InputError
+from mvm.io.images import UndecodableImage, read_image
 
 BAD = {"empty.jpg": b"", "text.jpg": b"not an image at all", "header.jpg": b"\xff\xd8\xff\xe0\x00\x10JFIF\x00",
        "png_header.png": b"\x89PNG\r\n\x1a\n" + b"\x00" * 8}
 
 
 def _jpeg(path, value=90):
-    ok, buf = cv2.imencode(".jpg", np.full((20, 30, 3), value, np.uint8))
+    buf = cv2.imencode(".jpg", np.full((20, 30, 3), value, np.uint8))[1]
     path.write_bytes(buf.tobytes())
     return path
 
