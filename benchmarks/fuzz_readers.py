@@ -5,7 +5,7 @@ writers, then mutated). A case ends in a valid object or one ``InputError`` line
 else is a crash, listed at the end with the exception and written to ``--crashes`` for
 replay. Exit status 1 if any crash was found.
 
-    python benchmarks/fuzz_readers.py                 # 1,000 cases per reader (15 readers)
+    python benchmarks/fuzz_readers.py                 # 1,000 cases per reader (19 readers)
     python benchmarks/fuzz_readers.py --cases 200 --seed 3
 """
 from __future__ import annotations

@@ -5,19 +5,27 @@ Each reader starts from valid files made by the project's writers (or in the for
 published layout) and hypothesis mutates them: values dropped, retyped, NaN, huge or
 negative, lists cut or lengthened, ids duplicated, text tokens replaced, added or dropped,
 files truncated, bad UTF-8 and NUL bytes, binary COLMAP counts, ids, camera models, image
-sizes and quaternions overwritten. ``benchmarks/fuzz_readers.py`` runs the same cases at
+sizes and quaternions overwritten. Three readers of binary files get their own mutations: 3DPW
+pickles (fields retyped, strings and huge ids in arrays, other protocols, calls of functions
+that must never run), model zips (names that climb out of the cache, absolute names, links,
+devices, lying sizes, many members) and images (truncated, flipped, empty). A model zip must
+never write outside its cache folder. ``benchmarks/fuzz_readers.py`` runs the same cases at
 scale (>= 10,000) and prints the counts.
 """
 from __future__ import annotations
 
 import copy
+import io
 import json
 import math
+import pickle
 import shutil
+import stat
 import struct
 import tempfile
 import traceback
 import warnings
+import zipfile
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -132,7 +140,42 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
     seeds["batch"] = dict(seeds["report"])
     seeds["rig"] = _rig_seeds()
     seeds["status"] = _status_seeds(seeds["report"])
+    seeds["threedpw"] = {"sequenceFiles/test/clip.pkl": pickle.dumps(threedpw_doc(), protocol=2)}
+    seeds["model_zip"] = {"m.zip": model_zip([("20231211/rtmo-s/end2end.onnx", b"onnx bytes " * 50),
+                                              ("20231211/deploy.json", b"{}")])}
+    seeds["image"] = {"frames/a.jpg": _image_bytes(".jpg"), "frames/b.png": _image_bytes(".png")}
     return seeds
+
+
+def threedpw_doc(frames: int = 3, people: int = 2) -> dict:
+    """A 3DPW sequence dict of the published layout (its numbers arbitrary but finite)."""
+    rng = np.random.default_rng(0)
+    cam = np.tile(np.eye(4), (frames, 1, 1))
+    cam[:, 2, 3] = 5.0
+    return {"sequence": "clip", "img_frame_ids": np.arange(frames), "cam_poses": cam,
+            "cam_intrinsics": np.array([[1000.0, 0, 540], [0, 1000.0, 960], [0, 0, 1]]),
+            "jointPositions": [rng.normal(size=(frames, 72)) for _ in range(people)],
+            "poses2d": [rng.uniform(0, 1, size=(frames, 3, 18)) for _ in range(people)],
+            "campose_valid": [np.ones(frames, bool) for _ in range(people)],
+            "betas": [np.zeros(10, np.float32)] * people, "genders": ["m", "f"][:people]}
+
+
+def model_zip(members) -> bytes:
+    """A zip of ``members``: (name or ZipInfo, data)."""
+    buffer = io.BytesIO()
+    with warnings.catch_warnings(), zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as z:
+        warnings.simplefilter("ignore", UserWarning)                  # duplicate names are a case too
+        for name, data in members:
+            z.writestr(name, data)
+    return buffer.getvalue()
+
+
+def _image_bytes(ext: str) -> bytes:
+    import cv2
+
+    image = np.zeros((12, 16, 3), np.uint8)
+    image[3:8, 4:12] = (40, 200, 90)
+    return cv2.imencode(ext, image)[1].tobytes()
 
 
 def _status_seeds(scene: dict[str, bytes]) -> dict[str, bytes]:
@@ -323,10 +366,55 @@ def _rig(root: Path):
     _finite(rig.detections.keypoints[..., :2][rig.detections.keypoints[..., 2] > 0])
 
 
+def _threedpw(root: Path):
+    from mvm.net.threedpw import read_3dpw
+
+    blob = (root / "sequenceFiles" / "test" / "clip.pkl").read_bytes()
+    hostile = any(f"c{module}\n{name}\n".encode() in blob for module, name, _ in HOSTILE_GLOBALS)
+    RAN.unlink(missing_ok=True)
+    try:
+        data = read_3dpw(root)
+    except InputError as e:
+        if hostile and blob.startswith(b"\x80\x02c"):           # the call is the first thing read
+            assert "refusing to load" in str(e), f"a pickle naming a function was not refused by type: {e}"
+        raise
+    finally:
+        assert not RAN.exists(), "a function named by a pickle ran"
+    assert not hostile, "a pickle naming a function was read"
+    _finite(data.joints3d, data.joints2d, data.intrinsics)
+    assert data.joints3d.shape == (len(data), 14, 3) and len(data.images) == len(data)
+    assert all(root in p.parents for p in data.images)
+
+
+def _model_zip(root: Path):
+    from mvm.video.models import onnx_in_zip
+
+    cache = root / "cache"
+    before = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    try:
+        onnx = onnx_in_zip(root / "m.zip", cache / "m")
+        assert onnx.suffix.lower() == ".onnx" and cache / "m" in onnx.resolve().parents and onnx.is_file()
+    finally:
+        after = {p for p in root.rglob("*") if p.is_file() or p.is_symlink()}
+        outside = {p for p in after if cache not in p.parents}
+        assert outside == set(before), f"written or removed outside the cache: {sorted(map(str, outside ^ set(before)))}"
+        assert all(p.read_bytes() == before[p] for p in outside), "a file outside the cache changed"
+        assert not [p for p in after if ".part" in p.name], "a temporary file was left in the cache"
+
+
+def _image(root: Path):
+    from mvm.io.images import read_image
+
+    for name in ("frames/a.jpg", "frames/b.png"):
+        image = read_image(root / name, root=root)
+        assert image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3 and image.size > 0
+
+
 READERS = {"coco": _coco, "colmap_bin": _colmap, "colmap_txt": _colmap, "scene": _scene,
            "openpose": _openpose, "openpifpaf": _openpifpaf, "calib_toml": _calib,
            "trajectory": _trajectory, "panoptic_calib": _panoptic, "trc": _trc, "config": _config,
-           "poses3d": _poses3d, "report": _report, "batch": _batch, "rig": _rig, "status": _status}
+           "poses3d": _poses3d, "report": _report, "batch": _batch, "rig": _rig, "status": _status,
+           "threedpw": _threedpw, "model_zip": _model_zip, "image": _image}
 
 
 # --- mutations ----------------------------------------------------------------------------------
@@ -483,6 +571,91 @@ def mutate_scene_names(draw, files: dict) -> dict:
     return files
 
 
+#: The file a hostile pickle's call creates if it ever runs.
+RAN = Path(tempfile.gettempdir()) / "mvm-fuzz-pickle-ran"
+_TOUCH = f"__import__('pathlib').Path({str(RAN)!r}).touch()"
+#: Functions a hostile pickle calls, with the argument that makes the call leave :data:`RAN`
+#: where it can (the others must be refused by their type all the same).
+HOSTILE_GLOBALS = [("os", "system", f"touch {RAN}"), ("posix", "system", f"touch {RAN}"),
+                   ("subprocess", "getoutput", f"touch {RAN}"), ("builtins", "eval", _TOUCH),
+                   ("builtins", "exec", _TOUCH), ("__builtin__", "eval", _TOUCH), ("builtins", "getattr", "x"),
+                   ("numpy", "load", str(RAN)), ("copyreg", "_reconstructor", "x"), ("builtins", "__import__", "os"),
+                   ("numpy", "frombuffer", "x"), ("_codecs", "decode", "x"), ("numpy.core.multiarray", "x", "x")]
+PICKLE_VALUES = WEIRD + [np.array(["a", "b", "c"]), np.array([0, 1, 10 ** 18]), np.array([1, "x"], dtype=object),
+                         np.full((3, 72), np.nan), np.zeros((3, 4, 4), np.float16), np.zeros((0, 72)),
+                         np.zeros(3, complex), np.array([-1, 0, 1]), "../../../etc", np.float64(2.5), np.int8(3),
+                         np.zeros((3, 3, 18)), {"nested": [np.zeros(2)]}, (1, 2), {1, 2}, b"bytes"]
+
+
+def _hostile_pickle(module: str, name: str, argument: str, wrap: bool) -> bytes:
+    """A protocol-2 pickle that calls ``module.name(argument)``: alone, or as the value of one
+    more key of a valid sequence dict (the call hidden among good fields)."""
+    text = argument.encode()
+    call = f"c{module}\n{name}\n".encode() + b"X" + struct.pack("<I", len(text)) + text + b"\x85R"
+    if not wrap:
+        return b"\x80\x02" + call + b"."
+    body = pickle.dumps(threedpw_doc(), protocol=2)            # ... SETITEMS STOP: the dict on the stack
+    return body[:-1] + b"X\x05\x00\x00\x00extra" + call + b"s."
+
+
+@st.composite
+def mutate_pickle(draw, data: bytes) -> bytes:
+    op = draw(st.sampled_from(["field", "field", "field", "drop", "protocol", "hostile", "hostile", "top"]))
+    doc = threedpw_doc(frames=draw(st.integers(1, 4)), people=draw(st.integers(0, 2)))
+    protocol = draw(st.sampled_from([0, 1, 2, 3, 4, 5]))
+    if op == "hostile":
+        return _hostile_pickle(*draw(st.sampled_from(HOSTILE_GLOBALS)), wrap=draw(st.booleans()))
+    if op == "top":
+        return pickle.dumps(draw(st.sampled_from(PICKLE_VALUES)), protocol=protocol)
+    for _ in range(draw(st.integers(1, 2))):
+        key = draw(st.sampled_from(sorted(doc)))
+        if op == "drop":
+            doc.pop(key, None)
+        elif op == "field":
+            value = draw(st.sampled_from(PICKLE_VALUES))
+            if isinstance(doc[key], list) and doc[key] and draw(st.booleans()):
+                doc[key][draw(st.integers(0, len(doc[key]) - 1))] = value
+            else:
+                doc[key] = value
+    return pickle.dumps(doc, protocol=protocol)
+
+
+#: Zip member names that must never be unpacked where they point.
+ZIP_NAMES = ["../victim.onnx", "a/../../../victim_up.onnx", "/tmp/abs.onnx", "C:/x.onnx", "..\\x.onnx",
+             "sub/../model.onnx", "ok/model.onnx", "model.ONNX", "x.onnx/", "", "a\x00b.onnx", "é.onnx", "m.zip"]
+ZIP_MODES = [0, stat.S_IFREG | 0o644, stat.S_IFLNK | 0o777, stat.S_IFCHR | 0o666, stat.S_IFBLK | 0o666,
+             stat.S_IFIFO | 0o666, stat.S_IFSOCK | 0o666, stat.S_IFDIR | 0o755]
+
+
+@st.composite
+def mutate_zip(draw, data: bytes) -> bytes:
+    op = draw(st.sampled_from(["names", "names", "mode", "many", "sizes", "empty"]))
+    members = [(zipfile.ZipInfo("20231211/rtmo-s/end2end.onnx"), b"onnx bytes " * 50)]
+    if op == "names":
+        for _ in range(draw(st.integers(1, 3))):
+            members.append((zipfile.ZipInfo(draw(st.sampled_from(ZIP_NAMES))), b"evil"))
+        if draw(st.booleans()):
+            members = members[1:]
+    elif op == "mode":
+        info = zipfile.ZipInfo(draw(st.sampled_from(["model.onnx", "link", "dev/x.onnx"])))
+        info.external_attr = draw(st.sampled_from(ZIP_MODES)) << 16
+        members.insert(draw(st.integers(0, 1)), (info, b"/etc/passwd"))
+    elif op == "many":
+        members += [(zipfile.ZipInfo(f"f{i}"), b"") for i in range(draw(st.sampled_from([10, 1001, 1500])))]
+    elif op == "empty":
+        members = []
+    buffer = model_zip(members)
+    if op == "sizes":                          # the declared size of the model, central directory and local header
+        data = bytearray(buffer)
+        size = draw(st.sampled_from([0, 1, 549, 551, 2 ** 32 - 1]))
+        for header, offset in ((b"PK\x01\x02", 24), (b"PK\x03\x04", 22)):
+            if draw(st.booleans()) and header in data:
+                at = data.index(header) + offset
+                data[at:at + 4] = size.to_bytes(4, "little")
+        buffer = bytes(data)
+    return buffer
+
+
 @st.composite
 def cases(draw, reader: str, seeds: dict) -> dict:
     """Mutated files for ``reader``: ``{relative path: bytes}``."""
@@ -497,8 +670,12 @@ def cases(draw, reader: str, seeds: dict) -> dict:
     key = manifest if manifest in files and draw(st.booleans()) else draw(st.sampled_from(sorted(files)))
     data = files[key]
     layer = draw(st.sampled_from(["structure", "structure", "structure", "bytes"]))
-    if layer == "bytes":
+    if layer == "bytes" or key.endswith((".jpg", ".png")):
         files[key] = draw(mutate_bytes(data))
+    elif key.endswith(".pkl"):
+        files[key] = draw(mutate_pickle(data))
+    elif key.endswith(".zip"):
+        files[key] = draw(mutate_zip(data))
     elif key.endswith(".json"):
         files[key] = draw(mutate_json(data))
     elif key.endswith(".bin"):

@@ -19,6 +19,9 @@ def test_evaluate_commands_have_help_and_reject_bad_input(tmp_path):
     bad = runner.invoke(main, ["evaluate", "coco", str(tmp_path / "gt.json"), "--detections", str(tmp_path / "nope.json")])
     assert bad.exit_code == 2 and "nope.json" in bad.output and bad.output.count("\n") == 1
     bad = runner.invoke(main, ["evaluate", "3dpw", str(tmp_path), "--checkpoint", str(tmp_path / "x.pt")])
+    assert bad.exit_code == 2 and "x.pt: file not found" in bad.output and bad.output.count("\n") == 1
+    (tmp_path / "x.pt").write_bytes(b"")
+    bad = runner.invoke(main, ["evaluate", "3dpw", str(tmp_path), "--checkpoint", str(tmp_path / "x.pt")])
     assert bad.exit_code == 2 and "sequenceFiles" in bad.output and bad.output.count("\n") == 1
 
 
@@ -62,3 +65,31 @@ def test_rendered_simulation_exports_and_trains(tmp_path):
                       batch_size=2, steps=1, out_dir=str(tmp_path / "run"), device="cpu", threads=1)
     _, meta = read_checkpoint(train(cfg))
     assert meta["step"] == 1 and meta["losses"]["L_PDF"] > 0                      # depth supervision reached the loss
+
+
+@pytest.mark.parametrize("tau", ["nan", "-0.1", "1.5", "inf"])
+def test_c_var_refuses_a_tau_outside_0_1(tmp_path, tau):
+    result = CliRunner().invoke(main, ["evaluate", "cvar", str(tmp_path), "--tau", tau])
+    assert result.exit_code == 2 and "--tau: expected a confidence threshold in [0, 1]" in result.output
+    assert result.output.count("\n") == 1
+
+
+@pytest.mark.parametrize("change, field", [({"keypoints": [float("nan")] + [1.0] * 50}, r"\[0\].keypoints\[0\]"),
+                                           ({"score": float("inf")}, r"\[0\].score"),
+                                           ({"image_id": "1"}, r"\[0\].image_id"),
+                                           ({"keypoints": [1.0] * 34}, r"\[0\].keypoints: expected 51")])
+def test_evaluate_coco_refuses_a_detection_that_is_not_finite_numbers(tmp_path, change, field):
+    import re
+
+    kp = np.zeros((17, 3))
+    kp[:, 0], kp[:, 1], kp[:, 2] = np.linspace(100, 200, 17), np.linspace(50, 300, 17), 2
+    gt = {"images": [{"id": 1, "file_name": "a.jpg", "width": 400, "height": 400}],
+          "annotations": [{"id": 1, "image_id": 1, "category_id": 1, "keypoints": kp.reshape(-1).tolist()}],
+          "categories": [{"id": 1, "name": "person"}]}
+    (tmp_path / "gt.json").write_text(json.dumps(gt))
+    detection = {"image_id": 1, "keypoints": kp.reshape(-1).tolist(), "score": 0.9, **change}
+    (tmp_path / "dt.json").write_text(json.dumps([detection]))
+    result = CliRunner().invoke(main, ["evaluate", "coco", str(tmp_path / "gt.json"), "--detections",
+                                       str(tmp_path / "dt.json")])
+    assert result.exit_code == 2 and result.output.count("\n") == 1, result.output
+    assert re.search(rf"dt\.json: {field}", result.output), result.output

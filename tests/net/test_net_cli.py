@@ -93,7 +93,13 @@ device = "cpu"
     assert result.exit_code == 0, result.output
     assert (tmp_path / "p" / "predictions.json").is_file()
     result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(tmp_path / "missing.pt")])
+    assert result.exit_code == 2 and "missing.pt: file not found" in result.output
+    (tmp_path / "missing.pt").write_bytes(b"")
+    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(tmp_path / "missing.pt")])
     assert result.exit_code == 2 and "missing.json: checkpoint metadata not found" in result.output
+    (tmp_path / "empty.png").write_bytes(b"")
+    result = CliRunner().invoke(predict_cmd, [str(tmp_path / "empty.png"), "--checkpoint", str(ckpt)])
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and "empty.png: empty file" in result.output
 
 
 def test_parse_sets():

@@ -140,3 +140,109 @@ def test_evaluate_3dpw_matches_detections_to_people(tmp_path, monkeypatch):
     result = net_evaluate.evaluate_3dpw(Model(), data)
     assert result["PA_MPJPE_mm"] == pytest.approx(0.0, abs=1e-6)
     assert (result["tracks"], result["poses"], result["missed"], result["images"]) == (2, 4, 0, 2)
+
+
+# --- hostile files ------------------------------------------------------------------------------
+
+class _Runs:
+    """Unpickled as a call of ``os.system``: what a hostile data file would run."""
+
+    def __init__(self, command):
+        self.command = command
+
+    def __reduce__(self):
+        import os
+
+        return os.system, (self.command,)
+
+
+def _valid_doc(rng, n_frames=3):
+    X, cam, p2d, _ = _clip(rng, n_frames, 1)
+    return {"sequence": "clip", "img_frame_ids": np.arange(n_frames), "cam_poses": cam, "cam_intrinsics": K,
+            "jointPositions": [X[0].reshape(n_frames, 72)], "poses2d": [p2d[0]],
+            "campose_valid": [np.ones(n_frames, bool)]}
+
+
+@pytest.mark.parametrize("protocol", [0, 2, 4, 5])
+def test_a_pickle_that_calls_a_function_is_refused_unrun(tmp_path, protocol):
+    marker = tmp_path / "ran"
+    doc = _valid_doc(np.random.default_rng(0))
+    doc["betas"] = [_Runs(f"touch {marker}")]                      # hidden in a valid sequence dict
+    folder = tmp_path / "sequenceFiles" / "test"
+    folder.mkdir(parents=True)
+    (folder / "clip.pkl").write_bytes(pickle.dumps(doc, protocol=protocol))
+    with pytest.raises(InputError, match=r"clip\.pkl: refusing to load (posix|os)\.system") as e:
+        read_3dpw(tmp_path)
+    assert "\n" not in str(e.value) and not marker.exists()
+
+
+@pytest.mark.parametrize("protocol", [0, 2, 5])
+def test_every_numpy_type_of_a_real_sequence_file_is_read(tmp_path, protocol):
+    rng = np.random.default_rng(1)
+    doc = _valid_doc(rng)
+    doc.update(betas=[np.float32(rng.normal(size=10))], genders=np.array(["m"]), scale=np.float64(2.0),
+               trans=[np.asfortranarray(rng.normal(size=(3, 3)))], texture_maps=("a", b"b", {1, 2}))
+    path = tmp_path / "clip.pkl"
+    path.write_bytes(pickle.dumps(doc, protocol=protocol))
+    data = read_sequence(path)
+    assert len(data) == 3 and data.clip[0] == "clip"
+
+
+@pytest.mark.parametrize("change, field", [
+    ({"img_frame_ids": np.array([0, 1, 10 ** 30], dtype=object)}, "img_frame_ids"),
+    ({"img_frame_ids": np.array([0, 1, -2])}, "img_frame_ids"),
+    ({"img_frame_ids": ["a", "b", "c"]}, "img_frame_ids"),
+    ({"cam_intrinsics": np.array([["a"] * 3] * 3)}, "cam_intrinsics"),
+    ({"cam_poses": np.full((3, 4, 4), np.nan)}, "cam_poses"),
+    ({"jointPositions": [np.array([["x"] * 72] * 3)]}, r"jointPositions\[0\]"),
+    ({"poses2d": 7}, "poses2d"),
+    ({"sequence": "../../outside"}, "sequence"),
+    ({"campose_valid": [["yes"] * 3]}, r"campose_valid\[0\]"),
+])
+def test_bad_values_are_one_line(tmp_path, change, field):
+    doc = {**_valid_doc(np.random.default_rng(2)), **change}
+    path = tmp_path / "clip.pkl"
+    path.write_bytes(pickle.dumps(doc, protocol=2))
+    with pytest.raises(InputError, match=rf"clip\.pkl: {field}: ") as e:
+        read_sequence(path)
+    assert "\n" not in str(e.value)
+
+
+def test_an_array_larger_than_its_file_is_refused_unallocated(tmp_path):
+    # _reconstruct(ndarray, (2**40,), b'b'): a terabyte asked for before any data is read
+    hostile = (b"\x80\x02cnumpy.core.multiarray\n_reconstruct\ncnumpy\nndarray\n"
+               b"\x8a\x06\x00\x00\x00\x00\x00\x01\x85C\x01b\x87R.")
+    path = tmp_path / "big.pkl"
+    path.write_bytes(hostile)
+    with pytest.raises(InputError, match="more than the file holds"):
+        read_sequence(path)
+
+
+def test_a_fifo_is_refused_without_blocking(tmp_path):
+    import os
+
+    folder = tmp_path / "sequenceFiles" / "test"
+    folder.mkdir(parents=True)
+    os.mkfifo(folder / "clip.pkl")
+    with pytest.raises(InputError, match="FIFO"):
+        read_3dpw(tmp_path)
+
+
+def test_the_checkpoint_is_checked_before_the_data_set_is_read(tmp_path):
+    import os
+
+    from click.testing import CliRunner
+
+    from mvm.cli.main import main
+
+    marker = tmp_path / "ran"
+    folder = tmp_path / "sequenceFiles" / "test"
+    folder.mkdir(parents=True)
+    (folder / "clip.pkl").write_bytes(pickle.dumps(_Runs(f"touch {marker}"), protocol=2))
+    os.mkfifo(tmp_path / "model.pt")
+    for checkpoint, problem in (("missing.pt", "file not found"), ("model.pt", "FIFO")):
+        result = CliRunner().invoke(main, ["evaluate", "3dpw", str(tmp_path), "--checkpoint",
+                                           str(tmp_path / checkpoint)])
+        assert result.exit_code == 2 and problem in result.output and "Traceback" not in result.output
+    result = CliRunner().invoke(main, ["evaluate", "3dpw", str(tmp_path), "--checkpoint", str(folder / "clip.pkl")])
+    assert result.exit_code == 2 and "refusing to load" in result.output and not marker.exists()

@@ -125,3 +125,21 @@ def test_overlay_command(scene_dir, tmp_path):
     assert len(list((tmp_path / "o").glob("*.jpg"))) == 2
     bad = CliRunner().invoke(overlay_cmd, [str(tmp_path / "nothing")])
     assert bad.exit_code == 2 and "mvm: error:" in bad.output
+
+
+def test_an_empty_or_undecodable_frame_is_drawn_on_neutral_with_a_warning(scene_dir, tmp_path, caplog):
+    import logging
+    import shutil
+
+    copy = tmp_path / "badframes"
+    shutil.copytree(scene_dir, copy)
+    names = read_scene(copy).cameras.names
+    (copy / "frames").mkdir()
+    (copy / "frames" / names[0]).write_bytes(b"")
+    (copy / "frames" / names[1]).write_bytes(b"\xff\xd8\xff\xe0 not a jpeg")
+    with caplog.at_level(logging.WARNING):
+        summary = write_overlays(copy, tmp_path / "ov", step=1, image_format=".png")
+    assert summary.frames == len(names)
+    assert names[0] in caplog.text and names[1] in caplog.text
+    first = cv2.imread(str(tmp_path / "ov" / "frame_00000.png"))
+    assert (first[5, 5] == NEUTRAL_BGR).all()

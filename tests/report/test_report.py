@@ -236,3 +236,33 @@ def test_report_command(scene_dir, tmp_path):
     assert "report.html" in result.output
     bad = CliRunner().invoke(report_cmd, [str(tmp_path / "nowhere")])
     assert bad.exit_code == 2 and "mvm: error:" in bad.output
+
+
+@pytest.mark.parametrize("key, value", [("timings_s", "fast"), ("timings_s", [1, 2]), ("metrics", "good")])
+def test_a_metrics_or_timings_field_of_the_wrong_type_is_one_line(scene_dir, tmp_path, key, value):
+    import shutil
+
+    copy = tmp_path / "scene"
+    shutil.copytree(scene_dir, copy)
+    path = copy / "mvm" / "poses3d.json"
+    document = json.loads(path.read_text())
+    document[key] = value
+    path.write_text(json.dumps(document))
+    with pytest.raises(InputError, match=rf"poses3d\.json: {key}: expected an object") as e:
+        write_report(copy, frames=1)
+    assert "\n" not in str(e.value)
+
+
+def test_timings_that_are_not_finite_numbers_are_left_out(scene_dir, tmp_path):
+    import shutil
+
+    from mvm.report.load import load_result
+
+    copy = tmp_path / "scene"
+    shutil.copytree(scene_dir, copy)
+    path = copy / "mvm" / "poses3d.json"
+    document = json.loads(path.read_text())
+    document["timings_s"] = {"a_s": 1.5, "b_s": "x", "c_s": 10 ** 400, "d_s": True, "e_s": None}
+    path.write_text(json.dumps(document))
+    assert load_result(copy).timings == {"a_s": 1.5}
+    write_report(copy, frames=1)

@@ -43,3 +43,35 @@ def test_too_short_and_bad_cutoff_are_refused():
         filtfilt(b, a, np.zeros((9, 3)))
     with pytest.raises(ValueError, match="cut-off"):
         butter_lowpass(2, 1.0)
+
+
+@pytest.mark.parametrize("order", [1, 2, 3, 4, 6, 8])
+def test_at_the_lowest_cut_off_a_constant_series_is_kept(order):
+    from mvm.rig.filters import min_cutoff
+
+    x = np.full((400, 3), 5.0)
+    b, a = butter_lowpass(order, min_cutoff(order))
+    assert np.abs(filtfilt(b, a, x) - x).max() < 1e-6 * 5.0
+    with pytest.raises(ValueError, match="reliable"):
+        butter_lowpass(order, min_cutoff(order) / 2)
+
+
+@pytest.mark.parametrize("sets, field", [(["--frame-rate", "1e12"], "frame_rate"),
+                                         (["--rig-set", "cutoff_hz=1e-9"], "cutoff_hz"),
+                                         (["--rig-set", "cutoff_hz=1e-3", "--rig-set", "filter_order=16"], "cutoff_hz")])
+def test_a_cut_off_the_filter_cannot_reach_is_one_line_naming_the_setting(tmp_path, sets, field):
+    from click.testing import CliRunner
+
+    from mvm.cli.main import main
+
+    result = CliRunner().invoke(main, ["rig", "reconstruct", str(tmp_path), *sets])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and f"{field}: a cut-off of" in lines[0], result.output
+
+
+def test_savgol_smoothing_has_no_cut_off_to_check(tmp_path):
+    from mvm.rig.options import RigOptions
+    from mvm.rig.pipeline import check_smoothing
+
+    check_smoothing(RigOptions(smoothing="savgol", frame_rate=1e12))
+    check_smoothing(RigOptions(frame_rate=30.0, cutoff_hz=0.01))

@@ -282,3 +282,18 @@ def test_normalize_is_per_channel_mean_and_deviation_channels_first():
     got = normalize(crops, mean, std)
     assert got.shape == (2, 3, 8, 6) and got.dtype == np.float32
     assert np.allclose(got, want, atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [[1, 10], [1, 1, 640, 640]])
+def test_a_model_without_an_image_input_is_one_line(tmp_path, shape):
+    import onnx
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph([helper.make_node("Identity", ["input"], ["dets"]),
+                               helper.make_node("Identity", ["input"], ["keypoints"])], "g",
+                              [helper.make_tensor_value_info("input", TensorProto.FLOAT, shape)],
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in ("dets", "keypoints")])
+    path = tmp_path / "flat.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), path)
+    with pytest.raises(InputError, match=r"flat\.onnx: expected an image input \(batch, 3, height, width\)"):
+        Rtmo(path)

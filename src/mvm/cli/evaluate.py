@@ -68,9 +68,11 @@ def _load(checkpoint: Path, device: str, input_size: int | None):
 def threedpw_cmd(root: Path, checkpoint: Path, split: str, min_visible: int, max_images: int | None,
                  input_size: int | None, device: str, label: str, out: Path | None) -> None:
     """Table 3: PA-MPJPE on 3DPW (ROOT holds sequenceFiles/ and imageFiles/)."""
+    from mvm.io.checks import check_input_file
     from mvm.net.evaluate import evaluate_3dpw
     from mvm.net.threedpw import read_3dpw
 
+    check_input_file(checkpoint)                         # a missing checkpoint is said before the data set is read
     data = read_3dpw(root, split)
     model, size = _load(checkpoint, device, input_size)
     result = evaluate_3dpw(model, data, size, min_visible=min_visible, max_images=max_images)

@@ -28,6 +28,9 @@ def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 
     Returns:
         ``{"C_var": {tau: mean or None}, "scenes": {name: {tau: value or None}}, "missing": {…}}``.
     """
+    for tau in taus:
+        if not 0.0 <= tau <= 1.0:                        # NaN fails this too
+            raise InputError(None, "--tau", f"expected a confidence threshold in [0, 1], got {tau}")
     per_scene, missing = {}, {}
     for scene_dir in map(Path, scene_dirs):
         poses3d = scene_dir / output_name / "poses3d.json"

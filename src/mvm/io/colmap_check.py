@@ -65,6 +65,9 @@ class _Model:
     image_ids: set = field(default_factory=set)
     names: dict = field(default_factory=dict)
     points2d: dict = field(default_factory=dict)        # image id -> number of 2D points
+    rig_sensors: dict = field(default_factory=dict)     # rig id -> {(sensor type, sensor id)}
+    frames: Path | None = None                           # the frames file, once read
+    frame_images: dict = field(default_factory=dict)    # image id -> (record in frames, camera id)
 
 
 def model_files(model_dir: str | Path) -> tuple[str, dict[str, bytes]]:
@@ -97,6 +100,9 @@ def check_model(model_dir: str | Path, files: tuple[str, dict[str, bytes]] | Non
         have, need = ("rigs", "frames") if rigs else ("frames", "rigs")
         raise InputError(model_dir / f"{need}.{ext}", None,
                          f"missing: a model with {have}.{ext} (COLMAP 3.12 layout) needs {need}.{ext} too")
+    for image_id, (where, _) in model.frame_images.items():
+        if image_id not in model.image_ids:
+            raise InputError(model.frames, where, f"image {image_id} is not in images.{ext}")
     return ext
 
 
@@ -155,6 +161,14 @@ def _image(model: _Model, path, where, image_id, pose, camera_id, name) -> None:
         raise InputError(path, where, problem)
     if name in model.names:
         raise InputError(path, where, f"duplicate image name {name!r}")
+    if model.frames is not None:
+        if image_id not in model.frame_images:
+            raise InputError(path, where, f"image {image_id} ({name}) is in no frame of {model.frames.name} "
+                                          "(every image of a COLMAP 3.12 model belongs to a frame)")
+        frame, sensor = model.frame_images[image_id]
+        if sensor != camera_id:
+            raise InputError(path, where, f"image {image_id} ({name}) has camera {camera_id}, its frame "
+                                          f"({model.frames.name}, {frame}) lists it under camera {sensor}")
     model.image_ids.add(image_id)
     model.names[name] = image_id
 
@@ -162,6 +176,21 @@ def _image(model: _Model, path, where, image_id, pose, camera_id, name) -> None:
 def _sensor_type(path, where, value) -> None:
     if value not in SENSOR_TYPES.values():
         raise InputError(path, where, f"unknown sensor type {value}")
+
+
+def _frame(model: _Model, path, where, rig_id, data_ids) -> None:
+    """One frame's ``data_ids``: (sensor type, sensor id, data id); every sensor is one of its
+    rig's, and each camera's data id (an image id) is recorded for the images to be checked."""
+    sensors = model.rig_sensors.get(rig_id)
+    names = {v: k for k, v in SENSOR_TYPES.items()}
+    for sensor_type, sensor_id, data_id in data_ids:
+        if sensors is not None and (sensor_type, sensor_id) not in sensors:
+            raise InputError(path, where, f"sensor {names.get(sensor_type, sensor_type)} {sensor_id} is not "
+                                          f"in rig {rig_id}")
+        if sensor_type == SENSOR_TYPES["CAMERA"]:
+            if data_id in model.frame_images:
+                raise InputError(path, where, f"image {data_id} is in two frames")
+            model.frame_images[data_id] = (where, sensor_id)
 
 
 # --- binary --------------------------------------------------------------------------------
@@ -220,13 +249,17 @@ def _rigs_bin(data, path, model: _Model) -> None:
         if rig_id in model.rig_ids:
             raise InputError(path, r.record, f"duplicate rig id {rig_id}")
         model.rig_ids.add(rig_id)
+        sensors = model.rig_sensors[rig_id] = set()
         if n_sensors > 0:
-            _sensor_type(path, r.record, r.take("iI")[0])
+            ref = r.take("iI")
+            _sensor_type(path, r.record, ref[0])
+            sensors.add(ref)
         if max(n_sensors - 1, 0) * 9 > len(data) - r.offset:
             raise InputError(path, r.record, f"cannot read COLMAP model: {n_sensors} sensors do not fit in the file")
         for _ in range(max(n_sensors - 1, 0)):
-            sensor_type, _, has_pose = r.take("iIB")
+            sensor_type, sensor_id, has_pose = r.take("iIB")
             _sensor_type(path, r.record, sensor_type)
+            sensors.add((sensor_type, sensor_id))
             if has_pose:
                 _pose(path, r.record, r.take("7d"))
     r.done()
@@ -248,6 +281,7 @@ def _cameras_bin(data, path, model: _Model) -> None:
 
 def _frames_bin(data, path, model: _Model) -> None:
     r = _Reader(data, path)
+    model.frames = path
     for i in range(r.count(64, "frames")):
         r.record = f"frames[{i}]"
         _, rig_id = r.take("II")
@@ -257,8 +291,10 @@ def _frames_bin(data, path, model: _Model) -> None:
         (n_data,) = r.take("I")
         if n_data * 16 > len(data) - r.offset:
             raise InputError(path, r.record, f"cannot read COLMAP model: {n_data} data ids do not fit in the file")
-        for _ in range(n_data):
-            _sensor_type(path, r.record, r.take("iIQ")[0])
+        data_ids = [r.take("iIQ") for _ in range(n_data)]
+        for sensor_type, _, _ in data_ids:
+            _sensor_type(path, r.record, sensor_type)
+        _frame(model, path, r.record, rig_id, data_ids)
     r.done()
 
 
@@ -361,17 +397,18 @@ def _rigs_txt(data, path, model: _Model) -> None:
             raise InputError(path, where, "expected RIG_ID NUM_SENSORS …")
         rig_id, n_sensors = _ints(tokens[:2], path, where)
         expected, k = 2, 2
+        sensors = set()
         if n_sensors > 0:
             expected += 2
             if len(tokens) >= 4:
                 _sensor(tokens[2], path, where)
-                _ints(tokens[3:4], path, where)
+                sensors.add((SENSOR_TYPES[tokens[2]], *_ints(tokens[3:4], path, where)))
             k = 4
         for _ in range(max(n_sensors - 1, 0)):
             if len(tokens) < k + 3:
                 raise InputError(path, where, f"{n_sensors} sensors announced, the line ends before them")
             _sensor(tokens[k], path, where)
-            _ints(tokens[k + 1:k + 2], path, where)
+            sensors.add((SENSOR_TYPES[tokens[k]], *_ints(tokens[k + 1:k + 2], path, where)))
             has_pose = tokens[k + 2] == "1"
             if has_pose:
                 if len(tokens) < k + 10:
@@ -384,6 +421,7 @@ def _rigs_txt(data, path, model: _Model) -> None:
         if rig_id in model.rig_ids:
             raise InputError(path, where, f"duplicate rig id {rig_id}")
         model.rig_ids.add(rig_id)
+        model.rig_sensors[rig_id] = sensors
 
 
 def _cameras_txt(data, path, model: _Model) -> None:
@@ -401,6 +439,7 @@ def _cameras_txt(data, path, model: _Model) -> None:
 
 
 def _frames_txt(data, path, model: _Model) -> None:
+    model.frames = path
     for number, tokens in _lines(data, path):
         where = f"line {number}"
         if len(tokens) < 10:
@@ -411,12 +450,15 @@ def _frames_txt(data, path, model: _Model) -> None:
         n_data, = _ints(tokens[9:10], path, where)
         if len(tokens) != 10 + 3 * n_data:
             raise InputError(path, where, f"{n_data} data ids need {10 + 3 * n_data} values, got {len(tokens)}")
+        data_ids = []
         for k in range(n_data):
             _sensor(tokens[10 + 3 * k], path, where)
-            _ints(tokens[11 + 3 * k:12 + 3 * k], path, where)
-            _ints(tokens[12 + 3 * k:13 + 3 * k], path, where, 0, 2 ** 64)
+            sensor_id, = _ints(tokens[11 + 3 * k:12 + 3 * k], path, where)
+            data_id, = _ints(tokens[12 + 3 * k:13 + 3 * k], path, where, 0, 2 ** 64)
+            data_ids.append((SENSOR_TYPES[tokens[10 + 3 * k]], sensor_id, data_id))
         if model.rig_ids and rig_id not in model.rig_ids:
             raise InputError(path, where, f"rig {rig_id} is not in rigs")
+        _frame(model, path, where, rig_id, data_ids)
 
 
 def _images_txt(data, path, model: _Model) -> None:

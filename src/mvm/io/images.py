@@ -29,10 +29,20 @@ def read_image(path: str | Path, root: str | Path | None = None, flags: int | No
     if missing_ok and not (Path(path).exists() or Path(path).is_symlink()):
         return None
     data = read_bytes(path, root, limit=MAX_IMAGE_BYTES)
-    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR if flags is None else flags)
-    if image is None:
+    if not data:
+        raise UndecodableImage(path, None, "empty file (0 bytes), not an image")
+    try:
+        image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR if flags is None else flags)
+    except cv2.error as e:                                 # a header OpenCV rejects outright
+        raise UndecodableImage(path, None, f"not an image OpenCV can decode ({_first_line(e)})") from None
+    if image is None or image.size == 0:
         raise UndecodableImage(path, None, "not an image OpenCV can decode")
     return image
+
+
+def _first_line(error: Exception) -> str:
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    return lines[-1][:120] if lines else type(error).__name__
 
 
 def check_frames(frames_dir: str | Path, names, root: str | Path) -> None:

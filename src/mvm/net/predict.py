@@ -16,6 +16,7 @@ import torch
 
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.errors import InputError
+from mvm.io.checks import check_input_file
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.net.checkpoints import read_checkpoint
 from mvm.net.data import load_image
@@ -31,8 +32,9 @@ PREDICTIONS_FORMAT = "mvm.net.predictions/1"
 
 
 def load_model(checkpoint: str | Path, use_ema: bool = True, device: str = "cpu") -> tuple[PoseNet, dict]:
-    """Rebuild the network of a checkpoint; the EMA weights by default. -> (model in eval mode, metadata)."""
-    state, meta = read_checkpoint(checkpoint)
+    """Rebuild the network of a checkpoint; the EMA weights by default. -> (model in eval mode, metadata).
+    A checkpoint that is not a regular file of bounded size (a FIFO, a folder) is refused unread."""
+    state, meta = read_checkpoint(check_input_file(checkpoint))
     try:
         spec = ModelSpec.from_dict(meta["model"])
         model = PoseNet(spec)

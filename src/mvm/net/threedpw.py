@@ -16,13 +16,14 @@ joints, the neck, the head) in the camera frame.
 """
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.paths import name_problem
+from mvm.io.safe_pickle import load_pickle
 
 #: SMPL joint of each of the 14 common joints (``COMMON14_NAMES`` order): shoulders 16/17,
 #: elbows 18/19, wrists 20/21, hips 1/2, knees 4/5, ankles 7/8, neck 12, head 15.
@@ -62,39 +63,66 @@ class ThreeDPWPoses:
         return self.joints2d[..., 2] > 0
 
 
+#: The largest image index a clip may name (``image_%05d.jpg``; a clip is minutes at 30 fps).
+MAX_FRAME_ID = 10 ** 9
+
+
 def _field(doc: dict, name: str, path: Path):
     if name not in doc:
         raise InputError(path, name, "missing (not a 3DPW sequence file)")
     return doc[name]
 
 
+def _numbers(value, path: Path, name: str, dtype=float) -> np.ndarray:
+    """``value`` as a finite float (or integer) array; text, objects and non-finite numbers
+    raise InputError naming the field."""
+    try:
+        a = np.asarray(value)
+        if a.dtype.kind not in "biuf":
+            raise TypeError(f"{a.dtype}")
+        a = a.astype(float)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(path, name, "expected numbers") from None
+    if not np.isfinite(a).all():
+        raise InputError(path, name, "not finite (NaN or infinite values)")
+    if dtype is int:
+        if (a != np.round(a)).any() or (a < 0).any() or (a > MAX_FRAME_ID).any():
+            raise InputError(path, name, f"expected image indices (integers from 0 to {MAX_FRAME_ID})")
+        return a.astype(np.int64)
+    return a
+
+
 def _array(value, shape_tail: tuple, path: Path, name: str) -> np.ndarray:
-    a = np.asarray(value, dtype=float)
+    a = _numbers(value, path, name)
     if a.ndim != len(shape_tail) + 1 or a.shape[1:] != shape_tail:
         raise InputError(path, name, f"expected shape (N, {', '.join(map(str, shape_tail))}), got {a.shape}")
     return a
 
 
+def _persons(doc: dict, name: str, path: Path) -> list:
+    value = _field(doc, name, path)
+    if not isinstance(value, (list, tuple, np.ndarray)):
+        raise InputError(path, name, f"expected one entry per person, got {type(value).__name__}")
+    return list(value)
+
+
 def read_sequence(path: str | Path, images_dir: str | Path | None = None) -> ThreeDPWPoses:
     """Read one clip's ``.pkl``; images are looked for in ``images_dir`` (default:
-    ``ROOT/imageFiles/<clip>`` of the published layout)."""
+    ``ROOT/imageFiles/<clip>`` of the published layout). The pickle is read by
+    :func:`mvm.io.safe_pickle.load_pickle` (numpy arrays and plain containers only, no code)."""
     path = Path(path)
-    try:
-        with path.open("rb") as f:
-            doc = pickle.load(f, encoding="latin1")
-    except FileNotFoundError:
-        raise InputError(path, None, "file not found") from None
-    except Exception as e:
-        raise InputError(path, None, f"not a 3DPW pickle: {e}") from None
+    doc = load_pickle(path, encoding="latin1")
     if not isinstance(doc, dict):
         raise InputError(path, None, f"expected a dict, got {type(doc).__name__}")
-    name = str(_field(doc, "sequence", path))
-    frames = np.asarray(_field(doc, "img_frame_ids", path), dtype=int).reshape(-1)
+    name = _field(doc, "sequence", path)
+    if not isinstance(name, str) or name_problem(name) or "/" in name or "\\" in name:
+        raise InputError(path, "sequence", f"expected a clip name (one folder name), got {str(name)[:40]!r}")
+    frames = _numbers(_field(doc, "img_frame_ids", path), path, "img_frame_ids", dtype=int).reshape(-1)
     cam = _array(_field(doc, "cam_poses", path), (4, 4), path, "cam_poses")
-    K = np.asarray(_field(doc, "cam_intrinsics", path), dtype=float)
+    K = _numbers(_field(doc, "cam_intrinsics", path), path, "cam_intrinsics")
     if K.shape != (3, 3):
         raise InputError(path, "cam_intrinsics", f"expected shape (3, 3), got {K.shape}")
-    joints, poses2d, valid = (_field(doc, k, path) for k in ("jointPositions", "poses2d", "campose_valid"))
+    joints, poses2d, valid = (_persons(doc, k, path) for k in ("jointPositions", "poses2d", "campose_valid"))
     if not (len(joints) == len(poses2d) == len(valid)):
         raise InputError(path, "jointPositions", "jointPositions, poses2d and campose_valid differ in persons")
     n = len(frames)
@@ -106,7 +134,7 @@ def read_sequence(path: str | Path, images_dir: str | Path | None = None) -> Thr
     for p in range(len(joints)):
         X = _array(joints[p], (72,), path, f"jointPositions[{p}]").reshape(-1, 24, 3)
         x2 = _array(poses2d[p], (3, 18), path, f"poses2d[{p}]").transpose(0, 2, 1)
-        ok = np.asarray(valid[p], dtype=bool).reshape(-1)
+        ok = _numbers(valid[p], path, f"campose_valid[{p}]").astype(bool).reshape(-1)
         if not (len(X) == len(x2) == len(ok) == n):
             raise InputError(path, f"jointPositions[{p}]", f"expected {n} frames in every per-person field")
         Xc = np.einsum("nij,nkj->nki", cam[:, :3, :3], X[:, SMPL_TO_COMMON14]) + cam[:, None, :3, 3]

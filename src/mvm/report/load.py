@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,6 +72,27 @@ def read_truth(path: Path, annotation_ids: np.ndarray) -> tuple[GroundTruth, np.
     return truth, truth.person[ids - 1].astype(np.int64)
 
 
+def _object(document: dict, key: str, path: Path) -> dict:
+    """``document[key]``: an object, or empty when absent or null; anything else is an InputError."""
+    value = document.get(key)
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise InputError(path, key, f"expected an object, got {type(value).__name__}")
+    return value
+
+
+def _seconds(value) -> float | None:
+    """A duration of ``timings_s`` as a finite float, or None for anything else (not shown)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        value = float(value)
+    except OverflowError:
+        return None
+    return value if math.isfinite(value) else None
+
+
 def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
     """Read a reconstructed scene directory (and its ground truth when one lies beside it)."""
     path = Path(scene_dir)
@@ -80,8 +102,9 @@ def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
         raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
     document = load_poses3d_document(poses3d, root=path)
     persons = parse_poses3d(document, poses3d, scene.poses)
-    metrics = document.get("metrics") or {}
-    timings = document.get("timings_s") or {}
+    metrics = _object(document, "metrics", poses3d)
+    timings = {k: t for k, t in ((k, _seconds(v)) for k, v in _object(document, "timings_s", poses3d).items())
+               if t is not None}
     truth = true_person = None
     gt = truth_path(path)
     if gt.is_file():

@@ -27,7 +27,11 @@ def _metrics(poses3d: Path) -> dict | None:
     except InputError as e:
         log.warning("%s", e)
         return None
-    return document.get("metrics") if isinstance(document, dict) else None
+    metrics = document.get("metrics") if isinstance(document, dict) else None
+    if metrics is not None and not isinstance(metrics, dict):
+        log.warning("%s: metrics: expected an object, got %s; not shown", poses3d, type(metrics).__name__)
+        return None
+    return metrics
 
 
 def _cell(value, digits: int) -> str:

@@ -14,13 +14,27 @@ from __future__ import annotations
 import numpy as np
 
 
+def min_cutoff(order: int) -> float:
+    """The lowest cut-off (a fraction of the Nyquist frequency) at which a Butterworth low-pass of
+    ``order`` is computed reliably in double precision: ``10 ** (-9 / order)``.
+
+    As the cut-off ``wn`` falls, the poles crowd towards 1 and the steady-state system of
+    :func:`filtfilt` gets singular: the error on a constant series grows like ``wn ** -order``
+    (measured: 5e-10 at order 2 and wn 1e-4, 1e-5 at order 4 and wn 1e-3, a singular matrix at
+    wn 1e-11). At this bound it stays near 1e-8 of the signal for every order up to 8."""
+    return 10.0 ** (-9.0 / order)
+
+
 def butter_lowpass(order: int, wn: float) -> tuple[np.ndarray, np.ndarray]:
     """Digital Butterworth low-pass of ``order`` with cut-off ``wn`` (a fraction of the Nyquist
-    frequency, in (0, 1)) -> ``(b: (order + 1,), a: (order + 1,))``, ``a[0] == 1``."""
-    if not 0 < wn < 1:
-        raise ValueError(f"butter_lowpass: the cut-off must be in (0, 1) of the Nyquist frequency, got {wn}")
+    frequency, in [:func:`min_cutoff`, 1)) -> ``(b: (order + 1,), a: (order + 1,))``, ``a[0] == 1``."""
     if order < 1:
         raise ValueError(f"butter_lowpass: the order must be >= 1, got {order}")
+    if not 0 < wn < 1:
+        raise ValueError(f"butter_lowpass: the cut-off must be in (0, 1) of the Nyquist frequency, got {wn}")
+    if wn < min_cutoff(order):
+        raise ValueError(f"butter_lowpass: a cut-off of {wn:.3g} of the Nyquist frequency is below the "
+                         f"{min_cutoff(order):.3g} an order-{order} filter is reliable at")
     warped = 4.0 * np.tan(np.pi * wn / 2.0)                            # prewarped cut-off, sampling rate 2
     analog = warped * -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))   # (order,) poles
     poles = (4.0 + analog) / (4.0 - analog)                                           # bilinear transform

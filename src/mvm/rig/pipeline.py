@@ -14,16 +14,18 @@ from mvm.core.completion import FLAG_NAMES, INFERRED, MISSING, OBSERVED, complet
 from mvm.core.config import Config
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
+from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
+from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.outputs import replace_output_set
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
 from mvm.rig.skeleton import refine_tracks
-from mvm.rig.tracking import smooth_tracks, track_persons, track_series
+from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +198,24 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     return tracking, persons, X, flags
 
 
+def check_smoothing(options: RigOptions) -> None:
+    """Refuse, with an :class:`InputError` naming the setting, a Butterworth cut-off so small a
+    fraction of the frame rate's Nyquist frequency that the filter cannot be computed
+    (:func:`mvm.rig.filters.min_cutoff`): a frame rate of 1e12 Hz, a cut-off of 1e-9 Hz."""
+    if options.smoothing != "butterworth":
+        return
+    nyquist = options.frame_rate / 2
+    order = butterworth_order(options.filter_order)
+    lowest = min_cutoff(order) * nyquist
+    if not options.cutoff >= lowest:
+        field = "cutoff_hz" if options.cutoff_hz is not None else "frame_rate"
+        raise InputError(None, field, f"a cut-off of {options.cutoff:.3g} Hz at a frame rate of "
+                                      f"{options.frame_rate:.3g} Hz is below the {lowest:.3g} Hz the Butterworth "
+                                      f"filter of filter_order {options.filter_order} can be computed at "
+                                      f"({min_cutoff(order):.2g} of the Nyquist frequency): raise cutoff_hz, lower "
+                                      "frame_rate or filter_order, or use smoothing = savgol")
+
+
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
                     calib: str | Path | None = None, frames: str | None = None, output: str | Path | None = None,
                     prior=None, progress: Callable[[int, int], None] | None = None) -> RigResult:
@@ -207,6 +227,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     """
     config = config or Config()
     options = options or RigOptions()
+    check_smoothing(options)
     timings = {}
     t0 = time.perf_counter()
     rig = read_rig(rig_dir, calib, frames, options.workers)

@@ -165,6 +165,11 @@ def smooth_series(points: np.ndarray, method: str, rate: float = 30.0, cutoff_hz
     return _smooth_many([points], method, rate, cutoff_hz, order, window)[0]
 
 
+def butterworth_order(order: int) -> int:
+    """The order of the Butterworth designed for a zero-phase ``order`` (filtfilt doubles it)."""
+    return order // 2 if order > 1 else 1
+
+
 def _smooth_many(series: list, method: str, rate: float = 30.0, cutoff_hz: float = 6.0,
                  order: int = 4, window: int = 9) -> list:
     """:func:`smooth_series` of every ``(L_i, J, 3)`` array of ``series``; the Butterworth
@@ -176,7 +181,7 @@ def _smooth_many(series: list, method: str, rate: float = 30.0, cutoff_hz: float
     if method == "butterworth":
         if not 0 < cutoff_hz < rate / 2:
             raise ValueError(f"cutoff_hz must be in (0, {rate / 2}) for a rate of {rate} Hz, got {cutoff_hz}")
-        b, a = butter_lowpass(order // 2 if order > 1 else 1, cutoff_hz / (rate / 2))   # filtfilt doubles the order
+        b, a = butter_lowpass(butterworth_order(order), cutoff_hz / (rate / 2))
         min_length = 3 * max(len(a), len(b)) + 1
     else:
         from scipy.signal import savgol_filter

@@ -16,8 +16,12 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import re
+import shutil
+import stat
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -25,9 +29,12 @@ from urllib.error import URLError
 from urllib.request import urlopen
 
 from mvm.errors import InputError
+from mvm.io.checks import check_input_file
+from mvm.io.files import OutputError, make_dir, output_error
 
 log = logging.getLogger(__name__)
 
+_DRIVE = re.compile(r"^[A-Za-z]:")
 _MMPOSE = "https://download.openmmlab.com/mmpose/v1/projects"
 
 
@@ -153,25 +160,120 @@ def verify_cached(path: Path, expected_sha256: str | None = None) -> str:
     return digest
 
 
+MAX_ARCHIVE_MEMBERS = 1000
+"""The most members a model zip may hold (a published one holds a handful)."""
+MAX_MODEL_BYTES = 4 * 2 ** 30
+"""The most bytes a model zip may unpack to, all members together (a published one: < 300 MB)."""
+
+_SPECIAL_MEMBERS = ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISCHR, "a character device"),
+                    (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                    (stat.S_ISSOCK, "a socket"))
+
+
+def _member_problem(info: zipfile.ZipInfo) -> str | None:
+    """Why the zip member ``info`` may not be unpacked, or None: an empty or absolute name, a name
+    with a ``..`` component, a symbolic link, a device or another special file."""
+    name = info.filename
+    if not name.strip("/"):
+        return "an empty name"
+    posix = name.replace("\\", "/")
+    if "\x00" in name or posix.startswith("/") or _DRIVE.match(posix):
+        return "an absolute name (members are unpacked below the cache folder)"
+    if ".." in posix.split("/"):
+        return "a '..' in the name leads outside the cache folder"
+    mode = info.external_attr >> 16
+    for test, kind in _SPECIAL_MEMBERS:
+        if mode and test(mode):
+            return f"{kind}, not a regular file"
+    return None
+
+
+def _cache_folder(folder: Path) -> Path:
+    """``folder`` (created) when it can hold an extracted model; OutputError naming it otherwise."""
+    for parent in (*reversed(folder.parents), folder):
+        if parent.is_symlink() and not parent.exists():
+            raise OutputError(parent, None, "cannot write: a dangling symbolic link is in the way of the cache folder")
+        if parent.exists() and not parent.is_dir():
+            raise OutputError(parent, None, "cannot write: a file is in the way of the cache folder")
+    return make_dir(folder)
+
+
+def _write_block(out, block: bytes) -> None:
+    out.write(block)
+
+
+def _unpack(z: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path) -> None:
+    """Copy the member ``info`` to the new file ``target``, at most its declared size (the
+    CRC is checked by :mod:`zipfile` as the last block is read)."""
+    done = 0
+    with z.open(info) as source, open(target, "xb") as out:
+        for block in iter(lambda: source.read(1 << 20), b""):
+            done += len(block)
+            if done > info.file_size:
+                raise zipfile.BadZipFile(f"{info.filename} unpacks to more than its declared {info.file_size} bytes")
+            _write_block(out, block)
+        out.flush()
+        os.fsync(out.fileno())
+    if done != info.file_size:
+        raise zipfile.BadZipFile(f"{info.filename} unpacks to {done} bytes, not its declared {info.file_size}")
+
+
 def onnx_in_zip(archive: Path, folder: Path | None = None) -> Path:
     """The ``.onnx`` file of a published zip, extracted (once) into ``folder`` (default: beside
-    the zip, named as it) -> its path."""
+    the zip, named as it) -> its path.
+
+    The archive is checked before anything is unpacked: every member must have a relative name
+    without ``..``, be a regular file or folder (no link, device or FIFO), the members must be
+    at most :data:`MAX_ARCHIVE_MEMBERS` and unpack to at most :data:`MAX_MODEL_BYTES`. The model
+    is unpacked to a temporary folder inside ``folder``'s parent (the same file system), checked
+    against its declared size and CRC, then renamed into ``folder``: nothing outside the cache is
+    written or moved, and a failure leaves no partial file. A refused archive raises one
+    :class:`InputError` line; a cache that cannot be written, one :class:`OutputError` line."""
+    archive = check_input_file(archive)
     folder = folder or archive.with_suffix("")
-    found = sorted(folder.rglob("*.onnx")) if folder.is_dir() else []
+    found = sorted(folder.rglob("*.onnx")) if folder.is_dir() and not folder.is_symlink() else []
     if found:
         return found[0]
     try:
         with zipfile.ZipFile(archive) as z:
-            members = [m for m in z.namelist() if m.endswith(".onnx")]
+            infos = z.infolist()
+            if len(infos) > MAX_ARCHIVE_MEMBERS:
+                raise InputError(archive, None, f"{len(infos)} members, more than the {MAX_ARCHIVE_MEMBERS} "
+                                                "a model archive may hold")
+            for info in infos:
+                problem = _member_problem(info)
+                if problem:
+                    raise InputError(archive, info.filename[:200], f"refusing to unpack: {problem}")
+            total = sum(info.file_size for info in infos)
+            if total > MAX_MODEL_BYTES:
+                raise InputError(archive, None, f"unpacks to {total} bytes, more than the {MAX_MODEL_BYTES} "
+                                                "a model archive may")
+            members = [i for i in infos if not i.is_dir() and i.filename.lower().endswith(".onnx")]
             if not members:
                 raise InputError(archive, None, "the archive holds no .onnx model")
-            with tempfile.TemporaryDirectory(dir=archive.parent) as tmp:
-                z.extract(members[0], tmp)
-                folder.mkdir(parents=True, exist_ok=True)
-                target = folder / Path(members[0]).name
-                os.replace(Path(tmp) / members[0], target)
+            member = members[0]
+            name = member.filename.replace("\\", "/").rsplit("/", 1)[-1]
+            _cache_folder(folder.parent)
+            try:
+                tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".part", dir=folder.parent))
+            except OSError as e:
+                raise output_error(folder.parent, e) from None
+            try:
+                _unpack(z, member, tmp / name)
+                _cache_folder(folder)
+                target = folder / name
+                os.replace(tmp / name, target)
+            except OSError as e:
+                raise output_error(folder, e) from None
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+    except InputError:
+        raise
     except zipfile.BadZipFile as e:
-        raise InputError(archive, None, f"not a zip archive: {e}") from None
+        raise InputError(archive, None, f"not a valid zip archive: {e}") from None
+    except (OSError, EOFError, ValueError, RuntimeError, NotImplementedError, zlib.error) as e:
+        raise InputError(archive, None, f"cannot unpack: {str(e).splitlines()[0] if str(e) else type(e).__name__}") \
+            from None
     return target
 
 
@@ -182,8 +284,9 @@ def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: 
     false, in which case a missing file is an :class:`InputError` naming what to fetch)."""
     if path is not None:
         path = Path(path)
-        if not path.is_file():
+        if not path.exists() and not path.is_symlink():
             raise InputError(path, None, "model file not found")
+        check_input_file(path)
         if path.suffix.lower() != ".zip":
             return path
         return onnx_in_zip(path, cache_dir() / f"{path.stem}-{sha256(path)[:12]}")

@@ -169,6 +169,9 @@ class _Model:
         self.path = Path(path)
         self.session = _session(path, device)
         inp = self.session.get_inputs()[0]
+        if len(inp.shape) != 4 or (isinstance(inp.shape[1], int) and inp.shape[1] != 3):
+            raise InputError(path, None, f"expected an image input (batch, 3, height, width), the model's "
+                                         f"input {inp.name!r} has shape {list(inp.shape)}")
         self.input = inp.name
         self.batched = not isinstance(inp.shape[0], int) or inp.shape[0] != 1
         shape = inp.shape[2:]
