@@ -21,7 +21,8 @@ from mvm.cli.main import main
 from mvm.errors import InputError
 from mvm.io import checks
 from mvm.io.checks import load_json, read_bytes
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json
+from mvm.io.files import OutputError, atomic_write_json
+from mvm.io.outputs import atomic_replace_dir, make_temporary_dir
 from mvm.io.scene_dir import output_dir, write_scene
 from mvm.sim.simulate import SimConfig, simulate
 
@@ -215,11 +216,11 @@ def test_a_full_disk_during_reconstruct_is_one_line(scene_dir, tmp_path, monkeyp
 def test_an_output_set_leaves_nothing_stale(tmp_path):
     target = tmp_path / "set"
     atomic_replace_dir(lambda d: [(d / f"{i}.txt").write_text("old") for i in range(3)], target)
-    (tmp_path / ".set.killed").mkdir()                      # what a killed run leaves
-    (tmp_path / ".set.killed" / "x").write_text("partial")
+    (make_temporary_dir(target) / "x").write_text("partial")   # what a killed run leaves
     atomic_replace_dir(lambda d: (d / "0.txt").write_text("new"), target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
-    assert [p.name for p in target.iterdir()] == ["0.txt"] and (target / "0.txt").read_text() == "new"
+    assert sorted(p.name for p in target.iterdir()) == [".mvm-output", "0.txt"]
+    assert (target / "0.txt").read_text() == "new"
 
     def fails(d):
         (d / "0.txt").write_text("half")
@@ -246,5 +247,5 @@ def test_export_rerun_is_one_set(scene_dir, tmp_path):
     linked = next((out / "images" / "scene").iterdir())
     assert linked.is_symlink() and linked.resolve() == (path / "frames" / linked.name).resolve()
     (out / "notes.txt").write_text("mine")
-    with pytest.raises(OutputError, match="holds 'notes.txt', not only a dataset"):
+    with pytest.raises(OutputError, match="holds 'notes.txt', which mvm did not write there"):
         export_supervision([(result.scene, result.persons, path / "frames")], out)

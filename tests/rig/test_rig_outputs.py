@@ -13,6 +13,7 @@ from test_rig_dir import _write_rig
 from mvm.cli.rig import rig
 from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.outputs import make_temporary_dir
 from mvm.io.trc import read_trc, to_opensim
 from mvm.rig.options import RigOptions
 from mvm.rig.pipeline import reconstruct_rig
@@ -115,12 +116,14 @@ def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["set"]                 # no temporary folder left
     # a killed run's folders are removed by the next run; a shorter run leaves no .trc of the
     # longer one
-    (tmp_path / ".set.k2j4h_x").mkdir()                                   # as atomic_replace_dir names them
-    (tmp_path / ".set.k2j4h_x" / "poses3d.jsonl").write_text("partial")
-    (tmp_path / ".set.old.12345").mkdir()
+    killed = make_temporary_dir(out)                                      # as atomic_replace_dir makes them
+    (killed / "poses3d.jsonl").write_text("partial")
+    (tmp_path / ".set.old.12345").mkdir()                                 # a user's folder of that pattern stays
+    (tmp_path / ".set.old.12345" / "notes.txt").write_text("mine")
     (out / "tracks" / "track_7.trc").write_text("stale")
     reconstruct_rig(root, Config(refine=False), frames="0:6", output=out)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".set.old.12345", "set"]
+    assert (tmp_path / ".set.old.12345" / "notes.txt").read_text() == "mine"
     assert not (out / "tracks" / "track_7.trc").exists()
     assert len(_lines(out)) == 6 and json.loads((out / "recap.json").read_text())["instants"] == 6
 

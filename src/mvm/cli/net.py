@@ -30,8 +30,11 @@ from mvm.errors import InputError
 def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int,
                complete: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
-    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.io.outputs import check_output_location
+    from mvm.io.scene_dir import read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import export_supervision
+
+    check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
 
     def read(scene_dir):
         poses3d = scene_dir / output_name / "poses3d.json"
@@ -73,6 +76,7 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
     from mvm.net.train import load_config, train
 
     cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
+    _check_train_output(cfg, config, resume)
     if plot:
         from mvm.net.curves import plot_metrics
 
@@ -90,6 +94,21 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
         click.echo("validation: " + ", ".join(f"{k} {'-' if v is None else f'{v:.4f}'}" for k, v in shown.items()))
         for name, reason in validation["missing"].items():
             click.echo(f"  {name}: missing ({reason})")
+
+
+def _check_train_output(cfg, config: Path, resume: str | None) -> None:
+    """``out_dir`` (checkpoints are added there, not replaced) must not be, hold or lie inside
+    what the run reads: the configuration, the data sets, the initial weights, the resumed
+    checkpoint."""
+    from mvm.io.outputs import check_output_location
+
+    inputs = [config, *(p for p in (cfg.pretrained, cfg.init_checkpoint) if p)]
+    for source in (*cfg.train, *((cfg.val,) if cfg.val else ())):
+        annotations = Path(source.annotations)
+        inputs += [annotations, Path(source.images) if source.images else annotations.parent]
+    if resume and resume != "auto":
+        inputs.append(Path(resume))
+    check_output_location(cfg.out_dir, inputs, replaced=False)
 
 
 @command("predict")

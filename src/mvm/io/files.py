@@ -17,7 +17,6 @@ import errno
 import json
 import math
 import os
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -223,50 +222,3 @@ def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: floa
         yield
     finally:
         os.close(fd)                                   # releases the lock
-
-
-def atomic_replace_dir(build, path: str | Path) -> None:
-    """Call ``build(tmp_dir)`` to fill a fresh directory, then move it to ``path``.
-
-    An existing ``path`` is replaced only once the new content is complete, so the folder is
-    one output set: a reader sees the previous set or the new one, never a mix, and nothing of
-    an earlier, larger set survives. The leftovers of a killed run (``.NAME.*``) are removed
-    first (call it holding :func:`exclusive_lock` on the parent when runs may overlap). An OS
-    error raises :class:`OutputError` naming ``path``.
-    """
-    path = Path(path)
-    make_dir(path.parent)
-    if path.exists() and not path.is_dir():
-        raise OutputError(path, None, "cannot write: exists and is not a folder")
-    remove_stale_sets(path.parent, path.name)
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    except OSError as e:
-        raise output_error(path, e) from None
-    try:
-        build(tmp)
-        if path.exists():
-            old = path.with_name(f".{path.name}.old.{os.getpid()}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except OSError as e:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise output_error(path, e) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    _fsync_dir(path.parent)
-
-
-def remove_stale_sets(directory: str | Path, name: str) -> int:
-    """Delete what a killed :func:`atomic_replace_dir` of ``directory/name`` left behind (its
-    temporary ``.NAME.XXXX`` folder, a ``.NAME.old.PID`` set). Returns how many were deleted."""
-    removed = 0
-    for stale in Path(directory).glob(f".{name}.*"):
-        if stale.is_dir() and not stale.is_symlink():
-            shutil.rmtree(stale, ignore_errors=True)
-            removed += 1
-    return removed
