@@ -180,3 +180,44 @@ def test_two_workers_write_the_same_files_as_one(tmp_path, monkeypatch):
         assert parts == [workers] * 4
     for name in ["poses3d.jsonl"] + [f"tracks/{p.name}" for p in (tmp_path / "out1" / "tracks").iterdir()]:
         assert (tmp_path / "out1" / name).read_bytes() == (tmp_path / "out2" / name).read_bytes(), name
+
+
+def _tree(path):
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def _refused(*args):
+    """Exit status and output lines of ``mvm rig reconstruct ARGS``."""
+    result = CliRunner().invoke(rig, ["reconstruct", *map(str, args), "--no-refine", "--workers", "1"])
+    assert "Traceback" not in result.output
+    return result.exit_code, result.output.strip().splitlines()
+
+
+def test_an_output_that_would_replace_the_rigs_inputs_is_refused(rig_dir, tmp_path):
+    import shutil
+
+    root = shutil.copytree(rig_dir[0], tmp_path / "rig")
+    (root / "notes.txt").write_text("my notes")
+    before = _tree(root)
+    for output, problem in ((root, "contains the input"), (root / "pose", "is an input of this run"),
+                            (root / "pose" / "cam1_json", "is an input of this run"),
+                            (root / "pose" / "new", "lies inside the input folder")):
+        code, lines = _refused(root, "-o", output)
+        assert code == 2 and len(lines) == 1 and lines[0].startswith(f"mvm: error: {output}: "), lines
+        assert problem in lines[0]
+        assert _tree(root) == before                                       # Calib.toml, pose/, notes.txt kept
+    user = tmp_path / "thesis"
+    (user / "data").mkdir(parents=True)
+    (user / "thesis.tex").write_text("chapter 1")
+    (user / "data" / "x.csv").write_text("1,2")
+    code, lines = _refused(root, "-o", user)
+    assert code == 2 and len(lines) == 1 and "mvm did not make" in lines[0]
+    assert _tree(user) == {"thesis.tex": b"chapter 1", "data/x.csv": b"1,2"}
+    # the default output and a folder of the rig's own are fine, and stay fine on a rerun
+    (root / ".mvm.backup").mkdir()
+    (root / ".mvm.backup" / "old.jsonl").write_text("a user's copy")
+    for _ in range(2):
+        assert _refused(root)[0] == 0 and _refused(root, "-o", root / "results")[0] == 0
+    assert (root / ".mvm.backup" / "old.jsonl").read_text() == "a user's copy"
+    assert {k: v for k, v in _tree(root).items() if not k.startswith(("mvm/", "results/"))} == {
+        **before, ".mvm.backup/old.jsonl": b"a user's copy"}

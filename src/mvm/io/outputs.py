@@ -54,13 +54,15 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
     ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
     output = Path(output)
     target = _resolved(output)
-    for given in inputs:
-        source = _resolved(given)
+    sources = [(given, _resolved(given)) for given in inputs]
+    for given, source in sources:
         if target == source:
             raise OutputError(output, None, f"is an input of this run ({given}): choose another output")
+    for given, source in sources:
         if _contains(target, source):
             raise OutputError(output, None, f"contains the input {given}: writing there would replace it; "
                                             "choose another output")
+    for given, source in sources:
         if source.is_dir() and _contains(source, target):
             raise OutputError(output, None, f"lies inside the input folder {given}: choose another output")
     if replaced:
