@@ -100,3 +100,17 @@ def test_parse_sets():
     assert _parse_sets(("lr=0.01", "backbone=resnet18", "flip = 0")) == {"lr": 0.01, "backbone": "resnet18", "flip": 0}
     with pytest.raises(InputError, match="KEY=VALUE"):
         _parse_sets(("lr",))
+
+
+def test_train_refuses_an_out_dir_among_its_inputs_before_any_work(tmp_path):
+    data = images.synthetic_dataset(tmp_path / "data", 2, (64, 64), seed=5)
+    config = tmp_path / "tiny.toml"
+    config.write_text(f'[[data.train]]\nannotations = "{data}"\n[output]\ndevice = "cpu"\n')
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    for out_dir, problem in ((data.parent, "is an input of this run"), (tmp_path, "contains the input"),
+                             (data.parent / "runs", "lies inside the input folder")):
+        result = CliRunner().invoke(train_cmd, [str(config), "--set", f"out_dir='{out_dir}'"])
+        assert result.exit_code == 2, result.output
+        assert result.stderr.strip().splitlines() == [result.stderr.strip()]
+        assert result.stderr.startswith(f"mvm: error: {out_dir}: {problem}")
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before     # nothing written
