@@ -118,7 +118,8 @@ def _check_train_output(cfg, config: Path, resume: str | None) -> None:
 @click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Where predictions.json and the overlays go.")
 @click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
-@click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
+@click.option("--input-size", default=None, type=Number(int, ge=16, le=4096),   # mvm.net.predict.MAX_INPUT_SIZE
+              help="Long edge of the network input, 16 to 4096 px (default: as trained).")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Where the network runs (auto: a GPU when there is one).")
 def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal_px: float | None,
