@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import os
+import posixpath
 from pathlib import Path
 
 import numpy as np
@@ -90,12 +91,16 @@ def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
 
 def output_dir(scene: str | Path, output: str = "mvm") -> Path:
     """The folder ``scene/output`` that receives a scene's results, checked before any work:
-    ``output`` is a relative name that stays in the scene, and an existing ``scene/output``
+    ``output`` is a relative name that stays in the scene, not one of its inputs (``frames/``,
+    ``sparse/``, ``poses2d.json``), and an existing ``scene/output``
     must be a folder that, every symbolic link resolved, lies inside the scene directory
     (:class:`~mvm.io.files.OutputError` otherwise). It is created by the first write."""
     scene = Path(scene)
     check_name(output, "--output", "output folder name")
     path = scene / output
+    if posixpath.normpath(output.replace("\\", "/")).split("/")[0] in (FRAMES, SPARSE, POSES2D):
+        raise OutputError(path, None, "is an input of the scene (frames/, sparse/, poses2d.json): "
+                                      "choose another output folder name")
     if path.is_symlink() or path.exists():
         try:
             inside_root(path, scene)
