@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import multiprocessing
-import os
 import signal
 import subprocess
 import sys
@@ -248,3 +247,17 @@ def test_concurrent_writers_take_turns_and_leave_one_complete_set(tmp_path):
     tags = {n.split("-")[0] for n in names}
     assert len(tags) == 1 and len(names) == 20                              # one writer's complete set
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_stale_temporary_files_are_only_mvms(tmp_path):
+    from mvm.io.files import atomic_output, remove_stale_temporaries
+
+    with pytest.raises(RuntimeError), atomic_output(tmp_path / "poses3d.json") as tmp:
+        assert tmp.name.startswith(".poses3d.json.mvm-tmp-") and tmp.name.endswith(".tmp")
+        raise RuntimeError("killed")                             # the writer removes its own file
+    killed = tmp_path / ".poses3d.json.mvm-tmp-x1y2.tmp"         # what a killed writer leaves
+    killed.write_text("{")
+    (tmp_path / ".poses3d.json.mine.tmp").write_text("a user's file")
+    (tmp_path / ".poses3d.json.mvm-tmp-dir.tmp").mkdir()
+    assert remove_stale_temporaries(tmp_path, "poses3d.json") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".poses3d.json.mine.tmp", ".poses3d.json.mvm-tmp-dir.tmp"]

@@ -1,6 +1,6 @@
 """Atomic writes: a reader never sees a half-written output file.
 
-Every file is written to a temporary file in the same directory (``.NAME.XXXX.tmp``),
+Every file is written to a temporary file in the same directory (``.NAME.mvm-tmp-XXXX.tmp``),
 flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic on POSIX
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
@@ -29,6 +29,11 @@ try:
     import fcntl
 except ImportError:                                    # not POSIX: no advisory locks
     fcntl = None
+
+
+#: The random part of a temporary file's or folder's name follows this: ``.NAME.mvm-tmp-k2j4h_x.tmp``.
+#: Only names carrying it are removed as a killed writer's leftovers, never a user's ``.NAME.old.tmp``.
+TEMPORARY_INFIX = ".mvm-tmp-"
 
 
 class OutputError(InputError):
@@ -62,7 +67,7 @@ def make_dir(path: str | Path) -> Path:
     return path
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
     """Make a rename in ``directory`` durable (POSIX; a no-op where directories cannot be opened)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -86,7 +91,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
     if path.is_dir():
         raise OutputError(path, None, "cannot write: is a directory, expected a file")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}", suffix=suffix, dir=path.parent)
         os.close(fd)
     except OSError as e:
         raise output_error(path, e) from None
@@ -97,7 +102,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
         raise output_error(path, e) from None
     finally:
         Path(tmp).unlink(missing_ok=True)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -181,10 +186,12 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
 
 def remove_stale_temporaries(directory: str | Path, name: str) -> int:
     """Delete the temporary files that a killed writer of ``directory/name`` left behind
-    (``.NAME.*.tmp``). Call it while holding :func:`exclusive_lock` on ``directory``, so that
-    no live writer's temporary file is removed. Returns how many were deleted."""
+    (``.NAME.mvm-tmp-*.tmp``, regular files). Call it while holding :func:`exclusive_lock` on
+    ``directory``, so that no live writer's temporary file is removed. Returns how many were deleted."""
     removed = 0
-    for tmp in Path(directory).glob(f".{name}.*.tmp"):
+    for tmp in Path(directory).glob(f".{name}{TEMPORARY_INFIX}*.tmp"):
+        if tmp.is_symlink() or not tmp.is_file():
+            continue
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
             removed += 1

@@ -23,17 +23,20 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
-from mvm.io.files import OutputError, _fsync_dir, fcntl, make_dir, output_error
+from mvm.io.files import TEMPORARY_INFIX, OutputError, fsync_dir, make_dir, output_error
+
+try:
+    import fcntl
+except ImportError:                                    # not POSIX: no advisory locks
+    fcntl = None
 
 #: File inside every folder that mvm wrote as one output set: replacing that folder is allowed.
 OUTPUT_MARKER = ".mvm-output"
 #: File inside every temporary folder mvm makes: only such folders are removed as leftovers.
 TEMPORARY_MARKER = ".mvm-temporary"
-#: The random part of a temporary folder's name follows this: ``.NAME.mvm-tmp-k2j4h_x``.
-TEMPORARY_INFIX = ".mvm-tmp-"
 #: Seconds a run waits for another run writing the same output before refusing.
 LOCK_WAIT_S = 10.0
 
@@ -244,7 +247,7 @@ def atomic_replace_dir(build: Callable[[Path], None], path: str | Path, replace_
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
-        _fsync_dir(path.parent)
+        fsync_dir(path.parent)
 
 
 def _swap(new: Path, path: Path) -> None:

@@ -15,9 +15,9 @@ import numpy as np
 from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
 from mvm.io.files import atomic_output, atomic_write_bytes
+from mvm.io.images import read_image
 from mvm.io.outputs import atomic_replace_dir, check_output_location
 from mvm.io.scene_dir import output_dir, scene_inputs
-from mvm.io.images import read_image
 from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
 from mvm.report.load import SceneResult, load_result
 

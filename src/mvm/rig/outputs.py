@@ -9,8 +9,8 @@ before any work: never the rig's calibration or pose folders, nor a user's folde
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from mvm.io.outputs import LOCK_WAIT_S, atomic_replace_dir, check_output_location, is_mvm_output
 from mvm.rig.rigdir import find_calibration, pose_sources

@@ -16,8 +16,8 @@ import numpy as np
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_write_json
-from mvm.io.outputs import atomic_replace_dir
 from mvm.io.images import check_frames, read_image
+from mvm.io.outputs import atomic_replace_dir
 from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
