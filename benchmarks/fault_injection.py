@@ -6,8 +6,13 @@ Prints faults injected, outcomes after the kill (absent / complete / partial), o
 previous complete output gone or damaged: must be 0), partial outputs (must be 0), reruns
 that failed, and stale temporary files left after the rerun.
 
-    python benchmarks/fault_injection.py                       # 60 random + 10 per write point
-    python benchmarks/fault_injection.py --random 200 --per-point 30
+Then output locations: ``export``, ``overlay`` and ``rig reconstruct`` pointed at random
+locations of :data:`test_faults.LOCATIONS` (the inputs, a folder holding them, a link, a user's
+folder, beside a user's ``.NAME.*`` folders, ...) under random names; prints how many were
+refused and written as they should be, and the violations (must be 0).
+
+    python benchmarks/fault_injection.py                       # 60 random + 10 per write point + 60 locations
+    python benchmarks/fault_injection.py --random 200 --per-point 30 --locations 300
 """
 from __future__ import annotations
 
@@ -24,13 +29,51 @@ import numpy as np
 TESTS = Path(__file__).resolve().parents[1] / "tests"
 sys.path[:0] = [str(TESTS), str(TESTS / "io")]                  # helpers, test_faults
 
-from test_faults import FAULTS, copy_scene, output_of, persons_of, stale_temporaries, start, state, write_test_scene  # noqa: E402
+from test_faults import (  # noqa: E402
+    FAULTS,
+    FOLDER_COMMANDS,
+    LOCATIONS,
+    check_location,
+    copy_scene,
+    output_of,
+    persons_of,
+    stale_temporaries,
+    start,
+    state,
+    write_location_inputs,
+    write_test_scene,
+)
+
+#: Pieces of the output names the location cases draw.
+NAME_PARTS = ("out", "mvm", "overlay", "ds", "my results", "ünï", ".hidden", "a.b", "x-1", "frames")
+
+
+def location_cases(n: int, rng) -> Counter:
+    """``n`` random (command, location, name) cases of :func:`test_faults.check_location`."""
+    counts: Counter = Counter()
+    kinds = list(LOCATIONS)
+    with tempfile.TemporaryDirectory() as tmp:
+        inputs = write_location_inputs(Path(tmp) / "inputs")
+        for i in range(n):
+            command = FOLDER_COMMANDS[rng.integers(len(FOLDER_COMMANDS))]
+            kind = kinds[rng.integers(len(kinds))]
+            name = "".join(NAME_PARTS[k] for k in rng.integers(len(NAME_PARTS), size=rng.integers(1, 3)))
+            work = Path(tmp) / f"case{i}"
+            work.mkdir()
+            try:
+                outcome = check_location(kind, command, inputs, work, name)
+                counts[f"{outcome} as it should be"] += 1
+            except AssertionError as e:
+                counts["violations"] += 1
+                print(f"location case {i}: {command} into {kind} ({name!r}): {e}")
+    return counts
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--random", type=int, default=60, help="kills at random delays")
     parser.add_argument("--per-point", type=int, default=10, help="kills at each write point")
+    parser.add_argument("--locations", type=int, default=60, help="random output-location cases")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     rng = np.random.default_rng(args.seed)
@@ -75,7 +118,14 @@ def main() -> None:
                 "after kill: partial", "stale temporaries after kill", "outputs lost", "partial outputs",
                 "reruns failed", "stale temporaries after rerun"):
         print(f"  {key}: {counts[key]}")
-    sys.exit(1 if counts["outputs lost"] or counts["partial outputs"] or counts["reruns failed"] else 0)
+    t0 = time.perf_counter()
+    locations = location_cases(args.locations, rng)
+    print(f"output locations: {args.locations} cases of export, overlay and rig reconstruct, "
+          f"{time.perf_counter() - t0:.0f} s")
+    for key in ("refused as it should be", "written as it should be", "violations"):
+        print(f"  {key}: {locations[key]}")
+    failed = counts["outputs lost"] or counts["partial outputs"] or counts["reruns failed"] or locations["violations"]
+    sys.exit(1 if failed else 0)
 
 
 if __name__ == "__main__":

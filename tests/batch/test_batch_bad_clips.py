@@ -90,3 +90,21 @@ def test_supervision_without_image_ids_is_left_out_of_the_merge(tmp_path):
     assert [im["file_name"] for im in merged["images"]] == ["a/f0.jpg", "a/f1.jpg"]
     assert [a["image_id"] for a in merged["annotations"]] == [1, 2]
     assert left_out == [(bad, f"{bad}: images[0].id: expected an integer, got None")]
+
+
+def test_a_users_folder_where_a_clip_exports_fails_that_clip_and_stays(reconstructed, tmp_path):
+    root = tmp_path / "root"
+    shutil.copytree(reconstructed, root, ignore=shutil.ignore_patterns(".mvm"))
+    mine = root / "good" / "mvm" / "supervision"
+    mine.mkdir()
+    (mine / "labels.csv").write_text("my own labels")
+    (root / "x" / "mvm" / ".supervision.backup").mkdir()              # a user's folder named like a leftover
+    (root / "x" / "mvm" / ".supervision.backup" / "a.json").write_text("{}")
+    (root / "x" / "mvm" / "poses3d.json").unlink()                     # x reconstructs again, then exports
+    summary = run_batch(root, stages=("reconstruct", "export"), workers=1)
+    failed = {clip: (stage, error) for clip, stage, error in summary.failed}
+    assert set(failed) >= {"good"} and failed["good"][0] == "export"
+    assert "mvm did not make" in failed["good"][1] and "\n" not in failed["good"][1]
+    assert [p.name for p in mine.iterdir()] == ["labels.csv"] and (mine / "labels.csv").read_text() == "my own labels"
+    assert "x" not in failed and (root / "x" / "mvm" / "supervision" / "annotations.json").is_file()
+    assert (root / "x" / "mvm" / ".supervision.backup" / "a.json").read_text() == "{}"

@@ -6,6 +6,11 @@ After every kill the output is either absent (first run) or complete and valid â
 complete output when there was one: an output is never lost nor partial. A clean rerun then
 writes the complete output and removes the killed run's temporary file.
 
+Output locations (:data:`LOCATIONS`): the commands that write folders (``export``, ``overlay``,
+``rig reconstruct``) pointed at their inputs, at a folder holding them, inside one, through a
+link, at a user's folder, beside a user's ``.NAME.*`` folders. A refused location ends in one
+line, exit 2, and changes nothing on disk; an allowed one changes nothing but the output.
+
 ``benchmarks/fault_injection.py`` runs the same faults many more times and prints the counts.
 """
 from __future__ import annotations
@@ -197,3 +202,146 @@ def test_a_run_that_cannot_get_the_lock_refuses_cleanly(reference, tmp_path):
     lines = [line for line in stderr.splitlines() if line.startswith("mvm: error:")]
     assert len(lines) == 1 and "another mvm run" in lines[0] and "Traceback" not in stderr
     assert output_of(scene).read_bytes() == before
+
+
+# ---------------------------------------------------------------------------- output locations
+
+#: Where an output folder is pointed, and whether mvm may write there.
+LOCATIONS = {"the input folder": False, "the folder holding the inputs": False, "inside an input folder": False,
+             "a link to an input folder": False, "an input folder by a path with ..": False,
+             "a user's folder": False, "mvm's output holding a user's file": False,
+             "a new folder": True, "an empty folder": True, "mvm's own output, again": True,
+             "beside a user's .NAME.* folders": True}
+#: The commands that write a folder, as ``(name, args before the output, output option)``.
+FOLDER_COMMANDS = ("export", "overlay", "rig")
+
+
+def write_location_inputs(root: Path) -> dict:
+    """A reconstructed scene with frames (``root/scene``) and a rig (``root/rig``), each with a
+    user's notes beside its inputs: what the location cases point outputs at."""
+    import shutil
+
+    import cv2
+
+    from mvm.io.scene_dir import read_scene
+
+    scene = write_test_scene(root / "scene", people=2, frames=8)
+    assert start(scene).wait(120) == 0
+    (scene / "frames").mkdir()
+    for name in read_scene(scene).cameras.names:
+        cv2.imwrite(str(scene / "frames" / name), np.full((36, 64, 3), 120, np.uint8))
+    (scene / "notes.txt").write_text("a user's notes")
+    rig = root / "rig"
+    rig.mkdir()
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "rig"))
+    try:
+        from test_rig_dir import _write_rig
+    finally:
+        sys.path.pop(0)
+    _write_rig(rig, T=4)
+    (rig / "notes.txt").write_text("a user's notes")
+    shutil.rmtree(rig / "mvm", ignore_errors=True)
+    return {"scene": scene, "rig": rig}
+
+
+def command_line(command: str, inputs: dict, output: Path) -> list[str]:
+    if command == "export":
+        return ["export", str(inputs["scene"]), "--out", str(output), "--link", "copy"]
+    if command == "overlay":
+        return ["overlay", str(inputs["scene"]), "-o", str(output), "--every", "3", "--max-width", "32"]
+    return ["rig", "reconstruct", str(inputs["rig"]), "-o", str(output), "--no-refine", "--workers", "1"]
+
+
+def run_in_process(args: list[str]) -> tuple[int, list[str]]:
+    """Exit status and every output line of ``mvm ARGS`` (never a traceback)."""
+    from click.testing import CliRunner
+
+    from mvm.cli.main import main
+
+    result = CliRunner().invoke(main, args)
+    assert result.exception is None or isinstance(result.exception, SystemExit), result.exception
+    assert "Traceback" not in result.output
+    return result.exit_code, result.output.strip().splitlines()
+
+
+def place_output(kind: str, command: str, inputs: dict, work: Path, name: str = "out") -> Path:
+    """The output path of location ``kind`` for ``command``, set up under ``work``."""
+    source = inputs["rig"] if command == "rig" else inputs["scene"]
+    folder = source / "pose" if command == "rig" else source / "frames"
+    output = work / name
+    if kind == "the input folder":
+        return folder
+    if kind == "the folder holding the inputs":
+        return source
+    if kind == "inside an input folder":
+        return folder / name
+    if kind == "a link to an input folder":
+        output.symlink_to(folder, target_is_directory=True)
+    elif kind == "an input folder by a path with ..":
+        return folder / ".." / folder.name
+    elif kind == "a user's folder":
+        (output / "data").mkdir(parents=True)
+        (output / "thesis.tex").write_text("chapter 1")
+        (output / "data" / "x.csv").write_text("1,2")
+    elif kind == "an empty folder":
+        output.mkdir()
+    elif kind in ("mvm's own output, again", "mvm's output holding a user's file"):
+        assert run_in_process(command_line(command, inputs, output))[0] == 0
+        if kind == "mvm's output holding a user's file":
+            (output / "notes.txt").write_text("mine")
+    elif kind == "beside a user's .NAME.* folders":
+        for sibling in (f".{name}.backup", f".{name}.old", f".{name}.mvm-tmp-mine"):
+            (work / sibling).mkdir()
+            (work / sibling / "notes.txt").write_text(sibling)
+    elif kind == "a new folder":
+        output = work / name / "deeper"
+    return output
+
+
+def tree(root: Path) -> dict:
+    """Every file and link under ``root`` with its content (a link: its target)."""
+    found = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for n in dirnames + filenames:
+            p = Path(dirpath) / n
+            if p.is_symlink():
+                found[p.relative_to(root).as_posix()] = "-> " + os.readlink(p)
+            elif p.is_file():
+                found[p.relative_to(root).as_posix()] = p.read_bytes()
+    return found
+
+
+def check_location(kind: str, command: str, inputs: dict, work: Path, name: str = "out") -> str:
+    """Run ``command`` into location ``kind``; return what happened ("refused" or "written") after
+    asserting the invariants: a refusal is one line, exit 2, nothing changed anywhere; a write
+    changes only the output and leaves no temporary folder nor lock file."""
+    output = place_output(kind, command, inputs, work, name)
+    roots = [inputs["scene"].parent, work]
+    before = [tree(r) for r in roots]
+    code, lines = run_in_process(command_line(command, inputs, output))
+    allowed = LOCATIONS[kind]
+    if not allowed:
+        errors = [line for line in lines if line.startswith("mvm: error:")]
+        assert code == 2 and len(errors) == 1 and errors[0].startswith(f"mvm: error: {output}: "), (kind, lines)
+        assert [tree(r) for r in roots] == before, kind
+        return "refused"
+    assert code == 0, (kind, command, lines)
+    prefix = output.relative_to(work).as_posix() + "/"
+    after = [{k: v for k, v in tree(r).items() if not k.startswith(prefix)} for r in roots]
+    unchanged = [{k: v for k, v in t.items() if not k.startswith(prefix)} for t in before]
+    assert after == unchanged, kind
+    assert not [p for p in output.parent.iterdir() if p.name.startswith(f".{output.name}.lock")
+                or p.name.startswith(f".{output.name}.mvm-tmp-") and (p / ".mvm-temporary").exists()]
+    return "written"
+
+
+@pytest.fixture(scope="module")
+def location_inputs(tmp_path_factory):
+    return write_location_inputs(tmp_path_factory.mktemp("locations"))
+
+
+@pytest.mark.parametrize("command", FOLDER_COMMANDS)
+@pytest.mark.parametrize("kind", list(LOCATIONS))
+def test_outputs_never_land_among_inputs_nor_on_a_users_folder(location_inputs, tmp_path, kind, command):
+    outcome = check_location(kind, command, location_inputs, tmp_path)
+    assert outcome == ("written" if LOCATIONS[kind] else "refused")

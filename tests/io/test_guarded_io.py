@@ -21,7 +21,8 @@ from mvm.cli.main import main
 from mvm.errors import InputError
 from mvm.io import checks
 from mvm.io.checks import load_json, read_bytes
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json
+from mvm.io.files import OutputError, atomic_write_json
+from mvm.io.outputs import atomic_replace_dir, make_temporary_dir
 from mvm.io.scene_dir import output_dir, write_scene
 from mvm.sim.simulate import SimConfig, simulate
 
@@ -215,11 +216,11 @@ def test_a_full_disk_during_reconstruct_is_one_line(scene_dir, tmp_path, monkeyp
 def test_an_output_set_leaves_nothing_stale(tmp_path):
     target = tmp_path / "set"
     atomic_replace_dir(lambda d: [(d / f"{i}.txt").write_text("old") for i in range(3)], target)
-    (tmp_path / ".set.killed").mkdir()                      # what a killed run leaves
-    (tmp_path / ".set.killed" / "x").write_text("partial")
+    (make_temporary_dir(target) / "x").write_text("partial")   # what a killed run leaves
     atomic_replace_dir(lambda d: (d / "0.txt").write_text("new"), target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
-    assert [p.name for p in target.iterdir()] == ["0.txt"] and (target / "0.txt").read_text() == "new"
+    assert sorted(p.name for p in target.iterdir()) == [".mvm-output", "0.txt"]
+    assert (target / "0.txt").read_text() == "new"
 
     def fails(d):
         (d / "0.txt").write_text("half")
@@ -246,5 +247,59 @@ def test_export_rerun_is_one_set(scene_dir, tmp_path):
     linked = next((out / "images" / "scene").iterdir())
     assert linked.is_symlink() and linked.resolve() == (path / "frames" / linked.name).resolve()
     (out / "notes.txt").write_text("mine")
-    with pytest.raises(OutputError, match="holds 'notes.txt', not only a dataset"):
+    with pytest.raises(OutputError, match="holds 'notes.txt', which mvm did not write there"):
         export_supervision([(result.scene, result.persons, path / "frames")], out)
+
+
+def test_export_never_writes_over_its_inputs_nor_a_users_folder(scene_dir, tmp_path):
+    path = _copy(scene_dir, tmp_path)
+    assert _run("reconstruct", path)[0] == 0
+    frames = sorted(p.name for p in (path / "frames").iterdir())
+    thesis = tmp_path / "thesis"
+    (thesis / "data").mkdir(parents=True)
+    (thesis / "thesis.tex").write_text("chapter 1")
+    for out, problem in ((path / "frames", "is an input of this run"), (path, "contains the input"),
+                         (path / "mvm", "contains the input"), (path / "sparse" / "x", "lies inside the input"),
+                         (thesis, "mvm did not make")):
+        code, lines = _run("export", path, "--out", out)
+        assert code == 2 and len(lines) == 1 and lines[0].startswith(f"mvm: error: {out}: ") and problem in lines[0]
+    assert sorted(p.name for p in (path / "frames").iterdir()) == frames
+    assert (thesis / "thesis.tex").read_text() == "chapter 1" and (thesis / "data").is_dir()
+    # a user's folder named like a leftover beside the dataset stays
+    (tmp_path / ".ds_sib.keep").mkdir()
+    (tmp_path / ".ds_sib.keep" / "notes.txt").write_text("mine")
+    for _ in range(2):
+        assert _run("export", path, "--out", tmp_path / "ds_sib")[0] == 0
+    assert (tmp_path / ".ds_sib.keep" / "notes.txt").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".ds_sib.keep", "ds_sib", "scene", "thesis"]
+
+
+def test_concurrent_exports_leave_one_complete_dataset(scene_dir, tmp_path):
+    import subprocess
+
+    path = _copy(scene_dir, tmp_path)
+    assert _run("reconstruct", path)[0] == 0
+    out = tmp_path / "DS"
+    command = [sys.executable, "-c", "from mvm.cli.main import run; run()", "export", str(path), "--out", str(out),
+               "--link", "copy"]
+    processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for _ in range(3)]
+    for p in processes:
+        p.wait(300)
+        errors = p.stderr.read().strip().splitlines()
+        assert p.returncode == 0 or (p.returncode == 2 and len(errors) == 1
+                                     and "another mvm run is writing" in errors[0]), errors
+    assert any(p.returncode == 0 for p in processes)
+    data = json.loads((out / "annotations.json").read_text())
+    assert len(data["images"]) == 10
+    assert all((out / image["file_name"]).is_file() for image in data["images"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["DS", "scene"]
+
+
+@pytest.mark.parametrize("name", ["frames", "sparse", "poses2d.json", "./frames", "x/../frames/out", "sparse/0"])
+def test_a_scene_output_name_naming_an_input_is_refused(scene_dir, tmp_path, name):
+    path = _copy(scene_dir, tmp_path)
+    before = {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file()}
+    code, lines = _run("reconstruct", path, "--output", name)
+    assert code == 2 and len(lines) == 1 and "is an input of the scene" in lines[0], lines
+    assert {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file()} == before

@@ -106,3 +106,32 @@ def test_parse_sets():
     assert _parse_sets(("lr=0.01", "backbone=resnet18", "flip = 0")) == {"lr": 0.01, "backbone": "resnet18", "flip": 0}
     with pytest.raises(InputError, match="KEY=VALUE"):
         _parse_sets(("lr",))
+
+
+def test_train_refuses_an_out_dir_among_its_inputs_before_any_work(tmp_path):
+    data = images.synthetic_dataset(tmp_path / "data", 2, (64, 64), seed=5)
+    config = tmp_path / "tiny.toml"
+    config.write_text(f'[[data.train]]\nannotations = "{data}"\n[output]\ndevice = "cpu"\n')
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    for out_dir, problem in ((data.parent, "is an input of this run"), (tmp_path, "contains the input"),
+                             (data.parent / "runs", "lies inside the input folder")):
+        result = CliRunner().invoke(train_cmd, [str(config), "--set", f"out_dir='{out_dir}'"])
+        assert result.exit_code == 2, result.output
+        assert result.stderr.strip().splitlines() == [result.stderr.strip()]
+        assert result.stderr.startswith(f"mvm: error: {out_dir}: {problem}")
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before     # nothing written
+
+
+def test_predict_input_size_is_bounded_before_any_work(tmp_path):
+    from mvm.net.predict import MAX_INPUT_SIZE, MIN_INPUT_SIZE, predict
+
+    image = tmp_path / "a.png"
+    image.write_bytes(b"")
+    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(tmp_path / "none.pt"),
+                                              "--input-size", "100000"])
+    assert result.exit_code == 2 and result.stderr.strip() == "mvm: error: --input-size: must be <= 4096, got 100000"
+    for size in (100000, 0, MAX_INPUT_SIZE + 1, MIN_INPUT_SIZE - 1):
+        with pytest.raises(InputError, match=f"--input-size: expected a long edge of 16 to 4096 px, got {size}"):
+            predict([image], tmp_path / "none.pt", input_size=size)           # before the checkpoint is read
+    option = next(p for p in predict_cmd.params if p.name == "input_size")
+    assert (option.type.bounds.ge, option.type.bounds.le) == (MIN_INPUT_SIZE, MAX_INPUT_SIZE)

@@ -143,3 +143,56 @@ def test_an_empty_or_undecodable_frame_is_drawn_on_neutral_with_a_warning(scene_
     assert names[0] in caplog.text and names[1] in caplog.text
     first = cv2.imread(str(tmp_path / "ov" / "frame_00000.png"))
     assert (first[5, 5] == NEUTRAL_BGR).all()
+
+
+def test_overlay_never_replaces_the_frames_nor_a_users_folder(scene_dir, tmp_path):
+    import shutil
+
+    from mvm.cli.report import overlay_cmd
+
+    scene = shutil.copytree(scene_dir, tmp_path / "scene")
+    (scene / "frames").mkdir()
+    for name in read_scene(scene).cameras.names:
+        cv2.imwrite(str(scene / "frames" / name), np.full((72, 128, 3), 90, np.uint8))
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for i in range(5):
+        cv2.imwrite(str(photos / f"IMG_{i:04d}.jpg"), np.full((8, 8, 3), i, np.uint8))
+    frames_before = sorted(p.name for p in (scene / "frames").iterdir())
+    photos_before = {p.name: p.read_bytes() for p in photos.iterdir()}
+    for out, problem in ((scene / "frames", "is an input of this run"), (scene, "contains the input"),
+                         (scene / "mvm", "contains the input"), (scene / "frames" / "ov", "lies inside the input"),
+                         (photos, "mvm did not make")):
+        result = CliRunner().invoke(overlay_cmd, [str(scene), "-o", str(out), "--every", "10"])
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"mvm: error: {out}: "), lines
+        assert problem in lines[0]
+    assert sorted(p.name for p in (scene / "frames").iterdir()) == frames_before      # 12 frames, not 2
+    assert {p.name: p.read_bytes() for p in photos.iterdir()} == photos_before
+    # a user's folder beside the overlay folder is not a leftover
+    (scene / "mvm" / ".overlay.old").mkdir()
+    (scene / "mvm" / ".overlay.old" / "keep.jpg").write_bytes(b"mine")
+    for _ in range(2):
+        result = CliRunner().invoke(overlay_cmd, [str(scene), "--every", "6"])
+        assert result.exit_code == 0, result.output
+    assert (scene / "mvm" / ".overlay.old" / "keep.jpg").read_bytes() == b"mine"
+    assert len(list((scene / "mvm" / "overlay").glob("*.jpg"))) == 2
+
+
+def test_concurrent_overlays_leave_one_complete_folder(scene_dir, tmp_path):
+    import subprocess
+    import sys
+
+    out = tmp_path / "ov"
+    command = [sys.executable, "-c", "from mvm.cli.main import run; run()", "overlay", str(scene_dir), "-o", str(out),
+               "--max-width", "64"]
+    processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for _ in range(3)]
+    for p in processes:
+        p.wait(300)
+        errors = p.stderr.read().strip().splitlines()
+        assert p.returncode == 0 or (p.returncode == 2 and len(errors) == 1
+                                     and "another mvm run is writing" in errors[0]), errors
+    assert any(p.returncode == 0 for p in processes)
+    assert len(list(out.glob("*.jpg"))) == 12
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ov"]

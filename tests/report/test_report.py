@@ -266,3 +266,16 @@ def test_timings_that_are_not_finite_numbers_are_left_out(scene_dir, tmp_path):
     path.write_text(json.dumps(document))
     assert load_result(copy).timings == {"a_s": 1.5}
     write_report(copy, frames=1)
+
+
+def test_report_is_never_written_over_or_among_the_scenes_inputs(scene_dir, tmp_path):
+    from mvm.io.files import OutputError
+
+    for path, problem in ((scene_dir / "poses2d.json", "is an input of this run"),
+                          (scene_dir / "sparse" / "report.html", "lies inside the input folder"),
+                          (scene_dir / "mvm" / "poses3d.json", "is an input of this run")):
+        before = path.read_bytes() if path.is_file() else None
+        with pytest.raises(OutputError, match=problem):
+            write_report(scene_dir, path=path)
+        assert (path.read_bytes() if path.is_file() else None) == before
+    assert write_report(scene_dir, path=tmp_path / "r.html").is_file()

@@ -13,6 +13,7 @@ from test_rig_dir import _write_rig
 from mvm.cli.rig import rig
 from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.outputs import make_temporary_dir
 from mvm.io.trc import read_trc, to_opensim
 from mvm.rig.options import RigOptions
 from mvm.rig.pipeline import reconstruct_rig
@@ -115,12 +116,14 @@ def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["set"]                 # no temporary folder left
     # a killed run's folders are removed by the next run; a shorter run leaves no .trc of the
     # longer one
-    (tmp_path / ".set.k2j4h_x").mkdir()                                   # as atomic_replace_dir names them
-    (tmp_path / ".set.k2j4h_x" / "poses3d.jsonl").write_text("partial")
-    (tmp_path / ".set.old.12345").mkdir()
+    killed = make_temporary_dir(out)                                      # as atomic_replace_dir makes them
+    (killed / "poses3d.jsonl").write_text("partial")
+    (tmp_path / ".set.old.12345").mkdir()                                 # a user's folder of that pattern stays
+    (tmp_path / ".set.old.12345" / "notes.txt").write_text("mine")
     (out / "tracks" / "track_7.trc").write_text("stale")
     reconstruct_rig(root, Config(refine=False), frames="0:6", output=out)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["set"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".set.old.12345", "set"]
+    assert (tmp_path / ".set.old.12345" / "notes.txt").read_text() == "mine"
     assert not (out / "tracks" / "track_7.trc").exists()
     assert len(_lines(out)) == 6 and json.loads((out / "recap.json").read_text())["instants"] == 6
 
@@ -177,3 +180,44 @@ def test_two_workers_write_the_same_files_as_one(tmp_path, monkeypatch):
         assert parts == [workers] * 4
     for name in ["poses3d.jsonl"] + [f"tracks/{p.name}" for p in (tmp_path / "out1" / "tracks").iterdir()]:
         assert (tmp_path / "out1" / name).read_bytes() == (tmp_path / "out2" / name).read_bytes(), name
+
+
+def _tree(path):
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def _refused(*args):
+    """Exit status and output lines of ``mvm rig reconstruct ARGS``."""
+    result = CliRunner().invoke(rig, ["reconstruct", *map(str, args), "--no-refine", "--workers", "1"])
+    assert "Traceback" not in result.output
+    return result.exit_code, result.output.strip().splitlines()
+
+
+def test_an_output_that_would_replace_the_rigs_inputs_is_refused(rig_dir, tmp_path):
+    import shutil
+
+    root = shutil.copytree(rig_dir[0], tmp_path / "rig")
+    (root / "notes.txt").write_text("my notes")
+    before = _tree(root)
+    for output, problem in ((root, "contains the input"), (root / "pose", "is an input of this run"),
+                            (root / "pose" / "cam1_json", "is an input of this run"),
+                            (root / "pose" / "new", "lies inside the input folder")):
+        code, lines = _refused(root, "-o", output)
+        assert code == 2 and len(lines) == 1 and lines[0].startswith(f"mvm: error: {output}: "), lines
+        assert problem in lines[0]
+        assert _tree(root) == before                                       # Calib.toml, pose/, notes.txt kept
+    user = tmp_path / "thesis"
+    (user / "data").mkdir(parents=True)
+    (user / "thesis.tex").write_text("chapter 1")
+    (user / "data" / "x.csv").write_text("1,2")
+    code, lines = _refused(root, "-o", user)
+    assert code == 2 and len(lines) == 1 and "mvm did not make" in lines[0]
+    assert _tree(user) == {"thesis.tex": b"chapter 1", "data/x.csv": b"1,2"}
+    # the default output and a folder of the rig's own are fine, and stay fine on a rerun
+    (root / ".mvm.backup").mkdir()
+    (root / ".mvm.backup" / "old.jsonl").write_text("a user's copy")
+    for _ in range(2):
+        assert _refused(root)[0] == 0 and _refused(root, "-o", root / "results")[0] == 0
+    assert (root / ".mvm.backup" / "old.jsonl").read_text() == "a user's copy"
+    assert {k: v for k, v in _tree(root).items() if not k.startswith(("mvm/", "results/"))} == {
+        **before, ".mvm.backup/old.jsonl": b"a user's copy"}

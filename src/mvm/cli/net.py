@@ -30,8 +30,11 @@ from mvm.errors import InputError
 def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int,
                complete: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
-    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.io.outputs import check_output_location
+    from mvm.io.scene_dir import read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import export_supervision
+
+    check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
 
     def read(scene_dir):
         poses3d = scene_dir / output_name / "poses3d.json"
@@ -74,6 +77,7 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
     from mvm.net.train_config import load_config
 
     cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
+    _check_train_output(cfg, config, resume)
     if plot:
         from mvm.net.curves import plot_metrics
 
@@ -93,6 +97,21 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
             click.echo(f"  {name}: missing ({reason})")
 
 
+def _check_train_output(cfg, config: Path, resume: str | None) -> None:
+    """``out_dir`` (checkpoints are added there, not replaced) must not be, hold or lie inside
+    what the run reads: the configuration, the data sets, the initial weights, the resumed
+    checkpoint."""
+    from mvm.io.outputs import check_output_location
+
+    inputs = [config, *(p for p in (cfg.pretrained, cfg.init_checkpoint) if p)]
+    for source in (*cfg.train, *((cfg.val,) if cfg.val else ())):
+        annotations = Path(source.annotations)
+        inputs += [annotations, Path(source.images) if source.images else annotations.parent]
+    if resume and resume != "auto":
+        inputs.append(Path(resume))
+    check_output_location(cfg.out_dir, inputs, replaced=False)
+
+
 @command("predict")
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
@@ -100,7 +119,8 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
 @click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Where predictions.json and the overlays go.")
 @click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
-@click.option("--input-size", default=None, type=int, help="Long edge of the network input (default: as trained).")
+@click.option("--input-size", default=None, type=Number(int, ge=16, le=4096),   # mvm.net.predict.MAX_INPUT_SIZE
+              help="Long edge of the network input, 16 to 4096 px (default: as trained).")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True,
               help="Where the network runs (auto: a GPU when there is one).")
 def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal_px: float | None,

@@ -31,6 +31,7 @@ from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.scene import Cameras, Poses2D
 from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate
+from mvm.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -92,14 +93,46 @@ def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
     return np.count_nonzero(np.bincount(view[eligible])) >= max(config.min_group_size, 1)
 
 
+#: Working memory of the RANSAC triangulation per group, view slot, joint and hypothesis
+#: (bytes; measured about 62: the projections, depths, errors and costs of every hypothesis).
+TRIANGULATION_BYTES_PER_ENTRY = 64
+
+
+def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int) -> int:
+    """Peak memory of :func:`triangulate_groups`: groups are padded to the largest one's ``M``
+    views, and each of the ``H`` hypotheses of every joint is scored in every view slot at once,
+    so ``P · M · J · (H + 1) ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes (the ``+ 1``: the
+    padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no RANSAC), at most
+    the ``M (M - 1) / 2`` pairs of views (:func:`mvm.core.triangulate.ransac_triangulate`)."""
+    widest = max((len(g) for g in groups), default=0)
+    H = min(int(hypotheses), max(1, widest * (widest - 1) // 2)) if hypotheses > 0 else 0
+    return len(groups) * widest * int(joints) * (H + 1) * TRIANGULATION_BYTES_PER_ENTRY
+
+
+def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses: int, config: Config) -> None:
+    """Refuse, before it is allocated, a triangulation that needs more than ``max_affinity_bytes``
+    (:func:`triangulation_bytes`): one :class:`~mvm.errors.InputError` line naming the setting."""
+    need = triangulation_bytes(groups, joints, hypotheses)
+    if need > config.max_affinity_bytes:
+        widest = max(len(g) for g in groups)
+        raise InputError(None, "max_affinity_bytes",
+                         f"triangulating {len(groups)} candidate persons of up to {widest} views with {hypotheses} "
+                         f"RANSAC hypotheses needs {need / 2**20:.0f} MiB, more than max_affinity_bytes = "
+                         f"{config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit (--set max_affinity_bytes=...), "
+                         "lower ransac_hypotheses, or split the scene into smaller ones")
+
+
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
                        config: Config, initial: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
     """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
-    ``association_hypotheses`` of the random hypotheses."""
-    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
+    ``association_hypotheses`` of the random hypotheses. Memory: :func:`triangulation_bytes`,
+    refused beyond ``max_affinity_bytes`` before it is taken."""
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
+    check_triangulation_memory(groups, poses.keypoints.shape[1],
+                               hypotheses + (initial is not None) if config.ransac else 0, config)
+    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
                                        config.min_parallax_deg, config.seed, use_ransac=config.ransac,
@@ -113,20 +146,49 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
     below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
     keeps the test free of the model's unknown scale; also when one is the mirror of the other
     (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
-    ``block: (P,)``; only pairs within a block are compared, all at once.
+    ``block: (P,)``; only pairs within a block are compared.
+
+    Memory: the ``(P, P)`` result, and the pairs compared :data:`DUPLICATE_PAIRS_CHUNK` at a time
+    (a block of thousands of persons has millions of pairs, each ``2 J 3`` differences).
     """
     from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
 
     P = len(X)
-    i, j = np.nonzero((block[:, None] == block[None]) & ~np.eye(P, dtype=bool))
+    close = np.zeros((P, P), dtype=bool)
     with np.errstate(invalid="ignore", divide="ignore"):                    # all-NaN rows: NaN
         bones = X[:, [LEFT_SHOULDER, RIGHT_SHOULDER]] - X[:, [LEFT_HIP, RIGHT_HIP]]
         torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
-        diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])       # as is, mirrored: (2, K, J, 3)
-        mean = _nanmean(np.sqrt((diff * diff).sum(-1)), axis=-1)              # (2, K)
-        close = np.zeros((P, P), dtype=bool)
-        close[i, j] = np.fmin(mean[0], mean[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
+        for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
+            diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
+            mean = _nanmean(np.sqrt((diff * diff).sum(-1)), axis=-1)          # (2, K)
+            close[i, j] = np.fmin(mean[0], mean[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
     return close
+
+
+#: Pairs of persons :func:`duplicate_pairs` compares at once: about 3 kB of working memory each.
+DUPLICATE_PAIRS_CHUNK = 2**14
+
+
+def _block_pairs(block: np.ndarray, max_pairs: int):
+    """Yield ``(i, j)``: every ordered pair of different persons of one block (``block: (P,)``),
+    in chunks of about ``max_pairs`` pairs (a person's pairs are never split)."""
+    order = np.argsort(block, kind="stable")
+    _, start, count = np.unique(block[order], return_index=True, return_counts=True)
+    first = np.repeat(start, count)                                         # (P,) in sorted order
+    length = np.repeat(count, count)
+    ends = np.cumsum(length)
+    if not len(ends):
+        return
+    cuts = np.unique(np.searchsorted(ends, np.arange(max_pairs, ends[-1], max_pairs), side="right"))
+    for rows in np.split(np.arange(len(order)), cuts):
+        if not len(rows):
+            continue
+        n = length[rows]
+        offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        i = np.repeat(order[rows], n)
+        j = order[np.repeat(first[rows], n) + offset]
+        keep = i != j
+        yield i[keep], j[keep]
 
 
 def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Atomic writes: a reader never sees a half-written output file.
 
-Every file is written to a temporary file in the same directory (``.NAME.XXXX.tmp``),
+Every file is written to a temporary file in the same directory (``.NAME.mvm-tmp-XXXX.tmp``),
 flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic on POSIX
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
@@ -17,7 +17,6 @@ import errno
 import json
 import math
 import os
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +29,11 @@ try:
     import fcntl
 except ImportError:                                    # not POSIX: no advisory locks
     fcntl = None
+
+
+#: The random part of a temporary file's or folder's name follows this: ``.NAME.mvm-tmp-k2j4h_x.tmp``.
+#: Only names carrying it are removed as a killed writer's leftovers, never a user's ``.NAME.old.tmp``.
+TEMPORARY_INFIX = ".mvm-tmp-"
 
 
 class OutputError(InputError):
@@ -63,7 +67,7 @@ def make_dir(path: str | Path) -> Path:
     return path
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
     """Make a rename in ``directory`` durable (POSIX; a no-op where directories cannot be opened)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -87,7 +91,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
     if path.is_dir():
         raise OutputError(path, None, "cannot write: is a directory, expected a file")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}", suffix=suffix, dir=path.parent)
         os.close(fd)
     except OSError as e:
         raise output_error(path, e) from None
@@ -98,7 +102,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
         raise output_error(path, e) from None
     finally:
         Path(tmp).unlink(missing_ok=True)
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -182,10 +186,12 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
 
 def remove_stale_temporaries(directory: str | Path, name: str) -> int:
     """Delete the temporary files that a killed writer of ``directory/name`` left behind
-    (``.NAME.*.tmp``). Call it while holding :func:`exclusive_lock` on ``directory``, so that
-    no live writer's temporary file is removed. Returns how many were deleted."""
+    (``.NAME.mvm-tmp-*.tmp``, regular files). Call it while holding :func:`exclusive_lock` on
+    ``directory``, so that no live writer's temporary file is removed. Returns how many were deleted."""
     removed = 0
-    for tmp in Path(directory).glob(f".{name}.*.tmp"):
+    for tmp in Path(directory).glob(f".{name}{TEMPORARY_INFIX}*.tmp"):
+        if tmp.is_symlink() or not tmp.is_file():
+            continue
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
             removed += 1
@@ -223,50 +229,3 @@ def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: floa
         yield
     finally:
         os.close(fd)                                   # releases the lock
-
-
-def atomic_replace_dir(build, path: str | Path) -> None:
-    """Call ``build(tmp_dir)`` to fill a fresh directory, then move it to ``path``.
-
-    An existing ``path`` is replaced only once the new content is complete, so the folder is
-    one output set: a reader sees the previous set or the new one, never a mix, and nothing of
-    an earlier, larger set survives. The leftovers of a killed run (``.NAME.*``) are removed
-    first (call it holding :func:`exclusive_lock` on the parent when runs may overlap). An OS
-    error raises :class:`OutputError` naming ``path``.
-    """
-    path = Path(path)
-    make_dir(path.parent)
-    if path.exists() and not path.is_dir():
-        raise OutputError(path, None, "cannot write: exists and is not a folder")
-    remove_stale_sets(path.parent, path.name)
-    try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
-    except OSError as e:
-        raise output_error(path, e) from None
-    try:
-        build(tmp)
-        if path.exists():
-            old = path.with_name(f".{path.name}.old.{os.getpid()}")
-            os.replace(path, old)
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
-    except OSError as e:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise output_error(path, e) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    _fsync_dir(path.parent)
-
-
-def remove_stale_sets(directory: str | Path, name: str) -> int:
-    """Delete what a killed :func:`atomic_replace_dir` of ``directory/name`` left behind (its
-    temporary ``.NAME.XXXX`` folder, a ``.NAME.old.PID`` set). Returns how many were deleted."""
-    removed = 0
-    for stale in Path(directory).glob(f".{name}.*"):
-        if stale.is_dir() and not stale.is_symlink():
-            shutil.rmtree(stale, ignore_errors=True)
-            removed += 1
-    return removed

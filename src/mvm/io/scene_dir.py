@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import os
+import posixpath
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,8 @@ from mvm.errors import InputError
 from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_json, json_number
+from mvm.io.files import OutputError, atomic_write_json, json_number
+from mvm.io.outputs import atomic_replace_dir
 from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
@@ -76,14 +78,29 @@ def read_scene(path: str | Path) -> Scene:
     return Scene(path.name, model.cameras, poses, model.points3d)
 
 
+def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
+    """What a command reading a reconstructed scene reads, for
+    :func:`mvm.io.outputs.check_output_location`: every entry of the scene folder but the one
+    holding its output folder (``frames/``, ``sparse/``, ``poses2d.json``, videos, ...), and the
+    output folder's ``poses3d.json``."""
+    scene = Path(scene)
+    out = scene / output
+    entries = sorted(p for p in scene.iterdir() if not (p == out or p in out.parents)) if scene.is_dir() else []
+    return [*entries, out / "poses3d.json"]
+
+
 def output_dir(scene: str | Path, output: str = "mvm") -> Path:
     """The folder ``scene/output`` that receives a scene's results, checked before any work:
-    ``output`` is a relative name that stays in the scene, and an existing ``scene/output``
+    ``output`` is a relative name that stays in the scene, not one of its inputs (``frames/``,
+    ``sparse/``, ``poses2d.json``), and an existing ``scene/output``
     must be a folder that, every symbolic link resolved, lies inside the scene directory
     (:class:`~mvm.io.files.OutputError` otherwise). It is created by the first write."""
     scene = Path(scene)
     check_name(output, "--output", "output folder name")
     path = scene / output
+    if posixpath.normpath(output.replace("\\", "/")).split("/")[0] in (FRAMES, SPARSE, POSES2D):
+        raise OutputError(path, None, "is an input of the scene (frames/, sparse/, poses2d.json): "
+                                      "choose another output folder name")
     if path.is_symlink() or path.exists():
         try:
             inside_root(path, scene)
@@ -101,7 +118,7 @@ def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras, binary=binary, points3d=points3d),
-                       path / SPARSE)
+                       path / SPARSE, replace_unmarked=True)
     document = coco_keypoints_document(cameras.names, cameras.size, poses.view, poses.keypoints,
                                        poses.score, poses.ids, poses.appearance)
     atomic_write_json(path / POSES2D, document)

@@ -8,7 +8,6 @@ import numpy as np
 import torch
 
 from mvm.core.keypoints import COCO_SIGMAS
-from mvm.errors import InputError
 from mvm.metrics.network import coco_to_common14, match_poses_2d, oks_ap, relative_depth_error, threedpw_pa_mpjpe
 from mvm.net.data import letterbox, load_image, read_annotations, to_tensor
 from mvm.net.decoder import DecoderConfig, Poses, decode, depth_at, normalize_depth

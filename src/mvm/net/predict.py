@@ -29,6 +29,10 @@ from mvm.net.lift import calibrate, lift
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"
+#: Bounds of the network input's long edge (px): the input and the backbone's first feature
+#: maps grow as its square (4096 px: about 3 GB of activations on a ResNet-50; 100,000 px
+#: would ask for 17 GB for the letterboxed image alone).
+MIN_INPUT_SIZE, MAX_INPUT_SIZE = 16, 4096
 
 
 def load_model(checkpoint: str | Path, use_ema: bool = True, device: str = "cpu") -> tuple[PoseNet, dict]:
@@ -103,6 +107,16 @@ def overlay(image: np.ndarray, result: dict) -> np.ndarray:
     return canvas
 
 
+def check_input_size(size, source: str | Path | None, field: str) -> int:
+    """``size`` when it is a whole number of :data:`MIN_INPUT_SIZE` to :data:`MAX_INPUT_SIZE`
+    px; else one :class:`InputError` line naming ``source`` and ``field``, before any memory
+    is taken for it."""
+    if isinstance(size, bool) or not isinstance(size, int) or not MIN_INPUT_SIZE <= size <= MAX_INPUT_SIZE:
+        raise InputError(source, field, f"expected a long edge of {MIN_INPUT_SIZE} to {MAX_INPUT_SIZE} px, "
+                                        f"got {size!r}")
+    return size
+
+
 def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Path | None = None,
             input_size: int | None = None, focal_px: float | None = None,
             decoder: DecoderConfig = DecoderConfig(), device: str = "auto") -> list[dict]:
@@ -122,8 +136,11 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
     """
     if not images:
         raise InputError(None, "images", "no image given")
+    if input_size is not None:
+        check_input_size(input_size, None, "--input-size")
     model, meta = load_model(checkpoint, device=str(select_device(device)))
-    size = int(input_size or meta.get("config", {}).get("input_size", 385))
+    size = input_size or check_input_size(meta.get("config", {}).get("input_size", 385),
+                                          Path(checkpoint).with_suffix(".json"), "config.input_size")
     results = []
     out = Path(out_dir) if out_dir is not None else None
     for path in images:

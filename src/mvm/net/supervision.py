@@ -26,7 +26,8 @@ from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_bytes
 from mvm.io.coco import annotation_record, empty_dataset
 from mvm.io.coco_dataset import read_coco_dataset
-from mvm.io.files import OutputError, atomic_replace_dir, atomic_write_bytes, atomic_write_json, make_dir
+from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
+from mvm.io.outputs import atomic_replace_dir, check_output_location
 
 LOG = logging.getLogger(__name__)
 
@@ -125,19 +126,10 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
     if link not in LINK_MODES:
         raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
     out_dir = Path(out_dir)
-    _check_dataset_dir(out_dir)
     items = [_as_item(item) for item in scenes_and_persons]
+    check_output_location(out_dir, [frames for _, _, frames in items if frames is not None])
     atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints, prior), out_dir)
     return out_dir / ANNOTATIONS_FILE
-
-
-def _check_dataset_dir(out_dir: Path) -> None:
-    """An existing dataset folder is replaced as a whole: refuse one that holds anything else."""
-    if out_dir.is_dir():
-        other = sorted(p.name for p in out_dir.iterdir() if p.name not in (ANNOTATIONS_FILE, "images"))
-        if other:
-            raise OutputError(out_dir, None, f"holds {other[0]!r}, not only a dataset (annotations.json, "
-                                             "images/): choose a new or empty folder")
 
 
 def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int, prior=None) -> None:

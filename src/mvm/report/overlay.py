@@ -14,8 +14,10 @@ import numpy as np
 
 from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
-from mvm.io.files import OutputError, atomic_output, atomic_replace_dir, atomic_write_bytes
+from mvm.io.files import atomic_output, atomic_write_bytes
 from mvm.io.images import read_image
+from mvm.io.outputs import atomic_replace_dir, check_output_location
+from mvm.io.scene_dir import output_dir, scene_inputs
 from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
 from mvm.report.load import SceneResult, load_result
 
@@ -200,26 +202,18 @@ def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output:
         raise InputError(None, "--every", f"expected a positive step, got {step}")
     if image_format not in IMAGE_SUFFIXES:
         raise InputError(None, "image format", f"expected one of {IMAGE_SUFFIXES}, got {image_format!r}")
+    out = Path(out) if out is not None else output_dir(scene_dir, output) / "overlay"
+    video = out.suffix.lower() == ".mp4"
+    check_output_location(out, scene_inputs(scene_dir, output), replaced=not video)
     result = load_result(scene_dir, output)
     renderer = ViewRenderer(result)
-    out = Path(out) if out is not None else result.out_dir / "overlay"
     views = range(0, len(result.scene.cameras), step)
-    if out.suffix.lower() == ".mp4":
+    if video:
         _write_video(out, (renderer.render(v, max_width) for v in views), fps)
     else:
-        _check_overlay_dir(out)
         atomic_replace_dir(lambda tmp: _write_images(tmp, renderer, views, max_width, image_format), out)
     log.info("%s: %d overlays written", out, len(views))
     return OverlaySummary(out, len(views), renderer.has_frames)
-
-
-def _check_overlay_dir(out: Path) -> None:
-    """The overlay folder is replaced as a whole (one output set): refuse one that holds
-    anything but overlay images."""
-    if out.is_dir():
-        other = sorted(p.name for p in out.iterdir() if p.suffix.lower() not in IMAGE_SUFFIXES)
-        if other:
-            raise OutputError(out, None, f"holds {other[0]!r}, not only overlay images: choose a new or empty folder")
 
 
 def _write_images(folder: Path, renderer: ViewRenderer, views, max_width: int | None, image_format: str) -> None:

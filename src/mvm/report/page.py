@@ -19,6 +19,8 @@ import numpy as np
 from mvm import __version__
 from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
 from mvm.io.files import atomic_write_text
+from mvm.io.outputs import check_output_location
+from mvm.io.scene_dir import output_dir, scene_inputs
 from mvm.report import analysis
 from mvm.report.load import SceneResult, load_result
 from mvm.report.plots import bar_chart
@@ -287,11 +289,13 @@ matched to, unmatched poses in grey, reprojected 3D poses (thin, light) over the
 def write_report(scene_dir: str | Path, output: str = "mvm", frames: int = STRIP_FRAMES,
                  frame_width: int = STRIP_WIDTH, max_points: int = MAX_POINTS, path: str | Path | None = None) -> Path:
     """Write the report of a reconstructed scene (default ``<scene_dir>/<output>/report.html``)
-    and return its path."""
+    and return its path; a ``path`` that is, holds or lies inside an input of the scene is
+    refused before any work (:func:`mvm.io.outputs.check_output_location`)."""
+    path = Path(path) if path is not None else output_dir(scene_dir, output) / REPORT_NAME
+    check_output_location(path, scene_inputs(scene_dir, output), replaced=False)
     result = load_result(scene_dir, output)
     strip, on_frames = _strip(result, frames, frame_width)
     html = report_html(result, strip, on_frames, max_points)
-    path = Path(path) if path is not None else result.out_dir / REPORT_NAME
     atomic_write_text(path, html)
     log.info("%s: report written (%.1f kB)", path, len(html.encode()) / 1e3)
     return path

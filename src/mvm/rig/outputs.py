@@ -1,45 +1,49 @@
 """A rig's output set (``poses3d.jsonl``, ``tracks/*.trc``, ``recap.json``) written as one unit.
 
 The set is built in a temporary folder beside the output folder and swapped in whole
-(:func:`mvm.io.files.atomic_replace_dir`): a reader sees the previous complete set or the new
+(:func:`mvm.io.outputs.atomic_replace_dir`): a reader sees the previous complete set or the new
 complete set, never a new ``poses3d.jsonl`` beside an old ``recap.json`` nor ``.trc`` files left
-from a longer earlier run. Writers of one output folder take turns (an exclusive lock on the
-folder that holds it); the one holding the lock removes the temporary folders of killed runs.
+from a longer earlier run. Writers of one output folder take turns (its lock); the one holding
+the lock removes the marked temporary folders of killed runs. The output folder is checked
+before any work: never the rig's calibration or pose folders, nor a user's folder.
 """
 from __future__ import annotations
 
-import logging
-import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
-from mvm.errors import InputError
-from mvm.io.files import LockTimeout, atomic_replace_dir, exclusive_lock
+from mvm.io.outputs import LOCK_WAIT_S, atomic_replace_dir, check_output_location, is_mvm_output
+from mvm.rig.rigdir import find_calibration, pose_sources
 
-log = logging.getLogger(__name__)
-
-
-def leftovers(path: Path) -> list[Path]:
-    """Temporary folders of ``path``'s output set (``.NAME.*`` beside it). Only runs holding the
-    lock create them, so while it is held every one found was left by a killed run."""
-    return sorted(p for p in path.parent.glob(f".{path.name}.*") if p.is_dir() and not p.is_symlink())
+#: The output folder of a rig when none is given: ``RIG_DIR/mvm``.
+DEFAULT_OUTPUT = "mvm"
 
 
-def replace_output_set(build: Callable[[Path], None], path: str | Path, lock_timeout_s: float = 600.0) -> None:
+def rig_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> list[Path]:
+    """What :func:`mvm.rig.rigdir.read_rig` reads from ``rig_dir``: the calibration, the pose
+    folder (``pose/``, when there is one) and every candidate camera source in it but mvm's own
+    output folders (with their marker; ``-o RIG/results`` holds a ``recap.json``). Empty when
+    ``rig_dir`` is not a folder (reading it then fails with its own message)."""
+    rig_dir = Path(rig_dir)
+    if not rig_dir.is_dir():
+        return []
+    inputs = [Path(calib) if calib else find_calibration(rig_dir)]
+    if (rig_dir / "pose").is_dir():
+        inputs.append(rig_dir / "pose")
+    return inputs + [p for p in pose_sources(rig_dir).values() if not is_mvm_output(p)]
+
+
+def check_rig_output(rig_dir: str | Path, calib: str | Path | None, output: str | Path | None) -> Path:
+    """The rig's output folder (``output``, default ``RIG_DIR/mvm``), refused in one line when it
+    is, holds or lies inside an input of the rig, or is a non-empty folder mvm did not make
+    (:func:`mvm.io.outputs.check_output_location`)."""
+    out_dir = Path(output) if output else Path(rig_dir) / DEFAULT_OUTPUT
+    return check_output_location(out_dir, rig_inputs(rig_dir, calib))
+
+
+def replace_output_set(build: Callable[[Path], None], path: str | Path, lock_timeout_s: float = LOCK_WAIT_S) -> None:
     """Call ``build(folder)`` to write a complete output set into a fresh folder, then put it in
     place of ``path`` (a folder) in one rename. An exception in ``build`` leaves ``path`` as it
-    was and no temporary folder; OS errors become :class:`InputError` naming ``path``."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise InputError(path, None, "exists and is not a folder: cannot write the rig's outputs there")
-    try:
-        with exclusive_lock(path.parent, lock_timeout_s):
-            for stale in leftovers(path):
-                log.info("removing %s, left by an interrupted run", stale)
-                shutil.rmtree(stale, ignore_errors=True)
-            atomic_replace_dir(build, path)
-    except LockTimeout:
-        raise InputError(path.parent, None, f"another mvm run has been writing here for more than "
-                                            f"{lock_timeout_s:g} s") from None
-    except OSError as e:
-        raise InputError(path, None, f"cannot write the output folder: {e.strerror or e}") from None
+    was and no temporary folder; OS errors and a lock held by another run longer than
+    ``lock_timeout_s`` become :class:`~mvm.io.files.OutputError` lines naming ``path``."""
+    atomic_replace_dir(build, path, lock_timeout_s=lock_timeout_s)

@@ -21,7 +21,7 @@ from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.outputs import replace_output_set
+from mvm.rig.outputs import check_rig_output, replace_output_set
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
 from mvm.rig.skeleton import refine_tracks
@@ -229,6 +229,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     options = options or RigOptions()
     check_smoothing(options)
     timings = {}
+    out_dir = check_rig_output(rig_dir, calib, output)
     t0 = time.perf_counter()
     rig = read_rig(rig_dir, calib, frames, options.workers)
     timings["read_s"] = time.perf_counter() - t0
@@ -251,7 +252,6 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     summary["joint_flags"] = {n: round(float(c / max(counts.sum(), 1)), 4) for n, c in zip(FLAG_NAMES, counts)}
     summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"]
                                                             + timings["tracking_refinement_s"], 1e-9), 2)
-    out_dir = Path(output) if output else Path(rig_dir) / "mvm"
     t0 = time.perf_counter()
     lines = poses3d_lines(rig.frames, _local_members(persons, rig), X, track, names, flags, options.workers)
     outputs = {}

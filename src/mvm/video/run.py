@@ -6,16 +6,17 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from mvm.core.config import Config
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object, number
-from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.files import atomic_write_json
+from mvm.io.outputs import atomic_replace_dir
 from mvm.video.detect import DetectOptions, FramePoses, detect_scene
 from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
 from mvm.video.metric_scale import people_scale
@@ -78,7 +79,7 @@ def scale_model(scene: str | Path, s: float) -> None:
     scene = Path(scene)
     rec = pycolmap.Reconstruction(str(find_model_dir(scene / "sparse")))
     rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
-    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
 
 
 def reconstruct_scene(scene: str | Path, config: Config | None = None, output: str = "mvm",

@@ -15,8 +15,9 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
-from mvm.io.files import atomic_replace_dir, atomic_write_json
+from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
+from mvm.io.outputs import atomic_replace_dir
 from mvm.video.frames import FRAMES_DIR, list_frames
 
 log = logging.getLogger(__name__)
@@ -196,7 +197,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     seconds["matching"], t = time.perf_counter() - t, time.perf_counter()
     rec = _map(database, frames_dir, work, options)
     seconds["mapping"] = time.perf_counter() - t
-    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
     report = _report(rec, names, "colmap")
     report.seconds = {k: round(v, 3) for k, v in seconds.items()}
     _warn_unregistered(report, scene)
@@ -253,7 +254,7 @@ def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
     except Exception as e:  # pycolmap raises several types with C++ context
         raise InputError(model_dir, None, f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
     if Path(model).resolve() != (scene / "sparse").resolve():
-        atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse")
+        atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
     names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))
     report = _report(rec, names, f"colmap:{model_dir}")
     _warn_unregistered(report, scene)
@@ -294,7 +295,7 @@ def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
     K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = fx, fy, cx, cy, 1.0
     cameras = Cameras(K, traj.R[line[ok]], traj.t[line[ok]], np.broadcast_to([float(w), float(h)], (V, 2)).copy(),
                       tuple(n for n, k in zip(index.names, ok) if k))
-    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras), scene / "sparse")
+    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras), scene / "sparse", replace_unmarked=True)
     report = SfmReport(f"trajectory:{path}", list(cameras.names),
                        [n for n, k in zip(index.names, ok) if not k], float("nan"),
                        float(np.mean(cameras.focal)), 0, cameras.centers)

@@ -1,0 +1,267 @@
+"""Output folders: mvm writes only where it owns.
+
+Three rules keep a command from destroying what it did not make:
+
+* **Location** (:func:`check_output_location`): an output that is an input of the run,
+  contains one, or lies inside an input folder is refused before any work, in one line.
+* **Ownership**: a folder mvm writes as one set (:func:`atomic_replace_dir`) carries the marker
+  file :data:`OUTPUT_MARKER`, which lists the names written. An existing folder is replaced
+  only when it is empty, or carries the marker and holds nothing else; a user's folder, or a
+  file a user added to an output, is refused (:func:`check_replaceable`). A temporary folder is
+  named ``.NAME.mvm-tmp-RANDOM`` *and* carries :data:`TEMPORARY_MARKER`; the leftovers of a
+  killed run are removed only when both hold (:func:`remove_leftovers`), never a user's
+  ``.NAME.backup`` beside the output.
+* **One writer** (:func:`output_lock`): a run holds an ``flock`` on ``.NAME.lock`` beside the
+  output while it writes. A second run into the same output waits a bounded time, then is
+  refused in one line; the lock dies with its process, so a killed run never blocks the next.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from mvm.io.files import TEMPORARY_INFIX, OutputError, fsync_dir, make_dir, output_error
+
+try:
+    import fcntl
+except ImportError:                                    # not POSIX: no advisory locks
+    fcntl = None
+
+#: File inside every folder that mvm wrote as one output set: replacing that folder is allowed.
+OUTPUT_MARKER = ".mvm-output"
+#: File inside every temporary folder mvm makes: only such folders are removed as leftovers.
+TEMPORARY_MARKER = ".mvm-temporary"
+#: Seconds a run waits for another run writing the same output before refusing.
+LOCK_WAIT_S = 10.0
+
+
+def _resolved(path: str | Path) -> Path:
+    return Path(os.path.abspath(Path(path).expanduser())).resolve()
+
+
+def _contains(folder: Path, path: Path) -> bool:
+    return folder == path or folder in path.parents
+
+
+def check_output_location(output: str | Path, inputs: Iterable[str | Path], replaced: bool = True) -> Path:
+    """Refuse ``output`` when it is one of ``inputs``, contains one, or lies inside an input
+    folder (symbolic links resolved); with ``replaced`` (a folder written as one set, which
+    replaces what is there) also refuse an existing non-empty folder that mvm did not make
+    (:func:`check_replaceable`). Each refusal is one :class:`OutputError` line naming
+    ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
+    output = Path(output)
+    target = _resolved(output)
+    sources = [(given, _resolved(given)) for given in inputs]
+    for given, source in sources:
+        if target == source:
+            raise OutputError(output, None, f"is an input of this run ({given}): choose another output")
+    for given, source in sources:
+        if _contains(target, source):
+            raise OutputError(output, None, f"contains the input {given}: writing there would replace it; "
+                                            "choose another output")
+    for given, source in sources:
+        if source.is_dir() and _contains(source, target):
+            raise OutputError(output, None, f"lies inside the input folder {given}: choose another output")
+    if replaced:
+        check_replaceable(output)
+    return output
+
+
+def check_replaceable(path: str | Path) -> None:
+    """Refuse, in one :class:`OutputError` line, to replace ``path`` when it is not a folder, a
+    non-empty folder without :data:`OUTPUT_MARKER` (a folder mvm did not make), or an output
+    folder holding a name its marker does not list (something a user put there)."""
+    path = Path(path)
+    if not path.exists():
+        return
+    if not path.is_dir():
+        raise OutputError(path, None, "cannot write: exists and is not a folder")
+    try:
+        names = sorted(os.listdir(path))
+    except OSError as e:
+        raise output_error(path, e) from None
+    if not names:
+        return
+    written = _marked_names(path)
+    if written is None:
+        raise OutputError(path, None, f"is a folder mvm did not make (no {OUTPUT_MARKER} inside) and not empty: "
+                                      "it would be replaced; choose a new or empty folder")
+    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER)]
+    if other:
+        raise OutputError(path, None, f"holds {other[0]!r}, which mvm did not write there: it would be "
+                                      "replaced; move it or choose a new or empty folder")
+
+
+def is_mvm_output(path: str | Path) -> bool:
+    """Whether ``path`` is a folder that mvm wrote as one output set (it carries the marker)."""
+    return _marked_names(Path(path)) is not None
+
+
+def _marked_names(path: Path) -> set[str] | None:
+    """The names mvm wrote at the top of output folder ``path`` (listed in its marker), or None
+    when ``path`` carries no marker (a regular file, read as JSON: a list of names)."""
+    marker = path / OUTPUT_MARKER
+    if marker.is_symlink() or not marker.is_file():
+        return None
+    try:
+        names = json.loads(marker.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        return None
+    return set(names)
+
+
+def _mark_output(folder: Path) -> None:
+    """Write :data:`OUTPUT_MARKER` into ``folder``: the names of what it holds."""
+    names = sorted(n for n in os.listdir(folder) if n not in (OUTPUT_MARKER, TEMPORARY_MARKER))
+    (folder / OUTPUT_MARKER).write_text(json.dumps(names), encoding="utf-8")
+
+
+def make_temporary_dir(path: str | Path) -> Path:
+    """A fresh folder ``.NAME.mvm-tmp-RANDOM`` beside ``path`` carrying :data:`TEMPORARY_MARKER`."""
+    path = Path(path)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}{TEMPORARY_INFIX}", dir=path.parent))
+    except OSError as e:
+        raise output_error(path, e) from None
+    try:
+        (tmp / TEMPORARY_MARKER).touch()
+    except OSError as e:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise output_error(path, e) from None
+    return tmp
+
+
+def leftovers(path: str | Path) -> list[Path]:
+    """The temporary folders of ``path`` that a killed run left: named ``.NAME.mvm-tmp-*``
+    beside it, real folders (not links), each carrying :data:`TEMPORARY_MARKER` (a regular file).
+    Only a run holding :func:`output_lock` on ``path`` makes them, so under the lock every one
+    found is a leftover."""
+    path = Path(path)
+    found = []
+    for p in path.parent.glob(f".{path.name}{TEMPORARY_INFIX}*"):
+        marker = p / TEMPORARY_MARKER
+        if p.is_dir() and not p.is_symlink() and marker.is_file() and not marker.is_symlink():
+            found.append(p)
+    return sorted(found)
+
+
+def remove_leftovers(path: str | Path) -> int:
+    """Delete :func:`leftovers` of ``path``; returns how many. Call it holding :func:`output_lock`."""
+    stale = leftovers(path)
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return len(stale)
+
+
+def lock_path(path: str | Path) -> Path:
+    """The lock file of output ``path``: ``.NAME.lock`` beside it."""
+    path = Path(path)
+    return path.with_name(f".{path.name}.lock")
+
+
+@contextlib.contextmanager
+def output_lock(path: str | Path, timeout_s: float = LOCK_WAIT_S, poll_s: float = 0.05):
+    """Hold the one writer's lock of output ``path`` (``flock`` on :func:`lock_path`, made in the
+    folder that holds ``path``). Waits up to ``timeout_s`` for another holder, then raises one
+    :class:`OutputError` line: ``another mvm run is writing PATH``. The lock file is removed on
+    release; the lock itself is released by the kernel if the process dies. Without ``fcntl``
+    (not POSIX) it does not lock."""
+    path = Path(path)
+    make_dir(path.parent)
+    if fcntl is None:
+        yield
+        return
+    lock = lock_path(path)
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        except OSError as e:
+            raise output_error(lock, e) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            if time.monotonic() >= deadline:
+                raise OutputError(path, None, f"another mvm run is writing {path} (waited {timeout_s:g} s): "
+                                              "try again when it has finished") from None
+            time.sleep(poll_s)
+            continue
+        # the holder before us may have removed the file it locked: ours must still be the one named
+        try:
+            same = os.path.samestat(os.fstat(fd), os.stat(lock))
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        yield
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(lock)                            # while still held: the next holder checks the name
+        os.close(fd)
+
+
+def atomic_replace_dir(build: Callable[[Path], None], path: str | Path, replace_unmarked: bool = False,
+                       lock_timeout_s: float = LOCK_WAIT_S) -> None:
+    """Call ``build(tmp_dir)`` to fill a fresh folder, then put it in place of ``path``.
+
+    An existing ``path`` is replaced only once the new content is complete, so the folder is
+    one output set: a reader sees the previous set or the new one, never a mix, and nothing of
+    an earlier, larger set survives. The new folder carries :data:`OUTPUT_MARKER`. An existing
+    non-empty ``path`` without it is refused (:func:`check_replaceable`) unless
+    ``replace_unmarked`` (a folder that is the scene's own by design, such as its ``sparse/``
+    model). The run holds :func:`output_lock` on ``path`` (waiting at most ``lock_timeout_s``)
+    and first removes the :func:`leftovers` of killed runs. An OS error raises
+    :class:`OutputError` naming ``path``.
+    """
+    path = Path(path)
+    make_dir(path.parent)
+    with output_lock(path, lock_timeout_s):
+        if path.exists() and not path.is_dir():
+            raise OutputError(path, None, "cannot write: exists and is not a folder")
+        if not replace_unmarked:
+            check_replaceable(path)
+        remove_leftovers(path)
+        tmp = make_temporary_dir(path)
+        try:
+            build(tmp)
+            _mark_output(tmp)
+            if path.exists():
+                _swap(tmp, path)
+            else:
+                os.replace(tmp, path)
+            (path / TEMPORARY_MARKER).unlink()            # a run killed before this left a complete set
+        except OSError as e:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise output_error(path, e) from None
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        fsync_dir(path.parent)
+
+
+def _swap(new: Path, path: Path) -> None:
+    """Put folder ``new`` in place of folder ``path``: the previous set first moves inside a
+    marked temporary folder (removed at once, or as a leftover by the next run), and comes back
+    if the second rename fails."""
+    trash = make_temporary_dir(path)
+    previous = trash / "previous"
+    os.replace(path, previous)
+    try:
+        os.replace(new, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.replace(previous, path)
+        shutil.rmtree(trash, ignore_errors=True)
+        raise
+    shutil.rmtree(trash, ignore_errors=True)

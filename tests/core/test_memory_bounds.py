@@ -1,0 +1,110 @@
+"""Memory bounded before it is taken: the duplicate test of thousands of candidate persons works
+in chunks (the same answer as all pairs at once), and a triangulation larger than
+``max_affinity_bytes`` is refused in one line naming the setting, before its arrays exist."""
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+
+import mvm.core.pipeline as pipeline
+from mvm.core.config import Config
+from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.pipeline import duplicate_pairs, match, triangulate_groups, triangulation_bytes
+from mvm.errors import InputError
+from mvm.sim.simulate import SimConfig, simulate
+
+from helpers import standing_poses
+
+
+def _reference_pairs(X: np.ndarray, block: np.ndarray, limit: float) -> np.ndarray:
+    """The duplicate test written pair by pair, as the docstring states it."""
+    P = len(X)
+    close = np.zeros((P, P), dtype=bool)
+
+    def torso(x):
+        lengths = [np.linalg.norm(x[s] - x[h]) for s, h in ((LEFT_SHOULDER, LEFT_HIP), (RIGHT_SHOULDER, RIGHT_HIP))]
+        lengths = [v for v in lengths if np.isfinite(v)]
+        return np.mean(lengths) if lengths else np.nan
+
+    def mean_distance(a, b):
+        d = np.linalg.norm(a - b, axis=-1)
+        d = d[np.isfinite(d)]
+        return d.mean() if len(d) else np.nan
+
+    for i in range(P):
+        for j in range(P):
+            if i != j and block[i] == block[j]:
+                d = np.fmin(mean_distance(X[i], X[j]), mean_distance(X[i], X[j][FLIP_PERMUTATION]))
+                close[i, j] = d < limit * np.fmax(torso(X[i]), torso(X[j]))
+    return close
+
+
+def _candidates(P: int, rng) -> np.ndarray:
+    X = rng.normal(scale=0.3, size=(P, 17, 3))
+    X[P // 2:] = X[:P - P // 2] + rng.normal(scale=0.01, size=(P - P // 2, 17, 3))    # duplicates
+    X[rng.random((P, 17)) < 0.2] = np.nan
+    return X
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 2**14])
+def test_duplicates_in_chunks_equal_the_pair_by_pair_test(monkeypatch, chunk):
+    monkeypatch.setattr(pipeline, "DUPLICATE_PAIRS_CHUNK", chunk)
+    rng = np.random.default_rng(3)
+    for P, blocks in ((0, 1), (1, 1), (2, 1), (9, 1), (40, 6), (60, 60)):
+        X = _candidates(P, rng)
+        block = rng.integers(0, blocks, P)
+        with np.errstate(invalid="ignore"):
+            expected = _reference_pairs(X, block, 0.5)
+        found = duplicate_pairs(X, block, 0.5)
+        assert np.array_equal(found, expected), (P, blocks, chunk)
+        if P >= 9 and blocks == 1:
+            assert found.any()                                        # the test meets duplicates
+
+
+def test_duplicates_of_many_candidates_take_bounded_memory():
+    """600 candidate persons in one block: 359,400 pairs, 290 MB of differences at once;
+    in chunks the working memory stays near the (P, P) answer."""
+    X = _candidates(600, np.random.default_rng(0))
+    tracemalloc.start()
+    try:
+        duplicate_pairs(X, np.zeros(600, dtype=int), 0.5)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 600**2 + 100 * 2**20, peak / 2**20
+
+
+def test_a_triangulation_over_the_limit_is_refused_before_its_arrays_exist():
+    scene, _ = simulate(SimConfig(people=3, frames=12, seed=2), bank_poses=standing_poses())
+    groups = [np.arange(12) % len(scene.poses)] * 5000                         # 5000 candidates of 12 views
+    need = triangulation_bytes(groups, 17, 48)
+    assert need == 5000 * 12 * 17 * 49 * 64
+    config = Config(max_affinity_bytes=need - 1)
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError) as info:
+            triangulate_groups(scene.cameras, scene.poses, groups, config)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    message = str(info.value)
+    assert message.startswith("max_affinity_bytes: triangulating 5000 candidate persons of up to 12 views")
+    assert "--set max_affinity_bytes=" in message and "\n" not in message
+    assert peak < 2**20                                                          # nothing was allocated
+
+
+def test_triangulation_memory_is_as_estimated():
+    scene, _ = simulate(SimConfig(people=8, frames=40, seed=3), bank_poses=standing_poses())
+    config = Config()
+    groups = match(scene.cameras, scene.poses, config)
+    tracemalloc.start()
+    try:
+        triangulate_groups(scene.cameras, scene.poses, groups, config)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    estimate = triangulation_bytes(groups, 17, config.ransac_hypotheses)
+    assert 0.5 * estimate < peak <= estimate, (peak / 2**20, estimate / 2**20)
+    triangulate_groups(scene.cameras, scene.poses, groups, config.replace(max_affinity_bytes=estimate))   # fits
