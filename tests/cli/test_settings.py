@@ -52,11 +52,33 @@ BAD = [
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=1"], "--rig-set: savgol_window: must be >= 3, got 1"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=8"], "--rig-set: savgol_window: must be odd, got 8"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"], "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
-    (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"], "--rig-set: seed: unknown setting (known: association, batch_size, "
-     "bone_weight, complete, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, max_link_distance_m, "
-     "metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, up, workers)"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"],
+     "--rig-set: seed: not taken by --rig-set of mvm rig reconstruct: give it with --set"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "batch_size=8"],
+     "--set: batch_size: not taken by --set of mvm rig reconstruct: give it with --rig-set"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "video_order=false"], "--set: video_order: not used by mvm rig reconstruct"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "frame_rat=25"], "--rig-set: frame_rat: not a setting of mvm rig "
+     "reconstruct (known: batch_size, bone_weight, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, "
+     "max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, "
+     "up, workers)"),
     (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"], "--set: refine_max_iterations: must be >= 1, got 0"),
 ]
+
+
+#: A ``--set`` key the command does not take: (arguments after ``mvm``, the command named).
+UNUSED = [(["reconstruct", "{d}/scene", "--set", "batch_size=3"], "mvm reconstruct"),
+          (["demo", "-o", "{d}/demo", "--set", "people=3"], "mvm demo"),
+          (["batch", "{d}/root", "--set", "max_frames=3"], "mvm batch"),
+          (["rig", "reconstruct", "{d}/rig", "--set", "frames=3"], "mvm rig reconstruct")]
+
+
+@pytest.mark.parametrize("args, command", UNUSED)
+def test_a_set_key_the_command_does_not_use_is_refused(tmp_path, args, command):
+    key = args[-1].split("=")[0]
+    result = CliRunner().invoke(main, [a.format(d=tmp_path) for a in args])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith(f"mvm: error: --set: {key}: not a setting of {command} (known: ")
+    assert result.stderr.count("\n") == 1 and not any(tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("args, line", BAD, ids=[" ".join(a[0:1] + a[2:]).replace("{d}/", "") for a, _ in BAD])

@@ -1,25 +1,67 @@
-"""Reconstruction settings read from a TOML file and ``--set`` overrides."""
+"""Settings read from a TOML file (one table per settings object) and ``--set`` overrides.
+
+A settings file holds one table per settings object (:data:`TABLES`: ``[reconstruct]``,
+``[rig]``, ``[simulate]``, ...), each read by the commands that use it; keys outside any table
+are the reconstruction's (``[reconstruct]``). ``mvm config`` prints the file of every setting
+with its default (:mod:`mvm.io.settings_reference`).
+"""
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
 from mvm.core.config import Config, settings_from
 from mvm.errors import InputError
 from mvm.io.checks import load_toml
 
+#: The tables of a settings file: name -> ``module:class`` of the settings dataclass it holds
+#: (imported when the table is read or printed). A nested settings dataclass is a sub-table
+#: (``[detect.rtm]``).
+TABLES = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
+          "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",
+          "sfm": "mvm.video.sfm:SfmOptions", "detect": "mvm.video.detect:DetectOptions",
+          "batch": "mvm.batch.stages:BatchOptions", "train": "mvm.net.train:TrainConfig"}
 
-def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
-    """Read a TOML config (flat, or under ``[reconstruct]``) and apply ``overrides`` (from
-    ``--set``); every setting is checked here, with the file or ``--set`` in the message."""
-    values: dict = {}
-    if path is not None:
-        path = Path(path)
-        data = load_toml(path)
-        data = data.get("reconstruct", data)
-        if not isinstance(data, dict):
-            raise InputError(path, "reconstruct", "expected a table of settings")
-        values.update(data)
+
+def table_class(table: str) -> type:
+    """The settings dataclass of ``table`` (:data:`TABLES`)."""
+    module, name = TABLES[table].split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def read_tables(path: str | Path) -> dict[str, dict]:
+    """The tables of the settings file ``path``: ``{table: values}``, keys outside any table
+    under ``"reconstruct"``; an unknown table raises an InputError naming the file."""
+    path = Path(path)
+    tables: dict[str, dict] = {}
+    flat: dict = {}
+    for name, value in load_toml(path).items():
+        if not isinstance(value, dict):
+            flat[name] = value
+        elif name in TABLES:
+            tables[name] = value
+        else:
+            raise InputError(path, name, f"unknown table (known: {', '.join(TABLES)})")
+    if flat:
+        tables["reconstruct"] = {**flat, **tables.get("reconstruct", {})}
+    return tables
+
+
+def load_settings(cls, table: str, path: str | Path | None = None, overrides: dict | None = None,
+                  sources: dict | None = None):
+    """The settings dataclass ``cls`` of the ``table`` of the settings file ``path`` (none: the
+    defaults) with ``overrides`` (from the command line, each named in messages by
+    ``sources[key]``, default ``--set``); every setting is checked here, a bad one raises an
+    InputError naming the file or the option and the setting."""
+    values = dict(read_tables(path).get(table, {})) if path is not None else {}
     overrides = overrides or {}
     values.update(overrides)
-    return settings_from(Config, values, str(path) if path is not None else "--set",
-                         sources={k: "--set" for k in overrides})
+    return settings_from(cls, values, str(path) if path is not None else "--set",
+                         sources={k: (sources or {}).get(k, "--set") for k in overrides})
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
+    """Read the reconstruction settings of a TOML file (its ``[reconstruct]`` table, or flat
+    keys) and apply ``overrides`` (from ``--set``); every setting is checked here, with the
+    file or ``--set`` in the message."""
+    return load_settings(Config, "reconstruct", path, overrides)
