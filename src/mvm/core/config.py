@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import operator
+import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -60,13 +61,20 @@ def _shown(value) -> str:
     return text if len(text) <= 40 else text[:39] + "…"
 
 
-def _kind(field: dataclasses.Field) -> tuple[str | None, bool]:
+def setting_kind(field: dataclasses.Field) -> tuple[str | None, bool]:
     """(``"bool"``, ``"int"``, ``"float"``, ``"str"`` or None for other types, whether None is allowed)."""
     annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
     parts = [part.strip() for part in annotation.split("|")]
     optional = "None" in parts
     kinds = [part for part in parts if part in ("bool", "int", "float", "str")]
     return (kinds[0] if len(kinds) == 1 and len(parts) - optional == 1 else None), optional
+
+
+def _number_tuple_length(field: dataclasses.Field) -> int | None:
+    """N for a field of type ``tuple[float, ...]`` of N floats (``tuple[float, float]``), else None."""
+    annotation = field.type if isinstance(field.type, str) else str(field.type)
+    match = re.fullmatch(r"tuple\[(float(?:, float)*)\](?: \| None)?", annotation.strip())
+    return match.group(1).count("float") if match else None
 
 
 def _type_problem(kind: str | None, value) -> str | None:
@@ -93,7 +101,7 @@ def check_settings(settings) -> None:
     """
     for field in fields(settings):
         value = getattr(settings, field.name)
-        kind, optional = _kind(field)
+        kind, optional = setting_kind(field)
         if value is None and optional:
             continue
         problem = _type_problem(kind, value)
@@ -114,9 +122,15 @@ def coerce_setting(cls, name: str, value, source: str | Path | None):
     by_name = {f.name: f for f in fields(cls)}
     if name not in by_name:
         raise InputError(source, name, f"unknown setting (known: {', '.join(sorted(by_name))})")
-    kind, optional = _kind(by_name[name])
+    kind, optional = setting_kind(by_name[name])
     if optional and (value is None or (isinstance(value, str) and value.lower() in ("none", "null", ""))):
         return None
+    numbers = _number_tuple_length(by_name[name])
+    if numbers is not None:
+        if not (isinstance(value, (list, tuple)) and len(value) == numbers
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise InputError(source, name, f"expected {numbers} numbers, got {_shown(value)}")
+        return tuple(float(v) for v in value)
     try:
         if kind == "bool":
             if isinstance(value, str) and value.lower() in _BOOLS:
