@@ -24,6 +24,7 @@ ALLOWED: dict[str, set[str]] = {
     "video": {"core", "io", "scenes", "eval", "net", "errors"},
     "report": {"core", "io", "eval", "sim", "errors"},
     "batch": {"core", "io", "scenes", "eval", "sim", "rig", "net", "video", "report", "parallel", "errors"},
+    "settings": {"core", "io", "rig", "sim", "video", "batch", "net", "errors"},
 }
 
 

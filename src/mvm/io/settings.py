@@ -3,30 +3,29 @@
 A settings file holds one table per settings object (:data:`TABLES`: ``[reconstruct]``,
 ``[rig]``, ``[simulate]``, ...), each read by the commands that use it; keys outside any table
 are the reconstruction's (``[reconstruct]``). ``mvm config`` prints the file of every setting
-with its default (:mod:`mvm.io.settings_reference`).
+with its default (:mod:`mvm.settings`).
 """
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 from mvm.core.config import Config, settings_from
 from mvm.errors import InputError
 from mvm.io.checks import load_toml
 
-#: The tables of a settings file: name -> ``module:class`` of the settings dataclass it holds
-#: (imported when the table is read or printed). A nested settings dataclass is a sub-table
-#: (``[detect.rtm]``).
-TABLES = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
-          "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",
-          "sfm": "mvm.video.sfm:SfmOptions", "detect": "mvm.video.detect:DetectOptions",
-          "batch": "mvm.batch.stages:BatchOptions", "train": "mvm.net.train:TrainConfig"}
-
-
-def table_class(table: str) -> type:
-    """The settings dataclass of ``table`` (:data:`TABLES`)."""
-    module, name = TABLES[table].split(":")
-    return getattr(importlib.import_module(module), name)
+#: The tables of a settings file, one per settings object, and the commands that read each
+#: (the settings dataclass of each: :data:`mvm.settings.SETTINGS`). A nested settings
+#: dataclass is a sub-table (``[detect.rtm]``).
+TABLES = {
+    "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
+    "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
+    "simulate": "The simulated scenes of mvm simulate and demo (the library's SimConfig).",
+    "frames": "Frame sampling of mvm frames, run and batch (--config of batch).",
+    "sfm": "Structure from motion of mvm sfm, run and batch (--config of batch).",
+    "detect": "2D detection of mvm detect, run and batch (--config of batch).",
+    "batch": "mvm batch's own settings (--config; each stage's are in its own table).",
+    "train": "Training: mvm train CONFIG reads these keys at the top level of its file.",
+}
 
 
 def read_tables(path: str | Path) -> dict[str, dict]:

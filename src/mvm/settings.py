@@ -1,5 +1,6 @@
-"""The reference settings file (``mvm config``): every setting of every command, one TOML table
-per settings object (:data:`mvm.io.settings.TABLES`), each key with its default and a comment
+"""The settings of every command: the settings dataclass of each table of a settings file
+(:data:`SETTINGS`), the reference file (``mvm config``), one TOML table per settings object
+(:data:`mvm.io.settings.TABLES`), each key with its default and a comment
 giving what it does, its unit and its allowed values; and the check of such a file.
 
 Everything is generated from the settings dataclasses: the fields, their defaults and their
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import importlib
 import inspect
 import json
 import math
@@ -20,20 +22,21 @@ from pathlib import Path
 
 from mvm.core.config import Bounds, setting_kind, settings_from
 from mvm.errors import InputError
-from mvm.io.settings import TABLES, read_tables, table_class
+from mvm.io.settings import TABLES, read_tables
 
-#: What each table holds and which commands read it (through ``--config``).
-TABLE_NOTES = {
-    "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
-    "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
-    "simulate": "The simulated scenes of mvm simulate and demo (the library's SimConfig).",
-    "frames": "Frame sampling of mvm frames, run and batch (--config of batch).",
-    "sfm": "Structure from motion of mvm sfm, run and batch (--config of batch).",
-    "detect": "2D detection of mvm detect, run and batch (--config of batch).",
-    "batch": "mvm batch's own settings (--config; each stage's are in its own table).",
-    "train": "Training: mvm train CONFIG reads these keys at the top level of its file.",
-}
+#: The settings dataclass of each table of :data:`mvm.io.settings.TABLES`, as ``module:class``
+#: (imported when the table is read or printed: the video stages import OpenCV, training torch).
+SETTINGS = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
+            "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",
+            "sfm": "mvm.video.sfm:SfmOptions", "detect": "mvm.video.detect:DetectOptions",
+            "batch": "mvm.batch.stages:BatchOptions", "train": "mvm.net.train:TrainConfig"}
 _WIDTH = 96
+
+
+def table_class(table: str) -> type:
+    """The settings dataclass of ``table`` (:data:`SETTINGS`)."""
+    module, name = SETTINGS[table].split(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def field_docs(cls) -> dict[str, str]:
@@ -131,7 +134,7 @@ def table_lines(name: str, cls, values=None) -> list[str]:
     """The lines of the table ``name`` of the settings dataclass ``cls`` (sub-tables of nested
     settings after its keys); ``values``: the instance whose values are written (default: the
     defaults)."""
-    tables = {TABLES[t].split(":")[1]: t for t in TABLES}
+    tables = {SETTINGS[t].split(":")[1]: t for t in SETTINGS}
     docs = field_docs(cls)
     lines, nested = [f"[{name}]"], []
     for field in dataclasses.fields(cls):
@@ -166,7 +169,7 @@ def reference_toml(tables: tuple[str, ...] | None = None) -> str:
            "# Copy it, keep what you change, pass it with --config; `mvm config --check FILE` checks it.",
            "# A key left out keeps its default; a key shown as `# key =    (unset)` has none."]
     for name in tables or TABLES:
-        out += ["", ""] + _comment(TABLE_NOTES.get(name, "")) + table_lines(name, table_class(name))
+        out += ["", ""] + _comment(TABLES[name]) + table_lines(name, table_class(name))
     return "\n".join(out) + "\n"
 
 
