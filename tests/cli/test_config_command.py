@@ -120,3 +120,10 @@ def test_config_check_without_train_does_not_import_torch(reference, tmp_path):
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "False"
     assert reference_toml(("reconstruct",)).count("\n[") == 1
+
+
+def test_a_table_name_given_a_value_is_refused(tmp_path):
+    path = tmp_path / "flat.toml"
+    path.write_text("reconstruct = 3\n")
+    result = CliRunner().invoke(main, ["config", "--check", str(path)])
+    assert (result.exit_code, result.stderr) == (2, f"mvm: error: {path}: reconstruct: expected a table of settings\n")

@@ -3,6 +3,7 @@ command's options): one line naming the setting (and the file), exit status 2, b
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -168,3 +169,18 @@ def test_the_mechanism_on_a_new_settings_class():
         assert str(info.value) == line
     assert settings_from(Options, {"window": "none"}, "x").window is None
     assert Bounds(ge=1).problem(0) == "must be >= 1, got 0" and Bounds(ge=1).problem(1) is None
+
+
+def test_a_scene_records_the_settings_in_effect_once(tmp_path):
+    """poses3d.json holds the settings the scene ran with: those left to the driver resolved
+    (a scene: the association in 3D, no completion), each once."""
+    runner = CliRunner()
+    scene = tmp_path / "scene"
+    assert runner.invoke(main, ["simulate", str(scene), "--preset", "clean", "--people", "2", "--frames", "20"]).exit_code == 0
+    for args, association in (([], "3d"), (["--set", "association=paper"], "paper")):
+        result = runner.invoke(main, ["reconstruct", str(scene), "--no-refine", *args])
+        assert result.exit_code == 0, result.output
+        text = (scene / "mvm" / "poses3d.json").read_text()
+        assert text.count('"association"') == 1 and text.count('"complete"') == 1
+        config = json.loads(text)["config"]
+        assert (config["association"], config["complete"], config["refine"]) == (association, False, False)

@@ -36,6 +36,8 @@ def read_tables(path: str | Path) -> dict[str, dict]:
     flat: dict = {}
     for name, value in load_toml(path).items():
         if not isinstance(value, dict):
+            if name in TABLES:
+                raise InputError(path, name, "expected a table of settings")
             flat[name] = value
         elif name in TABLES:
             tables[name] = value
