@@ -54,8 +54,12 @@ def test_the_printed_file_passes_its_check_and_reads_back_as_the_defaults(refere
     from mvm.cli.common import read_config
     from mvm.cli.rig import read_rig_options
 
+    from mvm.batch import BatchOptions
+    from mvm.cli.batch import read_batch_options
+
     assert read_config(str(reference), ()) == Config()
     assert read_rig_options(str(reference), ()) == RigOptions()
+    assert read_batch_options(str(reference), ()) == BatchOptions()
 
 
 def test_a_changed_value_is_read_by_the_command(reference, tmp_path):
@@ -65,6 +69,12 @@ def test_a_changed_value_is_read_by_the_command(reference, tmp_path):
     from mvm.cli.rig import read_rig_options
 
     assert read_rig_options(str(path), ()) == RigOptions(max_gap=3)
+    from mvm.cli.batch import read_batch_options
+
+    edited = path.read_text().replace("\njpeg_quality = 95\n", "\njpeg_quality = 80\n")
+    path.write_text(edited.replace('\n# detector =    (unset)\n', '\ndetector = "rtmo"\n'))
+    batch = read_batch_options(str(path), (), rate=2.0)
+    assert (batch.frames.jpeg_quality, batch.frames.rate, batch.detect.detector, batch.config.tau) == (80, 2.0, "rtmo", 0.3)
     assert load_config(path) == Config(tau=0.3, association="3d")
 
 

@@ -70,7 +70,8 @@ BAD = [
 UNUSED = [(["reconstruct", "{d}/scene", "--set", "batch_size=3"], "mvm reconstruct"),
           (["demo", "-o", "{d}/demo", "--set", "people=3"], "mvm demo"),
           (["batch", "{d}/root", "--set", "max_frames=3"], "mvm batch"),
-          (["rig", "reconstruct", "{d}/rig", "--set", "frames=3"], "mvm rig reconstruct")]
+          (["rig", "reconstruct", "{d}/rig", "--set", "frames=3"], "mvm rig reconstruct"),
+          (["train", "{d}/train.toml", "--set", "tau=0.3"], "mvm train")]
 
 
 @pytest.mark.parametrize("args, command", UNUSED)

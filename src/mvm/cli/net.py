@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import FOCAL, Number, command, each_isolated, report_failures
+from mvm.cli.common import FOCAL, Number, command, each_isolated, refuse_unused, report_failures
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
@@ -70,9 +70,11 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
 
     Several GPUs: torchrun --nproc-per-node N -m mvm train CONFIG (batch_size per GPU).
     """
-    from mvm.net.train import load_config, train
+    from mvm.net.train import TrainConfig, load_config, train
 
-    cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
+    pairs = _parse_sets(sets)
+    refuse_unused(pairs, TrainConfig)
+    cfg = load_config(config, pairs | ({"device": device} if device else {}))
     if plot:
         from mvm.net.curves import plot_metrics
 
