@@ -65,7 +65,8 @@ def test_the_printed_file_passes_its_check_and_reads_back_as_the_defaults(refere
 def test_a_changed_value_is_read_by_the_command(reference, tmp_path):
     path = tmp_path / "edited.toml"
     path.write_text(reference.read_text().replace("\nmax_gap = 10\n", "\nmax_gap = 3\n")
-                    .replace("\ntau = 0.2\n", "\ntau = 0.3\n").replace('\nassociation = "auto"\n', '\nassociation = "3d"\n'))
+                    .replace("\ntau = 0.2\n", "\ntau = 0.3\n")
+                    .replace('\nassociation = "auto"\n', '\nassociation = "3d"\n'))
     from mvm.cli.rig import read_rig_options
 
     assert read_rig_options(str(path), ()) == RigOptions(max_gap=3)
@@ -74,7 +75,8 @@ def test_a_changed_value_is_read_by_the_command(reference, tmp_path):
     edited = path.read_text().replace("\njpeg_quality = 95\n", "\njpeg_quality = 80\n")
     path.write_text(edited.replace('\n# detector =    (unset)\n', '\ndetector = "rtmo"\n'))
     batch = read_batch_options(str(path), (), rate=2.0)
-    assert (batch.frames.jpeg_quality, batch.frames.rate, batch.detect.detector, batch.config.tau) == (80, 2.0, "rtmo", 0.3)
+    assert (batch.frames.jpeg_quality, batch.frames.rate, batch.detect.detector, batch.config.tau) == \
+        (80, 2.0, "rtmo", 0.3)
     assert load_config(path) == Config(tau=0.3, association="3d")
 
 
@@ -137,3 +139,33 @@ def test_a_table_name_given_a_value_is_refused(tmp_path):
     path.write_text("reconstruct = 3\n")
     result = CliRunner().invoke(main, ["config", "--check", str(path)])
     assert (result.exit_code, result.stderr) == (2, f"mvm: error: {path}: reconstruct: expected a table of settings\n")
+
+
+@pytest.mark.parametrize("args, text, line", [
+    (["frames", "{d}/clip.mp4", "-o", "{d}/scene"], "[frames]\njpeg_quality = 101",
+     "jpeg_quality: must be <= 100, got 101"),
+    (["sfm", "{d}/scene"], "[sfm]\nmax_features = 10", "max_features: must be >= 64, got 10"),
+    (["detect", "{d}/scene", "--import", "{d}/x.json"], "[detect]\nmode = \"huge\"", "mode: expected one of"),
+    (["run", "{d}/clip.mp4", "-o", "{d}/scene", "--import", "{d}/x.json"], "[detect.rtm]\nscore_threshold = -1",
+     "rtm.score_threshold: must be >= 0, got -1.0"),
+    (["batch", "{d}/root"], "[sfm]\ncamera_model = \"PINHOL\"", "camera_model: expected one of"),
+])
+def test_the_video_commands_read_their_tables(tmp_path, args, text, line):
+    path = tmp_path / "settings.toml"
+    path.write_text(text)
+    result = CliRunner().invoke(main, [a.format(d=tmp_path) for a in args] + ["--config", str(path)])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith(f"mvm: error: {path}: {line}") and result.stderr.count("\n") == 1
+
+
+def test_an_option_given_wins_over_the_file(tmp_path):
+    from mvm.cli.video import _frame_options, _sfm_options
+    from mvm.video.frames import FrameOptions
+    from mvm.video.sfm import SfmOptions
+
+    path = tmp_path / "settings.toml"
+    path.write_text("[frames]\nblur_ratio = 0.5\nwidth = 640\n[sfm]\nmax_features = 2048\nrefine_focal = true\n")
+    assert _frame_options(str(path), None, None, 320, None) == FrameOptions(blur_ratio=0.5, width=320)
+    assert _sfm_options(str(path), None, 800.0, True, None, None) == \
+        SfmOptions(max_features=2048, focal_px=800.0, refine_focal=False)
+    assert _frame_options(None, None, None, None, None) == FrameOptions()

@@ -177,7 +177,8 @@ def test_a_scene_records_the_settings_in_effect_once(tmp_path):
     (a scene: the association in 3D, no completion), each once."""
     runner = CliRunner()
     scene = tmp_path / "scene"
-    assert runner.invoke(main, ["simulate", str(scene), "--preset", "clean", "--people", "2", "--frames", "20"]).exit_code == 0
+    simulated = runner.invoke(main, ["simulate", str(scene), "--preset", "clean", "--people", "2", "--frames", "20"])
+    assert simulated.exit_code == 0, simulated.output
     for args, association in (([], "3d"), (["--set", "association=paper"], "paper")):
         result = runner.invoke(main, ["reconstruct", str(scene), "--no-refine", *args])
         assert result.exit_code == 0, result.output

@@ -40,7 +40,8 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
     def table(cls, name, **flags):
         flags = {k: v for k, v in flags.items() if v is not None}
         options = {"focal_px": "--focal"}
-        return load_settings(cls, name, config_path, flags, {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
+        return load_settings(cls, name, config_path, flags,
+                             {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
 
     return table(BatchOptions, "batch", checkpoint=checkpoint).replace(
         config=read_config(config_path, sets), frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate,

@@ -3,7 +3,17 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import Group, config_options, fmt, parse_sets, print_table, progress, read_config, refuse_unused, say
+from mvm.cli.common import (
+    Group,
+    config_options,
+    fmt,
+    parse_sets,
+    print_table,
+    progress,
+    read_config,
+    refuse_unused,
+    say,
+)
 
 
 def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):

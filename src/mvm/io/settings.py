@@ -20,9 +20,9 @@ TABLES = {
     "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
     "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
     "simulate": "The simulated scenes of mvm simulate and demo (the library's SimConfig).",
-    "frames": "Frame sampling of mvm frames, run and batch (--config of batch).",
-    "sfm": "Structure from motion of mvm sfm, run and batch (--config of batch).",
-    "detect": "2D detection of mvm detect, run and batch (--config of batch).",
+    "frames": "Frame sampling: mvm frames, run and batch (--config; their options win).",
+    "sfm": "Structure from motion: mvm sfm, run and batch (--config; their options win).",
+    "detect": "2D detection: mvm detect, run and batch (--config; their options win).",
     "batch": "mvm batch's own settings (--config; each stage's are in its own table).",
     "train": "Training: mvm train CONFIG reads these keys at the top level of its file.",
 }
