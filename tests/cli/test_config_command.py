@@ -149,6 +149,8 @@ def test_a_table_name_given_a_value_is_refused(tmp_path):
     (["run", "{d}/clip.mp4", "-o", "{d}/scene", "--import", "{d}/x.json"], "[detect.rtm]\nscore_threshold = -1",
      "rtm.score_threshold: must be >= 0, got -1.0"),
     (["batch", "{d}/root"], "[sfm]\ncamera_model = \"PINHOL\"", "camera_model: expected one of"),
+    (["simulate", "{d}/sim"], "[simulate]\npeople = 0", "people: must be >= 1, got 0"),
+    (["demo", "-o", "{d}/demo"], "[simulate.detector]\ndropout = 2", "detector.dropout: must be <= 1, got 2.0"),
 ])
 def test_the_video_commands_read_their_tables(tmp_path, args, text, line):
     path = tmp_path / "settings.toml"
@@ -169,3 +171,9 @@ def test_an_option_given_wins_over_the_file(tmp_path):
     assert _sfm_options(str(path), None, 800.0, True, None, None) == \
         SfmOptions(max_features=2048, focal_px=800.0, refine_focal=False)
     assert _frame_options(None, None, None, None, None) == FrameOptions()
+    from mvm.cli.sim import read_sim
+    from mvm.sim.simulate import SimConfig
+
+    path.write_text("[simulate]\npeople = 9\nframes = 50\n[simulate.detector]\ndropout = 0.2\n")
+    assert read_sim(str(path), "clean", frames=30) == SimConfig.preset("clean", people=9, frames=30, dropout=0.2)
+    assert read_sim(None) == SimConfig()

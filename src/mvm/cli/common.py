@@ -341,7 +341,7 @@ def config_options(f):
     """``--config``, ``--set`` and ``--refine/--no-refine`` of the reconstruction settings."""
     for option in reversed([
         click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-                     help="TOML file of settings (see the README's configuration reference)."),
+                     help="TOML settings file, one table per settings object (mvm config prints one)."),
         click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
                      help="Override one setting, e.g. --set tau=0.25 (repeatable)."),
         click.option("--refine/--no-refine", default=None, help="Run the pose-prior refinement."),

@@ -19,7 +19,7 @@ from mvm.io.checks import load_toml
 TABLES = {
     "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
     "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
-    "simulate": "The simulated scenes of mvm simulate and demo (the library's SimConfig).",
+    "simulate": "The simulated scene: mvm simulate (over its --preset) and demo (--config; their options win).",
     "frames": "Frame sampling: mvm frames, run and batch (--config; their options win).",
     "sfm": "Structure from motion: mvm sfm, run and batch (--config; their options win).",
     "detect": "2D detection: mvm detect, run and batch (--config; their options win).",
@@ -49,15 +49,15 @@ def read_tables(path: str | Path) -> dict[str, dict]:
 
 
 def load_settings(cls, table: str, path: str | Path | None = None, overrides: dict | None = None,
-                  sources: dict | None = None):
+                  sources: dict | None = None, base=None):
     """The settings dataclass ``cls`` of the ``table`` of the settings file ``path`` (none: the
-    defaults) with ``overrides`` (from the command line, each named in messages by
+    defaults, or ``base``) with ``overrides`` (from the command line, each named in messages by
     ``sources[key]``, default ``--set``); every setting is checked here, a bad one raises an
     InputError naming the file or the option and the setting."""
     values = dict(read_tables(path).get(table, {})) if path is not None else {}
     overrides = overrides or {}
     values.update(overrides)
-    return settings_from(cls, values, str(path) if path is not None else "--set",
+    return settings_from(cls, values, str(path) if path is not None else "--set", base=base,
                          sources={k: (sources or {}).get(k, "--set") for k in overrides})
 
 
