@@ -23,7 +23,7 @@ COMMANDS = {
     "mvm --help": [sys.executable, "-m", "mvm", "--help"],
     "mvm reconstruct --help": [sys.executable, "-m", "mvm", "reconstruct", "--help"],
     "mvm rig reconstruct --help": [sys.executable, "-m", "mvm", "rig", "reconstruct", "--help"],
-    "import mvm.rig.pipeline": [sys.executable, "-c", "import mvm.rig.pipeline"],
+    "import mvm.rig.reconstruct_rig": [sys.executable, "-c", "import mvm.rig.reconstruct_rig"],
 }
 HEAVY = ("numpy", "scipy", "torch", "cv2", "pycolmap", "rich", "onnxruntime", "mvm.core.reconstruct")
 

@@ -35,7 +35,7 @@ from mvm.core.config import Config
 from mvm.core.prior import shipped_prior
 from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.pipeline import instants_config
+from mvm.rig.reconstruct_rig import instants_config
 from mvm.rig.rigdir import read_rig
 from mvm.rig.skeleton import OUTER_ITERATIONS, TOLERANCE, observations, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import track_persons
@@ -61,7 +61,7 @@ def main() -> None:
         write_capture(Path(tmp) / "rig", 5, 4, 300)
         rig = read_rig(Path(tmp) / "rig")
     cameras, detections = rig.calibration.cameras, rig.detections
-    persons = reconstruct_instants(cameras, detections, instants_config(config, options), prior, options.batch_size)
+    persons = reconstruct_instants(cameras, detections, instants_config(config), prior, options.batch_size)
     track = track_persons(persons.X, persons.instant, options.max_link_distance_m / options.metres_per_unit,
                           options.max_gap, options.min_link_joints).track
     solved = []

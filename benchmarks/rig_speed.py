@@ -33,7 +33,7 @@ from mvm.io.calib_toml import RigCalibration, write_calib_toml  # noqa: E402
 from mvm.io.openpose import BODY25_TO_COCO17  # noqa: E402
 from mvm.parallel import available_workers  # noqa: E402
 from mvm.rig.options import RigOptions  # noqa: E402
-from mvm.rig.pipeline import reconstruct_rig  # noqa: E402
+from mvm.rig.reconstruct_rig import reconstruct_rig  # noqa: E402
 from mvm.sim.rig import detect_views, ring_cameras, walking_people  # noqa: E402
 
 
@@ -68,7 +68,7 @@ def main() -> None:
         write_capture(root, args.cameras, args.people, args.instants)
         print(f"{args.cameras} cameras, {args.people} people, {args.instants} instants")
         workers = available_workers()
-        runs = [("refinement off, no completion", Config(refine=False), RigOptions(complete=False, smoothing="none")),
+        runs = [("refinement off, no completion", Config(refine=False, complete=False), RigOptions(smoothing="none")),
                 ("refinement + completion, 1 worker", Config(), RigOptions(workers=1)),
                 (f"refinement + completion (defaults: {workers} workers)", Config(), RigOptions())]
         for label, config, options in runs:

@@ -26,6 +26,7 @@ ALLOWED: dict[str, set[str]] = {
     "report": {"core", "io", "metrics", "sim", "errors"},
     "batch": {"core", "io", "scenes", "metrics", "eval", "sim", "rig", "net", "video", "report", "parallel",
               "errors"},
+    "settings": {"core", "io", "rig", "sim", "video", "batch", "net", "errors"},
 }
 
 def _imports(path) -> set[str]:

@@ -39,7 +39,7 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
 
     Bad input raises :class:`~mvm.errors.InputError` naming the file before anything is written.
     """
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     [(_, outcome, out_dir, document)] = _reconstructed([_read(Path(path), config, output)], config, prior)
     if isinstance(outcome, Exception):
         raise outcome
@@ -72,7 +72,7 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     :func:`mvm.io.files.atomic_write_bytes`); a scene is yielded once its file is written, so
     that its outcome is final.
     """
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     paths = list(paths)
     shares = split(len(paths), available_workers(workers), MIN_SCENES_PER_WORKER)
     if len(shares) < 2:

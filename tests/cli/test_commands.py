@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 
 #: Every subcommand of ``mvm``; removing one must be a decision, not an import that broke.
-COMMANDS = ("batch", "bench", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict", "reconstruct",
+COMMANDS = ("batch", "bench", "config", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict", "reconstruct",
             "report", "rig", "run", "sfm", "simulate", "status", "train")
 SUBCOMMANDS = {"rig": ("reconstruct",), "evaluate": ("3dpw", "coco", "cvar")}
 

@@ -3,6 +3,7 @@ command's options): one line naming the setting (and the file), exit status 2, b
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -52,11 +53,34 @@ BAD = [
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=1"], "--rig-set: savgol_window: must be >= 3, got 1"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=8"], "--rig-set: savgol_window: must be odd, got 8"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"], "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
-    (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"], "--rig-set: seed: unknown setting (known: association, batch_size, "
-     "bone_weight, complete, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, max_link_distance_m, "
-     "metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, up, workers)"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"],
+     "--rig-set: seed: not taken by --rig-set of mvm rig reconstruct: give it with --set"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "batch_size=8"],
+     "--set: batch_size: not taken by --set of mvm rig reconstruct: give it with --rig-set"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "video_order=false"], "--set: video_order: not used by mvm rig reconstruct"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "frame_rat=25"], "--rig-set: frame_rat: not a setting of mvm rig "
+     "reconstruct (known: batch_size, bone_weight, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, "
+     "max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, "
+     "up, workers)"),
     (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"], "--set: refine_max_iterations: must be >= 1, got 0"),
 ]
+
+
+#: A ``--set`` key the command does not take: (arguments after ``mvm``, the command named).
+UNUSED = [(["reconstruct", "{d}/scene", "--set", "batch_size=3"], "mvm reconstruct"),
+          (["demo", "-o", "{d}/demo", "--set", "people=3"], "mvm demo"),
+          (["batch", "{d}/root", "--set", "max_frames=3"], "mvm batch"),
+          (["rig", "reconstruct", "{d}/rig", "--set", "frames=3"], "mvm rig reconstruct"),
+          (["train", "{d}/train.toml", "--set", "tau=0.3"], "mvm train")]
+
+
+@pytest.mark.parametrize("args, command", UNUSED)
+def test_a_set_key_the_command_does_not_use_is_refused(tmp_path, args, command):
+    key = args[-1].split("=")[0]
+    result = CliRunner().invoke(main, [a.format(d=tmp_path) for a in args])
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith(f"mvm: error: --set: {key}: not a setting of {command} (known: ")
+    assert result.stderr.count("\n") == 1 and not any(tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("args, line", BAD, ids=[" ".join(a[0:1] + a[2:]).replace("{d}/", "") for a, _ in BAD])
@@ -146,3 +170,19 @@ def test_the_mechanism_on_a_new_settings_class():
         assert str(info.value) == line
     assert settings_from(Options, {"window": "none"}, "x").window is None
     assert Bounds(ge=1).problem(0) == "must be >= 1, got 0" and Bounds(ge=1).problem(1) is None
+
+
+def test_a_scene_records_the_settings_in_effect_once(tmp_path):
+    """poses3d.json holds the settings the scene ran with: those left to the driver resolved
+    (a scene: the association in 3D, no completion), each once."""
+    runner = CliRunner()
+    scene = tmp_path / "scene"
+    simulated = runner.invoke(main, ["simulate", str(scene), "--preset", "clean", "--people", "2", "--frames", "20"])
+    assert simulated.exit_code == 0, simulated.output
+    for args, association in (([], "3d"), (["--set", "association=paper"], "paper")):
+        result = runner.invoke(main, ["reconstruct", str(scene), "--no-refine", *args])
+        assert result.exit_code == 0, result.output
+        text = (scene / "mvm" / "poses3d.json").read_text()
+        assert text.count('"association"') == 1 and text.count('"complete"') == 1
+        config = json.loads(text)["config"]
+        assert (config["association"], config["complete"], config["refine"]) == (association, False, False)

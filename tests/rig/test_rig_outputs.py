@@ -16,7 +16,7 @@ from mvm.errors import InputError
 from mvm.io.outputs import make_temporary_dir
 from mvm.io.trc import read_trc, to_opensim
 from mvm.rig.options import RigOptions
-from mvm.rig.pipeline import reconstruct_rig
+from mvm.rig.reconstruct_rig import reconstruct_rig
 
 
 def _lines(folder):
@@ -102,12 +102,12 @@ def test_output_set_is_one_unit(rig_dir, tmp_path, monkeypatch):
     reconstruct_rig(root, Config(refine=False), output=out)
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     # a run that fails while writing its .trc files leaves the previous set untouched
-    import mvm.rig.pipeline as pipeline
+    import mvm.rig.reconstruct_rig as driver
 
     def broken(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(pipeline, "write_tracks", broken)
+    monkeypatch.setattr(driver, "write_tracks", broken)
     with pytest.raises(InputError, match="no space left"):
         reconstruct_rig(root, Config(refine=False), output=out)
     monkeypatch.undo()
@@ -161,7 +161,7 @@ def test_two_workers_write_the_same_files_as_one(tmp_path, monkeypatch):
     """Reading, reconstruction, refinement and formatting shared out over two processes give
     byte-identical outputs, and each of the four phases did run in two parts."""
     import mvm.parallel
-    from mvm.rig import pipeline
+    import mvm.rig.reconstruct_rig as driver
 
     _write_rig(tmp_path / "rig", T=200)
     parts, real = [], mvm.parallel.fork_map
@@ -170,7 +170,7 @@ def test_two_workers_write_the_same_files_as_one(tmp_path, monkeypatch):
         parts.append(len(chunks))
         return real(fn, chunks, workers)
 
-    for module in (mvm.parallel, pipeline):              # fork_map_ranges' and the refinement's
+    for module in (mvm.parallel, driver):              # fork_map_ranges' and the refinement's
         monkeypatch.setattr(module, "fork_map", recording)
     outputs = {}
     for workers in (1, 2):
@@ -221,3 +221,39 @@ def test_an_output_that_would_replace_the_rigs_inputs_is_refused(rig_dir, tmp_pa
     assert (root / ".mvm.backup" / "old.jsonl").read_text() == "a user's copy"
     assert {k: v for k, v in _tree(root).items() if not k.startswith(("mvm/", "results/"))} == {
         **before, ".mvm.backup/old.jsonl": b"a user's copy"}
+
+
+@pytest.mark.parametrize("sets, association, runs_3d", [([], "paper", False),
+                                                         (["--set", "association=3d"], "3d", True),
+                                                         (["--set", "association=paper"], "paper", False)])
+def test_the_association_set_is_the_one_run_and_recorded_once(rig_dir, tmp_path, monkeypatch, sets, association,
+                                                               runs_3d):
+    """``--set association=3d`` on a rig runs the association consistent in 3D (by default a rig
+    keeps the paper's grouping), and recap.json records the setting in effect, once."""
+    import mvm.core.pipeline
+
+    root, _ = rig_dir
+    calls, real = [], mvm.core.pipeline.associate_poses
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(mvm.core.pipeline, "associate_poses", counting)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "--workers", "1", "-o", str(out), *sets])
+    assert result.exit_code == 0, result.output
+    assert bool(calls) == runs_3d
+    recap = (out / "recap.json").read_text()
+    assert recap.count('"association"') == 1 and recap.count('"complete"') == 1
+    document = json.loads(recap)
+    assert document["config"]["association"] == association and document["config"]["complete"] is True
+    assert "association" not in document["options"]
+
+
+def test_defaults_left_to_the_driver_are_the_drivers():
+    assert Config().association == "auto" and Config().complete is None
+    assert (Config().for_driver("rig").association, Config().for_driver("rig").complete) == ("paper", True)
+    assert (Config().for_driver("scene").association, Config().for_driver("scene").complete) == ("3d", False)
+    explicit = Config(association="3d", complete=False)
+    assert explicit.for_driver("rig") is explicit

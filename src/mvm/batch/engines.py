@@ -175,7 +175,7 @@ class RayEngine:
 def _with_device(options: BatchOptions, device: str) -> BatchOptions:
     from dataclasses import replace
 
-    return replace(options, device=device)
+    return replace(options, detect=replace(options.detect, device=device))
 
 
 def make_engine(name: str, workers: int | None, options: BatchOptions, address: str | None = None):

@@ -238,7 +238,7 @@ def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm"
 
 
 def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = "local", workers: int | None = None,
-              address: str | None = None, retries: int = 2, options: BatchOptions = BatchOptions(),
+              address: str | None = None, retries: int = 2, options: BatchOptions | None = None,
               on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
     """Run ``stages`` on every clip of ``root`` that has not done them, recording each
     (clip, stage) in ``ROOT/.mvm/manifest.sqlite``.
@@ -250,11 +250,13 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
             (a local Ray instance with ``workers`` CPUs, or the cluster at ``address``).
         retries: further attempts of a stage after a transient failure (a lost worker, an
             OS error); bad input fails at once.
+        options: the stages' settings (default :class:`BatchOptions`).
         on_progress: called with :class:`Progress` as the run advances.
     Returns:
         :class:`BatchSummary`. A failed clip is recorded with its error; the others go on.
     """
     root = Path(root)
+    options = options or BatchOptions()
     if retries < 0:
         raise InputError(None, "--retries", f"expected a count >= 0, got {retries}")
     clips = discover_clips(root)

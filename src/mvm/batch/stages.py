@@ -7,6 +7,7 @@ error's one line), so a bad clip never stops the others.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import os
 import socket
@@ -14,14 +15,20 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from threadpoolctl import threadpool_limits
 
 from mvm.batch.clips import Clip
-from mvm.core.config import Config
+from mvm.core.config import Config, check_settings, setting
 from mvm.errors import InputError
 from mvm.io.coco import read_coco_keypoints
 from mvm.io.scene_dir import load_poses3d_document, parse_poses3d
+
+if TYPE_CHECKING:
+    from mvm.video.detect import DetectOptions
+    from mvm.video.frames import FrameOptions
+    from mvm.video.sfm import SfmOptions
 
 #: The stages in pipeline order.
 STAGES = ("frames", "sfm", "detect", "reconstruct", "export")
@@ -32,33 +39,45 @@ SUPERVISION_DIR = "supervision"
 TRANSIENT = (OSError, MemoryError, TimeoutError, ConnectionError)
 
 
+def _default(path: str):
+    """A factory of the default of the settings dataclass ``module:class``, imported when
+    called (the video stages' modules import OpenCV)."""
+    def make():
+        import importlib
+
+        module, name = path.split(":")
+        return getattr(importlib.import_module(module), name)()
+    return make
+
+
 @dataclass(frozen=True)
 class BatchOptions:
-    """Settings of every clip's stages.
+    """Settings of every clip's stages: each stage's own settings (the tables ``[reconstruct]``,
+    ``[frames]``, ``[sfm]`` and ``[detect]`` of a settings file, as the single commands read
+    them) and the batch's own (``[batch]``)."""
 
-    Attributes:
-        config: the reconstruction's settings.
-        output: folder of each scene directory receiving ``poses3d.json`` and the supervision.
-        checkpoint: the pose network's checkpoint for ``detect`` (None: imported detections).
-        detector: ``rtmo`` or ``rtmpose`` to detect every clip's frames with (None: ``checkpoint``
-            or the imported detections).
-        max_frames / rate / width: frame sampling of ``frames`` (see ``mvm frames``).
-        focal_px / max_features: ``sfm`` settings (see ``mvm sfm``); SfM runs on one thread.
-        device: torch device of the network in ``detect`` (``cpu``, ``cuda``).
-        min_keypoints: ``export``: persons with fewer labelled joints in a frame get no annotation.
-    """
-
+    #: The reconstruction's settings (the ``[reconstruct]`` table). [-]
     config: Config = field(default_factory=Config)
+    #: The frame sampling of ``frames`` (the ``[frames]`` table). [-]
+    frames: FrameOptions = field(default_factory=_default("mvm.video.frames:FrameOptions"))
+    #: The structure from motion of ``sfm`` (the ``[sfm]`` table); each clip's SfM runs on one
+    #: thread, as the clips run in parallel. [-]
+    sfm: SfmOptions = field(default_factory=_default("mvm.video.sfm:SfmOptions"))
+    #: The 2D detection of ``detect`` (the ``[detect]`` table): ``detector`` "rtmo" or "rtmpose"
+    #: detects every clip's frames; None: ``checkpoint``, else each clip's imported detections. [-]
+    detect: DetectOptions = field(default_factory=_default("mvm.video.detect:DetectOptions"))
+    #: Folder of each scene directory receiving ``poses3d.json`` and the supervision. [name]
     output: str = "mvm"
+    #: The pose network's checkpoint for ``detect``; None: a detector, or imported detections. [path]
     checkpoint: str | None = None
-    detector: str | None = None
-    max_frames: int | None = None
-    rate: float | None = None
-    width: int | None = None
-    focal_px: float | None = None
-    max_features: int = 4096
-    device: str = "cpu"
-    min_keypoints: int = 3
+    #: ``export``: persons with fewer labelled joints in a frame get no annotation. [joints]
+    min_keypoints: int = setting(3, ge=1, le=17)
+
+    def __post_init__(self):
+        check_settings(self)
+
+    def replace(self, **changes) -> BatchOptions:
+        return dataclasses.replace(self, **changes)
 
 
 @dataclass
@@ -161,23 +180,24 @@ def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
 
 
 def _frames(clip: Clip, options: BatchOptions) -> None:
-    from mvm.video.frames import FrameOptions, extract_frames
+    from mvm.video.frames import extract_frames
 
-    extract_frames(clip.video, clip.scene, FrameOptions(rate=options.rate, max_frames=options.max_frames,
-                                                        width=options.width))
+    extract_frames(clip.video, clip.scene, options.frames)
 
 
 def _sfm(clip: Clip, options: BatchOptions) -> None:
-    from mvm.video.sfm import SfmOptions, run_sfm
+    from dataclasses import replace
 
-    run_sfm(clip.scene, SfmOptions(focal_px=options.focal_px, max_features=options.max_features, threads=1))
+    from mvm.video.sfm import run_sfm
+
+    run_sfm(clip.scene, replace(options.sfm, threads=1))
 
 
 def _detect(clip: Clip, options: BatchOptions) -> None:
-    from mvm.video.detect import DetectOptions, detect_scene
+    from mvm.video.detect import detect_scene
 
-    if options.detector is not None:
-        detect_scene(clip.scene, options=DetectOptions(detector=options.detector, device=options.device))
+    if options.detect.detector is not None:
+        detect_scene(clip.scene, options=options.detect)
         return
     if options.checkpoint is None and clip.detections is None:
         raise InputError(clip.scene, "detect", "no 2D poses: give --checkpoint, or put detections.json or "
@@ -185,7 +205,7 @@ def _detect(clip: Clip, options: BatchOptions) -> None:
     if options.checkpoint is not None and "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
     source = None if options.checkpoint is not None else clip.detections
-    detect_scene(clip.scene, source, options.checkpoint, None, DetectOptions(device=options.device))
+    detect_scene(clip.scene, source, options.checkpoint, None, options.detect)
 
 
 def _reconstruct(clip: Clip, options: BatchOptions) -> None:

@@ -26,6 +26,29 @@ def _f(value) -> str:
     return fmt(value, 1, thousands=True)
 
 
+def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoint=None, detector=None,
+                       max_frames=None, rate=None, width=None, focal_px=None):
+    """The :class:`~mvm.batch.BatchOptions` of a settings file (its ``[reconstruct]``,
+    ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
+    command's own options (an option left at None keeps the file's value)."""
+    from mvm.batch import BatchOptions
+    from mvm.io.settings import load_settings
+    from mvm.video.detect import DetectOptions
+    from mvm.video.frames import FrameOptions
+    from mvm.video.sfm import SfmOptions
+
+    def table(cls, name, **flags):
+        flags = {k: v for k, v in flags.items() if v is not None}
+        options = {"focal_px": "--focal"}
+        return load_settings(cls, name, config_path, flags,
+                             {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
+
+    return table(BatchOptions, "batch", checkpoint=checkpoint).replace(
+        config=read_config(config_path, sets), frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate,
+                                                             width=width),
+        sfm=table(SfmOptions, "sfm", focal_px=focal_px), detect=table(DetectOptions, "detect", detector=detector))
+
+
 @command("batch")
 @click.argument("root", type=click.Path(file_okay=False))
 @click.option("--stages", default=None, metavar="LIST",
@@ -47,7 +70,8 @@ def _f(value) -> str:
 @click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
 @click.option("--focal", "focal_px", type=FOCAL, default=None, help="sfm: known focal length (px).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-              help="TOML settings of the reconstruction.")
+              help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
+                   "(mvm config prints one).")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
 def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
               focal_px, config_path, sets):
@@ -60,11 +84,11 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
     """
     from rich.progress import TextColumn
 
-    from mvm.batch import BatchOptions, parse_stages, run_batch
+    from mvm.batch import parse_stages, run_batch
 
     chosen = parse_stages(stages)
-    options = BatchOptions(config=read_config(config_path, sets), checkpoint=checkpoint, detector=detector,
-                           max_frames=max_frames, rate=rate, width=width, focal_px=focal_px)
+    options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, max_frames=max_frames,
+                                 rate=rate, width=width, focal_px=focal_px)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")

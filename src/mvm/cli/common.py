@@ -341,7 +341,7 @@ def config_options(f):
     """``--config``, ``--set`` and ``--refine/--no-refine`` of the reconstruction settings."""
     for option in reversed([
         click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-                     help="TOML file of settings (see the README's configuration reference)."),
+                     help="TOML settings file, one table per settings object (mvm config prints one)."),
         click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
                      help="Override one setting, e.g. --set tau=0.25 (repeatable)."),
         click.option("--refine/--no-refine", default=None, help="Run the pose-prior refinement."),
@@ -350,11 +350,47 @@ def config_options(f):
     return f
 
 
-def read_config(config_path: str | None, sets: tuple[str, ...], **flags):
-    """The reconstruction :class:`~mvm.core.config.Config` of a TOML file, ``--set`` pairs and
-    command flags (a flag left at None keeps the file's value); every setting is checked here."""
+def command_name() -> str:
+    """The running command as typed (``mvm rig reconstruct``), for messages."""
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return "mvm"
+    names = ctx.command_path.split()
+    return " ".join(["mvm"] + (names[1:] if ctx.find_root().command.name in ("main", "mvm") else names))
+
+
+def refuse_unused(pairs: dict, cls, option: str = "--set", unused: tuple[str, ...] = (), other=None) -> None:
+    """Refuse, naming the key and the command, an ``option`` key that the running command would
+    not use: not a field of the settings dataclass ``cls``, or one of ``unused`` (fields the
+    command's driver never reads). ``other``: ``(settings dataclass, option)`` of the command's
+    other settings, named in the message when the key is one of them."""
+    from dataclasses import fields
+
+    known = {f.name for f in fields(cls)} - set(unused)
+    for key in pairs:
+        if key in unused:
+            raise InputError(option, key, f"not used by {command_name()}")
+        if key not in known:
+            if other is not None and key in {f.name for f in fields(other[0])}:
+                raise InputError(option, key, f"not taken by {option} of {command_name()}: give it with {other[1]}")
+            raise InputError(option, key, f"not a setting of {command_name()} (known: {', '.join(sorted(known))})")
+
+
+def read_config(config_path: str | None, sets: tuple[str, ...], driver: str = "scene", **flags):
+    """The reconstruction :class:`~mvm.core.config.Config` of a TOML file (its ``[reconstruct]``
+    table), ``--set`` pairs and command flags (a flag left at None keeps the file's value); every
+    setting is checked here, and a ``--set`` key the command (its ``driver``, ``"scene"`` or
+    ``"rig"``) would not use is refused (:func:`refuse_unused`)."""
+    from mvm.core.config import UNUSED_BY_DRIVER, Config
     from mvm.io.settings import load_config
 
-    config = load_config(config_path, parse_sets(sets))
+    pairs = parse_sets(sets)
+    if driver == "rig":
+        from mvm.rig.options import RigOptions
+
+        refuse_unused(pairs, Config, unused=UNUSED_BY_DRIVER[driver], other=(RigOptions, "--rig-set"))
+    else:
+        refuse_unused(pairs, Config)
+    config = load_config(config_path, pairs)
     changes = {k: v for k, v in flags.items() if v is not None}
     return config.replace(**changes) if changes else config

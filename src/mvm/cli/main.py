@@ -21,7 +21,8 @@ COMMANDS = {"reconstruct": "scene:reconstruct", "demo": "sim:demo_cmd", "simulat
             "bench": "sim:bench_cmd", "run": "video:run_cmd", "frames": "video:frames_cmd", "sfm": "video:sfm_cmd",
             "detect": "video:detect_cmd", "rig": "rig:rig", "export": "net:export_cmd", "train": "net:train_cmd",
             "predict": "net:predict_cmd", "evaluate": "evaluate:evaluate", "report": "report:report_cmd",
-            "overlay": "report:overlay_cmd", "batch": "batch:batch_cmd", "status": "batch:status_cmd"}
+            "overlay": "report:overlay_cmd", "batch": "batch:batch_cmd", "status": "batch:status_cmd",
+            "config": "config:config_cmd"}
 
 
 class _Commands(Group):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import FOCAL, Number, command, each_isolated, report_failures
+from mvm.cli.common import FOCAL, Number, command, each_isolated, refuse_unused, report_failures
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
@@ -74,9 +74,11 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
     Several GPUs: torchrun --nproc-per-node N -m mvm train CONFIG (batch_size per GPU).
     """
     from mvm.net.train import train
-    from mvm.net.train_config import load_config
+    from mvm.net.train_config import TrainConfig, load_config
 
-    cfg = load_config(config, _parse_sets(sets) | ({"device": device} if device else {}))
+    pairs = _parse_sets(sets)
+    refuse_unused(pairs, TrainConfig)
+    cfg = load_config(config, pairs | ({"device": device} if device else {}))
     _check_train_output(cfg, config, resume)
     if plot:
         from mvm.net.curves import plot_metrics

@@ -3,18 +3,32 @@ from __future__ import annotations
 
 import click
 
-from mvm.cli.common import Group, config_options, fmt, parse_sets, print_table, progress, read_config, say
+from mvm.cli.common import (
+    Group,
+    config_options,
+    fmt,
+    parse_sets,
+    print_table,
+    progress,
+    read_config,
+    refuse_unused,
+    say,
+)
 
 
-def read_rig_options(pairs: tuple[str, ...], **flags):
-    """The :class:`~mvm.rig.options.RigOptions` of ``--rig-set`` pairs and the command's own
-    options (``--smoothing``, ``--frame-rate``), every setting checked before any work."""
-    from mvm.core.config import settings_from
+def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
+    """The :class:`~mvm.rig.options.RigOptions` of a TOML file (its ``[rig]`` table), ``--rig-set``
+    pairs and the command's own options (``--smoothing``, ``--frame-rate``), every setting
+    checked before any work; a ``--rig-set`` key that is not a rig setting is refused."""
+    from mvm.core.config import Config
+    from mvm.io.settings import load_settings
     from mvm.rig.options import RigOptions
 
+    values = parse_sets(pairs, "--rig-set")
+    refuse_unused(values, RigOptions, "--rig-set", other=(Config, "--set"))
     flags = {k: v for k, v in flags.items() if v is not None}
-    return settings_from(RigOptions, {**parse_sets(pairs, "--rig-set"), **flags}, "--rig-set" if pairs else None,
-                         sources={k: "--" + k.replace("_", "-") for k in flags})
+    return load_settings(RigOptions, "rig", config_path, {**values, **flags},
+                         {**{k: "--rig-set" for k in values}, **{k: "--" + k.replace("_", "-") for k in flags}})
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -49,11 +63,11 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
                     rig_sets, config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
-    from mvm.rig.pipeline import reconstruct_rig
+    from mvm.rig.reconstruct_rig import reconstruct_rig
 
-    config = read_config(config_path, sets, refine=refine)
-    options = read_rig_options(rig_sets, smoothing=smoothing, frame_rate=frame_rate, workers=workers,
-                               complete=False if no_complete else None, trc_inferred=True if trc_inferred else None)
+    config = read_config(config_path, sets, "rig", refine=refine, complete=False if no_complete else None)
+    options = read_rig_options(config_path, rig_sets, smoothing=smoothing, frame_rate=frame_rate, workers=workers,
+                               trc_inferred=True if trc_inferred else None)
     with progress() as bar:
         task = bar.add_task("instants", total=None)
         result = reconstruct_rig(rig_dir, config, options, calib, frames, output,

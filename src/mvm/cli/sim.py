@@ -23,16 +23,29 @@ from mvm.cli.common import (
 def scene_options(f):
     """``--people``, ``--frames``, ``--arc`` and ``--seed`` of a simulated scene."""
     for option in reversed([
-        click.option("--people", default=6, show_default=True, type=Number(int, ge=1, le=15),
-                     help="Persons in the scene (1-15)."),
-        click.option("--frames", default=100, show_default=True, type=Number(int, ge=20, le=300),
-                     help="Frames of the camera tour (20-300)."),
-        click.option("--arc", "arc_deg", default=60.0, show_default=True, type=Number(float, ge=5, le=180),
-                     help="Total angle of the tour (deg, 5-180)."),
-        click.option("--seed", default=0, show_default=True, type=SEED, help="Random seed of the simulation."),
+        click.option("--people", default=None, type=Number(int, ge=1, le=15),
+                     help="Persons in the scene (1-15, default 6)."),
+        click.option("--frames", default=None, type=Number(int, ge=20, le=300),
+                     help="Frames of the camera tour (20-300, default 100)."),
+        click.option("--arc", "arc_deg", default=None, type=Number(float, ge=5, le=180),
+                     help="Total angle of the tour (deg, 5-180, default 60)."),
+        click.option("--seed", default=None, type=SEED, help="Random seed of the simulation (default 0)."),
     ]):
         f = option(f)
     return f
+
+
+def read_sim(config_path: str | None, preset: str | None = None, **flags):
+    """The simulated scene's :class:`~mvm.sim.simulate.SimConfig`: the ``preset`` (none: the
+    defaults), the ``[simulate]`` table of the settings file over it, the command's options
+    (``flags``; one left at None keeps the file's value) over both."""
+    from mvm.io.settings import load_settings
+    from mvm.sim.simulate import SimConfig
+
+    flags = {k: v for k, v in flags.items() if v is not None}
+    base = SimConfig.preset(preset) if preset else SimConfig()
+    return load_settings(SimConfig, "simulate", config_path, flags,
+                         {k: {"arc_deg": "--arc"}.get(k, "--" + k) for k in flags}, base=base)
 
 
 @command("simulate")
@@ -43,21 +56,23 @@ def scene_options(f):
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")
 @click.option("--render", is_flag=True, help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
-def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render):
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings file: its [simulate] table, over the preset (mvm config prints one).")
+def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render, config_path):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
     (SCENE_DIR.groundtruth.json)."""
     from mvm.io.ground_truth import write_simulation
-    from mvm.sim.simulate import SimConfig, simulate
+    from mvm.sim.simulate import simulate
 
     with refused(ValueError):
-        sim = SimConfig.preset(preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
-                               trajectory=trajectory)
+        sim = read_sim(config_path, preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
+                       trajectory=trajectory)
         scene, truth = simulate(sim)
         truth_path = write_simulation(scene_dir, scene, truth, sim)
         if render:
             from mvm.sim.video import render_frames
 
-            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, seed)
+            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed)
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"
     measure_table(f"mvm simulate ({preset})", [
         ("people", f"{len(truth.poses3d)} ({labels})"), ("frames", str(len(scene.cameras))),
@@ -77,14 +92,13 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
 def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, refine):
     """Simulate a mannequin scene, reconstruct it and print accuracy against ground truth."""
     from mvm.eval.demo import run_demo
-    from mvm.sim.simulate import SimConfig
 
     config = read_config(config_path, sets, refine=refine)
+    sim = read_sim(config_path, people=people, frames=frames, arc_deg=arc_deg, seed=seed)
     t = time.perf_counter()
     with refused(ValueError):
-        report = run_demo(Path(out_dir), SimConfig(people=people, frames=frames, arc_deg=arc_deg, seed=seed), config,
-                          render=render)
-    measure_table(f"mvm demo: {people} people, {frames} frames, {arc_deg:g}° tour (seed {seed})", [
+        report = run_demo(Path(out_dir), sim, config, render=render)
+    measure_table(f"mvm demo: {sim.people} people, {sim.frames} frames, {sim.arc_deg:g}° tour (seed {sim.seed})", [
         ("persons found / true", f"{report['persons_found']} / {report['persons_true']}"),
         ("2D poses (false positives)", f"{report['poses']} ({report['false_poses']})"),
         ("matching precision (pairwise)", fmt(report["precision"], 4)),

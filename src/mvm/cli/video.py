@@ -4,6 +4,7 @@ Each command is a thin call of one library function in :mod:`mvm.video` and prin
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import click
@@ -26,19 +27,23 @@ from mvm.cli.common import (
 from mvm.cli.common import fmt as _f
 from mvm.errors import InputError
 
+#: ``--config`` of the video commands: the tables of their settings.
+config_option = click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+                             help="TOML settings file (mvm config prints one); the options given here win.")
 frame_options = [
     click.option("--rate", type=RATE, default=None, help="Frames per second to keep (default: all)."),
     click.option("--max-frames", type=MAX_FRAMES, default=None, help="Keep at most this many frames, evenly spread."),
     click.option("--width", type=WIDTH, default=None, help="Resize frames to this width (px)."),
-    click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=0.35, show_default=True,
-                 help="Skip frames sharper than less than this fraction of the median (0: keep all)."),
+    click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=None,
+                 help="Skip frames sharper than less than this fraction of the median (default 0.35; 0: keep all)."),
 ]
 sfm_options = [
-    click.option("--camera-model", default="SIMPLE_RADIAL", show_default=True,
-                 help="COLMAP camera model shared by all frames."),
+    click.option("--camera-model", default=None,
+                 help="COLMAP camera model shared by all frames (default SIMPLE_RADIAL)."),
     click.option("--focal", "focal_px", type=FOCAL, default=None, help="Known focal length (px)."),
     click.option("--fix-focal", is_flag=True, help="Keep the known focal length fixed in bundle adjustment."),
-    click.option("--max-features", type=Number(int, ge=64, le=1_000_000), default=4096, show_default=True, help="SIFT features per frame."),
+    click.option("--max-features", type=Number(int, ge=64, le=1_000_000), default=None,
+                 help="SIFT features per frame (default 4096)."),
     click.option("--vocab-tree", type=click.Path(dir_okay=False), default=None,
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
@@ -51,20 +56,20 @@ detect_options = [
                       "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
     click.option("--person-model", type=click.Path(dir_okay=False), default=None,
                  help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
-    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default="balanced",
-                 show_default=True, help="Size of the published models."),
-    click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True,
-                 help="Where the detector runs (cuda: onnxruntime-gpu or a CUDA torch)."),
-    click.option("--batch-size", type=click.IntRange(min=1), default=4, show_default=True,
-                 help="Frames given to the detector at once."),
+    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default=None,
+                 help="Size of the published models (default balanced)."),
+    click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
+                 help="Where the detector runs (default cpu; cuda: onnxruntime-gpu or a CUDA torch)."),
+    click.option("--batch-size", type=click.IntRange(min=1), default=None,
+                 help="Frames given to the detector at once (default 4)."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
                  help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
                  default=None, help="Format of --import (guessed by default)."),
-    click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default="auto",
-                 show_default=True, help="Appearance descriptor stored with each pose."),
+    click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default=None,
+                 help="Appearance descriptor stored with each pose (default auto)."),
 ]
 
 
@@ -76,17 +81,33 @@ def _options(options):
     return wrap
 
 
-def _frame_options(rate, max_frames, width, blur_ratio):
+def _table(cls, table: str, config_path, names: dict | None = None, **flags):
+    """The settings ``cls`` of ``table`` of the settings file ``config_path`` with the command's
+    options ``flags`` over it (one left at None keeps the file's value, or the default); a bad
+    value names the option (``names``: the options not spelt as their setting)."""
+    from mvm.io.settings import load_settings
+
+    flags = {k: v for k, v in flags.items() if v is not None}
+    return load_settings(cls, table, config_path, flags,
+                         {k: (names or {}).get(k, "--" + k.replace("_", "-")) for k in flags})
+
+
+def _frame_options(config_path, rate, max_frames, width, blur_ratio):
     from mvm.video.frames import FrameOptions
 
-    return FrameOptions(rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio)
+    return _table(FrameOptions, "frames", config_path, rate=rate, max_frames=max_frames, width=width,
+                  blur_ratio=blur_ratio)
 
 
-def _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source, appearance):
-    """The detection settings; when no detector is named, the installed one (rtmo)."""
+def _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                    appearance):
+    """The detection settings; when no detector is named (option or file), the installed one (rtmo)."""
     from mvm.video.detect import DetectOptions
     from mvm.video.detectors import available_detector
 
+    options = _table(DetectOptions, "detect", config_path, detector=detector, model=model, person_model=person_model,
+                     mode=mode, device=device, batch_size=batch_size, appearance=appearance)
+    detector = options.detector if options.detector != "import" else None
     if source is not None and (detector or checkpoint):
         raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
     if checkpoint is not None and detector not in (None, "mvm"):
@@ -102,15 +123,15 @@ def _detect_options(detector, model, person_model, mode, device, batch_size, che
         if detector is None:
             raise InputError(None, "--detector", 'no 2D pose detector is installed: pip install "mvm[detect]" '
                                                  "(RTMO through ONNX Runtime), or give --import or --checkpoint")
-    return DetectOptions(detector=detector, model=model, person_model=person_model, mode=mode, device=device,
-                         batch_size=batch_size, appearance=appearance)
+    return dataclasses.replace(options, detector=detector)
 
 
-def _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree):
+def _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features, vocab_tree):
     from mvm.video.sfm import SfmOptions
 
-    return SfmOptions(camera_model=camera_model, focal_px=focal_px, refine_focal=not fix_focal,
-                      max_features=max_features, vocab_tree=vocab_tree)
+    return _table(SfmOptions, "sfm", config_path, {"focal_px": "--focal", "refine_focal": "--fix-focal"},
+                  camera_model=camera_model, focal_px=focal_px, refine_focal=False if fix_focal else None,
+                  max_features=max_features, vocab_tree=vocab_tree)
 
 
 def _sfm_rows(report):
@@ -124,13 +145,14 @@ def _sfm_rows(report):
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options)
+@config_option
 @click.option("--force", is_flag=True, help="Redo even if frames.json exists.")
-def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
+def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, force):
     """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
     from mvm.video.frames import extract_frames
 
     with refused(ValueError), stage_progress(rate_column()) as update:
-        index = extract_frames(video, scene, _frame_options(rate, max_frames, width, blur_ratio), force,
+        index = extract_frames(video, scene, _frame_options(config_path, rate, max_frames, width, blur_ratio), force,
                                lambda d, t: update("frames", d, t))
     measure_table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
                              ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
@@ -142,14 +164,16 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, force):
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM: a COLMAP model directory or a RealEstate10K/"
                    "MannequinChallenge camera file.")
+@config_option
 @click.option("--force", is_flag=True, help="Redo even if the model exists.")
-def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, cameras, force):
+def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, cameras, config_path, force):
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
 
     with refused(ValueError):
         if cameras is None:
-            report = sfm.run_sfm(scene, _sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree), force)
+            report = sfm.run_sfm(scene, _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
+                                                     vocab_tree), force)
         elif Path(cameras).is_dir():
             report = sfm.import_colmap(cameras, scene)
         else:
@@ -162,15 +186,16 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @command("detect")
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
+@config_option
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
 def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
-               force):
+               config_path, force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
     from mvm.video.detect import detect_scene
 
     with refused(ValueError):
-        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
-                                  appearance)
+        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                  source, appearance)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
@@ -186,7 +211,8 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM (COLMAP model directory or camera file).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-              help="TOML settings of the reconstruction.")
+              help="TOML settings file: its [frames], [sfm], [detect] and [reconstruct] tables (mvm config "
+                   "prints one); the options given here win.")
 @click.option("--metric/--no-metric", default=True, show_default=True,
               help="Scale the world to metres from the people's bone lengths.")
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
@@ -198,14 +224,16 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
     from mvm.video.run import run_video
 
     with refused(ValueError):
-        options = _detect_options(detector, model, person_model, mode, device, batch_size, checkpoint, source,
-                                  appearance)
+        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                  source, appearance)
     with refused(ValueError):
         config = read_config(config_path, ())
         with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
-                          cameras=cameras, frame_options=_frame_options(rate, max_frames, width, blur_ratio),
-                          sfm_options=_sfm_options(camera_model, focal_px, fix_focal, max_features, vocab_tree),
+                          cameras=cameras,
+                          frame_options=_frame_options(config_path, rate, max_frames, width, blur_ratio),
+                          sfm_options=_sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
+                                                   vocab_tree),
                           detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
     rec = r.reconstruction

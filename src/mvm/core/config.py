@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import operator
+import re
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -60,13 +61,20 @@ def _shown(value) -> str:
     return text if len(text) <= 40 else text[:39] + "…"
 
 
-def _kind(field: dataclasses.Field) -> tuple[str | None, bool]:
+def setting_kind(field: dataclasses.Field) -> tuple[str | None, bool]:
     """(``"bool"``, ``"int"``, ``"float"``, ``"str"`` or None for other types, whether None is allowed)."""
     annotation = field.type if isinstance(field.type, str) else getattr(field.type, "__name__", str(field.type))
     parts = [part.strip() for part in annotation.split("|")]
     optional = "None" in parts
     kinds = [part for part in parts if part in ("bool", "int", "float", "str")]
     return (kinds[0] if len(kinds) == 1 and len(parts) - optional == 1 else None), optional
+
+
+def _number_tuple_length(field: dataclasses.Field) -> int | None:
+    """N for a field of type ``tuple[float, ...]`` of N floats (``tuple[float, float]``), else None."""
+    annotation = field.type if isinstance(field.type, str) else str(field.type)
+    match = re.fullmatch(r"tuple\[(float(?:, float)*)\](?: \| None)?", annotation.strip())
+    return match.group(1).count("float") if match else None
 
 
 def _type_problem(kind: str | None, value) -> str | None:
@@ -93,7 +101,7 @@ def check_settings(settings) -> None:
     """
     for field in fields(settings):
         value = getattr(settings, field.name)
-        kind, optional = _kind(field)
+        kind, optional = setting_kind(field)
         if value is None and optional:
             continue
         problem = _type_problem(kind, value)
@@ -114,9 +122,15 @@ def coerce_setting(cls, name: str, value, source: str | Path | None):
     by_name = {f.name: f for f in fields(cls)}
     if name not in by_name:
         raise InputError(source, name, f"unknown setting (known: {', '.join(sorted(by_name))})")
-    kind, optional = _kind(by_name[name])
+    kind, optional = setting_kind(by_name[name])
     if optional and (value is None or (isinstance(value, str) and value.lower() in ("none", "null", ""))):
         return None
+    numbers = _number_tuple_length(by_name[name])
+    if numbers is not None:
+        if not (isinstance(value, (list, tuple)) and len(value) == numbers
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+            raise InputError(source, name, f"expected {numbers} numbers, got {_shown(value)}")
+        return tuple(float(v) for v in value)
     try:
         if kind == "bool":
             if isinstance(value, str) and value.lower() in _BOOLS:
@@ -144,20 +158,46 @@ def coerce_setting(cls, name: str, value, source: str | Path | None):
 _BOOLS = {"true": True, "false": False, "1": True, "0": False, "yes": True, "no": False}
 
 
+def nested_settings(cls, name: str, base=None):
+    """The default (or ``base``'s value) of field ``name`` of ``cls`` when it is itself a
+    settings dataclass (a sub-table of a settings file, e.g. ``detect.rtm``), else None."""
+    field = {f.name: f for f in fields(cls)}.get(name)
+    if field is None:
+        return None
+    if base is not None:
+        value = getattr(base, name)
+    elif field.default is not dataclasses.MISSING:
+        value = field.default
+    elif field.default_factory is not dataclasses.MISSING:
+        value = field.default_factory()
+    else:
+        return None
+    return value if dataclasses.is_dataclass(value) and not isinstance(value, type) else None
+
+
 def settings_from(cls, values: dict, source: str | Path | None, base=None, sources: dict | None = None):
     """A settings dataclass ``cls`` (or ``base`` with changes) from ``values`` read from
     ``source`` (a file, or an option such as ``--set``): every value is coerced and checked
     before any work, and a bad one raises an InputError naming the source and the setting.
-    ``sources`` gives another source for some names (e.g. ``--set`` over a file)."""
+    ``sources`` gives another source for some names (e.g. ``--set`` over a file). A field that
+    is itself a settings dataclass takes a table of its own settings (named ``field.key``)."""
     sources = sources or {}
-    coerced = {k: coerce_setting(cls, k, v, sources.get(k, source)) for k, v in values.items()}
+    coerced = {}
+    for k, v in values.items():
+        nested = nested_settings(cls, k, base)
+        if nested is not None and isinstance(v, dict):
+            try:
+                coerced[k] = settings_from(type(nested), v, sources.get(k, source), base=nested)
+            except InputError as e:
+                raise InputError(e.path, f"{k}.{e.field}", e.problem) from None
+        else:
+            coerced[k] = coerce_setting(cls, k, v, sources.get(k, source))
     try:
         return dataclasses.replace(base, **coerced) if base is not None else cls(**coerced)
     except InputError as e:
         if e.path is not None:
             raise
         raise InputError(sources.get(e.field, source), e.field, e.problem) from None
-
 
 
 @dataclass(frozen=True)
@@ -198,8 +238,11 @@ class Config:
     # --- association consistent in 3D ----------------------------------------------------
     #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
     #: "3d" then reassigns every 2D pose to the triangulated person whose reprojection explains
-    #: it, one pose per person per view, and re-triangulates until nothing changes. [name]
-    association: str = setting("3d", choices=("paper", "3d"))
+    #: it, one pose per person per view, and re-triangulates until nothing changes (slower,
+    #: fewer identity switches in crowds); "auto": "3d" for scenes, "paper" for the instants of
+    #: a rig (where the epipolar grouping is rarely wrong and "3d" costs about half of the
+    #: reconstruction time for no gain). [-]
+    association: str = setting("auto", choices=("auto", "paper", "3d"))
     #: A 2D pose joins a person only when its keypoints lie (median over joints) closer than
     #: this to the person's reprojection, in person sizes (sqrt of its image box area, as OKS);
     #: lower refuses noisy poses, higher lets neighbours' poses in. [person sizes]
@@ -238,8 +281,9 @@ class Config:
     #: evaluation of the objective each). [1]
     refine_max_iterations: int = setting(30, ge=1, le=10_000)
     #: Complete every person: joints not reconstructed are inferred from the pose prior given the
-    #: others (flagged "inferred" in poses3d.json); off leaves them null. [bool]
-    complete: bool = False
+    #: others (rigs: first interpolated along the track), each joint flagged observed /
+    #: interpolated / inferred; off leaves them null. None: off for scenes, on for rigs. [bool]
+    complete: bool | None = None
     # --- random numbers ------------------------------------------------------------------
     #: Seed of RANSAC's sampling: a scene gives the same result every run. [1]
     seed: int = setting(0, ge=0, le=2**63 - 1)
@@ -256,3 +300,21 @@ class Config:
 
     def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)
+
+    def for_driver(self, driver: str) -> Config:
+        """These settings as ``driver`` (``"scene"`` or ``"rig"``) runs them: every setting left
+        to the driver (``association = "auto"``, ``complete`` None) takes the driver's default
+        (:data:`DRIVER_DEFAULTS`). Settings already resolved come back as they are."""
+        changes = {name: value for name, value in DRIVER_DEFAULTS[driver].items()
+                   if getattr(self, name) == _LEFT_TO_DRIVER[name]}
+        return self.replace(**changes) if changes else self
+
+
+#: The value of a setting that leaves it to the driver.
+_LEFT_TO_DRIVER = {"association": "auto", "complete": None}
+#: Each driver's default of the settings left to it: static scenes (``mvm reconstruct``,
+#: ``run``, ``batch``, ``demo``) and the instants of a rig (``mvm rig reconstruct``).
+DRIVER_DEFAULTS = {"scene": {"association": "3d", "complete": False},
+                   "rig": {"association": "paper", "complete": True}}
+#: Settings of :class:`Config` a driver never reads: given to it, they are refused, not ignored.
+UNUSED_BY_DRIVER = {"scene": (), "rig": ("video_order", "max_affinity_bytes")}

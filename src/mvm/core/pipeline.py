@@ -386,7 +386,9 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
                       groups: list[np.ndarray] | None = None) -> Triangulated:
     """The pipeline up to the refinement: groups (``groups``, else :func:`match`),
     triangulation, merging of duplicates, the association consistent in 3D (``association =
-    "3d"``, not for given groups)."""
+    "3d"``, not for given groups; settings left to the driver take the scenes' defaults,
+    :meth:`mvm.core.config.Config.for_driver`)."""
+    config = config.for_driver("scene")
     timings = {}
     t = time.perf_counter()
     given = groups is not None

@@ -93,12 +93,13 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
 
     Args:
         scene: cameras and 2D poses.
-        config: thresholds (default :class:`Config`).
+        config: thresholds (default :class:`Config`; settings left to the driver take the
+            scenes' defaults, :meth:`Config.for_driver`).
         prior: a :class:`mvm.core.prior.PosePrior`; default as :func:`mvm.core.prior.load_prior`.
         groups: precomputed groups of pose indices (skips matching and the association in 3D),
             e.g. from a baseline or the true grouping.
     """
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     # The hot paths are many small products: BLAS threads only contend with each other.
     with one_blas_thread():
         [rec] = refine_all([_triangulated(scene, config, groups)], config, prior)
@@ -111,7 +112,7 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
     a fraction of the time where scenes are small (the one-instant scenes of a rig). Returns,
     in order, each scene's :class:`Result` or the exception it raised: one scene's failure is
     its own."""
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     outcomes: list = [None] * len(scenes)
     parts = {}
     with one_blas_thread():

@@ -1,4 +1,10 @@
-"""Reconstruction settings read from a TOML file and ``--set`` overrides."""
+"""Settings read from a TOML file (one table per settings object) and ``--set`` overrides.
+
+A settings file holds one table per settings object (:data:`TABLES`: ``[reconstruct]``,
+``[rig]``, ``[simulate]``, ...), each read by the commands that use it; keys outside any table
+are the reconstruction's (``[reconstruct]``). ``mvm config`` prints the file of every setting
+with its default (:mod:`mvm.settings`).
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -7,19 +13,56 @@ from mvm.core.config import Config, settings_from
 from mvm.errors import InputError
 from mvm.io.checks import load_toml
 
+#: The tables of a settings file, one per settings object, and the commands that read each
+#: (the settings dataclass of each: :data:`mvm.settings.SETTINGS`). A nested settings
+#: dataclass is a sub-table (``[detect.rtm]``).
+TABLES = {
+    "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
+    "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
+    "simulate": "The simulated scene: mvm simulate (over its --preset) and demo (--config; their options win).",
+    "frames": "Frame sampling: mvm frames, run and batch (--config; their options win).",
+    "sfm": "Structure from motion: mvm sfm, run and batch (--config; their options win).",
+    "detect": "2D detection: mvm detect, run and batch (--config; their options win).",
+    "batch": "mvm batch's own settings (--config; each stage's are in its own table).",
+    "train": "Training: mvm train CONFIG reads these keys at the top level of its file.",
+}
 
-def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
-    """Read a TOML config (flat, or under ``[reconstruct]``) and apply ``overrides`` (from
-    ``--set``); every setting is checked here, with the file or ``--set`` in the message."""
-    values: dict = {}
-    if path is not None:
-        path = Path(path)
-        data = load_toml(path)
-        data = data.get("reconstruct", data)
-        if not isinstance(data, dict):
-            raise InputError(path, "reconstruct", "expected a table of settings")
-        values.update(data)
+
+def read_tables(path: str | Path) -> dict[str, dict]:
+    """The tables of the settings file ``path``: ``{table: values}``, keys outside any table
+    under ``"reconstruct"``; an unknown table raises an InputError naming the file."""
+    path = Path(path)
+    tables: dict[str, dict] = {}
+    flat: dict = {}
+    for name, value in load_toml(path).items():
+        if not isinstance(value, dict):
+            if name in TABLES:
+                raise InputError(path, name, "expected a table of settings")
+            flat[name] = value
+        elif name in TABLES:
+            tables[name] = value
+        else:
+            raise InputError(path, name, f"unknown table (known: {', '.join(TABLES)})")
+    if flat:
+        tables["reconstruct"] = {**flat, **tables.get("reconstruct", {})}
+    return tables
+
+
+def load_settings(cls, table: str, path: str | Path | None = None, overrides: dict | None = None,
+                  sources: dict | None = None, base=None):
+    """The settings dataclass ``cls`` of the ``table`` of the settings file ``path`` (none: the
+    defaults, or ``base``) with ``overrides`` (from the command line, each named in messages by
+    ``sources[key]``, default ``--set``); every setting is checked here, a bad one raises an
+    InputError naming the file or the option and the setting."""
+    values = dict(read_tables(path).get(table, {})) if path is not None else {}
     overrides = overrides or {}
     values.update(overrides)
-    return settings_from(Config, values, str(path) if path is not None else "--set",
-                         sources={k: "--set" for k in overrides})
+    return settings_from(cls, values, str(path) if path is not None else "--set", base=base,
+                         sources={k: (sources or {}).get(k, "--set") for k in overrides})
+
+
+def load_config(path: str | Path | None = None, overrides: dict | None = None) -> Config:
+    """Read the reconstruction settings of a TOML file (its ``[reconstruct]`` table, or flat
+    keys) and apply ``overrides`` (from ``--set``); every setting is checked here, with the
+    file or ``--set`` in the message."""
+    return load_settings(Config, "reconstruct", path, overrides)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.io.coco_dataset import read_coco_dataset
 from mvm.io.images import read_image
@@ -35,20 +36,29 @@ LOG = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class AugmentConfig:
-    """Attributes:
-        input_size: side of the square network input. [px]
-        crop_min, crop_max: side of the random square crop as a fraction of the short edge. [1]
-        flip: probability of a horizontal flip. [0-1]
-        scale_min, scale_max: range of the random rescale, drawn log-uniformly (1, 1: none;
-            > 1 magnifies the people). [1]
-    """
+    """The random augmentation of training images."""
 
-    input_size: int = 385
-    crop_min: float = 0.95
-    crop_max: float = 1.0
-    flip: float = 0.5
-    scale_min: float = 1.0
-    scale_max: float = 1.0
+    #: Side of the square network input. [px]
+    input_size: int = setting(385, ge=16, le=8192)
+    #: Smallest side of the random square crop, as a fraction of the short edge. [fraction]
+    crop_min: float = setting(0.95, gt=0, le=1)
+    #: Largest side of the random square crop, as a fraction of the short edge. [fraction]
+    crop_max: float = setting(1.0, gt=0, le=1)
+    #: Probability of a horizontal flip. [0-1]
+    flip: float = setting(0.5, ge=0, le=1)
+    #: Smallest random rescale, drawn log-uniformly (1, 1: none; > 1 magnifies the people). [1]
+    scale_min: float = setting(1.0, gt=0)
+    #: Largest random rescale (see ``scale_min``). [1]
+    scale_max: float = setting(1.0, gt=0)
+
+    def __post_init__(self):
+        check_settings(self)
+
+    def implied_problems(self) -> list[tuple[str, str]]:
+        """A range's low end may not exceed its high end."""
+        return [(low, f"must be <= {high} ({getattr(self, high):g}), got {getattr(self, low):g}")
+                for low, high in (("crop_min", "crop_max"), ("scale_min", "scale_max"))
+                if getattr(self, low) > getattr(self, high)]
 
 
 @dataclass(frozen=True)

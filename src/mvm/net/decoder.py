@@ -22,48 +22,49 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.net.headmeta import PAF_CONNECTIONS
 
 
 @dataclass(frozen=True)
 class DecoderConfig:
-    """Thresholds of the decoder (confidences in [0, 1], distances in field cells).
+    """Thresholds of the decoder (confidences in [0, 1], distances in field cells)."""
 
-    Attributes:
-        pif_threshold: PIF cells below this confidence do not vote. Lower: slower, more recall.
-        seed_threshold: a seed needs this high-resolution confidence to start a pose.
-        paf_threshold: PAF cells below this confidence are not used for association.
-        keypoint_threshold: joints scoring below this are dropped from a pose.
-        instance_threshold: poses whose mean keypoint score (over 17) is below this are dropped.
-        min_keypoints: poses with fewer joints are dropped.
-        nms_radius: seeds of one joint closer than their scale ``σ`` are merged, within
-            ``[min_nms_radius, nms_radius]``. [cells]
-        min_nms_radius: see ``nms_radius``. [cells]
-        dedup_fraction: a pose whose joints lie, for at least this fraction, on the same
-            joints of a better pose (within ``dedup_radius``) is dropped. [0-1]
-        dedup_radius: see ``dedup_fraction``. [cells]
-        snap_radius: a joint found through the PAF snaps to a seed within this distance. [cells]
-        min_spread: lower bound of the regression spread ``b`` used in association. [cells]
-        votes_per_joint: how many PIF cells vote for one joint (the encoder's ``pif_side²``);
-            normalizes the high-resolution confidence.
-        max_poses: at most this many poses per image.
-    """
+    #: PIF cells below this confidence do not vote; lower is slower, with more recall. [0-1]
+    pif_threshold: float = setting(0.1, ge=0, le=1)
+    #: A seed needs this high-resolution confidence to start a pose; lower finds more poses. [0-1]
+    seed_threshold: float = setting(0.2, ge=0, le=1)
+    #: PAF cells below this confidence are not used for association. [0-1]
+    paf_threshold: float = setting(0.1, ge=0, le=1)
+    #: Joints scoring below this are dropped from a pose. [0-1]
+    keypoint_threshold: float = setting(0.1, ge=0, le=1)
+    #: Poses whose mean keypoint score (over 17) is below this are dropped. [0-1]
+    instance_threshold: float = setting(0.1, ge=0, le=1)
+    #: Poses with fewer joints are dropped. [joints]
+    min_keypoints: int = setting(3, ge=0, le=17)
+    #: Seeds of one joint closer than their scale σ are merged, within
+    #: ``[min_nms_radius, nms_radius]``; larger merges more. [cells]
+    nms_radius: float = setting(0.5, ge=0)
+    #: The smallest merging radius of seeds (see ``nms_radius``). [cells]
+    min_nms_radius: float = setting(0.25, ge=0)
+    #: A pose whose joints lie, for at least this fraction, on the same joints of a better pose
+    #: (within ``dedup_radius``) is dropped; lower drops more. [0-1]
+    dedup_fraction: float = setting(0.5, ge=0, le=1)
+    #: Distance within which two poses' joints count as the same (see ``dedup_fraction``). [cells]
+    dedup_radius: float = setting(0.75, ge=0)
+    #: A joint found through the PAF snaps to a seed within this distance. [cells]
+    snap_radius: float = setting(1.5, ge=0)
+    #: Lower bound of the regression spread ``b`` used in association. [cells]
+    min_spread: float = setting(0.1, gt=0)
+    #: How many PIF cells vote for one joint (the encoder's ``pif_side²``); normalizes the
+    #: high-resolution confidence. [cells]
+    votes_per_joint: float = setting(16.0, gt=0)
+    #: At most this many poses per image. [poses]
+    max_poses: int = setting(100, ge=1)
 
-    pif_threshold: float = 0.1
-    seed_threshold: float = 0.2
-    paf_threshold: float = 0.1
-    keypoint_threshold: float = 0.1
-    instance_threshold: float = 0.1
-    min_keypoints: int = 3
-    nms_radius: float = 0.5
-    min_nms_radius: float = 0.25
-    dedup_fraction: float = 0.5
-    dedup_radius: float = 0.75
-    snap_radius: float = 1.5
-    min_spread: float = 0.1
-    votes_per_joint: float = 16.0
-    max_poses: int = 100
+    def __post_init__(self):
+        check_settings(self)
 
 
 @dataclass(frozen=True)

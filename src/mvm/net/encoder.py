@@ -25,29 +25,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import COCO_SIGMAS, NUM_JOINTS
 from mvm.net.headmeta import PAF_CONNECTIONS
 
 
 @dataclass(frozen=True)
 class EncoderConfig:
-    """Sizes of the positive regions, in field cells.
+    """Sizes of the positive regions, in field cells."""
 
-    Attributes:
-        pif_side: side of the square of cells around a joint that point to it. [cells]
-            Larger: more cells vote for a joint (robust, but neighbours interfere).
-        paf_radius: cells within this distance of a connection's segment point to its joints. [cells]
-        nominal_spread: value written into the ``b`` channels of targets (unused by the loss,
-            read by the decoder when it decodes targets). [cells]
-        min_sigma_px: the smallest joint scale σ of a target. [px]
-        ignore_margin: a person's box, grown by this much, is ignored for its missing joints. [cells]
-    """
+    #: Side of the square of cells around a joint that point to it; larger: more cells vote for
+    #: a joint (robust, but neighbours interfere). [cells]
+    pif_side: float = setting(4.0, gt=0)
+    #: Cells within this distance of a connection's segment point to its joints. [cells]
+    paf_radius: float = setting(1.0, gt=0)
+    #: Value written into the ``b`` channels of targets (unused by the loss, read by the decoder
+    #: when it decodes targets). [cells]
+    nominal_spread: float = setting(0.1, gt=0)
+    #: The smallest joint scale σ of a target. [px]
+    min_sigma_px: float = setting(1.0, gt=0)
+    #: A person's box, grown by this much, is ignored for its missing joints. [cells]
+    ignore_margin: float = setting(1.0, ge=0)
 
-    pif_side: float = 4.0
-    paf_radius: float = 1.0
-    nominal_spread: float = 0.1
-    min_sigma_px: float = 1.0
-    ignore_margin: float = 1.0
+    def __post_init__(self):
+        check_settings(self)
 
 
 def field_shape(image_size: tuple[int, int], stride: int) -> tuple[int, int]:

@@ -23,25 +23,35 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from mvm.core.config import check_settings, setting
+
 #: Clamp of the log-spreads in the Laplace loss (keeps ``exp(-log b)`` finite early on).
 LOG_SPREAD_RANGE = (-5.0, 5.0)
+#: Groups of cells over which the depth loss takes one variance: 'image' (the paper) or 'person'.
+DEPTH_LOSSES = ("image", "person")
 
 
 @dataclass(frozen=True)
 class LossWeights:
-    """λ1, λ2, λ3 of the paper's loss, the weight of background cells in the confidence loss and
-    the unit of log-depth residuals in the depth loss (1: the paper's unnormalized variance)."""
+    """λ1, λ2, λ3 of the paper's loss and how its terms are weighed."""
 
-    pif: float = 1.0
-    paf: float = 1.0
-    pdf: float = 1.0
-    background: float = 1.0
-    depth_log_scale: float = 1.0
-    depth_loss: str = "image"
+    #: λ1, the weight of the PIF (joint) loss; higher favours joint localisation. [1]
+    pif: float = setting(1.0, ge=0)
+    #: λ2, the weight of the PAF (connection) loss. [1]
+    paf: float = setting(1.0, ge=0)
+    #: λ3, the weight of the PDF (depth) loss. [1]
+    pdf: float = setting(1.0, ge=0)
+    #: Weight of background cells in the confidence losses; lower makes the few positive cells
+    #: count more. [1]
+    background: float = setting(1.0, ge=0)
+    #: Unit of the log-depth residuals in the depth loss (1: the paper's unnormalized variance). [1]
+    depth_log_scale: float = setting(1.0, gt=0)
+    #: Groups of cells over which the depth loss takes one variance: "image" (the paper) or
+    #: "person". [name]
+    depth_loss: str = setting("image", choices=DEPTH_LOSSES)
 
-
-#: Groups of cells over which the depth loss takes one variance: 'image' (the paper) or 'person'.
-DEPTH_LOSSES = ("image", "person")
+    def __post_init__(self):
+        check_settings(self)
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

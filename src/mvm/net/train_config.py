@@ -221,6 +221,10 @@ def _data_source(table, source: str, name: str) -> DataSource:
 
 def load_config(path: str | Path, overrides: dict | None = None) -> TrainConfig:
     """Read a TOML training configuration; ``overrides`` (flat keys, from ``--set``) replace
-    its values. A bad setting raises an InputError naming the file or ``--set``."""
+    its values. A bad setting raises an InputError naming the file or ``--set``. The settings may
+    also sit in a ``[train]`` table, as ``mvm config`` prints them."""
     path = Path(path)
-    return config_from_dict(load_toml(path), str(path), overrides)
+    doc = load_toml(path)
+    if isinstance(doc.get("train"), dict):
+        doc = doc["train"]
+    return config_from_dict(doc, str(path), overrides)

@@ -4,7 +4,7 @@
 - :mod:`mvm.rig.instants`: the rig driver of the core pipeline (:mod:`mvm.core.pipeline`), instants in batches;
 - :mod:`mvm.rig.tracking`: identities over time and optional smoothing;
 - :mod:`mvm.rig.recap`: reprojection error per keypoint, camera exclusions;
-- :mod:`mvm.rig.pipeline`: ``RIG_DIR`` in, JSON Lines + ``.trc`` + recap out.
+- :mod:`mvm.rig.reconstruct_rig`: ``RIG_DIR`` in, JSON Lines + ``.trc`` + recap out.
 """
 from mvm.rig.options import RigOptions
 

@@ -1,4 +1,5 @@
-"""Settings of the rig pipeline that the per-scene :class:`mvm.core.config.Config` does not hold."""
+"""Settings of the rig driver that the per-scene :class:`mvm.core.config.Config` does not hold
+(the reconstruction's, ``association`` and ``complete`` included, are all there)."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,11 +10,6 @@ from mvm.core.config import check_settings, setting
 
 @dataclass(frozen=True)
 class RigOptions:
-    #: Grouping of each instant's 2D poses: "paper" (the epipolar grouping with merging of
-    #: duplicates) or "3d" (then every pose reassigned to the triangulated persons, the scenes'
-    #: default). On a calibrated rig the epipolar grouping is rarely wrong and "3d" costs about
-    #: half of the reconstruction time for no gain (Panoptic, 5 cameras: PCP 0.995 either way). [-]
-    association: str = setting("paper", choices=("paper", "3d"))
     #: Instants reconstructed together (one batched affinity, triangulation and refinement);
     #: larger is faster per instant and uses more memory. The batches are shared out whole among
     #: the workers, so the result does not depend on their number. [instants]
@@ -52,9 +48,6 @@ class RigOptions:
     #: to its track's median lengths. A bone 1 % off costs ``bone_weight / 10⁴`` px² (2 px² by
     #: default); raise it for a more rigid skeleton, 0 turns the term off. [px²]
     bone_weight: float = setting(20000.0, ge=0)
-    #: Complete every person: missing joints interpolated along the track, then inferred from the
-    #: pose prior; each joint flagged observed / interpolated / inferred. [bool]
-    complete: bool = True
     #: Longest run of missing instants a joint is interpolated over; longer gaps are left to the
     #: pose prior. [instants]
     max_interpolation_gap: int = setting(30, ge=0)

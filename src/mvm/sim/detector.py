@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import FLIP_PERMUTATION, NUM_JOINTS
 from mvm.sim.projection import image_size_of_people, in_frame, occluded_joints
 
@@ -32,30 +33,26 @@ _LOWER_BODY = np.arange(11, 17)
 class DetectorErrors:
     """Errors of a simulated 2D detector (probabilities per joint unless said otherwise)."""
 
-    #: Joint noise (standard deviation) as a fraction of the person's image size.
-    noise: float = 0.01
-    #: A visible joint is missed.
-    dropout: float = 0.03
-    #: Joints behind another person (depth-ordered) are lost.
+    #: Joint noise (standard deviation) as a fraction of the person's image size; higher blurs
+    #: the keypoints more. [fraction]
+    noise: float = setting(0.01, ge=0, le=1)
+    #: Probability that a visible joint is missed. [0-1]
+    dropout: float = setting(0.03, ge=0, le=1)
+    #: Joints behind another person (depth-ordered) are lost. [bool]
     occlusion: bool = True
-    #: A pose has left and right swapped (per pose).
-    swap_prob: float = 0.01
-    #: A joint lands about a quarter of the person's size away.
-    outlier_joint_prob: float = 0.02
-    #: False poses per view (Poisson mean).
-    false_pose_rate: float = 0.1
-    #: Two overlapping people are detected as one pose (per overlapping pair).
-    merge_prob: float = 0.0
-    #: A person with fewer visible joints is not detected.
-    min_visible: int = 5
+    #: Probability that a pose has left and right swapped (per pose). [0-1]
+    swap_prob: float = setting(0.01, ge=0, le=1)
+    #: Probability that a joint lands about a quarter of the person's size away. [0-1]
+    outlier_joint_prob: float = setting(0.02, ge=0, le=1)
+    #: False poses per view (Poisson mean); higher clutters every view more. [poses]
+    false_pose_rate: float = setting(0.1, ge=0, le=1000)
+    #: Probability that two overlapping people are detected as one pose (per overlapping pair). [0-1]
+    merge_prob: float = setting(0.0, ge=0, le=1)
+    #: A person with fewer visible joints than this is not detected. [joints]
+    min_visible: int = setting(5, ge=0, le=17)
 
     def __post_init__(self):
-        for name in ("noise", "false_pose_rate"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")
-        for name in ("dropout", "swap_prob", "outlier_joint_prob", "merge_prob"):
-            if not 0 <= getattr(self, name) <= 1:
-                raise ValueError(f"{name}: expected a probability in [0, 1], got {getattr(self, name)}")
+        check_settings(self)
 
 
 #: The names of the detector's settings (accepted flat by ``SimConfig.preset`` and ``replace``).

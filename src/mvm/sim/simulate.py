@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.scene import Poses2D, Scene
 from mvm.io.ground_truth import GroundTruth
 from mvm.sim.detector import DETECTOR_FIELDS, DetectorErrors, detect_people, pose_scores
@@ -37,50 +38,66 @@ class SimConfig:
     as a fraction of the person's image size); :meth:`preset` and :meth:`replace` also take
     them by their own names (``noise=0.01``)."""
 
-    people: int = 6
-    frames: int = 100
-    image_width: int = 1280
-    image_height: int = 720
-    focal_px: float = 1000.0
-    #: Total angle of the camera's tour around the crowd.
-    arc_deg: float = 60.0
-    #: Distance of the camera path from the crowd's centre.
-    camera_distance: float = 5.0
-    camera_height: float = 1.6
-    #: Hand-held shake: rotation (deg) and position (m) jitter, and a vertical bob (m).
-    shake_deg: float = 0.5
-    shake_m: float = 0.02
-    #: People stand in a disc of this radius, at least ``min_separation`` apart (pelvis).
-    crowd_radius: float = 2.0
-    min_separation: float = 0.7
-    #: Every person's nearest neighbour stands at most this far (pelvis); None: no bound.
-    max_separation: float | None = None
-    #: Body size factor range applied to the bank's poses.
+    #: People in the scene; more crowds the views. [people]
+    people: int = setting(6, ge=1, le=1000)
+    #: Frames of the camera's tour; more gives more views of everyone. [frames]
+    frames: int = setting(100, ge=2, le=100_000)
+    #: Image width; the field of view follows with ``focal_px``. [px]
+    image_width: int = setting(1280, ge=16, le=16384)
+    #: Image height. [px]
+    image_height: int = setting(720, ge=16, le=16384)
+    #: Focal length; lower widens the field of view. [px]
+    focal_px: float = setting(1000.0, gt=0)
+    #: Total angle of the camera's tour around the crowd; wider gives more parallax. [deg]
+    arc_deg: float = setting(60.0, gt=0, le=360)
+    #: Distance of the camera path from the crowd's centre. [m]
+    camera_distance: float = setting(5.0, gt=0)
+    #: Height of the camera above the floor. [m]
+    camera_height: float = setting(1.6, ge=0)
+    #: Hand-held shake: rotation jitter of the camera (standard deviation). [deg]
+    shake_deg: float = setting(0.5, ge=0, le=90)
+    #: Hand-held shake: position jitter and vertical bob of the camera. [m]
+    shake_m: float = setting(0.02, ge=0)
+    #: People stand in a disc of this radius; smaller packs them closer. [m]
+    crowd_radius: float = setting(2.0, gt=0)
+    #: People stand at least this far apart (pelvis). [m]
+    min_separation: float = setting(0.7, ge=0)
+    #: Every person's nearest neighbour stands at most this far (pelvis); None: no bound. [m]
+    max_separation: float | None = setting(None, gt=0)
+    #: Range of the body size factor applied to the bank's poses (low, high). [1]
     size_range: tuple[float, float] = (0.85, 1.1)
-    #: The detector's errors.
+    #: The detector's errors (a table of their own: ``[simulate.detector]``). [-]
     detector: DetectorErrors = DetectorErrors(noise=0.008, outlier_joint_prob=0.01)
     # --- appearance -----------------------------------------------------------------------
-    appearance_dim: int = 16
-    appearance_noise: float = 0.15
-    #: Multiplicative lighting drift over the tour (fraction).
-    lighting_drift: float = 0.2
-    #: Persons share the same clothes (appearance is useless).
+    #: Length of each pose's appearance descriptor. [numbers]
+    appearance_dim: int = setting(16, ge=1, le=4096)
+    #: Noise of the appearance descriptors; higher makes appearance less telling. [1]
+    appearance_noise: float = setting(0.15, ge=0)
+    #: Multiplicative lighting drift over the tour. [fraction]
+    lighting_drift: float = setting(0.2, ge=0)
+    #: Persons share the same clothes (appearance is useless). [bool]
     identical_clothes: bool = False
     # --- later additions (defaults leave the scene as the first version made it) ----------
     #: Fractions of standing, sitting and crouching people (the bank's labels); None draws
-    #: any pose of the bank.
+    #: any pose of the bank. [fractions]
     postures: tuple[float, float, float] | None = None
-    #: Number of people placed side by side with another one, ``close_distance`` apart.
-    close_pairs: int = 0
-    close_distance: float = 0.45
-    #: Bodies of different people keep at least this horizontal distance between joints.
-    body_clearance: float = 0.08
-    #: Number of people wearing near-identical clothes to another person.
-    lookalikes: int = 0
+    #: Number of people placed side by side with another one, ``close_distance`` apart. [people]
+    close_pairs: int = setting(0, ge=0)
+    #: Distance between the people of a close pair. [m]
+    close_distance: float = setting(0.45, ge=0)
+    #: Bodies of different people keep at least this horizontal distance between joints. [m]
+    body_clearance: float = setting(0.08, ge=0)
+    #: Number of people wearing near-identical clothes to another person. [people]
+    lookalikes: int = setting(0, ge=0)
     #: A RealEstate10K / MannequinChallenge camera file: the tour follows its path (resampled
-    #: to ``frames``, bent onto the ``arc_deg`` tour and scaled to the room) and its intrinsics.
+    #: to ``frames``, bent onto the ``arc_deg`` tour and scaled to the room) and its intrinsics;
+    #: None: a smooth arc. [path]
     trajectory: str | None = None
-    seed: int = 0
+    #: Seed of every random draw: the same settings give the same scene. [1]
+    seed: int = setting(0, ge=0, le=2**63 - 1)
+
+    def __post_init__(self):
+        check_settings(self)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "SimConfig":
@@ -137,8 +154,6 @@ def simulate(config: SimConfig | None = None, bank_poses: np.ndarray | None = No
     ``bank_poses: (B, 17, 3)`` (bank frame) and optionally ``bank_labels: (B,)`` are given.
     """
     config = config or SimConfig()
-    if config.people < 1 or config.frames < 2:
-        raise ValueError(f"expected people >= 1 and frames >= 2, got {config.people} and {config.frames}")
     rng = np.random.default_rng(config.seed)
     extra = np.random.default_rng([config.seed, 1])
     if bank_poses is None:

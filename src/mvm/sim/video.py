@@ -13,6 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
 from mvm.sim.people import STANDING
@@ -33,21 +34,33 @@ _HEAD_RADIUS = 0.11
 class RenderConfig:
     """A rendered tour. Lengths in metres, angles in degrees, sizes in pixels."""
 
-    frames: int = 48
-    width: int = 480
-    height: int = 270
-    focal_px: float = 400.0
-    fps: float = 24.0
-    #: Total angle of the camera's arc around the crowd, its radius and height.
-    arc_deg: float = 60.0
-    radius: float = 4.0
-    camera_height: float = 1.6
-    #: Hand-held shake of the camera centre (metres, standard deviation).
-    shake_m: float = 0.01
-    #: Half-size of the room's floor (square) and its height.
-    room_half: float = 7.0
-    room_height: float = 3.5
-    seed: int = 0
+    #: Frames of the tour. [frames]
+    frames: int = setting(48, ge=2, le=100_000)
+    #: Width of the frames. [px]
+    width: int = setting(480, ge=16, le=16384)
+    #: Height of the frames. [px]
+    height: int = setting(270, ge=16, le=16384)
+    #: Focal length; lower widens the field of view. [px]
+    focal_px: float = setting(400.0, gt=0)
+    #: Frame rate of the video. [Hz]
+    fps: float = setting(24.0, gt=0, le=1000)
+    #: Total angle of the camera's arc around the crowd; wider gives more parallax. [deg]
+    arc_deg: float = setting(60.0, gt=0, le=360)
+    #: Radius of the camera's arc. [m]
+    radius: float = setting(4.0, gt=0)
+    #: Height of the camera above the floor. [m]
+    camera_height: float = setting(1.6, ge=0)
+    #: Hand-held shake of the camera centre (standard deviation). [m]
+    shake_m: float = setting(0.01, ge=0)
+    #: Half-size of the room's floor (a square). [m]
+    room_half: float = setting(7.0, gt=0)
+    #: Height of the room. [m]
+    room_height: float = setting(3.5, gt=0)
+    #: Seed of the camera's shake and the room's textures. [1]
+    seed: int = setting(0, ge=0, le=2**63 - 1)
+
+    def __post_init__(self):
+        check_settings(self)
 
 
 @dataclass

@@ -19,6 +19,7 @@ from typing import Callable
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
@@ -43,51 +44,42 @@ DEVICES = ("cpu", "cuda")
 
 @dataclass(frozen=True)
 class DetectOptions:
-    """2D detection.
+    """2D detection."""
 
-    Attributes:
-        detector: one of :data:`DETECTORS`; None: ``import`` when detections are given, ``mvm``
-            when a checkpoint is.
-        model: the detector's ONNX model (``.onnx`` or the published ``.zip``; for ``rtmpose``
-            the keypoint model); None: the published model of ``mode``, cached on first use.
-        person_model: the person detector of ``rtmpose`` (YOLOX), likewise.
-        mode: model size when no model is given: ``lightweight``, ``balanced``, ``performance``.
-        batch_size: frames given to the model at once. [frames]
-        download: fetch a missing published model (else: an error naming what to fetch).
-        rtm: the RTM detectors' thresholds.
-        appearance: ``auto`` (network features when the network runs, else colour), ``colour``,
-            ``network`` or ``none``.
-        keypoint_threshold: keypoints below this confidence are not used to sample appearance. [0-1]
-        min_score: poses with a lower score are dropped. [0-1]
-        min_keypoints: poses with fewer keypoints above ``keypoint_threshold`` are dropped. [1]
-        input_size: the mvm network's input (longer side) in pixels. [px]
-        device: ``cpu`` or ``cuda`` (torch for ``mvm``, ONNX Runtime for the RTM detectors).
-    """
-
-    detector: str | None = None
+    #: One of :data:`DETECTORS`; None: "import" when detections are given, "mvm" when a
+    #: checkpoint is. [name]
+    detector: str | None = setting(None, choices=DETECTORS)
+    #: The detector's ONNX model (.onnx or the published .zip; for "rtmpose" the keypoint
+    #: model); None: the published model of ``mode``, cached on first use. [path]
     model: str | None = None
+    #: The person detector of "rtmpose" (YOLOX); None: the published one of ``mode``. [path]
     person_model: str | None = None
-    mode: str = "balanced"
-    batch_size: int = 4
+    #: Size of the published models when no model is given; larger is slower and finds more. [name]
+    mode: str = setting("balanced", choices=MODES)
+    #: Frames given to the model at once; more is faster and uses more memory. [frames]
+    batch_size: int = setting(4, ge=1, le=4096)
+    #: Fetch a missing published model (else: an error naming what to fetch). [bool]
     download: bool = True
+    #: The RTM detectors' thresholds (a table of their own: ``[detect.rtm]``). [-]
     rtm: RtmOptions = RtmOptions()
-    appearance: str = "auto"
-    keypoint_threshold: float = 0.2
-    min_score: float = 0.0
-    min_keypoints: int = 3
-    input_size: int = 641
-    device: str = "cpu"
-
+    #: Appearance descriptor stored with each pose: "auto" (network features when the network
+    #: runs, else colour), "colour", "network" or "none". [name]
+    appearance: str = setting("auto", choices=APPEARANCE)
+    #: Keypoints below this confidence are not used to sample appearance. [0-1]
+    keypoint_threshold: float = setting(0.2, ge=0, le=1)
+    #: Poses with a lower score are dropped; raising it drops more false poses and more real
+    #: ones. [0-1]
+    min_score: float = setting(0.0, ge=0, le=1)
+    #: Poses with fewer keypoints above ``keypoint_threshold`` are dropped. [keypoints]
+    min_keypoints: int = setting(3, ge=0, le=17)
+    #: The mvm network's input (longer side); larger finds smaller people, slower. [px]
+    input_size: int = setting(641, ge=32, le=8192)
+    #: Where the detector runs: "cpu" or "cuda" (torch for "mvm", ONNX Runtime for the RTM
+    #: detectors). [name]
+    device: str = setting("cpu", choices=DEVICES)
 
     def __post_init__(self):
-        checks = ((self.detector is None or self.detector in DETECTORS, "detector", DETECTORS),
-                  (self.mode in MODES, "mode", MODES), (self.device in DEVICES, "device", DEVICES),
-                  (self.appearance in APPEARANCE, "appearance", APPEARANCE))
-        for ok, name, known in checks:
-            if not ok:
-                raise ValueError(f"{name} {getattr(self, name)!r}: expected one of {', '.join(known)}")
-        if not isinstance(self.batch_size, int) or self.batch_size < 1:
-            raise ValueError(f"batch_size: expected an integer >= 1, got {self.batch_size!r}")
+        check_settings(self)
 
 
 @dataclass

@@ -11,6 +11,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
@@ -25,23 +26,23 @@ FRAMES_FORMAT = "mvm.frames/1"
 
 @dataclass(frozen=True)
 class FrameOptions:
-    """How frames are taken from a video.
+    """How frames are taken from a video."""
 
-    Attributes:
-        rate: frames per second to keep (None: every frame). [1/s]
-        max_frames: keep at most this many, evenly spread (None: no limit). [frames]
-        width: resize to this width, keeping the aspect ratio (None: original size). [px]
-        blur_ratio: a frame whose sharpness (variance of the Laplacian) is below this fraction
-            of the median sharpness of the sampled frames is skipped; 0 keeps all. Raising it
-            drops more motion-blurred frames. [1]
-        jpeg_quality: quality of the written frames. [0-100]
-    """
+    #: Frames per second to keep; None: every frame. [1/s]
+    rate: float | None = setting(None, gt=0, le=1000)
+    #: Keep at most this many frames, evenly spread; None: no limit. [frames]
+    max_frames: int | None = setting(None, ge=1)
+    #: Resize to this width, keeping the aspect ratio; None: the original size. [px]
+    width: int | None = setting(None, ge=16, le=16384)
+    #: A frame whose sharpness (variance of the Laplacian) is below this fraction of the median
+    #: sharpness of the sampled frames is skipped; 0 keeps all, raising it drops more
+    #: motion-blurred frames. [fraction]
+    blur_ratio: float = setting(0.35, ge=0, le=1)
+    #: JPEG quality of the written frames; lower writes smaller, blurrier files. [0-100]
+    jpeg_quality: int = setting(95, ge=1, le=100)
 
-    rate: float | None = None
-    max_frames: int | None = None
-    width: int | None = None
-    blur_ratio: float = 0.35
-    jpeg_quality: int = 95
+    def __post_init__(self):
+        check_settings(self)
 
 
 @dataclass

@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
 
@@ -190,19 +191,20 @@ class _Model:
 
 @dataclass(frozen=True)
 class RtmOptions:
-    """Thresholds of the RTM detectors (RTMLib's defaults).
+    """Thresholds of the RTM detectors (RTMLib's defaults)."""
 
-    Attributes:
-        score_threshold: instances (RTMO) or person boxes (YOLOX) scoring lower are dropped;
-            lowering it finds more, partly hidden people and more false ones. [0-1]
-        iou_threshold: non-maximum suppression: of two boxes overlapping more, the weaker is
-            dropped. [0-1]
-        person_threshold: YOLOX person boxes scoring lower are not given to RTMPose. [0-1]
-    """
+    #: Instances (RTMO) or person boxes (YOLOX) scoring lower are dropped; lowering it finds
+    #: more, partly hidden people and more false ones. [0-1]
+    score_threshold: float = setting(0.7, ge=0, le=1)
+    #: Non-maximum suppression: of two boxes overlapping more than this, the weaker is dropped;
+    #: lower keeps fewer overlapping people. [IoU, 0-1]
+    iou_threshold: float = setting(0.45, ge=0, le=1)
+    #: YOLOX person boxes scoring lower are not given to RTMPose; lowering it finds more people
+    #: and more false ones. [0-1]
+    person_threshold: float = setting(0.3, ge=0, le=1)
 
-    score_threshold: float = 0.7
-    iou_threshold: float = 0.45
-    person_threshold: float = 0.3
+    def __post_init__(self):
+        check_settings(self)
 
 
 class Rtmo:

@@ -100,7 +100,7 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
         doc = load_poses3d_document(out, root=scene)
         record = ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict) else ScaleRecord("none", None, None, False)
         return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     result = reconstruct_dir(scene, config, output)
     s, bones = people_scale(result.persons.keypoints3d) if len(result.persons) else (float("nan"), 0)
     before = _read_scale(scene)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.config import check_settings, setting
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_write_json
@@ -24,40 +25,46 @@ log = logging.getLogger(__name__)
 
 SFM_DIR = "sfm"
 SFM_REPORT = "report.json"
+#: COLMAP's camera models (``pycolmap.CameraModelId``, written out: the settings are checked
+#: without importing pycolmap).
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL", "RADIAL_FISHEYE",
+                 "OPENCV", "OPENCV_FISHEYE", "FULL_OPENCV", "FOV", "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE",
+                 "SIMPLE_DIVISION", "DIVISION", "SIMPLE_FISHEYE", "FISHEYE")
 
 
 @dataclass(frozen=True)
 class SfmOptions:
-    """Structure from motion.
+    """Structure from motion (COLMAP)."""
 
-    Attributes:
-        camera_model: COLMAP camera model shared by all frames (``SIMPLE_RADIAL`` for real
-            video, ``SIMPLE_PINHOLE`` / ``PINHOLE`` for undistorted frames).
-        focal_px: known focal length in pixels (the dataset's intrinsics); None lets COLMAP
-            start from 1.2 × the image's larger side. [px]
-        refine_focal: refine the focal length in bundle adjustment; with ``focal_px`` given and
-            this False the intrinsics stay fixed. [bool]
-        max_features: SIFT features per frame; fewer is faster, more registers hard frames. [1]
-        max_image_size: frames are downscaled to this larger side for SIFT. [px]
-        exhaustive_max_frames: up to this many frames every pair is matched; above it,
-            sequential matching of ``overlap`` neighbours. [frames]
-        overlap: each frame is matched with this many following frames. [frames]
-        vocab_tree: a COLMAP vocabulary tree file enabling loop detection in sequential
-            matching (None: no loop detection).
-        threads: CPU threads (-1: all). [1]
-        seed: random seed of the mapper. [1]
-    """
-
-    camera_model: str = "SIMPLE_RADIAL"
-    focal_px: float | None = None
+    #: COLMAP camera model shared by all frames ("SIMPLE_RADIAL" for real video,
+    #: "SIMPLE_PINHOLE" / "PINHOLE" for undistorted frames). [name]
+    camera_model: str = setting("SIMPLE_RADIAL", choices=CAMERA_MODELS)
+    #: Known focal length (the dataset's intrinsics); None lets COLMAP start from 1.2 × the
+    #: image's larger side. [px]
+    focal_px: float | None = setting(None, gt=0)
+    #: Refine the focal length in bundle adjustment; with ``focal_px`` given and this off the
+    #: intrinsics stay fixed. [bool]
     refine_focal: bool = True
-    max_features: int = 4096
-    max_image_size: int = 1600
-    exhaustive_max_frames: int = 40
-    overlap: int = 10
+    #: SIFT features per frame; fewer is faster, more registers hard frames. [features]
+    max_features: int = setting(4096, ge=64, le=1_000_000)
+    #: Frames are downscaled to this larger side for SIFT; lower is faster and finds fewer
+    #: features. [px]
+    max_image_size: int = setting(1600, ge=64, le=16384)
+    #: Up to this many frames every pair is matched; above it, sequential matching of
+    #: ``overlap`` neighbours. [frames]
+    exhaustive_max_frames: int = setting(40, ge=0)
+    #: Each frame is matched with this many following frames; more is slower and more robust. [frames]
+    overlap: int = setting(10, ge=1)
+    #: A COLMAP vocabulary tree file enabling loop detection in sequential matching; None: no
+    #: loop detection. [path]
     vocab_tree: str | None = None
-    threads: int = -1
-    seed: int = 0
+    #: CPU threads; -1: all. [threads]
+    threads: int = setting(-1, ge=-1, le=4096)
+    #: Random seed of the mapper. [1]
+    seed: int = setting(0, ge=0, le=2**31 - 1)
+
+    def __post_init__(self):
+        check_settings(self)
 
 
 @dataclass

@@ -25,6 +25,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from mvm.core.config import check_settings, setting
+
 log = logging.getLogger(__name__)
 
 
@@ -34,21 +36,25 @@ class BaselineConfig:
 
     #: Hungarian and shortest path: two poses are linked only when their affinity is at least
     #: this; lower links more (and more wrongly). [affinity, 0-0.5]
-    link_affinity: float = 0.1
+    link_affinity: float = setting(0.1, ge=0, le=0.5)
     #: Hungarian and shortest path: a track may skip this many frames without a pose. [frames]
-    max_gap_frames: int = 3
+    max_gap_frames: int = setting(3, ge=0)
     #: Dong: affinities (as 2A in [0, 1]) below this are pushed towards no match (W = α - 2A). [1]
-    dong_alpha: float = 0.1
-    #: Dong: weight λ of the nuclear norm (low rank = few persons). [1]
-    dong_lambda: float = 50.0
+    dong_alpha: float = setting(0.1, ge=0, le=1)
+    #: Dong: weight λ of the nuclear norm (low rank = few persons); higher finds fewer persons. [1]
+    dong_lambda: float = setting(50.0, ge=0)
     #: Dong: initial ADMM penalty μ (adapted while iterating). [1]
-    dong_mu: float = 64.0
-    #: Dong: iteration cap and convergence tolerance of the primal and dual residuals. [1]
-    dong_max_iterations: int = 500
-    dong_tolerance: float = 5e-4
+    dong_mu: float = setting(64.0, gt=0)
+    #: Dong: iteration cap of ADMM; fewer is faster and less converged. [iterations]
+    dong_max_iterations: int = setting(500, ge=1)
+    #: Dong: convergence tolerance of the primal and dual residuals; lower iterates longer. [1]
+    dong_tolerance: float = setting(5e-4, gt=0)
     #: Dong: alternating row/column normalisations per projection onto the block
-    #: doubly-stochastic set. [1]
-    dong_projection_steps: int = 5
+    #: doubly-stochastic set. [steps]
+    dong_projection_steps: int = setting(5, ge=1)
+
+    def __post_init__(self):
+        check_settings(self)
 
 
 def _clean(A: np.ndarray, score: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -99,9 +99,10 @@ def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
                           persons.valid, persons.errors, persons.reprojection_error_px)
 
 
-def gap_policy(options: RigOptions) -> str:
-    """The sentence written in each ``.trc`` header about the markers it carries."""
-    if not options.complete:
+def gap_policy(options: RigOptions, complete: bool) -> str:
+    """The sentence written in each ``.trc`` header about the markers it carries (``complete``:
+    the rig's :attr:`Config.complete`)."""
+    if not complete:
         return "gaps: markers not reconstructed at a frame are left empty"
     kinds = "observed, interpolated and inferred (pose prior)" if options.trc_inferred else \
         "observed and interpolated"
@@ -110,21 +111,23 @@ def gap_policy(options: RigOptions) -> str:
 
 
 def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np.ndarray,
-                 track: np.ndarray, options: RigOptions, flags: np.ndarray | None = None) -> list[Path]:
+                 track: np.ndarray, options: RigOptions, flags: np.ndarray | None = None,
+                 complete: bool = True) -> list[Path]:
     """One ``track_<id>.trc`` per track of at least ``min_track_length`` instants (Y up, metres).
 
-    ``flags: (Q, 17)``: inferred joints are left out unless ``options.trc_inferred``; instants
-    where the track was unseen are interpolated like missing joints (gaps up to
-    ``options.max_interpolation_gap``). The policy is written in the header."""
+    ``flags: (Q, 17)``: inferred joints are left out unless ``options.trc_inferred``; with
+    ``complete`` (the rig's :attr:`Config.complete`), instants where the track was unseen are
+    interpolated like missing joints (gaps up to ``options.max_interpolation_gap``). The policy
+    is written in the header."""
     paths = []
     if flags is not None and not options.trc_inferred:
         X = np.where((np.asarray(flags) == INFERRED)[..., None], np.nan, X)
-    comment = gap_policy(options)
+    comment = gap_policy(options, complete)
     for k in np.unique(track):
         if (track == k).sum() < options.min_track_length:
             continue
         times, series = track_series(X, instant, track, k)
-        if options.complete:
+        if complete:
             series = interpolate_series(series, options.max_interpolation_gap)[0]
         path = directory / f"track_{int(k)}.trc"
         write_trc(path, to_opensim(series, options.up, options.metres_per_unit), COCO_KEYPOINTS,
@@ -133,18 +136,21 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
     return paths
 
 
-def completion_prior(config: Config, options: RigOptions, prior=None):
+def completion_prior(config: Config, prior=None):
     """The pose prior for refinement and completion: ``prior``, else the shipped one when either
-    needs it (:func:`mvm.core.prior.load_prior`'s rule, extended to completion)."""
-    if prior is not None or not options.complete:
+    needs it (:func:`mvm.core.prior.load_prior`'s rule, extended to completion, which rigs run
+    by default)."""
+    config = config.for_driver("rig")
+    if prior is not None or not config.complete:
         return load_prior(config, prior)
     return shipped_prior()
 
 
-def instants_config(config: Config, options: RigOptions) -> Config:
-    """The settings :func:`reconstruct_instants` runs with in the rig driver: the rig's
-    association, and no per-instant refinement (persons are refined once their track is known)."""
-    return config.replace(refine=False, association=options.association)
+def instants_config(config: Config) -> Config:
+    """The settings :func:`reconstruct_instants` runs with in the rig driver: the rig's defaults
+    of the settings left to the driver (:meth:`Config.for_driver`), and no per-instant
+    refinement (persons are refined once their track is known)."""
+    return config.for_driver("rig").replace(refine=False)
 
 
 def track_groups(track: np.ndarray, parts: int) -> list[np.ndarray]:
@@ -181,8 +187,10 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     track is known: reprojection, the pose prior and the track's robust bone lengths
     (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come from
     :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over each track's observed joints, then
-    completion fills what is missing (time, then ``prior``) unless ``options.complete`` is off.
+    completion fills what is missing (time, then ``prior``) unless the rig's ``config.complete``
+    is off (:meth:`Config.for_driver`; no ``config``: the defaults).
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
+    complete = (config or Config()).for_driver("rig").complete
     unit = 1.0 / options.metres_per_unit
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
@@ -191,7 +199,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
                                    options.workers)
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
-    if options.complete:
+    if complete:
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
     else:
         flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
@@ -225,7 +233,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     The three are one set: written into a temporary folder beside ``output`` and swapped in
     whole, so a failed or killed run leaves the previous set as it was (or no set), never a mix.
     """
-    config = config or Config()
+    config = (config or Config()).for_driver("rig")
     options = options or RigOptions()
     check_smoothing(options)
     timings = {}
@@ -234,9 +242,9 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     rig = read_rig(rig_dir, calib, frames, options.workers)
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    prior = completion_prior(config, options, prior)
+    prior = completion_prior(config, prior)
     cameras = rig.calibration.cameras
-    persons = reconstruct_instants(cameras, rig.detections, instants_config(config, options), prior,
+    persons = reconstruct_instants(cameras, rig.detections, instants_config(config), prior,
                                    options.batch_size, progress, options.workers)
     timings["reconstruct_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -260,13 +268,13 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
         atomic_write_bytes(folder / "poses3d.jsonl", lines)
         outputs["tracks"] = [out_dir / "tracks" / p.name
                              for p in write_tracks(folder / "tracks", rig.frames, X, persons.instant, track,
-                                                   options, flags)]
+                                                   options, flags, config.complete)]
         timings["write_s"] = time.perf_counter() - t0
         atomic_write_json(folder / "recap.json", {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
                                                  "config": asdict(config), "options": asdict(options),
                                                  "calibration": rig.calibration.metadata.get("source"),
                                                  "pose_format": rig.pose_format}, pretty=True)
 
-    replace_output_set(build, out_dir)
+    replace_output_set(build, out_dir, config.lock_timeout_s)
     outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})
     return RigResult(rig, persons, track, X, flags, summary, outputs, timings)
