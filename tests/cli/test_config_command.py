@@ -93,7 +93,7 @@ BAD_FILES = [("[reconstrut]\ntau = 0.3", "reconstrut: unknown table (known: " + 
              ("[simulate.detector]\ndropout = 1.5", "simulate.detector.dropout: must be <= 1, got 1.5"),
              ("[sfm]\ncamera_model = \"SIMPLE\"", "sfm.camera_model: expected one of"),
              ("[batch]\nmin_keypoints = 0", "batch.min_keypoints: must be >= 1, got 0"),
-             ("[train]\noptimizer = \"adam\"", "train.optimizer: expected sgd or adamw, got 'adam'"),
+             ("[train]\noptimizer = \"adam\"", "train.optimizer: expected one of 'sgd', 'adamw', got 'adam'"),
              ("[reconstruct\ntau = 1", "not valid TOML")]
 
 

@@ -71,7 +71,7 @@ def test_a_cut_off_the_filter_cannot_reach_is_one_line_naming_the_setting(tmp_pa
 
 def test_savgol_smoothing_has_no_cut_off_to_check(tmp_path):
     from mvm.rig.options import RigOptions
-    from mvm.rig.pipeline import check_smoothing
+    from mvm.rig.reconstruct_rig import check_smoothing
 
     check_smoothing(RigOptions(smoothing="savgol", frame_rate=1e12))
     check_smoothing(RigOptions(frame_rate=30.0, cutoff_hz=0.01))
