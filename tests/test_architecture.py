@@ -19,7 +19,7 @@ ALLOWED: dict[str, set[str]] = {
     "io": {"core", "errors"},
     "scenes": {"core", "io", "parallel", "errors"},
     "net": {"core", "io", "metrics", "errors"},
-    "sim": {"core", "io", "net", "errors"},
+    "sim": {"core", "io", "errors"},
     "eval": {"core", "io", "metrics", "scenes", "sim", "rig", "errors"},
     "rig": {"core", "io", "metrics", "parallel", "errors"},
     "video": {"core", "io", "scenes", "metrics", "net", "errors"},

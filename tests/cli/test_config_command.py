@@ -13,8 +13,8 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 from mvm.core.config import Config
 from mvm.io.settings import TABLES, load_config, load_settings
-from mvm.settings import SETTINGS, check_settings_file, field_docs, reference_toml, split_unit, table_class
 from mvm.rig.options import RigOptions
+from mvm.settings import SETTINGS, check_settings_file, field_docs, reference_toml, split_unit, table_class
 
 
 @pytest.fixture(scope="module")
@@ -51,11 +51,10 @@ def test_the_printed_file_passes_its_check_and_reads_back_as_the_defaults(refere
     # as the commands read it with --config
     assert load_config(reference) == Config()
     assert load_settings(RigOptions, "rig", reference) == RigOptions()
-    from mvm.cli.common import read_config
-    from mvm.cli.rig import read_rig_options
-
     from mvm.batch import BatchOptions
     from mvm.cli.batch import read_batch_options
+    from mvm.cli.common import read_config
+    from mvm.cli.rig import read_rig_options
 
     assert read_config(str(reference), ()) == Config()
     assert read_rig_options(str(reference), ()) == RigOptions()

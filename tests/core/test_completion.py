@@ -147,8 +147,8 @@ def test_hand_held_scene_completed_flagged_and_exported(tmp_path, prior):
 
     from mvm.core.config import Config
     from mvm.core.reconstruct import reconstruct
-    from mvm.metrics.poses import match_persons
     from mvm.io.scene_dir import poses3d_document, read_poses3d, write_poses3d
+    from mvm.metrics.poses import match_persons
     from mvm.net.supervision import export_supervision
     from mvm.sim.simulate import SimConfig, simulate
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, bone_lengths
-from mvm.errors import InputError
 from mvm.core.kinematics import asf_to_coco17, forward_kinematics
+from mvm.errors import InputError
 from mvm.io.asf_amc import INCH_M, motion_arrays, read_amc, read_asf, read_motion
 
 from helpers import SHARED_DATA  # noqa: E402

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from mvm.core.keypoints import BONES, MEAN_BONE_LENGTHS_M
 from mvm.core.geometry import triangulate_dlt
+from mvm.core.keypoints import BONES, MEAN_BONE_LENGTHS_M
 from mvm.metrics import network as metrics
 from mvm.metrics.poses import pa_mpjpe
 from mvm.net.lift import calibrate, lift

@@ -6,9 +6,9 @@ import pytest
 from click.testing import CliRunner
 
 from mvm.cli.net import _parse_sets, export_cmd, predict_cmd, train_cmd
+from mvm.core.camera import project_persons
 from mvm.core.scene import Cameras, Persons3D, Poses2D
 from mvm.errors import InputError
-from mvm.net.supervision import project_persons
 from mvm.sim import images
 
 

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
+from mvm.core.camera import project_persons
 from mvm.net import encoder
 from mvm.net.decoder import decode, normalize_depth
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS, flip_connections
-from mvm.net.supervision import project_persons
 from mvm.sim import images
 
 SIZE = 256

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
+from mvm.core.camera import project_persons
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
 from mvm.net.data import read_annotations
-from mvm.net.supervision import export_supervision, merge_datasets, project_persons
+from mvm.net.supervision import export_supervision, merge_datasets
 
 
 def _scene(name, n_views=3, size=(160, 120)):

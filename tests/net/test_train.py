@@ -8,11 +8,11 @@ import torch
 
 from mvm.core.keypoints import FLIP_PERMUTATION
 from mvm.errors import InputError
-from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
-from mvm.net.predict import load_model, predict
 from mvm.net.checkpoints import latest_checkpoint, list_checkpoints, prune_checkpoints, read_checkpoint
+from mvm.net.data import AugmentConfig, KeypointDataset, random_crop_flip, read_annotations
 from mvm.net.ema import EMA
 from mvm.net.metrics_log import finite_or_none, read_metrics_log
+from mvm.net.predict import load_model, predict
 from mvm.net.sampling import MixtureSampler
 from mvm.net.train import learning_rate, train
 from mvm.net.train_config import config_from_dict, load_config

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from mvm.core.config import Config
-from mvm.core.prior import PosePrior
 from mvm.core.keypoints import bone_lengths
+from mvm.core.prior import PosePrior
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.skeleton import bone_length_cv, refine_tracks, track_bone_lengths
 from mvm.rig.tracking import link_tracks

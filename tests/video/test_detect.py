@@ -125,8 +125,8 @@ def test_bad_openpose_file_is_one_line_exit_2(scene, tmp_path_factory):
 def _tiny_checkpoint(path):
     torch = pytest.importorskip("torch", reason="torch is an optional dependency")
     try:
-        from mvm.net.model import ModelSpec, PoseNet
         from mvm.net.checkpoints import CHECKPOINT_FORMAT
+        from mvm.net.model import ModelSpec, PoseNet
     except ImportError as e:
         pytest.skip(f"the pose network is not available: {e}")
     torch.manual_seed(0)

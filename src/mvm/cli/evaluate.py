@@ -48,8 +48,8 @@ _device = click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), d
 
 
 def _load(checkpoint: Path, device: str, input_size: int | None):
-    from mvm.net.predict import load_model
     from mvm.net.distributed import select_device
+    from mvm.net.predict import load_model
 
     model, meta = load_model(checkpoint, device=str(select_device(device)))
     return model, input_size or int(meta.get("config", {}).get("input_size", 385))

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from mvm.core.geometry import project as project_with_matrices
+from mvm.core.keypoints import NUM_JOINTS
 
 if TYPE_CHECKING:                                   # scene.py builds its P matrices here
     from mvm.core.scene import Cameras
@@ -117,3 +118,37 @@ def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fishey
             moved, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), zero, zero, K, distortion)
         out[finite] = moved.reshape(-1, 2)
     return out
+
+
+def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+                    size: tuple[float, float], reference: str = "image") -> tuple[np.ndarray, np.ndarray]:
+    """Project persons into one view.
+
+    Args:
+        keypoints3d: ``(P, 17, 3)`` world coordinates, NaN where missing.
+        K, R, t: ``(3, 3)``, ``(3, 3)``, ``(3,)`` pinhole camera, ``x_cam = R X + t``.
+        size: ``(width, height)`` of the image in pixels.
+        reference: ``'image'``: depths relative to the median camera z of all labelled joints
+            of the view; ``'person'``: of each person's own labelled joints.
+    Returns:
+        keypoints ``(P, 17, 3)``: x, y and v = 2 where the joint exists, lies in front of the
+        camera and inside the image, else 0 (and x = y = 0);
+        depths ``(P, 17)``: camera z over the reference camera z, 0 where the joint is not labelled.
+    """
+    if reference not in ("image", "person"):
+        raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
+    X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
+    uv, z = project(X, K, R, t)                                            # (P, 17, 2), (P, 17)
+    w, h = float(size[0]), float(size[1])
+    ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
+          & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))
+    keypoints = np.zeros(X.shape[:2] + (3,))
+    keypoints[ok, :2] = uv[ok]
+    keypoints[ok, 2] = 2.0
+    depths = np.zeros(X.shape[:2])
+    zz = np.where(ok, z, np.nan)
+    has = ok.any(axis=1)
+    if has.any():
+        med = np.nanmedian(zz[has], axis=1, keepdims=True) if reference == "person" else np.nanmedian(zz[has])
+        depths[has] = np.nan_to_num(zz[has] / med, nan=0.0)
+    return keypoints, depths

@@ -24,8 +24,8 @@ from mvm.net.decoder import DecoderConfig, normalize_depth
 from mvm.net.distributed import select_device
 from mvm.net.evaluate import run_model
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS
-from mvm.net.model import ModelSpec, PoseNet
 from mvm.net.lift import calibrate, lift
+from mvm.net.model import ModelSpec, PoseNet
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"

@@ -18,7 +18,7 @@ from typing import Callable, Iterable
 
 import numpy as np
 
-from mvm.core.camera import project
+from mvm.core.camera import project_persons
 from mvm.core.completion import INFERRED, complete_persons
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Persons3D, Scene
@@ -33,40 +33,6 @@ LOG = logging.getLogger(__name__)
 
 LINK_MODES = ("symlink", "copy", "none")
 ANNOTATIONS_FILE = "annotations.json"
-
-
-def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
-                    size: tuple[float, float], reference: str = "image") -> tuple[np.ndarray, np.ndarray]:
-    """Project persons into one view.
-
-    Args:
-        keypoints3d: ``(P, 17, 3)`` world coordinates, NaN where missing.
-        K, R, t: ``(3, 3)``, ``(3, 3)``, ``(3,)`` pinhole camera, ``x_cam = R X + t``.
-        size: ``(width, height)`` of the image in pixels.
-        reference: ``'image'``: depths relative to the median camera z of all labelled joints
-            of the view; ``'person'``: of each person's own labelled joints.
-    Returns:
-        keypoints ``(P, 17, 3)``: x, y and v = 2 where the joint exists, lies in front of the
-        camera and inside the image, else 0 (and x = y = 0);
-        depths ``(P, 17)``: camera z over the reference camera z, 0 where the joint is not labelled.
-    """
-    if reference not in ("image", "person"):
-        raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
-    X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
-    uv, z = project(X, K, R, t)                                            # (P, 17, 2), (P, 17)
-    w, h = float(size[0]), float(size[1])
-    ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
-          & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))
-    keypoints = np.zeros(X.shape[:2] + (3,))
-    keypoints[ok, :2] = uv[ok]
-    keypoints[ok, 2] = 2.0
-    depths = np.zeros(X.shape[:2])
-    zz = np.where(ok, z, np.nan)
-    has = ok.any(axis=1)
-    if has.any():
-        med = np.nanmedian(zz[has], axis=1, keepdims=True) if reference == "person" else np.nanmedian(zz[has])
-        depths[has] = np.nan_to_num(zz[has] / med, nan=0.0)
-    return keypoints, depths
 
 
 def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:

@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.camera import project_persons
 from mvm.core.keypoints import INDEX, NUM_JOINTS
 from mvm.io.coco import annotation_record, empty_dataset
 from mvm.io.files import atomic_write_json
-from mvm.net.supervision import project_persons
 
 LOG = logging.getLogger(__name__)
 
