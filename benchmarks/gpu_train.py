@@ -79,7 +79,7 @@ def throughput(spec: ModelSpec, batch: dict, device: torch.device, precision: st
 
 
 def _render(args):
-    from mvm.sim.images import DEMO_SCENES, synthetic_dataset
+    from mvm.sim.people_images import DEMO_SCENES, synthetic_dataset
 
     out, n, size, seed = args
     return str(synthetic_dataset(out, n, (size, size), seed=seed, **DEMO_SCENES))

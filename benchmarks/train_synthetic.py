@@ -4,7 +4,7 @@
                                          [--seed 0] [--threads 1] [--work DIR] [--save CKPT.pt]
 
 Renders a training set and a held-out set of capsule people with 3D supervision
-(``mvm.sim.images.demo_datasets``), trains the small network of ``configs/train_cpu_tiny.toml``
+(``mvm.sim.people_images.demo_datasets``), trains the small network of ``configs/train_cpu_tiny.toml``
 for ``--minutes`` of wall time (the cosine learning-rate schedule follows the time budget),
 and prints, on the held-out renders, OKS AP / AP50 and the relative depth errors of:
 
@@ -31,7 +31,7 @@ from mvm.net.evaluate import evaluate
 from mvm.net.model import PoseNet
 from mvm.net.train import train
 from mvm.net.train_config import DataSource, load_config
-from mvm.sim.images import demo_datasets
+from mvm.sim.people_images import demo_datasets
 
 ROOT = Path(__file__).resolve().parents[1]
 

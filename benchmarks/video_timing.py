@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.metrics.poses import similarity_transform
-from mvm.sim.video import RenderConfig, default_people, render_video
+from mvm.sim.mannequin_video import RenderConfig, default_people, render_video
 from mvm.video.detect import detect_scene
 from mvm.video.frames import FrameOptions, extract_frames
 from mvm.video.run import reconstruct_scene

@@ -1,6 +1,6 @@
 """The settings of every command: the settings dataclass of each table of a settings file
 (:data:`SETTINGS`), the reference file (``mvm config``), one TOML table per settings object
-(:data:`mvm.io.settings.TABLES`), each key with its default and a comment
+(:data:`mvm.io.settings_file.TABLES`), each key with its default and a comment
 giving what it does, its unit and its allowed values; and the check of such a file.
 
 Everything is generated from the settings dataclasses: the fields, their defaults and their
@@ -21,9 +21,9 @@ from pathlib import Path
 
 from mvm.core.config import Bounds, setting_kind, settings_from
 from mvm.errors import InputError
-from mvm.io.settings import TABLES, read_tables
+from mvm.io.settings_file import TABLES, read_tables
 
-#: The settings dataclass of each table of :data:`mvm.io.settings.TABLES`, as ``module:class``
+#: The settings dataclass of each table of :data:`mvm.io.settings_file.TABLES`, as ``module:class``
 #: (imported when the table is read or printed: the video stages import OpenCV, training torch).
 SETTINGS = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
             "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",

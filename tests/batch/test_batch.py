@@ -265,7 +265,7 @@ def test_video_clip_runs_frames_and_detect(tmp_path):
     """A rendered video with imported detections (the true joints projected into each frame):
     ``frames`` and ``detect`` run on it, and the 2D poses are the projections."""
     pytest.importorskip("cv2", reason="the video stages need OpenCV (the 'video' extra)")
-    from mvm.sim.video import RenderConfig, render_video
+    from mvm.sim.mannequin_video import RenderConfig, render_video
 
     truth = render_video(tmp_path / "street" / "walk.mp4", RenderConfig(frames=8, width=320, height=180))
     cams = truth.cameras

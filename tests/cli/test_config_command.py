@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from mvm.cli.main import main
 from mvm.core.config import Config
-from mvm.io.settings import TABLES, load_config, load_settings
+from mvm.io.settings_file import TABLES, load_config, load_settings
 from mvm.rig.options import RigOptions
 from mvm.settings import SETTINGS, check_settings_file, field_docs, reference_toml, split_unit, table_class
 

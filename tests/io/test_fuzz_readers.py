@@ -321,7 +321,7 @@ def _poses3d(root: Path):
 
 def _config(root: Path):
     from mvm.core.config import Config
-    from mvm.io.settings import load_config
+    from mvm.io.settings_file import load_config
 
     config = load_config(root / "config.toml")
     assert isinstance(config, Config)

@@ -122,7 +122,7 @@ def test_c_var_is_the_spread_of_the_pairwise_triangulations():
 
 def test_lift_and_calibrate_recover_a_metric_pose():
     rng = np.random.default_rng(5)
-    from mvm.sim.images import random_poses
+    from mvm.sim.people_images import random_poses
     X = random_poses(rng, 1)[0] * np.array([1, -1, 1]) + np.array([0.2, 1.0, 4.0])   # camera frame, z ≈ 4 m
     bones = np.linalg.norm(X[[a for a, _ in BONES]] - X[[b for _, b in BONES]], axis=-1)
     X *= (MEAN_BONE_LENGTHS_M * bones).sum() / (bones ** 2).sum()                      # a person of mean size

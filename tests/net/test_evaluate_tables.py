@@ -46,7 +46,7 @@ def test_rendered_simulation_exports_and_trains(tmp_path):
     from mvm.net.supervision import export_supervision
     from mvm.net.train import train
     from mvm.net.train_config import DataSource, TrainConfig
-    from mvm.sim.video import render_frames
+    from mvm.sim.mannequin_video import render_frames
 
     scene, truth = simulate(SimConfig.preset("clean", people=2, frames=4, seed=3, image_width=640, image_height=360))
     frames = render_frames(tmp_path / "frames", scene.cameras, truth.poses3d, seed=3)

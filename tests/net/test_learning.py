@@ -1,6 +1,6 @@
 """The network learns, for real, on a CPU: synthetic renders of people with 3D supervision.
 
-Renders small images of capsule people over textured backgrounds (``mvm.sim.images``),
+Renders small images of capsule people over textured backgrounds (``mvm.sim.people_images``),
 trains the network of ``configs/train_cpu_tiny.toml`` (a narrow ResNet-18 at 96 px) for a few
 hundred steps on one thread, and checks on held-out renders that OKS AP rises far above the
 untrained network's and that the relative depth error falls far below the untrained
@@ -16,7 +16,7 @@ from mvm.net.evaluate import evaluate
 from mvm.net.model import PoseNet
 from mvm.net.train import train
 from mvm.net.train_config import DataSource, load_config
-from mvm.sim import images
+from mvm.sim import people_images as images
 
 from helpers import REPO
 

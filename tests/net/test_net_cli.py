@@ -9,7 +9,7 @@ from mvm.cli.net import _parse_sets, export_cmd, predict_cmd, train_cmd
 from mvm.core.camera import project_persons
 from mvm.core.scene import Cameras, Persons3D, Poses2D
 from mvm.errors import InputError
-from mvm.sim import images
+from mvm.sim import people_images as images
 
 
 @pytest.mark.parametrize("command", [export_cmd, train_cmd, predict_cmd])

@@ -6,7 +6,7 @@ from mvm.core.camera import project_persons
 from mvm.net import encoder
 from mvm.net.decoder import decode, normalize_depth
 from mvm.net.headmeta import PAF_CONNECTIONS, VIRTUAL_CONNECTIONS, flip_connections
-from mvm.sim import images
+from mvm.sim import people_images as images
 
 SIZE = 256
 

@@ -16,7 +16,7 @@ from mvm.net.predict import load_model, predict
 from mvm.net.sampling import MixtureSampler
 from mvm.net.train import learning_rate, train
 from mvm.net.train_config import config_from_dict, load_config
-from mvm.sim import images
+from mvm.sim import people_images as images
 
 from helpers import REPO
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mvm.sim.video import RenderConfig, default_people, draw_people, noise_texture, tour_cameras
+from mvm.sim.mannequin_video import RenderConfig, default_people, draw_people, noise_texture, tour_cameras
 from mvm.video.appearance import DIM, colour_descriptor, pool_features
 
 SHIRTS = np.array([[40, 40, 200], [200, 60, 40], [40, 180, 60], [30, 200, 220]], dtype=float)      # BGR

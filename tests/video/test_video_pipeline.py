@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from mvm.io.colmap import read_colmap
 from mvm.metrics.poses import similarity_transform
-from mvm.sim.video import RenderConfig, render_video
+from mvm.sim.mannequin_video import RenderConfig, render_video
 
 FRAMES = 40
 

@@ -39,7 +39,7 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
     """The simulated scene's :class:`~mvm.sim.simulate.SimConfig`: the ``preset`` (none: the
     defaults), the ``[simulate]`` table of the settings file over it, the command's options
     (``flags``; one left at None keeps the file's value) over both."""
-    from mvm.io.settings import load_settings
+    from mvm.io.settings_file import load_settings
     from mvm.sim.simulate import SimConfig
 
     flags = {k: v for k, v in flags.items() if v is not None}
@@ -70,7 +70,7 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         scene, truth = simulate(sim)
         truth_path = write_simulation(scene_dir, scene, truth, sim)
         if render:
-            from mvm.sim.video import render_frames
+            from mvm.sim.mannequin_video import render_frames
 
             render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed)
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"

@@ -45,7 +45,7 @@ def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None 
     scene_dir = Path(out_dir) / "scene"
     truth_path = write_simulation(scene_dir, scene, truth, sim)
     if render:
-        from mvm.sim.video import render_frames
+        from mvm.sim.mannequin_video import render_frames
 
         render_frames(scene_dir / "frames", scene.cameras, truth.poses3d, sim.seed)
     result = reconstruct_dir(scene_dir, config or Config())

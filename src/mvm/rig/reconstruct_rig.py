@@ -21,7 +21,7 @@ from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.outputs import check_rig_output, replace_output_set
+from mvm.rig.output_set import check_rig_output, replace_output_set
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
 from mvm.rig.skeleton import refine_tracks
