@@ -222,7 +222,7 @@ def parse_sets(pairs: tuple[str, ...], option: str = "--set") -> dict:
     A value is read as a TOML value (numbers, booleans, quoted strings, ``inf``, ``nan``); a
     bare word is a string. The settings' types and bounds are checked by whoever reads them.
     """
-    import tomllib
+    from mvm.io.checks import parse_toml
 
     values = {}
     for pair in pairs:
@@ -232,8 +232,8 @@ def parse_sets(pairs: tuple[str, ...], option: str = "--set") -> dict:
         if not key:
             raise InputError(option, pair, "expected KEY=VALUE")
         try:
-            values[key] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError:
+            values[key] = parse_toml(f"v = {value}", option)["v"]
+        except InputError:
             values[key] = value
     return values
 

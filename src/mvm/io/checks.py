@@ -268,7 +268,10 @@ def load_toml(path: str | Path, root: str | Path | None = None) -> dict:
 
 def parse_toml(text: str, path: str | Path | None) -> dict:
     """Parse TOML ``text`` read from ``path``; any problem raises InputError."""
-    import tomllib
+    try:
+        import tomllib
+    except ModuleNotFoundError:                 # Python 3.10: the same parser, as a package
+        import tomli as tomllib
 
     try:
         return tomllib.loads(text)
