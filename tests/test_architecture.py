@@ -125,3 +125,20 @@ def test_no_function_of_the_core_is_over_60_lines():
                 long.append(f"{path.relative_to(SRC)}:{node.lineno} {node.name} "
                             f"({node.end_lineno - node.lineno + 1} lines)")
     assert not long, long
+
+
+def test_no_module_is_over_500_lines():
+    """A module that grows past 500 lines does several jobs: split it by what it holds."""
+    long = {str(p.relative_to(SRC)): n for p in sorted(SRC.rglob("*.py"))
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > 500}
+    assert not long, long
+
+
+def test_module_names_do_not_collide_outside_the_command_line():
+    """Two modules of one name (three ``pipeline.py``) make tracebacks and imports ambiguous;
+    ``cli/`` alone names its modules after the commands (``cli/rig.py`` for ``mvm rig``)."""
+    seen: dict[str, list[str]] = {}
+    for path in sorted(SRC.rglob("*.py")):
+        if path.name != "__init__.py" and path.parent.name != "cli":
+            seen.setdefault(path.name, []).append(str(path.relative_to(SRC)))
+    assert not {name: paths for name, paths in seen.items() if len(paths) > 1}
