@@ -30,7 +30,7 @@ except ImportError:                                        # imported from bench
     from tests.conftest import standing_poses
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def base_scenes() -> tuple[Scene, ...]:
     """Small valid simulated scenes (1 to 3 people, 6 to 12 frames) that mutations start from."""
     from mvm.sim.simulate import SimConfig, simulate

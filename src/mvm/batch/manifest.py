@@ -22,9 +22,9 @@ import os
 import socket
 import sqlite3
 import time
+from collections.abc import Iterable
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable
 
 from mvm.batch.clips import Clip
 from mvm.batch.stages import STAGES, StageResult

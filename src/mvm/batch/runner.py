@@ -14,9 +14,9 @@ import os
 import socket
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from mvm.batch.clips import Clip, discover_clips
 from mvm.batch.engines import make_engine

@@ -13,9 +13,9 @@ A frame that cannot be read is reported and left out; the others are detected.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 

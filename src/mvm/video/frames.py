@@ -4,9 +4,9 @@ keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.jso
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np

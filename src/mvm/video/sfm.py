@@ -89,7 +89,7 @@ class SfmReport:
         return d
 
     @classmethod
-    def from_json(cls, d: dict) -> "SfmReport":
+    def from_json(cls, d: dict) -> SfmReport:
         d = dict(d)
         d["centers"] = np.array(d.get("centers", []), dtype=float).reshape(-1, 3)
         if d.get("reprojection_error_px") is None:
