@@ -94,7 +94,7 @@ def _logs(chunk):
 
     logging.getLogger("mvm.test").warning("chunk %s done", chunk)
     if chunk == 2:
-        warnings.warn("second chunk warns")
+        warnings.warn("second chunk warns", stacklevel=1)
     return chunk
 
 

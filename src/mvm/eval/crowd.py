@@ -182,7 +182,7 @@ def summary(rows: list[dict]) -> list[dict]:
     out = []
     for key in dict.fromkeys((r["method"], r["cues"]) for r in rows):
         sel = [r for r in rows if (r["method"], r["cues"]) == key]
-        mean = lambda k: float(np.nanmean([r[k] for r in sel]))  # noqa: E731
+        mean = lambda k: float(np.nanmean([r[k] for r in sel]))  # noqa: E731, B023 (used in this iteration only)
         out.append({"method": key[0], "cues": key[1], "scenes": len(sel), "precision": mean("precision"),
                     "recall": mean("recall"),
                     "found_true": f"{sum(r['persons'] for r in sel)} / {sum(r['found'] for r in sel)} / "

@@ -128,7 +128,7 @@ def decode(fields: dict[str, np.ndarray], stride: int, config: DecoderConfig = D
     order = sorted(((s["score"][i], j, i) for j, s in enumerate(seeds) for i in range(len(s["score"]))
                     if s["score"][i] >= config.seed_threshold), reverse=True)
     poses = []
-    for score, j, i in order:
+    for _score, j, i in order:
         if seeds[j]["used"][i]:
             continue
         pose = _grow(j, i, seeds, links, adjacency, config)
