@@ -220,7 +220,8 @@ def mutate_files(scene_dir: Path, op: str, u: float) -> None:
         target.write_bytes(data[: int(u * len(data))])
     elif op == "garbage":
         at = int(u * len(data))
-        target.write_bytes(data[:at] + bytes(np.random.default_rng(at).integers(0, 256, 16, dtype=np.uint8)) + data[at + 16:])
+        target.write_bytes(data[:at] + bytes(np.random.default_rng(at).integers(0, 256, 16, dtype=np.uint8))
+                           + data[at + 16:])
     elif op == "delete":
         target.unlink()
     elif op in ("huge_number", "nan_literal") and target.suffix == ".json":
