@@ -58,7 +58,8 @@ def main() -> None:
     parser.add_argument("--nodes", type=int, default=16)
     parser.add_argument("--cores-per-node", type=int, default=32)
     parser.add_argument("--sfm-core-seconds", type=float, default=158 * 2 * 86 / 100,
-                        help="Core-seconds of SfM per clip (default: docs/results.md's 158 s × 2 cores, scaled to 86 frames).")
+                        help="Core-seconds of SfM per clip (default: docs/results.md's 158 s × 2 cores, scaled to "
+                             "86 frames).")
     parser.add_argument("--detect-core-seconds", type=float, default=8.0 * 86,
                         help="Core-seconds of the network's detection per clip on CPU (default: docs/results.md's "
                              "8 s per frame × 86 frames; on a GPU node it is a small fraction).")

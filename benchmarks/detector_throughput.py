@@ -48,7 +48,8 @@ def rtmo_stub(rng, people, width, height, candidates=100):
     keypoints = np.zeros((candidates, J, 3), np.float32)
     dets[:people, :4] = boxes * ratio
     dets[:people, 4] = rng.uniform(0.75, 1.0, people)
-    dets[people:, :4] = (boxes[rng.integers(0, people, candidates - people)] + rng.normal(0, 5, (candidates - people, 4))) * ratio
+    dets[people:, :4] = (boxes[rng.integers(0, people, candidates - people)]
+                         + rng.normal(0, 5, (candidates - people, 4))) * ratio
     dets[people:, 4] = rng.uniform(0.0, 0.9, candidates - people)
     keypoints[:people, :, :2] = kp * ratio
     keypoints[:, :, 2] = rng.uniform(0, 1, (candidates, J))

@@ -44,9 +44,9 @@ def fuzz(cases_per_reader: int, random_seed: int, readers: list[str]) -> tuple[T
             @settings(max_examples=cases_per_reader, deadline=None, database=None, phases=[Phase.generate],
                       suppress_health_check=list(HealthCheck))
             @given(st.data())
-            def one(data):
-                run_case(reader, data.draw(cases(reader, seeds)), root, tally, strict=False)
-                progress.advance(task)
+            def one(data):  # runs within this iteration: the loop variables are the current ones
+                run_case(reader, data.draw(cases(reader, seeds)), root, tally, strict=False)  # noqa: B023
+                progress.advance(task)  # noqa: B023
 
             start = time.perf_counter()
             one()

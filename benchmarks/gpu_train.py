@@ -141,13 +141,15 @@ def main() -> None:
                 try:
                     row = throughput(spec, batch, device, args.precision, args.steps)
                 except torch.cuda.OutOfMemoryError:
-                    row = {"images_per_second": None, "peak_memory_gib": None, "step_ms": None, "error": "out of memory"}
+                    row = {"images_per_second": None, "peak_memory_gib": None, "step_ms": None,
+                           "error": "out of memory"}
                     torch.cuda.empty_cache()
                 row.update(backbone=backbone, batch=b)
                 result["throughput"].append(row)
                 ips = "-" if row["images_per_second"] is None else f"{row['images_per_second']:8.1f}"
                 mem = "-" if row["peak_memory_gib"] is None else f"{row['peak_memory_gib']:6.2f}"
-                print(f"{backbone:10s} batch {b:3d}: {ips} images/s  peak {mem} GiB  ({row.get('step_ms') or 0:.0f} ms/step)")
+                print(f"{backbone:10s} batch {b:3d}: {ips} images/s  peak {mem} GiB  "
+                      f"({row.get('step_ms') or 0:.0f} ms/step)")
         result["throughput_seconds"] = time.perf_counter() - t
         result["curve"] = curve(args, work, device)
         print(f"total {time.perf_counter() - t:.0f} s")

@@ -18,7 +18,7 @@ def _work(chunk):
 
 
 def test_split_covers_every_item_once_in_order():
-    for n in range(0, 12):
+    for n in range(12):
         for parts in range(1, 5):
             ranges = split(n, parts)
             assert [i for r in ranges for i in r] == list(range(n))
@@ -94,7 +94,7 @@ def _logs(chunk):
 
     logging.getLogger("mvm.test").warning("chunk %s done", chunk)
     if chunk == 2:
-        warnings.warn("second chunk warns")
+        warnings.warn("second chunk warns", stacklevel=1)
     return chunk
 
 

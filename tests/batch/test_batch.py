@@ -275,7 +275,8 @@ def test_video_clip_runs_frames_and_detect(tmp_path):
         uv = uvw[..., :2] / uvw[..., 2:]
         for g in range(len(uv)):
             kp = np.concatenate([uv[g], np.ones((17, 1))], -1)
-            results.append({"image_id": v + 1, "category_id": 1, "keypoints": kp.round(2).ravel().tolist(), "score": 0.9})
+            results.append({"image_id": v + 1, "category_id": 1, "keypoints": kp.round(2).ravel().tolist(),
+                            "score": 0.9})
     (tmp_path / "street" / "walk.detections.json").write_text(json.dumps(results))
     summary = run_batch(tmp_path, stages=("frames", "detect"), workers=1)
     assert summary.done == 1 and not summary.failed, summary.failed

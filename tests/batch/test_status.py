@@ -55,7 +55,8 @@ CORRUPT = [
     (["UPDATE stages SET seconds = 'abc' WHERE rowid = 3"],
      "stages[rowid 3].seconds: expected a finite number or null, got 'abc'"),
     (["UPDATE clips SET scene = x'00ff' WHERE rowid = 1"], "clips[rowid 1].scene: expected text, got b'\\x00\\xff'"),
-    (["UPDATE stages SET clip = 'elsewhere' WHERE rowid = 1"], "stages['elsewhere', 'reconstruct'].clip: not in the clips table"),
+    (["UPDATE stages SET clip = 'elsewhere' WHERE rowid = 1"],
+     "stages['elsewhere', 'reconstruct'].clip: not in the clips table"),
     (["DROP TABLE history"], "history: no such table: not a manifest of `mvm batch`"),
     (["DROP TABLE stages", "CREATE TABLE stages (clip TEXT, stage TEXT, value REAL)"],
      "stages: not the table of `mvm batch`: no column state, attempts, run, lease_until, started, finished, "

@@ -13,8 +13,8 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 
 #: Every subcommand of ``mvm``; removing one must be a decision, not an import that broke.
-COMMANDS = ("batch", "bench", "config", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict", "reconstruct",
-            "report", "rig", "run", "sfm", "simulate", "status", "train")
+COMMANDS = ("batch", "bench", "config", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict",
+            "reconstruct", "report", "rig", "run", "sfm", "simulate", "status", "train")
 SUBCOMMANDS = {"rig": ("reconstruct",), "evaluate": ("3dpw", "coco", "cvar")}
 
 
@@ -43,7 +43,8 @@ def test_every_help_works(command):
 HEAVY = ("numpy", "scipy", "torch", "cv2", "pycolmap", "rich", "onnxruntime")
 
 
-@pytest.mark.parametrize("args", [["--version"], ["--help"], ["reconstruct", "--help"], ["rig", "reconstruct", "--help"]])
+@pytest.mark.parametrize("args", [["--version"], ["--help"], ["reconstruct", "--help"],
+                                  ["rig", "reconstruct", "--help"]])
 def test_start_up_imports_no_heavy_library(args):
     probe = ("import json, sys\nfrom mvm.cli import main\n"
              f"try:\n    main({args!r}, standalone_mode=False)\n"

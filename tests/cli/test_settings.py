@@ -37,7 +37,8 @@ BAD = [
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--max-frames", "1e3"], "--max-frames: expected int, got '1e3'"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--rate", "nan"], "--rate: expected float, got nan"),
     (["frames", "{d}/clip.mp4", "-o", "{d}/scene", "--blur-ratio", "inf"], "--blur-ratio: must be finite, got inf"),
-    (["run", "{d}/clip.mp4", "-o", "{d}/scene", "--import", "{d}/x.json", "--focal", "-1"], "--focal: must be > 0, got -1.0"),
+    (["run", "{d}/clip.mp4", "-o", "{d}/scene", "--import", "{d}/x.json", "--focal", "-1"],
+     "--focal: must be > 0, got -1.0"),
     (["batch", "{d}/root", "--rate", "0"], "--rate: must be > 0, got 0.0"),
     (["batch", "{d}/root", "--set", "seed=-1"], "--set: seed: must be >= 0, got -1"),
     (["overlay", "{d}/scene", "--fps", "nan"], "--fps: expected float, got nan"),
@@ -50,19 +51,23 @@ BAD = [
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "smoothing=butterworth", "--rig-set", "cutoff_hz=20"],
      "--rig-set: cutoff_hz: must be below half the frame rate (15 Hz at frame_rate 30), got 20"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "cutoff_hz=inf"], "--rig-set: cutoff_hz: must be finite, got inf"),
-    (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=1"], "--rig-set: savgol_window: must be >= 3, got 1"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=1"],
+     "--rig-set: savgol_window: must be >= 3, got 1"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "savgol_window=8"], "--rig-set: savgol_window: must be odd, got 8"),
-    (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"], "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
+    (["rig", "reconstruct", "{d}/rig", "--rig-set", "up=x"],
+     "--rig-set: up: expected one of '+z', '-z', '+y', '-y', got 'x'"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "seed=1"],
      "--rig-set: seed: not taken by --rig-set of mvm rig reconstruct: give it with --set"),
     (["rig", "reconstruct", "{d}/rig", "--set", "batch_size=8"],
      "--set: batch_size: not taken by --set of mvm rig reconstruct: give it with --rig-set"),
-    (["rig", "reconstruct", "{d}/rig", "--set", "video_order=false"], "--set: video_order: not used by mvm rig reconstruct"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "video_order=false"],
+     "--set: video_order: not used by mvm rig reconstruct"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "frame_rat=25"], "--rig-set: frame_rat: not a setting of mvm rig "
-     "reconstruct (known: batch_size, bone_weight, cutoff_hz, filter_order, frame_rate, max_gap, max_interpolation_gap, "
-     "max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, savgol_window, smoothing, trc_inferred, "
-     "up, workers)"),
-    (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"], "--set: refine_max_iterations: must be >= 1, got 0"),
+     "reconstruct (known: batch_size, bone_weight, cutoff_hz, filter_order, frame_rate, max_gap, "
+     "max_interpolation_gap, max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, savgol_window, "
+     "smoothing, trc_inferred, up, workers)"),
+    (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"],
+     "--set: refine_max_iterations: must be >= 1, got 0"),
 ]
 
 

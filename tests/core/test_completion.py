@@ -196,7 +196,8 @@ def test_conditional_mean_is_the_mixture_of_gaussian_conditionals():
 
     rng = np.random.default_rng(7)
     a = rng.normal(0, 0.3, (2, 51, 51))
-    prior = PosePrior(np.array([0.3, 0.7]), rng.normal(0, 0.5, (2, 51)), a @ np.swapaxes(a, 1, 2) / 51 + 0.05 * np.eye(51))
+    prior = PosePrior(np.array([0.3, 0.7]), rng.normal(0, 0.5, (2, 51)),
+                      a @ np.swapaxes(a, 1, 2) / 51 + 0.05 * np.eye(51))
     x = rng.normal(0, 0.5, (3, 17, 3))
     x[0, [3, 4]] = np.nan
     x[1, [3, 4]] = np.nan

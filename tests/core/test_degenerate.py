@@ -206,7 +206,8 @@ def _crowd_with_one_huge_frame(n_extra: int, seed: int = 0):
                          rng.uniform(0.3, 1, (n_extra, 17, 1))], 2)
     app = rng.random((n_extra, p.appearance.shape[1]))
     poses = Poses2D(np.concatenate([p.keypoints, kp]), np.concatenate([p.view, np.zeros(n_extra, int)]),
-                    np.concatenate([p.ids, p.ids.max() + 1 + np.arange(n_extra)]), np.concatenate([p.score, rng.uniform(0.2, 1, n_extra)]),
+                    np.concatenate([p.ids, p.ids.max() + 1 + np.arange(n_extra)]),
+                    np.concatenate([p.score, rng.uniform(0.2, 1, n_extra)]),
                     np.concatenate([p.appearance, app]))
     return Scene("huge-frame", scene.cameras, poses), truth
 

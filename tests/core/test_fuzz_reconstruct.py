@@ -30,7 +30,7 @@ except ImportError:                                        # imported from bench
     from tests.conftest import standing_poses
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def base_scenes() -> tuple[Scene, ...]:
     """Small valid simulated scenes (1 to 3 people, 6 to 12 frames) that mutations start from."""
     from mvm.sim.simulate import SimConfig, simulate
@@ -220,7 +220,8 @@ def mutate_files(scene_dir: Path, op: str, u: float) -> None:
         target.write_bytes(data[: int(u * len(data))])
     elif op == "garbage":
         at = int(u * len(data))
-        target.write_bytes(data[:at] + bytes(np.random.default_rng(at).integers(0, 256, 16, dtype=np.uint8)) + data[at + 16:])
+        target.write_bytes(data[:at] + bytes(np.random.default_rng(at).integers(0, 256, 16, dtype=np.uint8))
+                           + data[at + 16:])
     elif op == "delete":
         target.unlink()
     elif op in ("huge_number", "nan_literal") and target.suffix == ".json":

@@ -47,8 +47,8 @@ def test_every_problem_reaches_its_own_least_squares_fit():
     ours = levenberg_marquardt(x0, problem, 200, 1e-12)
     assert np.abs(ours - truth).max() < 0.05                                  # the parameters of the data
     for p in range(6):
-        theirs = least_squares(lambda v: Decays(y[p:p + 1]).residuals(v[None])[0], x0[p], method="lm",
-                               ftol=1e-14, xtol=1e-14).x
+        theirs = least_squares(lambda v: Decays(y[p:p + 1]).residuals(v[None])[0],  # noqa: B023 (called here)
+                               x0[p], method="lm", ftol=1e-14, xtol=1e-14).x
         np.testing.assert_allclose(ours[p], theirs, atol=1e-7)
     batched = ours
     alone = np.concatenate([levenberg_marquardt(x0[p:p + 1], Decays(y[p:p + 1]), 200, 1e-12) for p in range(6)])

@@ -194,7 +194,7 @@ def test_one_block_groups_as_the_blocks_do():
 
     rng = np.random.default_rng(7)
     checked = 0
-    for trial in range(20):
+    for _trial in range(20):
         n = int(rng.integers(1, 25))
         A = rng.uniform(0, 0.5, (n, n)).astype(np.float32)
         A[rng.uniform(size=A.shape) < 0.2] = np.nan

@@ -108,7 +108,8 @@ def test_shipped_bank_poses_are_distinct(bank):
 def test_to_bank_frame_undoes_a_turn_and_a_shift():
     rng = np.random.default_rng(3)
     for _ in range(10):
-        moved = STANDING @ _yaw(rng.uniform(-np.pi, np.pi)).T + [rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-1, 1)]
+        moved = (STANDING @ _yaw(rng.uniform(-np.pi, np.pi)).T
+                 + [rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-1, 1)])
         np.testing.assert_allclose(to_bank_frame(moved[None])[0], STANDING, atol=1e-12)
 
 

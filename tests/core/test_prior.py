@@ -88,7 +88,8 @@ def test_canonicalize_missing_joints():
     pose[2, LEFT_SHOULDER, 0] = np.nan
     c = canonicalize(pose)
     assert np.isnan(c[0, INDEX["left_knee"]]).all() and np.isfinite(np.delete(c[0], INDEX["left_knee"], 0)).all()
-    np.testing.assert_allclose(np.delete(c[0], INDEX["left_knee"], 0), np.delete(canonicalize(STANDING), INDEX["left_knee"], 0))
+    np.testing.assert_allclose(np.delete(c[0], INDEX["left_knee"], 0),
+                               np.delete(canonicalize(STANDING), INDEX["left_knee"], 0))
     assert np.isnan(c[1:]).all()
     degenerate = STANDING.copy()
     degenerate[RIGHT_HIP] = degenerate[LEFT_HIP]
@@ -158,7 +159,8 @@ def test_whitening_gives_the_negative_log_density():
                 x = rng.normal(0, 0.6, len(mean))
                 r = w @ (x - mean)
                 expected = -np.log(prior.weights[component]) - multivariate_normal(
-                    prior.means[component, observed], prior.covariances[component][np.ix_(observed, observed)]).logpdf(x)
+                    prior.means[component, observed],
+                    prior.covariances[component][np.ix_(observed, observed)]).logpdf(x)
                 assert abs(0.5 * r @ r + c - expected) < 1e-8
     # cached: the same arrays come back, read-only
     first = prior.whitening(present, 1)
@@ -188,7 +190,8 @@ def test_shipped_prior_is_finite_on_every_bank_pose(shipped):
     assert np.isfinite(nll).all()
     # and on a pose with only the torso left
     torso = np.full((1, 17, 3), np.nan)
-    torso[0, [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]] = STANDING[[LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]]
+    torso[0, [LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER]] = STANDING[[LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER,
+                                                                              RIGHT_SHOULDER]]
     assert np.isfinite(shipped.nll(canonicalize(torso))).all()
 
 
@@ -232,7 +235,8 @@ def test_body_frame_is_a_rotation_that_gives_the_canonical_pose():
     rng = np.random.default_rng(2)
     poses = STANDING + rng.normal(0, 0.05, (10, 17, 3))
     rotation, centre, scale = body_frame(poses)
-    np.testing.assert_allclose(rotation @ np.swapaxes(rotation, -1, -2), np.broadcast_to(np.eye(3), (10, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(rotation @ np.swapaxes(rotation, -1, -2), np.broadcast_to(np.eye(3), (10, 3, 3)),
+                               atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(rotation), 1.0)
     manual = np.einsum("pij,pkj->pki", rotation, poses - centre[:, None]) / scale[:, None, None]
     np.testing.assert_allclose(canonicalize(poses), manual, atol=1e-12)

@@ -51,7 +51,8 @@ def _inner_problem(X0, xy, conf, P, inliers, truth):
     X = np.where(present[..., None], X0, 0.0)
     obs = Observations.build(xy, P, conf, inliers & present[:, None])
     bones = BoneTerms.build(bone_lengths(truth) * 1.02, 2e4, present)
-    problem = InnerProblem(obs, robust_terms(obs.reprojection(X)[0], obs, 5.0)[1], linearized_prior(X, present, shipped_prior(), 10.0), bones)
+    problem = InnerProblem(obs, robust_terms(obs.reprojection(X)[0], obs, 5.0)[1],
+                           linearized_prior(X, present, shipped_prior(), 10.0), bones)
     return X.reshape(len(X), -1), present, problem
 
 

@@ -63,7 +63,8 @@ def test_quick_crowd_benchmark(tmp_path):
     from mvm.eval.bench_files import write_crowd_report
 
     result = run_crowd(quick=True, methods=[("paper", Config())])
-    assert [(r["method"], r["cues"]) for r in result.rows] == [("paper", "geometry"), ("paper", "geometry + appearance")]
+    assert [(r["method"], r["cues"]) for r in result.rows] == [("paper", "geometry"),
+                                                                ("paper", "geometry + appearance")]
     for row in result.rows + result.sweep_rows:
         assert row["oracle_precision"] == row["oracle_recall"] == 1.0
         assert row["oracle_persons"] == row["oracle_found"] == row["oracle_true"] == row["people"]

@@ -45,7 +45,8 @@ def test_c_var_of_exact_detections_is_zero_and_grows_with_detector_noise(tmp_pat
     out = tmp_path / "table5.json"
     result = CliRunner().invoke(main, ["evaluate", "cvar", str(clean), str(noisy), "--tau", "0.5", "--out", str(out)])
     assert result.exit_code == 0, result.output
-    assert "C_var@tau=0.5" in result.output and json.loads(out.read_text())["C_var"]["0.5"] == pytest.approx(both["C_var"]["0.5"])
+    assert ("C_var@tau=0.5" in result.output
+            and json.loads(out.read_text())["C_var"]["0.5"] == pytest.approx(both["C_var"]["0.5"]))
     missing = CliRunner().invoke(main, ["evaluate", "cvar", str(tmp_path / "nowhere")])
     assert missing.exit_code == 2 and "poses3d.json" in missing.output and missing.output.count("\n") == 1
 

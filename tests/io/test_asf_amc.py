@@ -123,7 +123,8 @@ def test_forward_kinematics_matches_hand_computation(tiny):
     np.testing.assert_allclose(positions[1, i["b"]], np.array([5, 10, 0]) * s, atol=1e-12)
     np.testing.assert_allclose(rotations[1], np.broadcast_to(np.eye(3), (4, 3, 3)), atol=1e-12)
     # global rotations are proper rotations
-    np.testing.assert_allclose(rotations[0] @ np.swapaxes(rotations[0], -1, -2), np.broadcast_to(np.eye(3), (4, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(rotations[0] @ np.swapaxes(rotations[0], -1, -2), np.broadcast_to(np.eye(3), (4, 3, 3)),
+                               atol=1e-12)
 
 
 @pytest.mark.parametrize("old, new, where", [

@@ -210,7 +210,8 @@ def _rig_seeds() -> dict[str, bytes]:
     cams = random_cameras(np.random.default_rng(1), 2)
     cams = type(cams)(cams.K, cams.R, cams.t, cams.size, names)
     kp = _projected_keypoints(cams, 2)
-    files = {"Calib.toml": calib_toml_text(RigCalibration(cams, (np.zeros(4), np.zeros(4)), np.zeros(2, bool))).encode()}
+    files = {"Calib.toml":
+             calib_toml_text(RigCalibration(cams, (np.zeros(4), np.zeros(4)), np.zeros(2, bool))).encode()}
     for v, name in enumerate(names):
         doc = coco_keypoints_document([f"{name}_000001.jpg", f"{name}_000002.jpg"], np.repeat(cams.size[v:v + 1], 2, 0),
                                       np.array([0, 1]), np.stack([kp[v], kp[v]]), np.full(2, 0.9))
@@ -236,7 +237,8 @@ def _coco(root: Path):
 
     c = read_coco_keypoints(root / "poses2d.json")
     _finite(c.keypoints, c.score, c.sizes)
-    assert c.keypoints.shape == (len(c.ann_ids), 17, 3) and ((c.keypoints[..., 2] >= 0) & (c.keypoints[..., 2] <= 1)).all()
+    assert (c.keypoints.shape == (len(c.ann_ids), 17, 3)
+            and ((c.keypoints[..., 2] >= 0) & (c.keypoints[..., 2] <= 1)).all())
     assert ((c.ann_image >= 0) & (c.ann_image < len(c.file_names))).all()
     assert all(name_problem(n) is None for n in c.file_names)
     if c.appearance is not None:
@@ -397,7 +399,8 @@ def _model_zip(root: Path):
     finally:
         after = {p for p in root.rglob("*") if p.is_file() or p.is_symlink()}
         outside = {p for p in after if cache not in p.parents}
-        assert outside == set(before), f"written or removed outside the cache: {sorted(map(str, outside ^ set(before)))}"
+        assert outside == set(before), (
+            f"written or removed outside the cache: {sorted(map(str, outside ^ set(before)))}")
         assert all(p.read_bytes() == before[p] for p in outside), "a file outside the cache changed"
         assert not [p for p in after if ".part" in p.name], "a temporary file was left in the cache"
 

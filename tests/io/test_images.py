@@ -8,10 +8,10 @@ import os
 import numpy as np
 import pytest
 
-cv2 = pytest.importorskip("cv2")
-
 from mvm.errors import InputError
 from mvm.io.images import UndecodableImage, read_image
+
+cv2 = pytest.importorskip("cv2")
 
 BAD = {"empty.jpg": b"", "text.jpg": b"not an image at all", "header.jpg": b"\xff\xd8\xff\xe0\x00\x10JFIF\x00",
        "png_header.png": b"\x89PNG\r\n\x1a\n" + b"\x00" * 8}

@@ -52,7 +52,8 @@ def test_frame_numbers_are_bounded(digits, ok):
     if ok:
         assert frame_number(name) == int(digits) <= MAX_FRAME
     else:
-        with pytest.raises(InputError, match=r"frame number \d+.* in the file name is out of range \(at most 999999999\)"):
+        with pytest.raises(InputError,
+                           match=r"frame number \d+.* in the file name is out of range \(at most 999999999\)"):
             frame_number(name)
 
 

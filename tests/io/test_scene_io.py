@@ -53,7 +53,8 @@ def test_distortion_is_undone(tmp_path):
     distorted = np.asarray(camera.img_from_cam(cam_pts))
     kp = np.concatenate([distorted, np.ones((17, 1))], 1)
     doc = {"images": [{"id": 1, "file_name": cams.names[0], "width": 1280, "height": 720}],
-           "annotations": [{"id": 7, "image_id": 1, "category_id": 1, "keypoints": kp.reshape(-1).tolist(), "score": 1}],
+           "annotations": [{"id": 7, "image_id": 1, "category_id": 1, "keypoints": kp.reshape(-1).tolist(),
+                            "score": 1}],
            "categories": []}
     (tmp_path / "s" / "poses2d.json").write_text(json.dumps(doc))
     back = read_scene(tmp_path / "s")

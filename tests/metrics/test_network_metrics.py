@@ -155,7 +155,7 @@ def test_oks_ap_equals_pycocotools_on_files(tmp_path):
     images, annotations, detections = [], [], []
     for image_id in range(1, 7):
         images.append({"id": image_id, "file_name": f"{image_id}.jpg", "width": 640, "height": 480})
-        for p in range(int(rng.integers(1, 4))):
+        for _p in range(int(rng.integers(1, 4))):
             kp = np.zeros((17, 3))
             kp[:, :2] = rng.uniform(50, 400, size=2) + rng.normal(scale=40, size=(17, 2))
             kp[:, 2] = np.where(rng.uniform(size=17) < 0.8, 2, 0)

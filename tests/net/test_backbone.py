@@ -53,7 +53,8 @@ def test_wrong_state_dict_is_a_clear_error(tmp_path):
     state = ResNet("resnet18", stride=32).state_dict()
     path = tmp_path / "r18.pt"
     torch.save(state, path)
-    with pytest.raises(InputError, match=r"r18.pt: does not fit a torchvision resnet50 .*missing keys: .*shape mismatch keys: .*file \(64, 64, 3, 3\), model \(64, 64, 1, 1\)"):
+    with pytest.raises(InputError, match=r"r18.pt: does not fit a torchvision resnet50 .*missing keys: "
+                                         r".*shape mismatch keys: .*file \(64, 64, 3, 3\), model \(64, 64, 1, 1\)"):
         load_torchvision_state_dict(ResNet("resnet50", stride=32), path)
     renamed = {k.replace("layer1", "stage1"): v for k, v in state.items()}
     torch.save(renamed, path)

@@ -16,7 +16,8 @@ def test_evaluate_commands_have_help_and_reject_bad_input(tmp_path):
     for sub in ("3dpw", "coco", "cvar"):
         assert runner.invoke(main, ["evaluate", sub, "--help"]).exit_code == 0
     (tmp_path / "gt.json").write_text(json.dumps({"images": [], "annotations": []}))
-    bad = runner.invoke(main, ["evaluate", "coco", str(tmp_path / "gt.json"), "--detections", str(tmp_path / "nope.json")])
+    bad = runner.invoke(main, ["evaluate", "coco", str(tmp_path / "gt.json"),
+                               "--detections", str(tmp_path / "nope.json")])
     assert bad.exit_code == 2 and "nope.json" in bad.output and bad.output.count("\n") == 1
     bad = runner.invoke(main, ["evaluate", "3dpw", str(tmp_path), "--checkpoint", str(tmp_path / "x.pt")])
     assert bad.exit_code == 2 and "x.pt: file not found" in bad.output and bad.output.count("\n") == 1

@@ -85,7 +85,8 @@ def test_depth_loss_is_scale_invariant_per_person_and_batch():
     base = losses.scale_invariant_depth_loss(raw, true, groups, per="person")
     # multiply the prediction of one person of one image by a constant: unchanged
     shifted = raw + torch.where((groups == 1) & (torch.arange(2).view(2, 1, 1, 1) == 0), 0.7, 0.0)
-    assert losses.scale_invariant_depth_loss(shifted, true, groups, per="person").item() == pytest.approx(base.item(), rel=1e-5)
+    assert (losses.scale_invariant_depth_loss(shifted, true, groups, per="person").item()
+            == pytest.approx(base.item(), rel=1e-5))
     # the same group index in two images is two persons
     img0 = losses.scale_invariant_depth_loss(raw[:1], true[:1], groups[:1], per="person")
     img1 = losses.scale_invariant_depth_loss(raw[1:], true[1:], groups[1:], per="person")

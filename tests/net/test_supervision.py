@@ -24,7 +24,8 @@ def _scene(name, n_views=3, size=(160, 120)):
 
 def _persons():
     rng = np.random.default_rng(0)
-    X = np.stack([rng.normal(scale=0.3, size=(17, 3)) + [0, 0, 4.0], rng.normal(scale=0.3, size=(17, 3)) + [0.5, 0, 6.0]])
+    X = np.stack([rng.normal(scale=0.3, size=(17, 3)) + [0, 0, 4.0],
+                  rng.normal(scale=0.3, size=(17, 3)) + [0.5, 0, 6.0]])
     X[0, 3] = np.nan                 # not reconstructed
     X[1, 4] = [0.0, 0.0, -1.0]       # behind every camera
     X[1, 5] = [50.0, 0.0, 6.0]       # outside every image
@@ -81,8 +82,10 @@ def test_export_writes_a_coco_dataset(tmp_path, link):
 
 
 def test_export_and_merge_many_scenes(tmp_path):
-    a = export_supervision([(_scene("s1"), _persons(), _frames(tmp_path / "f1", _scene("s1")))], tmp_path / "d1", "copy")
-    b = export_supervision([(_scene("s2"), _persons(), _frames(tmp_path / "f2", _scene("s2")))], tmp_path / "d2", "copy")
+    a = export_supervision([(_scene("s1"), _persons(), _frames(tmp_path / "f1", _scene("s1")))], tmp_path / "d1",
+                           "copy")
+    b = export_supervision([(_scene("s2"), _persons(), _frames(tmp_path / "f2", _scene("s2")))], tmp_path / "d2",
+                           "copy")
     merged = merge_datasets([a, b], tmp_path / "all" / "train.json")
     data = json.loads(merged.read_text())
     assert len(data["images"]) == 6 and len({im["id"] for im in data["images"]}) == 6

@@ -30,7 +30,7 @@ def _clip(rng, n_frames=4, n_people=2):
     Xc = np.einsum("fij,pfkj->pfki", cam[:, :3, :3], X) + cam[None, :, None, :3, 3]
     uv = Xc[..., :2] / Xc[..., 2:] * 1000.0 + [540, 960]
     p2d = np.zeros((n_people, n_frames, 3, 18))
-    for c, (smpl, coco18) in enumerate(zip(SMPL_TO_COMMON14, COCO18_TO_COMMON14)):
+    for smpl, coco18 in zip(SMPL_TO_COMMON14, COCO18_TO_COMMON14):
         p2d[:, :, :2, coco18] = uv[:, :, smpl]
         p2d[:, :, 2, coco18] = 0.9
     return X, cam, p2d, Xc

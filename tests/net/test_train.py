@@ -40,8 +40,10 @@ def _config(data, out, **kw):
 def test_config_files_parse(tmp_path):
     root = REPO / "configs"
     paper = load_config(root / "train_paper.toml")
-    assert (paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay) == (1e-3, 0.95, 8, 0.0, 1e-3)
-    assert (paper.crop_min, paper.crop_max, paper.backbone, paper.stride, paper.upsample) == (0.95, 1.0, "resnet152", 8, 2)
+    assert ((paper.lr, paper.momentum, paper.batch_size, paper.weight_decay, paper.ema_decay)
+            == (1e-3, 0.95, 8, 0.0, 1e-3))
+    assert ((paper.crop_min, paper.crop_max, paper.backbone, paper.stride, paper.upsample)
+            == (0.95, 1.0, "resnet152", 8, 2))
     assert paper.model_spec.backbone_stride == 16 and paper.depth_loss == "image" and paper.keep_last > 0
     baseline = load_config(root / "train_paper_coco.toml")
     assert baseline.train == paper.train[:1] and baseline.model_spec == paper.model_spec and baseline.lr == paper.lr
@@ -64,7 +66,8 @@ def test_crop_and_flip_move_keypoints_with_the_image():
     image[20, 55] = 255       # a marker on it
     depth = np.linspace(0.9, 1.1, 17)[None]
     for seed in range(20):
-        crop, k, d = random_crop_flip(image, kp, depth, AugmentConfig(input_size=80, flip=0.5), np.random.default_rng(seed))
+        crop, k, d = random_crop_flip(image, kp, depth, AugmentConfig(input_size=80, flip=0.5),
+                                      np.random.default_rng(seed))
         assert crop.shape == (80, 80, 3)
         y, x = np.unravel_index(np.argmax(crop[:, :, 0]), crop.shape[:2])
         flipped = d[0, 5] != depth[0, 5]
@@ -241,7 +244,8 @@ def test_keep_last_and_keep_best(tmp_path):
 
 
 def test_metadata_with_nan_is_written_as_null(tmp_path):
-    assert finite_or_none({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"}) == {"a": None, "b": [1.0, None], "c": "x"}
+    assert (finite_or_none({"a": float("nan"), "b": [1.0, float("inf")], "c": "x"})
+            == {"a": None, "b": [1.0, None], "c": "x"})
 
 
 def test_coco_as_pifpaf_people_only_crowds_and_unlabelled_people_masked(tmp_path):
@@ -341,7 +345,8 @@ def test_plot_draws_the_curves(tiny_data, tmp_path):
     config = tmp_path / "c.toml"
     config.write_text(f"""[model]\nbackbone = "resnet18"\nstride = 16\nwidth = 8\n[data]\ninput_size = 64
 [[data.train]]\nannotations = "{tiny_data}"\n[data.val]\nannotations = "{val}"
-[optim]\nsteps = 2\nbatch_size = 2\nlr = 0.01\n[output]\nout_dir = "{out}"\nval_every = 1\nlog_every = 1\nthreads = 1\n""")
+[optim]\nsteps = 2\nbatch_size = 2\nlr = 0.01
+[output]\nout_dir = "{out}"\nval_every = 1\nlog_every = 1\nthreads = 1\n""")
     result = CliRunner().invoke(train_cmd, [str(config), "--device", "cpu"])
     assert result.exit_code == 0, result.output
     assert "depth_error: missing (no person with depth" in result.output

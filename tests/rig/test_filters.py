@@ -58,7 +58,8 @@ def test_at_the_lowest_cut_off_a_constant_series_is_kept(order):
 
 @pytest.mark.parametrize("sets, field", [(["--frame-rate", "1e12"], "frame_rate"),
                                          (["--rig-set", "cutoff_hz=1e-9"], "cutoff_hz"),
-                                         (["--rig-set", "cutoff_hz=1e-3", "--rig-set", "filter_order=16"], "cutoff_hz")])
+                                         (["--rig-set", "cutoff_hz=1e-3", "--rig-set", "filter_order=16"],
+                                          "cutoff_hz")])
 def test_a_cut_off_the_filter_cannot_reach_is_one_line_naming_the_setting(tmp_path, sets, field):
     from click.testing import CliRunner
 

@@ -47,11 +47,12 @@ def test_complete_people_are_flagged(rig_dir, tmp_path):
     wrist = [p["flags"][9] for line in lines[7:10] for p in line["persons"]]
     assert wrist and set(wrist) == {"interpolated"}
     assert {f for p in persons for f in p["flags"]} <= {"observed", "interpolated", "inferred"}
-    for p, line in ((p, line) for line in lines[7:10] for p in line["persons"]):
-        views = p["views_per_joint"]
-        assert views[9] == 0                                               # not seen by any camera
-        x = np.array(p["keypoints3d"][9][:3])
-        assert np.linalg.norm(truth[line["frame"], :, 9] - x, axis=-1).min() < 0.05
+    for line in lines[7:10]:
+        for p in line["persons"]:
+            views = p["views_per_joint"]
+            assert views[9] == 0                                           # not seen by any camera
+            x = np.array(p["keypoints3d"][9][:3])
+            assert np.linalg.norm(truth[line["frame"], :, 9] - x, axis=-1).min() < 0.05
     recap = json.loads((tmp_path / "out" / "recap.json").read_text())
     assert recap["joint_flags"]["interpolated"] > 0 and recap["joint_flags"]["missing"] == 0
     assert recap["tracks"] == 2 and result.flags.shape == (len(result.persons), 17)

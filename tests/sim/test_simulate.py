@@ -99,10 +99,12 @@ def test_people_cut_by_the_frame_are_detected_with_their_visible_joints():
 def test_defaults_and_presets():
     default = SimConfig()
     detector = default.detector
-    assert (default.people, default.frames, detector.noise, detector.dropout, detector.false_pose_rate) == (6, 100, 0.008, 0.03, 0.1)
+    assert ((default.people, default.frames, detector.noise, detector.dropout, detector.false_pose_rate)
+            == (6, 100, 0.008, 0.03, 0.1))
     assert default.postures is None and default.close_pairs == 0 and detector.merge_prob == 0.0
     hard, clean = SimConfig.preset("hard", people=4), SimConfig.preset("clean")
-    assert hard.people == 4 and hard.detector.noise > SimConfig.preset("realistic").detector.noise > clean.detector.noise == 0
+    assert (hard.people == 4
+            and hard.detector.noise > SimConfig.preset("realistic").detector.noise > clean.detector.noise == 0)
     assert default.replace(noise=0.02, people=3).detector == dataclasses.replace(detector, noise=0.02)
     with pytest.raises(ValueError, match="known: clean, realistic, hard"):
         SimConfig.preset("medium")

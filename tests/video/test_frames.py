@@ -121,7 +121,7 @@ def test_import_trajectory_matches_frames_by_timestamp(tmp_path):
     lines = ["https://www.youtube.com/watch?v=example"]
     rng = np.random.default_rng(1)
     truth = {}
-    for k in range(0, 8):                      # frames 8, 9 have no camera line
+    for k in range(8):  # frames 8, 9 have no camera line
         from scipy.spatial.transform import Rotation
 
         R = Rotation.from_rotvec(rng.normal(0, 0.2, 3)).as_matrix()

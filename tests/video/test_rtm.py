@@ -292,7 +292,8 @@ def test_a_model_without_an_image_input_is_one_line(tmp_path, shape):
     graph = helper.make_graph([helper.make_node("Identity", ["input"], ["dets"]),
                                helper.make_node("Identity", ["input"], ["keypoints"])], "g",
                               [helper.make_tensor_value_info("input", TensorProto.FLOAT, shape)],
-                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in ("dets", "keypoints")])
+                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape)
+                               for n in ("dets", "keypoints")])
     path = tmp_path / "flat.onnx"
     onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8), path)
     with pytest.raises(InputError, match=r"flat\.onnx: expected an image input \(batch, 3, height, width\)"):

@@ -22,9 +22,9 @@ import os
 import socket
 import sqlite3
 import time
+from collections.abc import Iterable
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterable
 
 from mvm.batch.clips import Clip
 from mvm.batch.stages import STAGES, StageResult
@@ -194,7 +194,8 @@ class Manifest:
     def end_run(self, run: int, outcome: str) -> None:
         """Close the run; its unfinished claims go back to ``pending``."""
         with self.transaction() as db:
-            for row in db.execute("SELECT clip, stage FROM stages WHERE run = ? AND state = 'running'", (run,)).fetchall():
+            for row in db.execute("SELECT clip, stage FROM stages WHERE run = ? AND state = 'running'",
+                                  (run,)).fetchall():
                 self._log(db, run, row["clip"], row["stage"], "release", outcome)
             db.execute("UPDATE stages SET state = 'pending', lease_until = NULL WHERE run = ? AND state = 'running'",
                        (run,))
@@ -231,7 +232,8 @@ class Manifest:
                                "WHERE clip = ? AND stage = ?", (row["clip"], row["stage"]))
                     self._log(db, run, row["clip"], row["stage"], "recover", f"claim of run {row['run']} was stale")
                     recovered.append((row["clip"], row["stage"]))
-            for row in db.execute("SELECT id, host, pid FROM runs WHERE finished IS NULL AND id != ?", (run,)).fetchall():
+            for row in db.execute("SELECT id, host, pid FROM runs WHERE finished IS NULL AND id != ?",
+                                  (run,)).fetchall():
                 if row["host"] == host and not _alive(row["pid"]):
                     db.execute("UPDATE runs SET finished = ?, outcome = 'died' WHERE id = ?", (now, row["id"]))
         return recovered

@@ -14,9 +14,9 @@ import os
 import socket
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from mvm.batch.clips import Clip, discover_clips
 from mvm.batch.engines import make_engine
@@ -278,7 +278,8 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
         manifest.end_run(run, outcome)
     left_out: list[tuple[str, str, str]] = []
     training = (merge_training_set(root, manifest, options.output,
-                                   lambda cid, e: left_out.append((cid, "export", f"left out of the training set: {e}")))
+                                   lambda cid, e: left_out.append((cid, "export",
+                                                                   f"left out of the training set: {e}")))
                 if "export" in stages else None)
     manifest.close()
     return BatchSummary(run, engine, eng.capacity, len(clips), driver.progress.done, driver.failed + left_out,

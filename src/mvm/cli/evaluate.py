@@ -59,7 +59,8 @@ def _load(checkpoint: Path, device: str, input_size: int | None):
 @click.argument("root", type=click.Path(file_okay=False, path_type=Path))
 @_checkpoint
 @click.option("--split", type=click.Choice(["test", "validation", "train"]), default="test", show_default=True)
-@click.option("--min-visible", default=7, show_default=True, help="Ignore subjects with fewer visible 2D joints (of 14).")
+@click.option("--min-visible", default=7, show_default=True,
+              help="Ignore subjects with fewer visible 2D joints (of 14).")
 @click.option("--max-images", type=int, default=None, help="Evaluate the first N images only (a quick check).")
 @click.option("--input-size", type=int, default=None, help="Long edge of the network input (default: as trained).")
 @_device
@@ -117,7 +118,8 @@ def coco_cmd(annotations: Path, images: Path | None, checkpoint: Path | None, de
 
 @evaluate.command("cvar")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--tau", "taus", type=float, multiple=True, help="Confidence threshold (repeatable; default 0.5 and 0.9).")
+@click.option("--tau", "taus", type=float, multiple=True,
+              help="Confidence threshold (repeatable; default 0.5 and 0.9).")
 @click.option("--output-name", default="mvm", show_default=True, help="Directory of each scene holding poses3d.json.")
 @click.option("--label", default="detector of poses2d.json", show_default=True, help="First column of the table row.")
 @_out

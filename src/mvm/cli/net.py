@@ -118,7 +118,8 @@ def _check_train_output(cfg, config: Path, resume: str | None) -> None:
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="A checkpoint .pt written by mvm train (its .json beside it).")
-@click.option("--out", "out_dir", default="predictions", show_default=True, type=click.Path(file_okay=False, path_type=Path),
+@click.option("--out", "out_dir", default="predictions", show_default=True,
+              type=click.Path(file_okay=False, path_type=Path),
               help="Where predictions.json and the overlays go.")
 @click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
 @click.option("--input-size", default=None, type=Number(int, ge=16, le=4096),   # mvm.net.predict.MAX_INPUT_SIZE

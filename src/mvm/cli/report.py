@@ -32,7 +32,8 @@ def report_cmd(scene, output, frames, open_page):
 @click.option("--output", default="mvm", show_default=True, help="The scene's output folder name.")
 @click.option("--every", "step", default=1, show_default=True, type=click.IntRange(1), help="Draw every n-th frame.")
 @click.option("--max-width", default=None, type=click.IntRange(16), help="Downscale wider frames to this width (px).")
-@click.option("--fps", default=10.0, show_default=True, type=Number(float, ge=0.1, le=1000), help="Frame rate of a video.")
+@click.option("--fps", default=10.0, show_default=True, type=Number(float, ge=0.1, le=1000),
+              help="Frame rate of a video.")
 @click.option("--format", "image_format", type=click.Choice([".jpg", ".png"]), default=".jpg", show_default=True,
               help="Image format in a folder.")
 def overlay_cmd(scene, out, output, step, max_width, fps, image_format):

@@ -55,7 +55,8 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
 @scene_options
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")
-@click.option("--render", is_flag=True, help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
+@click.option("--render", is_flag=True,
+              help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [simulate] table, over the preset (mvm config prints one).")
 def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render, config_path):

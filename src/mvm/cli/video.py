@@ -137,7 +137,8 @@ def _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features, v
 def _sfm_rows(report):
     total = len(report.registered) + len(report.unregistered)
     return [("cameras from", report.source), ("registered frames", f"{len(report.registered)} / {total}"),
-            ("reprojection error (px)", _f(report.reprojection_error_px)), ("focal length (px)", _f(report.focal_px, 1)),
+            ("reprojection error (px)", _f(report.reprojection_error_px)),
+            ("focal length (px)", _f(report.focal_px, 1)),
             ("3D points", str(report.points))]
 
 
@@ -154,8 +155,9 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, f
     with refused(ValueError), stage_progress(rate_column()) as update:
         index = extract_frames(video, scene, _frame_options(config_path, rate, max_frames, width, blur_ratio), force,
                                lambda d, t: update("frames", d, t))
-    measure_table("mvm frames", [("frames kept", str(len(index.names))), ("skipped as blurred", str(len(index.skipped))),
-                             ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
+    measure_table("mvm frames", [("frames kept", str(len(index.names))),
+                                 ("skipped as blurred", str(len(index.skipped))),
+                                 ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
 
 
 @command("sfm")
@@ -199,9 +201,11 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
-    measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))), ("2D poses", str(len(d.keypoints))),
+    measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))),
+                                 ("2D poses", str(len(d.keypoints))),
                                  ("frames skipped (unreadable)", str(len(d.skipped))),
-                                 ("appearance", "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
+                                 ("appearance",
+                                  "none" if d.appearance is None else f"{d.appearance.shape[1]} numbers")])
 
 
 @command("run")

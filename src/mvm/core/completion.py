@@ -3,8 +3,9 @@
 Two sources, used in this order:
 
 - **time** (:func:`interpolate_series`): a joint missing at some instants of a track is
-  interpolated (cubic Hermite, tangents from the neighbouring observations) between the track's neighbouring instants where it was observed, over gaps of at
-  most ``max_gap`` instants (never extrapolated past a track's ends);
+  interpolated (cubic Hermite, tangents from the neighbouring observations) between the track's
+  neighbouring instants where it was observed, over gaps of at most ``max_gap`` instants (never
+  extrapolated past a track's ends);
 - **the body** (:func:`infer_missing`): a joint still missing is the conditional expectation of
   the GMM pose prior (:mod:`mvm.core.prior`) given the person's present joints, computed in the
   person's own canonical frame (pelvis origin, torso-length scale) and mapped back to the world.

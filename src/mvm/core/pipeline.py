@@ -118,8 +118,9 @@ def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses
         raise InputError(None, "max_affinity_bytes",
                          f"triangulating {len(groups)} candidate persons of up to {widest} views with {hypotheses} "
                          f"RANSAC hypotheses needs {need / 2**20:.0f} MiB, more than max_affinity_bytes = "
-                         f"{config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit (--set max_affinity_bytes=...), "
-                         "lower ransac_hypotheses, or split the scene into smaller ones")
+                         f"{config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit "
+                         "(--set max_affinity_bytes=...), lower ransac_hypotheses, or split the scene into "
+                         "smaller ones")
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],

@@ -83,11 +83,11 @@ class PoseBank:
         """``(B,)`` bool: poses with all 17 joints."""
         return ~np.isnan(self.poses).any(axis=(1, 2))
 
-    def subset(self, mask_or_indices) -> "PoseBank":
+    def subset(self, mask_or_indices) -> PoseBank:
         """The bank restricted to a boolean mask ``(B,)`` or an index array."""
         return PoseBank(self.poses[mask_or_indices], self.labels[mask_or_indices], self.sources[mask_or_indices])
 
-    def with_label(self, label: str) -> "PoseBank":
+    def with_label(self, label: str) -> PoseBank:
         if label not in LABELS:
             raise ValueError(f"unknown label {label!r}; known: {', '.join(LABELS)}")
         return self.subset(self.labels == label)

@@ -50,7 +50,8 @@ def logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The body frame of ``canonicalize``. ``poses: (..., 17, 3)`` -> ``(rotation: (..., 3, 3), centre: (..., 3), scale: (...))``.
+    """The body frame of ``canonicalize``. ``poses: (..., 17, 3)`` ->
+    ``(rotation: (..., 3, 3), centre: (..., 3), scale: (...))``.
 
     ``rotation``'s rows are the body axes in world coordinates: x from the right hip to the left
     hip; z from the pelvis to the mid-shoulders, made orthogonal to x; y = z × x. ``centre`` is
@@ -202,7 +203,8 @@ class PosePrior:
         return np.exp(log_terms - logsumexp(log_terms, axis=1)[:, None])
 
     def best_component(self, canonical: np.ndarray) -> np.ndarray:
-        """The max-mixture component: ``argmax_l w_l N(x_obs | …)``. ``canonical: (P, 17, 3)`` -> ``(P,)`` int, -1 for all-NaN poses."""
+        """The max-mixture component: ``argmax_l w_l N(x_obs | …)``. ``canonical: (P, 17, 3)`` ->
+        ``(P,)`` int, -1 for all-NaN poses."""
         log_terms = self.log_weighted_densities(canonical)
         valid = ~np.isnan(log_terms).any(axis=1)
         return np.where(valid, np.argmax(np.where(valid[:, None], log_terms, 0.0), axis=1), -1)
@@ -273,7 +275,8 @@ def fit_pose_prior(canonical: np.ndarray, components: int = COMPONENTS, reg_cova
     gmm = GaussianMixture(n_components=components, covariance_type="full", reg_covar=reg_covar,
                           random_state=random_state, n_init=n_init, max_iter=max_iter)
     gmm.fit(x)
-    prior = PosePrior(gmm.weights_ / gmm.weights_.sum(), gmm.means_, 0.5 * (gmm.covariances_ + np.swapaxes(gmm.covariances_, 1, 2)))
+    prior = PosePrior(gmm.weights_ / gmm.weights_.sum(), gmm.means_,
+                      0.5 * (gmm.covariances_ + np.swapaxes(gmm.covariances_, 1, 2)))
     info = {"poses": len(x), "mean_log_likelihood": float(gmm.score(x)), "iterations": int(gmm.n_iter_),
             "converged": bool(gmm.converged_), "reg_covar": reg_covar, "random_state": random_state}
     return prior, info

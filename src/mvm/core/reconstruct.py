@@ -57,7 +57,8 @@ def validate_scene(scene: Scene, source: str | None = None) -> None:
         det = np.linalg.det(cameras.R) if len(cameras) else np.zeros(0)
     if not focal_ok.all():
         v = int(np.argmin(focal_ok))
-        raise InputError(source, f"cameras[{v}].K", f"focal length must be > 0, got {cameras.K[v, 0, 0]:g}, {cameras.K[v, 1, 1]:g}")
+        raise InputError(source, f"cameras[{v}].K",
+                         f"focal length must be > 0, got {cameras.K[v, 0, 0]:g}, {cameras.K[v, 1, 1]:g}")
     bad_rotation = (rotation_err > 1e-4) | (det < 0)
     if bad_rotation.any():
         v = int(np.argmax(bad_rotation))
@@ -170,7 +171,8 @@ def _scene_warnings(scene: Scene, config: Config) -> list[str]:
         spread = np.linalg.norm(centers - centers.mean(0), axis=1).max()
         depth = np.linalg.norm(cameras.t[used], axis=1).max()
         if spread <= 1e-9 * max(depth, 1e-12):
-            warnings_.append(f"all {len(used)} views share one camera centre (no parallax): nothing can be triangulated")
+            warnings_.append(f"all {len(used)} views share one camera centre (no parallax): "
+                             "nothing can be triangulated")
     return warnings_
 
 

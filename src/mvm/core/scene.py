@@ -63,7 +63,7 @@ class Cameras:
         """Mean focal length in pixels: ``(V,)``."""
         return 0.5 * (self.K[:, 0, 0] + self.K[:, 1, 1])
 
-    def subset(self, index: np.ndarray) -> "Cameras":
+    def subset(self, index: np.ndarray) -> Cameras:
         index = np.asarray(index)
         return Cameras(self.K[index], self.R[index], self.t[index], self.size[index],
                        tuple(self.names[i] for i in index))
@@ -115,7 +115,7 @@ class Poses2D:
     def __len__(self) -> int:
         return len(self.keypoints)
 
-    def subset(self, index: np.ndarray) -> "Poses2D":
+    def subset(self, index: np.ndarray) -> Poses2D:
         index = np.asarray(index)
         app = None if self.appearance is None else self.appearance[index]
         instant = None if self.instant is None else self.instant[index]

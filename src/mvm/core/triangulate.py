@@ -148,8 +148,9 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
     ``hypotheses`` random pairs (:func:`_sample_pairs`). Each hypothesis is scored by MSAC,
     ``Σ min(e², thr²)`` over the available keypoints; the best one's inliers (``e < thr``, in
-    front of the camera) are re-triangulated with confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
-    rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
+    front of the camera) are re-triangulated with confidence weights, twice. A joint with fewer
+    than ``min_views`` inliers or whose inlier rays span less than ``min_parallax_deg`` is left
+    NaN. With ``use_ransac=False`` every
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
 
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous

@@ -12,8 +12,8 @@ method and for the oracle on the same scene.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable, Iterable
 
 import numpy as np
 
@@ -99,7 +99,8 @@ def run_scene(sim: SimConfig, methods: Iterable[tuple[str, Config]], appearance:
     for use_appearance in appearance:
         for name, config in methods:
             result, seconds = _timed(scene, config.replace(use_appearance=use_appearance))
-            rows.append({**scene_info, "method": name, "cues": "geometry + appearance" if use_appearance else "geometry",
+            rows.append({**scene_info, "method": name,
+                         "cues": "geometry + appearance" if use_appearance else "geometry",
                          **score(result, truth, seconds), **{f"oracle_{k}": v for k, v in oracle.items()}})
     return rows
 
@@ -164,7 +165,8 @@ COLUMNS = (("scene", "scene", 0), ("people", "people", 0), ("frames", "frames", 
            ("found_true", "persons / found / true", 0), ("mpjpe_mm", "MPJPE mm", 1),
            ("mpjpe_median_mm", "median mm", 1), ("E_R_px", "E_R px (paper 14.6)", 1), ("seconds", "s", 1),
            ("oracle_precision", "oracle precision", 3), ("oracle_recall", "oracle recall", 3),
-           ("oracle_found_true", "oracle persons / found / true", 0), ("oracle_mpjpe_mm", "oracle MPJPE mm", 1), ("oracle_mpjpe_median_mm", "oracle median mm", 1),
+           ("oracle_found_true", "oracle persons / found / true", 0), ("oracle_mpjpe_mm", "oracle MPJPE mm", 1),
+           ("oracle_mpjpe_median_mm", "oracle median mm", 1),
            ("oracle_E_R_px", "oracle E_R px", 1), ("oracle_seconds", "oracle s", 1))
 SWEEP_COLUMNS = (("axis", "axis", 0), ("value", "value", 0)) + COLUMNS[4:]
 
@@ -182,7 +184,7 @@ def summary(rows: list[dict]) -> list[dict]:
     out = []
     for key in dict.fromkeys((r["method"], r["cues"]) for r in rows):
         sel = [r for r in rows if (r["method"], r["cues"]) == key]
-        mean = lambda k: float(np.nanmean([r[k] for r in sel]))  # noqa: E731
+        mean = lambda k: float(np.nanmean([r[k] for r in sel]))  # noqa: E731, B023 (used in this iteration only)
         out.append({"method": key[0], "cues": key[1], "scenes": len(sel), "precision": mean("precision"),
                     "recall": mean("recall"),
                     "found_true": f"{sum(r['persons'] for r in sel)} / {sum(r['found'] for r in sel)} / "
@@ -193,7 +195,8 @@ def summary(rows: list[dict]) -> list[dict]:
                     "E_R_px": mean("E_R_px"), "seconds": mean("seconds"),
                     "oracle_precision": mean("oracle_precision"), "oracle_recall": mean("oracle_recall"),
                     "oracle_found_true": f"{sum(r['oracle_persons'] for r in sel)} / "
-                                         f"{sum(r['oracle_found'] for r in sel)} / {sum(r['oracle_true'] for r in sel)}",
+                                         f"{sum(r['oracle_found'] for r in sel)} / "
+                                         f"{sum(r['oracle_true'] for r in sel)}",
                     "oracle_mpjpe_mm": mean("oracle_mpjpe_mm"),
                     "oracle_mpjpe_median_mm": float(np.nanmedian([r["oracle_mpjpe_median_mm"] for r in sel])),
                     "oracle_E_R_px": mean("oracle_E_R_px"), "oracle_seconds": mean("oracle_seconds")})

@@ -141,7 +141,8 @@ def _bones(entries, path) -> list[dict]:
         elif key == "dof":
             dofs = tuple(v.lower() for v in values)
             if any(d not in _KNOWN_DOFS for d in dofs) or len(set(dofs)) != len(dofs):
-                raise InputError(path, f"line {line}", f"bad dof list {' '.join(values)!r} (known: {' '.join(_KNOWN_DOFS)})")
+                raise InputError(path, f"line {line}",
+                                 f"bad dof list {' '.join(values)!r} (known: {' '.join(_KNOWN_DOFS)})")
             bone["dof"] = dofs
         elif key == "limits":
             bone["limits"].append(_limit(" ".join(values), path, line))

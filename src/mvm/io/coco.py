@@ -348,5 +348,6 @@ def annotation_record(ann_id: int, image_id: int, keypoints: np.ndarray, depths:
 def empty_dataset(description: str) -> dict:
     """A supervision data set without images yet (``info.format``: :data:`SUPERVISION_FORMAT`)."""
     return {"info": {"format": SUPERVISION_FORMAT, "description": description,
-                     "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; 0: missing"},
+                     "keypoint_depths": "camera z of the joint / median camera z of the labelled joints of the image; "
+                                        "0: missing"},
             "images": [], "annotations": [], "categories": [COCO_PERSON_CATEGORY]}

@@ -96,7 +96,8 @@ def _dataset_one_by_one(annotations: list, path: Path, index: dict[int, int]) ->
             kp, score, app = _person(ann, path, field)
         rows.append((ann_id, image, kp, score, app, crowd, _box(ann.get("bbox"), path, f"{field}.bbox"),
                      _depths(ann, kp, path, field), _flags(ann.get("keypoint_flags"), path, f"{field}.keypoint_flags")))
-    ann_ids, ann_image, kps, scores, apps, crowd, boxes, depths, flags = (list(c) for c in zip(*rows)) if rows else [[]] * 9
+    ann_ids, ann_image, kps, scores, apps, crowd, boxes, depths, flags = ((list(c) for c in zip(*rows)) if rows
+                                                                          else [[]] * 9)
     N = len(rows)
     has_flags = any(f is not None for f in flags)
     return (ann_ids, ann_image, np.array(kps, dtype=float).reshape(N, NUM_JOINTS, 3), scores, apps,

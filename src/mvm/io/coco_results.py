@@ -17,7 +17,8 @@ is negative. Entries of another category than 1 (person) are left out.
 - :func:`results_frame_index`, detections of a scene's frames (``mvm detect --import``): a
   string is a frame's file name (or its stem); an **integer is the frame's 1-based position
   in the scene's frame list** (the frames in the order of ``frames.json``, else the images
-  of ``frames/`` sorted by the number in their names), not a COCO image id; a result whose frame is not in the scene is left out.
+  of ``frames/`` sorted by the number in their names), not a COCO image id; a result whose frame
+  is not in the scene is left out.
 """
 from __future__ import annotations
 

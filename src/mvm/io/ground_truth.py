@@ -43,7 +43,7 @@ class GroundTruth:
         return document
 
     @classmethod
-    def from_json(cls, data: dict) -> "GroundTruth":
+    def from_json(cls, data: dict) -> GroundTruth:
         merged = data.get("merged_with")
         return cls(np.array(data["poses3d"], dtype=float), np.array(data["person_of_annotation"]),
                    tuple(data.get("labels", ())), None if merged is None else np.array(merged))

@@ -65,7 +65,8 @@ def _panoptic_bodies(path: Path) -> list[np.ndarray]:
         values = body.get("joints19") if isinstance(body, dict) else None
         if not isinstance(values, list) or len(values) != 4 * len(PANOPTIC_JOINTS19):
             got = len(values) if isinstance(values, list) else type(values).__name__
-            raise InputError(path, field, f"expected {4 * len(PANOPTIC_JOINTS19)} numbers (19 joints × x, y, z, confidence), got {got}")
+            raise InputError(path, field, f"expected {4 * len(PANOPTIC_JOINTS19)} numbers "
+                                          f"(19 joints × x, y, z, confidence), got {got}")
         if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values):
             raise InputError(path, field, "expected finite numbers")
         out.append(np.asarray(values, dtype=float).reshape(len(PANOPTIC_JOINTS19), 4))

@@ -100,7 +100,8 @@ def match_persons(estimate: np.ndarray, truth: np.ndarray, max_distance: float =
     return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] <= max_distance]
 
 
-def person_errors(estimate: np.ndarray, truth: np.ndarray, pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+def person_errors(estimate: np.ndarray, truth: np.ndarray,
+                  pairs: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
     """MPJPE and PA-MPJPE (in the units of the inputs) of every matched pair ``(p, g)`` with at
     least 3 joints finite in both: ``(K,)`` each."""
     if not pairs:

@@ -116,7 +116,8 @@ def decode(fields: dict[str, np.ndarray], stride: int, config: DecoderConfig = D
     if pif.ndim != 4 or pif.shape[:2] != (NUM_JOINTS, 5):
         raise ValueError(f"pif: expected shape (17, 5, H, W), got {pif.shape}")
     if paf.shape[:2] != (len(connections), 7) or paf.shape[2:] != pif.shape[2:]:
-        raise ValueError(f"paf: expected shape ({len(connections)}, 7, {pif.shape[2]}, {pif.shape[3]}), got {paf.shape}")
+        raise ValueError(f"paf: expected shape ({len(connections)}, 7, {pif.shape[2]}, {pif.shape[3]}), "
+                         f"got {paf.shape}")
     votes = [_votes(pif[j], config.pif_threshold) for j in range(NUM_JOINTS)]
     seeds = [_seeds(v, config) for v in votes]
     links = [_links(paf[k], config.paf_threshold) for k in range(len(connections))]
@@ -128,7 +129,7 @@ def decode(fields: dict[str, np.ndarray], stride: int, config: DecoderConfig = D
     order = sorted(((s["score"][i], j, i) for j, s in enumerate(seeds) for i in range(len(s["score"]))
                     if s["score"][i] >= config.seed_threshold), reverse=True)
     poses = []
-    for score, j, i in order:
+    for _score, j, i in order:
         if seeds[j]["used"][i]:
             continue
         pose = _grow(j, i, seeds, links, adjacency, config)

@@ -90,7 +90,7 @@ class HeadMetas:
         return self.pif.stride
 
     @classmethod
-    def at_stride(cls, stride: int) -> "HeadMetas":
+    def at_stride(cls, stride: int) -> HeadMetas:
         if stride not in (8, 16):
             raise ValueError(f"stride: expected 8 or 16, got {stride}")
         return cls(PifMeta(stride=stride), PafMeta(stride=stride), PdfMeta(stride=stride))

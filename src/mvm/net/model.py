@@ -43,7 +43,7 @@ class ModelSpec:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ModelSpec":
+    def from_dict(cls, d: dict) -> ModelSpec:
         unknown = set(d) - {"backbone", "stride", "width", "upsample"}
         if unknown:
             raise ValueError(f"model spec: unknown keys {sorted(unknown)}")

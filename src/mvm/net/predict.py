@@ -74,7 +74,8 @@ def predict_image(model: PoseNet, image: np.ndarray, input_size: int, focal_px: 
     for p in range(len(poses)):
         persons.append({
             "score": round(float(poses.score[p]), 4),
-            "keypoints": [[round(float(x), 2), round(float(y), 2), round(float(c), 4)] for x, y, c in poses.keypoints[p]],
+            "keypoints": [[round(float(x), 2), round(float(y), 2), round(float(c), 4)]
+                          for x, y, c in poses.keypoints[p]],
             "depth_relative": _none(rel[p], 4),
             "scale_m": None if not np.isfinite(s[p]) else round(float(s[p]), 4),
             "keypoints3d_m": [None if not np.isfinite(X).all() else [round(float(v), 4) for v in X] for X in metric[p]],

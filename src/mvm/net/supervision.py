@@ -13,8 +13,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 
@@ -62,7 +62,8 @@ def ignore_record(ann_id: int, image_id: int, box: np.ndarray) -> dict:
 
 def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
     if not isinstance(item, (tuple, list)) or len(item) not in (2, 3):
-        raise InputError(None, "scenes_and_persons", "expected (Scene, Persons3D) or (Scene, Persons3D, frames_dir) items")
+        raise InputError(None, "scenes_and_persons",
+                         "expected (Scene, Persons3D) or (Scene, Persons3D, frames_dir) items")
     scene, persons = item[0], item[1]
     frames = Path(item[2]) if len(item) == 3 and item[2] is not None else None
     if not isinstance(scene, Scene) or not isinstance(persons, Persons3D):

@@ -216,12 +216,16 @@ header{background:#20262e;color:#fff;padding:14px 24px}header h1{margin:0;font-s
 header p{margin:4px 0 0;color:#c8cdd3;font-size:12px}
 main{padding:12px 24px 40px;max-width:1400px}section{background:#fff;border-radius:6px;padding:12px 16px;margin:12px 0;
 box-shadow:0 1px 2px rgba(0,0,0,.08)}h2{font-size:16px;margin:4px 0 10px}h3{font-size:14px;margin:14px 0 6px}
-.cards{display:flex;flex-wrap:wrap;gap:10px}.card{border:1px solid #e3e3e3;border-radius:5px;padding:8px 12px;min-width:120px}
+.cards{display:flex;flex-wrap:wrap;gap:10px}
+.card{border:1px solid #e3e3e3;border-radius:5px;padding:8px 12px;min-width:120px}
 .card .value{font-size:20px;font-weight:600}.card .name{font-size:12px;color:#666}
-table.small{border-collapse:collapse;font-size:13px}table.small td,table.small th{border-bottom:1px solid #eee;padding:3px 10px;text-align:right}
-table.small th{color:#555;font-weight:600}.swatch{display:inline-block;width:12px;height:12px;border-radius:2px;margin-right:6px;vertical-align:-1px}
-#viewer{display:flex;gap:14px;align-items:flex-start}#mvm-view{width:100%;height:560px;border:1px solid #ddd;border-radius:4px;
-cursor:grab;touch-action:none;display:block}.viewbox{flex:1;min-width:0}.legend{width:230px;font-size:13px}
+table.small{border-collapse:collapse;font-size:13px}
+table.small td,table.small th{border-bottom:1px solid #eee;padding:3px 10px;text-align:right}
+table.small th{color:#555;font-weight:600}
+.swatch{display:inline-block;width:12px;height:12px;border-radius:2px;margin-right:6px;vertical-align:-1px}
+#viewer{display:flex;gap:14px;align-items:flex-start}
+#mvm-view{width:100%;height:560px;border:1px solid #ddd;border-radius:4px;cursor:grab;touch-action:none;display:block}
+.viewbox{flex:1;min-width:0}.legend{width:230px;font-size:13px}
 .legend label{display:block}.strip{display:flex;gap:8px;overflow-x:auto;padding-bottom:6px}
 .strip figure{margin:0;flex:0 0 auto}.strip img{height:200px;display:block;border-radius:3px}
 .strip figcaption{font-size:12px;color:#555}.plots{display:flex;flex-wrap:wrap;gap:10px}
@@ -271,11 +275,13 @@ mvm {escape(__version__)} · written {time.strftime("%Y-%m-%d %H:%M")}</p></head
 <section id="metrics"><h2>Metrics</h2>{_metric_cards(result)}</section>
 <section id="view3d"><h2>3D view</h2><div id="viewer"><div class="viewbox"><canvas id="mvm-view"></canvas>
 <div id="mvm-status" data-state="loading">3D view: loading…</div></div>
-<div class="legend"><p class="note">Drag to rotate, shift- or right-drag to pan, wheel to zoom, double-click to reset.</p>
+<div class="legend"><p class="note">Drag to rotate, shift- or right-drag to pan, wheel to zoom,
+double-click to reset.</p>
 <label><input type="checkbox" data-show="cameras"> camera path and frustums</label>
 <label><input type="checkbox" data-show="points"> SfM points ({n_points if n_points else "none in the model"})</label>
 <label><input type="checkbox" data-show="floor"> floor grid</label>
-<label><input type="checkbox" data-show="labels"> person numbers</label>{truth_box}<h3>Persons</h3>{legend}</div></div></section>
+<label><input type="checkbox" data-show="labels"> person numbers</label>{truth_box}<h3>Persons</h3>{legend}
+</div></div></section>
 <section id="frames"><h2>Frames with overlays</h2><p class="note">2D poses (thick) in the colour of the person they were
 matched to, unmatched poses in grey, reprojected 3D poses (thin, light) over them; drawn {background}.</p>
 <div class="strip">{strip}</div></section>

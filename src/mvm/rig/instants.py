@@ -9,8 +9,8 @@ vectorized problem (they are independent). This module only lays the result out 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -50,12 +50,12 @@ class InstantPersons:
     def __len__(self) -> int:
         return len(self.X)
 
-    def take(self, index: np.ndarray) -> "InstantPersons":
+    def take(self, index: np.ndarray) -> InstantPersons:
         """The persons ``index: (K,)`` (indices or a boolean mask), in that order."""
         return InstantPersons(*[getattr(self, f)[index] for f in InstantPersons.__dataclass_fields__])
 
     @staticmethod
-    def concatenate(parts: list["InstantPersons"], V: int) -> "InstantPersons":
+    def concatenate(parts: list[InstantPersons], V: int) -> InstantPersons:
         if not parts:
             J = 17
             return InstantPersons(np.zeros((0, J, 3)), np.zeros(0, int), np.zeros((0, J)), np.zeros((0, V), int),

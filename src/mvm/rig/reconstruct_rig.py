@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import orjson
@@ -186,9 +186,10 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     With ``config.refine`` (and ``detections``, ``cameras``), every person is refined once its
     track is known: reprojection, the pose prior and the track's robust bone lengths
     (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come from
-    :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over each track's observed joints, then
-    completion fills what is missing (time, then ``prior``) unless the rig's ``config.complete``
-    is off (:meth:`Config.for_driver`; no ``config``: the defaults).
+    :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over
+    each track's observed joints, then completion fills what is missing (time, then ``prior``)
+    unless the rig's ``config.complete`` is off (:meth:`Config.for_driver`; no ``config``: the
+    defaults).
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
     complete = (config or Config()).for_driver("rig").complete
     unit = 1.0 / options.metres_per_unit

@@ -246,7 +246,8 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         raise InputError(_pose_root(rig_dir), None, str(e)) from None
     if not matched:
         raise InputError(_pose_root(rig_dir), None, f"no pose folder matches a camera of {calib_path} "
-                                                    f"(cameras: {', '.join(names)}; found: {', '.join(sources) or 'nothing'})")
+                                                    f"(cameras: {', '.join(names)}; "
+                                                    f"found: {', '.join(sources) or 'nothing'})")
     for c in range(len(names)):
         if c not in matched:
             log.warning("camera %s: no pose folder; it is not used", names[c])

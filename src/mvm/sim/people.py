@@ -100,7 +100,7 @@ def place_people(config, rng: np.random.Generator, bank_poses: np.ndarray,
             index = pools[g][extra.integers(len(pools[g]))]
         pose = bank_poses[index] * rng.uniform(*config.size_range)
         facing = np.arctan2(*(toward - p)[::-1]) - np.pi / 2 + rng.normal(0, np.radians(40))
-        for attempt in range(50):
+        for _attempt in range(50):
             c, s = np.cos(facing), np.sin(facing)
             Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
             placed = pose @ Rz.T + np.array([p[0], p[1], 0.0])

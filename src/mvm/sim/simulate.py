@@ -100,14 +100,14 @@ class SimConfig:
         check_settings(self)
 
     @classmethod
-    def preset(cls, name: str, **overrides) -> "SimConfig":
+    def preset(cls, name: str, **overrides) -> SimConfig:
         """A preset of :data:`PRESETS` ('clean', 'realistic', 'hard', 'crowd') with
         ``overrides`` applied (scene or detector settings, by name)."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
         return cls().replace(**{**PRESETS[name], **overrides})
 
-    def replace(self, **changes) -> "SimConfig":
+    def replace(self, **changes) -> SimConfig:
         """A copy with ``changes``: fields of the scene, or of the detector by their names."""
         detector = {k: changes.pop(k) for k in list(changes) if k in DETECTOR_FIELDS}
         if detector:

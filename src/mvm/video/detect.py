@@ -13,9 +13,9 @@ A frame that cannot be read is reported and left out; the others are detected.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -114,7 +114,8 @@ def _registered_names(scene: Path) -> set[str] | None:
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises several types with C++ context
-        raise InputError(model_dir, None, f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
+        raise InputError(model_dir, None,
+                         f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
     return {image.name for image in rec.images.values() if image.has_pose}
 
 

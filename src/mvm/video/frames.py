@@ -4,9 +4,9 @@ keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.jso
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -214,7 +214,8 @@ def read_frame_index(scene: str | Path) -> FrameIndex:
         index = FrameIndex(
             data.get("video", ""), float(data.get("fps", 0.0)), (int(data["width"]), int(data["height"])),
             tuple(str(f["file_name"]) for f in frames), np.array([int(f["frame"]) for f in frames], dtype=np.int64),
-            np.array([float(f["timestamp_s"]) for f in frames]), np.array([float(f.get("sharpness", 0)) for f in frames]),
+            np.array([float(f["timestamp_s"]) for f in frames]),
+            np.array([float(f.get("sharpness", 0)) for f in frames]),
             tuple(int(k) for k in data.get("skipped_blurred", [])))
     except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise InputError(path, "frames", f"malformed entry: {e}") from None

@@ -22,9 +22,9 @@ import stat
 import tempfile
 import zipfile
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 from urllib.error import URLError
 from urllib.request import urlopen
 
@@ -63,8 +63,8 @@ RTMO = {
                    (640, 640)),
     "balanced": ModelSpec("rtmo-m", f"{_MMPOSE}/rtmo/onnx_sdk/rtmo-m_16xb16-600e_body7-640x640-39e78cc4_20231211.zip",
                    (640, 640)),
-    "performance": ModelSpec("rtmo-l", f"{_MMPOSE}/rtmo/onnx_sdk/rtmo-l_16xb16-600e_body7-640x640-b37118ce_20231211.zip",
-                   (640, 640)),
+    "performance": ModelSpec("rtmo-l", f"{_MMPOSE}/rtmo/onnx_sdk/"
+                   "rtmo-l_16xb16-600e_body7-640x640-b37118ce_20231211.zip", (640, 640)),
 }
 #: RTMPose (top-down) body models trained on Body7, COCO-17 keypoints.
 RTMPOSE = {
@@ -79,8 +79,10 @@ RTMPOSE = {
 YOLOX = {
     "lightweight": ModelSpec("yolox-tiny", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_tiny_8xb8-300e_humanart-6f3252f9.zip",
                    (416, 416)),
-    "balanced": ModelSpec("yolox-m", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_m_8xb8-300e_humanart-c2c7a14a.zip", (640, 640)),
-    "performance": ModelSpec("yolox-x", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_x_8xb8-300e_humanart-a39d44ed.zip", (640, 640)),
+    "balanced": ModelSpec("yolox-m", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_m_8xb8-300e_humanart-c2c7a14a.zip",
+                   (640, 640)),
+    "performance": ModelSpec("yolox-x", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_x_8xb8-300e_humanart-a39d44ed.zip",
+                   (640, 640)),
 }
 
 
@@ -106,8 +108,9 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
              progress: Callable[[int, int], None] | None = None, timeout_s: float = 60.0) -> Path:
     """Download ``url`` to ``target`` atomically (a temporary file in the same folder, renamed
     once complete and verified). ``expected_sha256``: the file's SHA-256 (or its leading hex
-    digits); the digest is also written to ``target.sha256``. Raises :class:`InputError` naming the URL and the target when the download fails
-    or the checksum differs; no file is left at ``target`` or beside it then."""
+    digits); the digest is also written to ``target.sha256``. Raises :class:`InputError` naming
+    the URL and the target when the download fails or the checksum differs; no file is left at
+    ``target`` or beside it then."""
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)

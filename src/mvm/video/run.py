@@ -98,7 +98,8 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
     if out.is_file() and not force:
         log.info("%s exists: already reconstructed (use force to redo)", out)
         doc = load_poses3d_document(out, root=scene)
-        record = ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict) else ScaleRecord("none", None, None, False)
+        record = (ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict)
+                  else ScaleRecord("none", None, None, False))
         return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
     config = (config or Config()).for_driver("scene")
     result = reconstruct_dir(scene, config, output)
@@ -178,9 +179,11 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
     if cameras is None:
         report.sfm = run_sfm(scene, sfm_options, force=again)
     elif Path(cameras).is_dir():
-        report.sfm = import_colmap(cameras, scene) if again or not (scene / "sparse").is_dir() else run_sfm(scene, sfm_options)
+        report.sfm = (import_colmap(cameras, scene) if again or not (scene / "sparse").is_dir()
+                      else run_sfm(scene, sfm_options))
     else:
-        report.sfm = import_trajectory(cameras, scene) if again or not (scene / "sparse").is_dir() else run_sfm(scene, sfm_options)
+        report.sfm = (import_trajectory(cameras, scene) if again or not (scene / "sparse").is_dir()
+                      else run_sfm(scene, sfm_options))
     if again:
         (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
     report.seconds["sfm"] = time.perf_counter() - t

@@ -85,11 +85,12 @@ class SfmReport:
     def to_json(self) -> dict:
         d = asdict(self)
         d["centers"] = np.round(self.centers, 6).tolist()
-        d["reprojection_error_px"] = round(float(self.reprojection_error_px), 4) if np.isfinite(self.reprojection_error_px) else None
+        d["reprojection_error_px"] = (round(float(self.reprojection_error_px), 4)
+                                      if np.isfinite(self.reprojection_error_px) else None)
         return d
 
     @classmethod
-    def from_json(cls, d: dict) -> "SfmReport":
+    def from_json(cls, d: dict) -> SfmReport:
         d = dict(d)
         d["centers"] = np.array(d.get("centers", []), dtype=float).reshape(-1, 3)
         if d.get("reprojection_error_px") is None:
@@ -259,7 +260,8 @@ def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises several types with C++ context
-        raise InputError(model_dir, None, f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
+        raise InputError(model_dir, None,
+                         f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
     if Path(model).resolve() != (scene / "sparse").resolve():
         atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
     names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))

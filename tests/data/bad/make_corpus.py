@@ -111,10 +111,12 @@ def calib_toml() -> None:
     _write("calib_toml/not_toml.toml", "[cam_1\nname = 1\n")
     _write("calib_toml/bad_utf8.toml", text.encode()[:40] + b"\xff\xfe" + text.encode()[40:])
     _write("calib_toml/translation_short.toml", text.replace(first_t, "[ 0.1, 0.2,]", 1))
-    _write("calib_toml/focal_zero.toml", text.replace(first_m, "[ [ 0.0, 0.0, 640.0,], [ 0.0, 1000.0, 360.0,], [ 0.0, 0.0, 1.0,],]", 1))
+    _write("calib_toml/focal_zero.toml",
+           text.replace(first_m, "[ [ 0.0, 0.0, 640.0,], [ 0.0, 1000.0, 360.0,], [ 0.0, 0.0, 1.0,],]", 1))
     _write("calib_toml/size_negative.toml", text.replace("size = [ 1280.0, 720.0,]", "size = [ -1280.0, 720.0,]", 1))
     _write("calib_toml/fisheye_string.toml", text.replace("fisheye = false", 'fisheye = "false"', 1))
-    _write("calib_toml/matrix_strings.toml", text.replace(first_m, '[ [ "1000", 0.0, 640.0,], [ 0.0, 1000.0, 360.0,], [ 0.0, 0.0, 1.0,],]', 1))
+    _write("calib_toml/matrix_strings.toml",
+           text.replace(first_m, '[ [ "1000", 0.0, 640.0,], [ 0.0, 1000.0, 360.0,], [ 0.0, 0.0, 1.0,],]', 1))
     _write("calib_toml/no_camera.toml", "[metadata]\nadjusted = false\n")
     _write("calib_toml/camera_without_matrix.toml", text.replace(f"matrix = {first_m}\n", "", 1))
 
@@ -218,8 +220,10 @@ def colmap_bin() -> None:
     _colmap_bin("duplicate_image_id", pack("images.bin", 90, "I", 1))
     _colmap_bin("unknown_camera_id", pack("images.bin", 68, "I", 5))
     _colmap_bin("trailing_bytes", lambda f: f["points3D.bin"].extend(b"\0" * 5))
-    _colmap_bin("image_name_absolute", lambda f: f.update({"images.bin": f["images.bin"].replace(b"f0000.jpg", b"/etc/pass")}))
-    _colmap_bin("image_name_not_utf8", lambda f: f.update({"images.bin": f["images.bin"].replace(b"f0001.jpg", b"f\xff01.jpg")}))
+    _colmap_bin("image_name_absolute",
+                lambda f: f.update({"images.bin": f["images.bin"].replace(b"f0000.jpg", b"/etc/pass")}))
+    _colmap_bin("image_name_not_utf8",
+                lambda f: f.update({"images.bin": f["images.bin"].replace(b"f0001.jpg", b"f\xff01.jpg")}))
     _colmap_bin("missing_images", lambda f: f.pop("images.bin"))
     (HERE / "colmap_bin" / "missing_images" / "images.bin").unlink()
 

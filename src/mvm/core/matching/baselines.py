@@ -189,7 +189,7 @@ def dong_matching(S: np.ndarray, view: np.ndarray, config: BaselineConfig = Base
     W = config.dong_alpha - S
     mu = config.dong_mu
     iteration = 0
-    for iteration in range(1, config.dong_max_iterations + 1):
+    for iteration in range(1, config.dong_max_iterations + 1):  # noqa: B007 (returned: the iterations run)
         X_prev = X
         eigenvalues, vectors = np.linalg.eigh(Y / mu + X)
         shrunk = np.sign(eigenvalues) * np.maximum(np.abs(eigenvalues) - config.dong_lambda / mu, 0.0)

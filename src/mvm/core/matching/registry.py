@@ -7,7 +7,7 @@ in [0, 0.5] (NaN: undefined), pose confidences and views ``(N,)``, the reconstru
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
