@@ -392,7 +392,7 @@ def _credible(groups: list[np.ndarray], X: np.ndarray, P: np.ndarray, image_size
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
-    keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~(~(proportion_deviation(X) <= max_proportion_deviation) & (2 * count < visible))
     return keep
 
 

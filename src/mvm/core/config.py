@@ -185,8 +185,11 @@ class Config:
     #: Persons with fewer reconstructed joints than this are discarded. [joints]
     min_person_joints: int = setting(5, ge=1, le=17)
     # --- triangulation -------------------------------------------------------------------
-    #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this. [px]
-    ransac_threshold_px: float = setting(15.0, gt=0)
+    #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this, in person
+    #: sizes (pixels divided by sqrt of the area of the box of the person's keypoints in that
+    #: view, as OKS), so one value serves every resolution and distance: lower it to reject
+    #: more keypoints (fewer, cleaner inliers), raise it for a noisier detector. [person sizes]
+    ransac_threshold: float = setting(0.1, gt=0)
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
@@ -230,10 +233,12 @@ class Config:
     #: Run the refinement (reprojection + λ·pose prior). [bool]
     refine: bool = True
     #: λ, the weight of the pose prior's negative log-likelihood against the robust
-    #: reprojection error (summed squared pixels). [px² per nat]
-    prior_weight: float = setting(10.0, ge=0)
-    #: Scale of the robust (soft-L1) loss on reprojection residuals. [px]
-    robust_scale_px: float = setting(5.0, gt=0)
+    #: reprojection error, whose residuals are in person sizes (as ``ransac_threshold``):
+    #: raise it to trust the prior more than the keypoints. [person sizes² per nat]
+    prior_weight: float = setting(1.6e-4, ge=0)
+    #: Scale of the robust (soft-L1) loss on reprojection residuals: residuals beyond it count
+    #: linearly, not quadratically; lower it to discount large residuals more. [person sizes]
+    robust_scale: float = setting(0.02, gt=0)
     #: Levenberg-Marquardt steps of the refinement per person and outer iteration (one
     #: evaluation of the objective each). [1]
     refine_max_iterations: int = setting(30, ge=1, le=10_000)

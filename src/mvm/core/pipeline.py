@@ -24,6 +24,7 @@ import numpy as np
 from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
+from mvm.core.image_units import in_person_sizes
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
@@ -101,7 +102,7 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
     with np.errstate(all="ignore"):
-        return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
+        return obs, ransac_triangulate(obs, config.ransac_threshold, hypotheses, config.min_views,
                                        config.min_parallax_deg, config.seed, use_ransac=config.ransac,
                                        initial=initial)
 
@@ -207,18 +208,21 @@ def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulati
     triangulation. ``X: (P, J, 3)``; ``prior`` as :func:`mvm.core.prior.load_prior` resolves it.
     Returns the poses and ``fallback: (P,)`` bool."""
     try:
-        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, config, prior)
+        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, obs.size, config, prior)
     except _SOLVE_FAILURES as e:
         log.warning("refinement failed (%s); kept the triangulation of every person", e)
         return X, tri.inliers.any(axis=(1, 2))
 
 
-def _refine(X, xy, conf, P, inliers, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
+def _refine(X, xy, conf, P, inliers, size, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
     """:func:`refine_with_fallback` of the arrays of :class:`GroupObservations` and
-    :class:`Triangulation`, a solve that fails outright raised."""
+    :class:`Triangulation`, a solve that fails outright raised. The reprojection residuals are
+    in person sizes (``size: (P, M)`` px, :func:`mvm.core.image_units.in_person_sizes`), the
+    unit of ``robust_scale`` and ``prior_weight``."""
+    xy, P = in_person_sizes(xy, P, size)
     with np.errstate(all="ignore"):
         refined = refine_poses(X, xy, conf, P, inliers, load_prior(config, prior), config.prior_weight,
-                               config.robust_scale_px, config.refine_max_iterations)
+                               config.robust_scale, config.refine_max_iterations)
     broken = (np.isfinite(X).all(-1) & ~np.isfinite(refined.X).all(-1)).any(-1)     # a joint lost or inf
     fallback = refined.fallback | broken
     return np.where(fallback[:, None, None], X, refined.X), fallback
@@ -385,7 +389,7 @@ def _refine_together(parts: list[Triangulated], config: Config, prior) -> list[t
     width; one part alone gets :func:`refine_with_fallback`'s fallback for a failed solve)."""
     if len(parts) == 1:
         return [refine_with_fallback(parts[0].tri.X, parts[0].obs, parts[0].tri, config, prior)]
-    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers)
+    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers, p.obs.size)
                                                    for p in parts])]
     X, fallback = _refine(*arrays, config, prior)
     bounds = np.cumsum([len(p.groups) for p in parts])[:-1]

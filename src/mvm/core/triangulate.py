@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.geometry import dlt_terms, ray_spread_deg, solve_dlt, weighted_dlt
+from mvm.core.image_units import person_sizes
 from mvm.core.scene import Cameras, Poses2D
 
 
@@ -25,6 +26,8 @@ class GroupObservations:
         Rt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
         centers: ``(P, M, 3)`` camera centres (world).
         members: ``(P, M)`` pose index, -1 for padding.
+        size: ``(P, M)`` the person's image size in each slot's view, px
+            (:func:`mvm.core.image_units.person_sizes` of the keypoints used; 1 for padding).
         world_scale, world_offset: ``X_world = scale · X_normalized + offset``.
     """
 
@@ -37,6 +40,7 @@ class GroupObservations:
     members: np.ndarray
     world_scale: float
     world_offset: np.ndarray
+    size: np.ndarray
 
 
 def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
@@ -61,7 +65,7 @@ def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
     normalized = np.matmul(homogeneous, K_inv[views].transpose(0, 1, 3, 2))[..., :2]
     Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
     return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
-                             members, scale, offset)
+                             members, scale, offset, person_sizes(kp[..., :2], conf > 0))
 
 
 @dataclass
@@ -127,7 +131,8 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, 
 
 
 def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndarray, np.ndarray]:
-    """``X: (P, J, H, 3)`` world points -> reprojection errors ``(P, M, J, H)`` px and depths."""
+    """``X: (P, J, H, 3)`` world points -> reprojection errors ``(P, M, J, H)`` in person sizes
+    (pixels divided by the slot's ``obs.size``) and depths."""
     Pn, J, H, _ = X.shape
     M = obs.P.shape[1]
     homogeneous = np.concatenate([X, np.ones((Pn, J, H, 1))], axis=-1).reshape(Pn, J * H, 4)
@@ -136,10 +141,10 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
     with np.errstate(divide="ignore", invalid="ignore"):
         du = x[:, :, 0] / depth - obs.xy[..., 0, None]
         dv = x[:, :, 1] / depth - obs.xy[..., 1, None]
-    return np.sqrt(du * du + dv * dv), depth
+    return np.sqrt(du * du + dv * dv) / obs.size[:, :, None, None], depth
 
 
-def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: int,
+def ransac_triangulate(obs: GroupObservations, threshold: float, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
                        rng: np.random.Generator | int | None = None, use_ransac: bool = True,
                        initial: np.ndarray | None = None) -> Triangulation:
@@ -147,8 +152,9 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
 
     A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
     ``hypotheses`` random pairs (:func:`_sample_pairs`). Each hypothesis is scored by MSAC,
-    ``Σ min(e², thr²)`` over the available keypoints; the best one's inliers (``e < thr``, in
-    front of the camera) are re-triangulated with confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
+    ``Σ min(e², thr²)`` over the available keypoints, ``e`` the reprojection error in person
+    sizes (:mod:`mvm.core.image_units`) and ``thr = threshold``; the best one's inliers
+    (``e < thr``, in front of the camera) are re-triangulated with confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
     rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
 
@@ -165,7 +171,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
     if use_ransac:
-        inliers = _ransac_inliers(obs, valid, terms, threshold_px, hypotheses, rng, initial)
+        inliers = _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial)
     else:
         inliers = valid.copy()
 
@@ -177,7 +183,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
         if not use_ransac:
             break
         err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
-        refreshed = valid & (err[..., 0] < threshold_px) & (depth[..., 0] > 0)
+        refreshed = valid & (err[..., 0] < threshold) & (depth[..., 0] > 0)
         keep = refreshed.sum(axis=1) >= min_views
         inliers = np.where(keep[:, None, :], refreshed, inliers)
         weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)
@@ -201,7 +207,7 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
     return weights, weighted_dlt(terms, weights)
 
 
-def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold_px: float,
+def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold: float,
                     hypotheses: int, rng, initial: np.ndarray | None) -> np.ndarray:
     """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score).
     ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
@@ -215,9 +221,9 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
     ok = valid[..., None] & (depth > 0) & np.isfinite(err)
-    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,
-                                               threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
+    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold) ** 2,
+                                               threshold**2), 0.0).sum(axis=1)   # (P, J, H)
     cost[~np.isfinite(X_h).all(-1)] = np.inf
     best = np.argmin(cost, axis=-1)                                           # (P, J)
     p, m, j = np.ogrid[:ok.shape[0], :ok.shape[1], :ok.shape[2]]
-    return (ok & (err < threshold_px))[p, m, j, best[:, None]]
+    return (ok & (err < threshold))[p, m, j, best[:, None]]
