@@ -1,7 +1,7 @@
 """Thresholds in the data's units: the reconstruction's settings against fixed pixel values and
 the oracle, on real camera geometry and real poses with simulated detectors.
 
-    python benchmarks/thresholds.py [--seeds 2] [--crowd-seeds 2] [--cases dome18,dome31,crowd]
+    python benchmarks/thresholds.py [--seeds 2] [--crowd-seeds 2] [--cases dome18,dome31,crowd,levels]
         [--sequence PATH] [--set key=value ...]
 
 Cases:
@@ -13,10 +13,12 @@ Cases:
 - ``dome31``: the same dome, all 31 cameras, the default (realistic) detector.
 - ``crowd``: frozen crowds of 8-15 people filmed by one hand-held 1080p camera
   (:func:`mvm.eval.crowd.crowd_config`).
+- ``levels``: the 18-camera dome seen by each detector of :data:`mvm.sim.detector.DETECTOR_LEVELS`
+  (noise 0.5 % to 3 % of the person's size), the default beside the oracle.
 
-Rows: the default settings, hand-set values of the RANSAC threshold, and the oracle (the true
-grouping, RANSAC over every pair of views, no refinement). The rows follow the settings the
-installed version has: ``ransac_threshold`` (person sizes) or the older ``ransac_threshold_px``.
+Rows: the default settings (the RANSAC threshold follows each scene's noise), thresholds held
+at hand-set values (person sizes), and the oracle (the true grouping, RANSAC over every pair of
+views, no refinement, the default thresholds).
 Columns: recall (true persons found within 0.5 m), spurious persons (estimated persons matching
 no true one, per seed), MPJPE (mm, over the persons found).
 """
@@ -36,24 +38,22 @@ from mvm.eval.panoptic import load_sample, spread_cameras
 from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, person_errors
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.rigdir import subset_calibration, undistort
-from mvm.sim.detector import DetectorErrors, pose_scores
+from mvm.sim.detector import DETECTOR_LEVELS, DetectorErrors, detector_level, pose_scores
 from mvm.sim.rig import detect_views
 from mvm.sim.simulate import simulate
 
 SEQUENCE = Path(__file__).resolve().parents[2] / "shared" / "data" / "panoptic" / "160906_band1"
 #: The heavy detector of the 18-camera case; false poses are 40 % of the true ones (3 people).
-HEAVY = DetectorErrors(noise=0.03, dropout=0.15, swap_prob=0.05, outlier_joint_prob=0.04, false_pose_rate=0.4 * 3)
+HEAVY = detector_level("heavy", 3)
 #: Hypotheses enough for the oracle's RANSAC to try every pair of views (C(31, 2) = 465).
 EXHAUSTIVE = 1000
 
 
-def rows_for(config_fields) -> list[tuple[str, dict]]:
-    """The settings compared: the default and hand-set RANSAC thresholds, in the unit the
-    installed version has."""
-    if "ransac_threshold_px" in config_fields:
-        return [("default (15 px)", {}), ("ransac_threshold_px=50", {"ransac_threshold_px": 50.0})]
-    return [("default", {}), ("ransac_threshold=0.05", {"ransac_threshold": 0.05}),
-            ("ransac_threshold=0.2", {"ransac_threshold": 0.2})]
+#: The settings compared: the default, and hand-set RANSAC thresholds held for every scene.
+ROWS = [("default", {}),
+        ("held 0.05", {"ransac_threshold": 0.05, "ransac_threshold_sigmas": 0.0}),
+        ("held 0.1", {"ransac_threshold": 0.1, "ransac_threshold_sigmas": 0.0}),
+        ("held 0.2", {"ransac_threshold": 0.2, "ransac_threshold_sigmas": 0.0})]
 
 
 def rig_detections(sample, index, seed: int, errors: DetectorErrors):
@@ -151,15 +151,14 @@ def main() -> int:
     parser.add_argument("--set", dest="sets", action="append", default=[],
                         help="an extra row: name=key=value[,key=value]")
     args = parser.parse_args()
-    fields = Config.__dataclass_fields__
-    rows = rows_for(fields)
+    rows = list(ROWS)
     for spec in args.sets:
         name, _, body = spec.partition("=")
         rows.append((name, {k: float(v) for k, v in (kv.split("=") for kv in body.split(","))}))
     configs = [(name, Config().replace(**changes)) for name, changes in rows] + [("oracle", Config())]
     cases = args.cases.split(",")
     results = {}
-    if {"dome18", "dome31"} & set(cases):
+    if {"dome18", "dome31", "levels"} & set(cases):
         if not args.sequence.is_dir():
             print(f"Panoptic sample absent: {args.sequence}", file=sys.stderr)
             return 2
@@ -168,6 +167,10 @@ def main() -> int:
             results["18-camera dome, heavy detector errors"] = rig_case(sample, 18, HEAVY, args.seeds, configs)
         if "dome31" in cases:
             results["31-camera dome, realistic detector"] = rig_case(sample, 31, DetectorErrors(), args.seeds, configs)
+        if "levels" in cases:
+            for level in DETECTOR_LEVELS:
+                results[f"18-camera dome, {level} detector"] = rig_case(
+                    sample, 18, detector_level(level, 3), args.seeds, [configs[0], configs[-1]])
     if "crowd" in cases:
         results[f"frozen crowd, one hand-held 1080p camera ({args.crowd_seeds} scenes)"] = crowd_case(
             args.crowd_seeds, configs)
@@ -175,8 +178,8 @@ def main() -> int:
     print("| scene | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
     for case, r in results.items():
-        cells = [f"recall {r[n]['recall']:.3f}, {r[n]['mpjpe_mm']:.1f} mm, {r[n]['spurious']:g} spurious"
-                 for n in names]
+        cells = [f"recall {r[n]['recall']:.3f}, {r[n]['mpjpe_mm']:.1f} mm, {r[n]['spurious']:.2g} spurious"
+                 if n in r else "" for n in names]
         print(f"| {case} | " + " | ".join(cells) + " |")
     return 0
 

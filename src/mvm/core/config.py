@@ -188,8 +188,16 @@ class Config:
     #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this, in person
     #: sizes (pixels divided by sqrt of the area of the box of the person's keypoints in that
     #: view, as OKS), so one value serves every resolution and distance: lower it to reject
-    #: more keypoints (fewer, cleaner inliers), raise it for a noisier detector. [person sizes]
+    #: more keypoints (fewer, cleaner inliers), raise it for a noisier detector. With
+    #: ``ransac_threshold_sigmas`` it starts the first triangulation and bounds the scene's own
+    #: threshold to half to twice it. [person sizes]
     ransac_threshold: float = setting(0.1, gt=0)
+    #: The RANSAC threshold of each scene (each instant of a rig) is this many standard
+    #: deviations of its detector noise, measured from the inliers of a first triangulation (their
+    #: median reprojection error over 1.18, the median of a 2D Gaussian error of deviation 1):
+    #: raise it to keep more keypoints, lower it to reject more; 0 holds ``ransac_threshold``.
+    #: [standard deviations]
+    ransac_threshold_sigmas: float = setting(3.5, ge=0)
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)

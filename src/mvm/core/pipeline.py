@@ -31,7 +31,7 @@ from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.scene import Cameras, Poses2D
-from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate
+from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
 
 log = logging.getLogger(__name__)
 
@@ -94,17 +94,39 @@ def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
-                       config: Config, initial: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+                       config: Config, initial: np.ndarray | None = None,
+                       threshold: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
     """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
-    ``association_hypotheses`` of the random hypotheses."""
+    ``association_hypotheses`` of the random hypotheses. ``threshold: (N,)`` the RANSAC
+    threshold of each pose's block (:func:`block_thresholds`; None: ``ransac_threshold``)."""
     obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
+    if threshold is not None:
+        threshold = threshold[np.array([g[0] for g in groups], dtype=np.int64)]
     with np.errstate(all="ignore"):
-        return obs, ransac_triangulate(obs, config.ransac_threshold, hypotheses, config.min_views,
-                                       config.min_parallax_deg, config.seed, use_ransac=config.ransac,
-                                       initial=initial)
+        return obs, ransac_triangulate(obs, config.ransac_threshold if threshold is None else threshold,
+                                       hypotheses, config.min_views, config.min_parallax_deg, config.seed,
+                                       use_ransac=config.ransac, initial=initial)
+
+
+def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObservations, tri: Triangulation,
+                     config: Config) -> np.ndarray | None:
+    """``(N,)`` the RANSAC threshold of each pose's block, ``ransac_threshold_sigmas`` times the
+    noise :func:`mvm.core.triangulate.residual_sigma` measures in the block's triangulation
+    ``obs, tri`` of ``groups``, within half to twice ``ransac_threshold`` (which a block without
+    a measure keeps). None where the threshold is held (no RANSAC, or sigmas 0)."""
+    if not config.ransac or config.ransac_threshold_sigmas <= 0:
+        return None
+    base = config.ransac_threshold
+    pose_block = np.zeros(len(poses), dtype=np.int64) if poses.instant is None else \
+        np.unique(poses.instant, return_inverse=True)[1].reshape(-1)
+    blocks = int(pose_block.max(initial=-1)) + 1
+    group_block = pose_block[np.array([g[0] for g in groups], dtype=np.int64)] if groups else np.zeros(0, np.int64)
+    sigma = residual_sigma(obs, tri, group_block, blocks)
+    threshold = np.where(np.isfinite(sigma), np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base), base)
+    return threshold[pose_block]
 
 
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
@@ -299,14 +321,16 @@ class Reconstruction:
 
 
 def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], triangulated,
-                    config: Config) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+                    config: Config, threshold: np.ndarray | None = None
+                    ) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
     """:func:`mvm.core.association.associate` with the settings of ``config``: every 2D pose to
     the triangulated person that explains it, within its block; the order of the frames is a
-    cue for a scene (``video_order``), never for the cameras of a rig."""
+    cue for a scene (``video_order``), never for the cameras of a rig. ``threshold``: as
+    :func:`triangulate_groups` takes it."""
     sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
     return associate(
         poses.keypoints, poses.view, cameras.P, cameras.size, groups,
-        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial),
+        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial, threshold),
         lambda X, g: merge_groups(X, g, poses, config),
         lambda rest: match(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
@@ -327,7 +351,7 @@ def reconstruct_poses(cameras: Cameras, poses: Poses2D, config: Config, prior=No
 def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
                       groups: list[np.ndarray] | None = None) -> Triangulated:
     """The pipeline up to the refinement: groups (``groups``, else :func:`match`),
-    triangulation, merging of duplicates, the association consistent in 3D (``association =
+    triangulation (again at each block's own RANSAC threshold, :func:`block_thresholds`), merging of duplicates, the association consistent in 3D (``association =
     "3d"``, not for given groups)."""
     timings = {}
     t = time.perf_counter()
@@ -337,16 +361,19 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config)
+    threshold = block_thresholds(poses, groups, obs, tri, config) if groups else None
+    if threshold is not None:
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
     associate_3d = config.association == "3d" and not given              # merges duplicates itself
     merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
     if merged is not None:
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
-        obs, tri = triangulate_groups(cameras, poses, groups, config)
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
     timings["triangulation_s"] = time.perf_counter() - t
     if associate_3d:
         t = time.perf_counter()
-        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config)
+        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config, threshold)
         timings["association_s"] = time.perf_counter() - t
     return Triangulated(groups, obs, tri, timings)
 
