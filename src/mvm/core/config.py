@@ -230,8 +230,9 @@ class Config:
     association_min_support: float = setting(0.2, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
-    #: arcs) is refused unless it explains half the views it projects into: false positives
-    #: that agree in a few close views triangulate to no body. [fraction]
+    #: arcs), or with too few bones to tell (fewer than 4), is refused unless it explains half
+    #: the views it projects into: false positives that agree in a few close views
+    #: triangulate to no body. [fraction]
     association_max_proportion_deviation: float = setting(0.4, gt=0)
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = setting(2, ge=2)

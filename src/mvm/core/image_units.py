@@ -1,13 +1,16 @@
-"""The unit of image distances in the reconstruction: the person's image size.
+"""The unit of image distances in the reconstruction: the size of the people in the image.
 
 A detector's keypoint error grows with the person's size in the image (the camera's resolution,
-its distance to the person, the detector), so the reconstruction measures every image distance
-it thresholds or weighs in person sizes: pixels divided by ``s = sqrt(w h)``, the area of the
-box of the person's keypoints in that view, as OKS and the association
-(:mod:`mvm.core.association`) do. The same scene with its image coordinates and intrinsics
-scaled by any factor then gives the same persons and the same 3D poses.
+its distance to the people, the detector), so the reconstruction measures every image distance
+it thresholds or weighs in person sizes: pixels divided by the median, over the people detected
+in that view, of ``s = sqrt(w h)`` of the box of their keypoints (the scale of OKS, and of the
+association, :mod:`mvm.core.association`). The median over a view's people rather than each
+person's own box: a box shrinks with the joints a detection misses (occlusion, the frame's
+border) and grows with an outlier joint, while the detector's error does neither; and within a
+view, people at similar distances share one threshold in pixels. The same scene with its image
+coordinates and intrinsics scaled by any factor then gives the same persons and 3D poses.
 
-Arrays: ``P`` persons, ``M`` view slots, ``J`` joints.
+Arrays: ``N`` 2D poses, ``P`` persons, ``M`` view slots, ``J`` joints.
 """
 from __future__ import annotations
 
@@ -30,6 +33,38 @@ def person_sizes(xy: np.ndarray, present: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         side = np.where(present.any(-1)[..., None], hi - lo, 0.0)
     return np.sqrt(np.prod(np.maximum(side, MIN_SIZE_PX), axis=-1))
+
+
+def view_sizes(poses, keypoint_threshold: float) -> np.ndarray:
+    """``(N,)`` the unit of each 2D pose's view, px: the median :func:`person_sizes` of the
+    poses detected in the same view (and instant, for a rig), over their keypoints of confidence
+    ``keypoint_threshold`` or more. ``poses``: a :class:`mvm.core.scene.Poses2D`."""
+    keypoints = poses.keypoints
+    sizes = person_sizes(keypoints[..., :2], keypoints[..., 2] >= keypoint_threshold)
+    view = np.asarray(poses.view, dtype=np.int64)
+    if poses.instant is not None:
+        view = view + (int(view.max(initial=0)) + 1) * np.unique(poses.instant, return_inverse=True)[1].reshape(-1)
+    key, label = np.unique(view, return_inverse=True)
+    return medians_by(sizes, label.reshape(-1), len(key))[label.reshape(-1)]
+
+
+def medians_by(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """The median of ``values: (K,)`` with each label of ``labels: (K,)`` in ``[0, count)``,
+    one sort for all -> ``(count,)``, NaN for a label without values.
+
+    >>> medians_by(np.array([3.0, 1.0, 2.0, 10.0, 4.0]), np.array([0, 0, 0, 2, 2]), 3).tolist()
+    [2.0, nan, 7.0]
+    """
+    counts = np.bincount(labels, minlength=count)
+    if not len(values):
+        return np.full(count, np.nan)
+    order = np.lexsort((values, labels))
+    ordered = values[order]
+    start = np.cumsum(counts) - counts
+    last = len(values) - 1
+    lo = ordered[np.minimum(start + (counts - 1) // 2, last)]
+    hi = ordered[np.minimum(start + counts // 2, last)]
+    return np.where(counts > 0, (lo + hi) / 2, np.nan)
 
 
 def in_person_sizes(xy: np.ndarray, P: np.ndarray, size: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

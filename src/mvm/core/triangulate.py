@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.geometry import dlt_terms, ray_spread_deg, solve_dlt, weighted_dlt
-from mvm.core.image_units import person_sizes
+from mvm.core.image_units import medians_by, view_sizes
 from mvm.core.scene import Cameras, Poses2D
 
 
@@ -26,8 +26,8 @@ class GroupObservations:
         Rt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
         centers: ``(P, M, 3)`` camera centres (world).
         members: ``(P, M)`` pose index, -1 for padding.
-        size: ``(P, M)`` the person's image size in each slot's view, px
-            (:func:`mvm.core.image_units.person_sizes` of the keypoints used; 1 for padding).
+        size: ``(P, M)`` the unit of image distances in each slot's view, px: the median size
+            of the people detected in it (:func:`mvm.core.image_units.view_sizes`; 1 for padding).
         world_scale, world_offset: ``X_world = scale · X_normalized + offset``.
     """
 
@@ -64,8 +64,9 @@ def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
     homogeneous = np.concatenate([kp[..., :2], np.ones(kp.shape[:-1] + (1,))], axis=-1)
     normalized = np.matmul(homogeneous, K_inv[views].transpose(0, 1, 3, 2))[..., :2]
     Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
+    size = np.where(pad, 1.0, view_sizes(poses, keypoint_threshold)[idx])
     return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
-                             members, scale, offset, person_sizes(kp[..., :2], conf > 0))
+                             members, scale, offset, size)
 
 
 @dataclass
@@ -202,6 +203,7 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     return Triangulation(X, inliers, valid, parallax, threshold)
 
 
+
 def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tuple[np.ndarray, np.ndarray]:
     """``(weights, X)``: the weighted DLT of ``weights: (P, J, M)``, or ``previous`` (the same
     pair from the last refit) when the weights have not changed, as the inliers usually do not
@@ -234,6 +236,10 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
     return (ok & (err < threshold))[p, m, j, best[:, None]]
 
 
+#: The median of the length of a two-dimensional standard normal error: ``sqrt(2 ln 2)``.
+RAYLEIGH_MEDIAN = float(np.sqrt(2 * np.log(2)))
+
+
 def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray, blocks: int) -> np.ndarray:
     """The detector's noise in each block (scene, or rig instant) of groups, measured from the
     triangulation: the per-axis standard deviation ``σ`` of the keypoints' errors, in person
@@ -250,21 +256,12 @@ def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray
     X = tri.X                                                                 # (P, J, 3)
     if not len(X):
         return np.full(blocks, np.nan)
-    err, _ = _reprojection_errors(np.nan_to_num(X)[:, :, None], obs)         # (P, M, J, 1)
+    err, _ = _reprojection_errors(np.nan_to_num(X)[:, :, None], obs)   # (P, M, J, 1)
     n = tri.inliers.sum(axis=1)                                               # (P, J)
     used = tri.inliers & (n >= 3)[:, None, :] & np.isfinite(X).all(-1)[:, None, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         scaled = err[..., 0] * np.sqrt(2 * n / (2 * n - 3))[:, None, :]
-    p = np.nonzero(used)[0]
-    values, labels = scaled[used], block[p]
-    counts = np.bincount(labels, minlength=blocks)
-    if not len(values):
-        return np.full(blocks, np.nan)
-    order = np.lexsort((values, labels))
-    values = values[order]
-    start = np.cumsum(counts) - counts
-    last = len(values) - 1
-    m = (values[np.minimum(start + (counts - 1) // 2, last)] + values[np.minimum(start + counts // 2, last)]) / 2
+    m = medians_by(scaled[used], block[np.nonzero(used)[0]], blocks)
     cut = np.full(blocks, np.inf)
     np.minimum.at(cut, block, tri.threshold)                                  # the block's threshold
     lo, hi = np.log(np.maximum(m, 1e-12) / RAYLEIGH_MEDIAN), np.log(np.maximum(m, 1e-12)) + 10.0
@@ -274,9 +271,5 @@ def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray
         below = 2 * -np.expm1(-m * m / sigma2) > -np.expm1(-cut * cut / sigma2)   # σ too small
         lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
     sigma = np.exp((lo + hi) / 2)
-    sigma = np.where(2 * m * m >= cut * cut, np.inf, sigma)                    # no Gaussian fits
-    return np.where(counts > 0, sigma, np.nan)
+    return np.where(2 * m * m >= cut * cut, np.inf, sigma)                     # no Gaussian fits (NaN: no m)
 
-
-#: The median of the length of a two-dimensional standard normal error: ``sqrt(2 ln 2)``.
-RAYLEIGH_MEDIAN = float(np.sqrt(2 * np.log(2)))
