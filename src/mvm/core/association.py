@@ -320,10 +320,9 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        X, stale = result[1].X, False                    # ``result`` triangulates ``groups``
-        seen_most = result[1].inliers.sum(1).max(-1, initial=0)
+        X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
         if merge is not None and len(groups) > 1:
-            groups, X, seen_most, stale = _merge_persons(merge, X, seen_most, groups, N)
+            groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
             break
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
@@ -333,8 +332,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         new = _groups_of(assignment, len(groups))
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
-        keep = _credible(new, X, seen_most, P, image_size, usable, min_group_size, min_support,
-                         max_proportion_deviation)
+        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)

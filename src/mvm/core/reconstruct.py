@@ -231,7 +231,8 @@ def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
     metrics = {k: (v if not isinstance(v, float) or np.isfinite(v) else float("nan")) for k, v in metrics.items()}
     fallbacks = int(rec.fallback.sum())
     metrics["refine_fallbacks"] = fallbacks
-    metrics.update(effective_thresholds(config, rec.tri.threshold[keep], rec.obs.size[keep], rec.obs.members[keep] >= 0))
+    metrics.update(effective_thresholds(config, rec.tri.threshold[keep], rec.obs.size[keep],
+                                        rec.obs.members[keep] >= 0))
     timings = dict(rec.timings, total_s=sum(rec.timings.values()))
     warnings_ = _scene_warnings(scene, config) + _triangulation_warnings(rec.tri, config)
     if fallbacks:
