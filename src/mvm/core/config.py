@@ -186,11 +186,12 @@ class Config:
     min_person_joints: int = setting(5, ge=1, le=17)
     # --- triangulation -------------------------------------------------------------------
     #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this, in person
-    #: sizes (pixels divided by sqrt of the area of the box of the person's keypoints in that
-    #: view, as OKS), so one value serves every resolution and distance: lower it to reject
-    #: more keypoints (fewer, cleaner inliers), raise it for a noisier detector. With
-    #: ``ransac_threshold_sigmas`` it starts the first triangulation and bounds the scene's own
-    #: threshold to half to twice it. [person sizes]
+    #: sizes (pixels divided by the median over the people detected in that view of the square
+    #: root of their keypoints' box area, as OKS; :mod:`mvm.core.image_units`), so one value
+    #: serves every resolution and distance: lower it to reject more keypoints (fewer, cleaner
+    #: inliers), raise it for a noisier detector. With ``ransac_threshold_sigmas`` it starts
+    #: the first triangulation and bounds the scene's own threshold to half to twice it.
+    #: [person sizes]
     ransac_threshold: float = setting(0.1, gt=0)
     #: The RANSAC threshold of each scene (each instant of a rig) is this many standard
     #: deviations of its detector noise, measured from the inliers of a first triangulation (their
@@ -230,9 +231,9 @@ class Config:
     association_min_support: float = setting(0.2, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
-    #: arcs), or with too few bones to tell (fewer than 4), is refused unless it explains half
-    #: the views it projects into: false positives that agree in a few close views
-    #: triangulate to no body. [fraction]
+    #: arcs) is refused unless it explains half the views it projects into: false positives
+    #: that agree in a few close views triangulate to no body (or to joints no three of its
+    #: views agree on, refused alike). [fraction]
     association_max_proportion_deviation: float = setting(0.4, gt=0)
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = setting(2, ge=2)

@@ -31,7 +31,8 @@ from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.scene import Cameras, Poses2D
-from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
+from mvm.core.triangulate import (GroupObservations, Triangulation, gather_groups, ransac_triangulate,
+                                  residual_sigma)
 
 log = logging.getLogger(__name__)
 
@@ -115,18 +116,18 @@ def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObserva
                      config: Config) -> np.ndarray | None:
     """``(N,)`` the RANSAC threshold of each pose's block, ``ransac_threshold_sigmas`` times the
     noise :func:`mvm.core.triangulate.residual_sigma` measures in the block's triangulation
-    ``obs, tri`` of ``groups``, within half to twice ``ransac_threshold`` (which a block without
-    a measure keeps). None where the threshold is held (no RANSAC, or sigmas 0)."""
+    ``obs, tri`` of ``groups`` (at least one), within half to twice ``ransac_threshold`` (which
+    a block without a measure keeps). None where the threshold is held (no RANSAC, or sigmas 0)."""
     if not config.ransac or config.ransac_threshold_sigmas <= 0:
         return None
     base = config.ransac_threshold
     pose_block = np.zeros(len(poses), dtype=np.int64) if poses.instant is None else \
         np.unique(poses.instant, return_inverse=True)[1].reshape(-1)
     blocks = int(pose_block.max(initial=-1)) + 1
-    group_block = pose_block[np.array([g[0] for g in groups], dtype=np.int64)] if groups else np.zeros(0, np.int64)
+    group_block = pose_block[np.array([g[0] for g in groups], dtype=np.int64)]
     sigma = residual_sigma(obs, tri, group_block, blocks)
-    threshold = np.where(np.isfinite(sigma), np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base), base)
-    return threshold[pose_block]
+    scaled = np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base)
+    return np.where(np.isfinite(sigma), scaled, base)[pose_block]
 
 
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
@@ -351,8 +352,9 @@ def reconstruct_poses(cameras: Cameras, poses: Poses2D, config: Config, prior=No
 def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
                       groups: list[np.ndarray] | None = None) -> Triangulated:
     """The pipeline up to the refinement: groups (``groups``, else :func:`match`),
-    triangulation (again at each block's own RANSAC threshold, :func:`block_thresholds`), merging of duplicates, the association consistent in 3D (``association =
-    "3d"``, not for given groups)."""
+    triangulation (again at each block's own RANSAC threshold, :func:`block_thresholds`),
+    merging of duplicates, the association consistent in 3D (``association = "3d"``, not for
+    given groups)."""
     timings = {}
     t = time.perf_counter()
     given = groups is not None
@@ -416,8 +418,8 @@ def _refine_together(parts: list[Triangulated], config: Config, prior) -> list[t
     width; one part alone gets :func:`refine_with_fallback`'s fallback for a failed solve)."""
     if len(parts) == 1:
         return [refine_with_fallback(parts[0].tri.X, parts[0].obs, parts[0].tri, config, prior)]
-    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers, p.obs.size)
-                                                   for p in parts])]
+    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers,
+                                                    p.obs.size) for p in parts])]
     X, fallback = _refine(*arrays, config, prior)
     bounds = np.cumsum([len(p.groups) for p in parts])[:-1]
     return list(zip(np.split(X, bounds), np.split(fallback, bounds)))
