@@ -192,7 +192,7 @@ class Config:
     #: inliers), raise it for a noisier detector. With ``ransac_threshold_sigmas`` it starts
     #: the first triangulation and bounds the scene's own threshold to half to twice it.
     #: [person sizes]
-    ransac_threshold: float = setting(0.1, gt=0)
+    ransac_threshold: float = setting(0.12, gt=0)
     #: The RANSAC threshold of each scene (each instant of a rig) is this many standard
     #: deviations of its detector noise, measured from the inliers of a first triangulation (their
     #: median reprojection error over 1.18, the median of a 2D Gaussian error of deviation 1):
