@@ -32,12 +32,20 @@ from rig_speed import write_capture
 
 from mvm.core import refine
 from mvm.core.config import Config
+from mvm.core.image_units import in_person_sizes
 from mvm.core.prior import shipped_prior
 from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
 from mvm.rig.reconstruct_rig import instants_config
 from mvm.rig.rigdir import read_rig
-from mvm.rig.skeleton import OUTER_ITERATIONS, TOLERANCE, observations, refine_tracks, track_bone_lengths
+from mvm.rig.skeleton import (
+    OUTER_ITERATIONS,
+    TOLERANCE,
+    detection_sizes,
+    observations,
+    refine_tracks,
+    track_bone_lengths,
+)
 from mvm.rig.tracking import track_persons
 
 
@@ -78,8 +86,9 @@ def main() -> None:
         cpu, wall, _ = best_of(args.repeats, lambda: refine_tracks(persons, track, detections, cameras, config,
                                                                    prior, options.bone_weight))
         xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
+        xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold))
         solved.append(0)                                         # refine_tracks' own solve, counted once
-        whole = refine.refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale_px,
+        whole = refine.refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale,
                                     config.refine_max_iterations, bone_lengths=track_bone_lengths(persons.X, track),
                                     bone_weight=options.bone_weight, outer_iterations=OUTER_ITERATIONS,
                                     tolerance=TOLERANCE)
@@ -90,7 +99,7 @@ def main() -> None:
         calls = [(persons.X[s], xy[s], conf[s], P[s], used[s]) for s in scenes if len(s)]
 
         def per_scene():
-            return [refine.refine_poses(*c, prior, config.prior_weight, config.robust_scale_px,
+            return [refine.refine_poses(*c, prior, config.prior_weight, config.robust_scale,
                                         config.refine_max_iterations) for c in calls]
 
         per_scene()

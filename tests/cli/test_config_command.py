@@ -35,8 +35,7 @@ def test_every_table_and_key_is_printed_with_its_default(reference):
     assert "\n# complete =    (unset)\n" in text
     assert "[detect.rtm]" in text and "[simulate.detector]" in text
     # the comment of a setting: its sentence, then its unit and allowed values
-    assert "# A 2D keypoint is a RANSAC inlier when its reprojection error is below this.\n" \
-           "# unit: px; allowed: float (> 0)\nransac_threshold_px = 15.0\n" in text
+    assert "\n# unit: person sizes; allowed: float (> 0)\nransac_threshold = 0.12\n" in text
     assert '# allowed: one of "auto", "paper", "3d"\nassociation = "auto"' in text
 
 

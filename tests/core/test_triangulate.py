@@ -31,11 +31,11 @@ def test_ransac_ignores_planted_outliers():
     people = np.stack([STANDING, STANDING + [1.0, 0.2, 0.0]])
     poses, groups, outliers = _observe(cams, people, rng, outlier_frac=0.3)
     obs = gather_groups(cams, poses, groups, 0.1)
-    tri = ransac_triangulate(obs, 10.0, 64, 2, 1.0, rng)
+    tri = ransac_triangulate(obs, 0.06, 64, 2, 1.0, rng)
     assert np.abs(tri.X - people).max() < 1e-6
     # The inliers are exactly the keypoints that were not corrupted.
     assert np.array_equal(tri.inliers, ~outliers.transpose(1, 0, 2))
-    plain = ransac_triangulate(obs, 10.0, 64, 2, 1.0, rng, use_ransac=False)
+    plain = ransac_triangulate(obs, 0.06, 64, 2, 1.0, rng, use_ransac=False)
     assert np.abs(plain.X - people).max() > 0.01
 
 
@@ -49,10 +49,10 @@ def test_small_parallax_is_left_unreconstructed():
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
     truth = np.degrees(np.arccos(np.clip(np.einsum("ajc,bjc->jab", rays, rays), -1, 1))).max(axis=(1, 2))
     assert truth.max() < 5.0
-    narrow = ransac_triangulate(obs, 10.0, 32, 2, truth.max() + 0.5, rng)
+    narrow = ransac_triangulate(obs, 0.06, 32, 2, truth.max() + 0.5, rng)
     assert np.isnan(narrow.X).all()
     assert np.allclose(narrow.parallax_deg[0], truth, atol=0.1)
-    wide = ransac_triangulate(obs, 10.0, 32, 2, truth.min() - 0.5, rng)
+    wide = ransac_triangulate(obs, 0.06, 32, 2, truth.min() - 0.5, rng)
     assert np.isfinite(wide.X).all()
 
 
@@ -67,7 +67,7 @@ def test_refinement_lowers_error_and_stays_near_triangulation(noise):
     people = np.stack([STANDING, STANDING + [0.9, -0.3, 0.0]])
     poses, groups, _ = _observe(cams, people, rng, noise=noise)
     obs = gather_groups(cams, poses, groups, 0.1)
-    tri = ransac_triangulate(obs, 15.0, 48, 2, 1.0, rng)
+    tri = ransac_triangulate(obs, 0.09, 48, 2, 1.0, rng)
     refined = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, PosePrior.load(), 10.0, 5.0)
     plain = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, None, 0.0, 5.0)
     before = reprojection_errors(tri.X, obs.xy, obs.P)[tri.inliers]
@@ -85,6 +85,7 @@ def test_prior_pulls_a_narrow_baseline_pose_toward_the_truth():
     """With three views over 8°, depth is poorly constrained: at the default weight the prior
     makes the pose more plausible and closer to the truth; without it nothing improves much."""
     from mvm.core.config import Config
+    from mvm.core.image_units import in_person_sizes
     from mvm.core.prior import PosePrior, canonicalize
     from mvm.core.refine import refine_poses
 
@@ -92,16 +93,16 @@ def test_prior_pulls_a_narrow_baseline_pose_toward_the_truth():
     cams = random_cameras(rng, 3, arc_deg=8)
     poses, groups, _ = _observe(cams, STANDING[None], rng, noise=2.0)
     obs = gather_groups(cams, poses, groups, 0.1)
-    tri = ransac_triangulate(obs, 15.0, 16, 2, 0.5, rng)
+    tri = ransac_triangulate(obs, 0.09, 16, 2, 0.5, rng)
     prior = PosePrior.load()
     config = Config()
 
     def error(X):
         return np.linalg.norm(STANDING - X[0], axis=-1).mean()
 
-    with_prior = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, prior,
-                              config.prior_weight, config.robust_scale_px)
-    without = refine_poses(tri.X, obs.xy, obs.conf, obs.P, tri.inliers, None, 0.0, config.robust_scale_px)
+    xy, P = in_person_sizes(obs.xy, obs.P, obs.size)                         # the unit of the settings
+    with_prior = refine_poses(tri.X, xy, obs.conf, P, tri.inliers, prior, config.prior_weight, config.robust_scale)
+    without = refine_poses(tri.X, xy, obs.conf, P, tri.inliers, None, 0.0, config.robust_scale)
     assert prior.nll(canonicalize(with_prior.X))[0] < prior.nll(canonicalize(tri.X))[0] - 10
     assert error(with_prior.X) < 0.85 * error(tri.X)
     assert error(with_prior.X) < 0.85 * error(without.X)
@@ -126,7 +127,7 @@ def test_few_views_enumerate_every_pair_of_views():
     kp = poses.keypoints.copy()
     kp[:3, :, :2] += rng.uniform(80, 200, (3, 17, 2))
     obs = gather_groups(cams, Poses2D(kp, poses.view, poses.ids, poses.score), groups, 0.1)
-    tri = ransac_triangulate(obs, 5.0, 10, 2, 1.0, rng)
+    tri = ransac_triangulate(obs, 0.03, 10, 2, 1.0, rng)
     assert np.abs(tri.X - STANDING).max() < 1e-6
     assert np.array_equal(tri.inliers[0], np.arange(5)[:, None].repeat(17, 1) >= 3)
 

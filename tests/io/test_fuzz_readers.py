@@ -134,7 +134,7 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
                         np.zeros((2, 17), int), np.array([1.5, np.nan]))
     seeds["poses3d"] = {"poses3d.json": json.dumps(poses3d_document(persons, poses, {"persons": 2})).encode()}
     seeds["config"] = {"config.toml": b"[reconstruct]\ntau = 0.25\nrefine = false\nmin_views = 3\n"
-                                      b"ransac_threshold_px = 12.5\nseed = 4\n"}
+                                      b"ransac_threshold = 0.08\nseed = 4\n"}
     # a reconstructed scene: what `mvm report` and the batch statistics read
     seeds["report"] = {**seeds["scene"], "mvm/poses3d.json": seeds["poses3d"]["poses3d.json"]}
     seeds["batch"] = dict(seeds["report"])

@@ -84,6 +84,6 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
-            "check its calibration, or raise ransac_threshold_px (--set ransac_threshold_px=...)")
+            "check its calibration, or raise ransac_threshold (--set ransac_threshold=...)")
     say(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
         f"{result.outputs['recap']}")

@@ -50,8 +50,8 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
 
 @command("simulate")
 @click.argument("scene_dir", type=click.Path(file_okay=False))
-@click.option("--preset", type=click.Choice(["clean", "realistic", "hard"]), default="realistic", show_default=True,
-              help="Detector error model.")
+@click.option("--preset", type=click.Choice(["clean", "precise", "realistic", "hard", "heavy"]), default="realistic",
+              show_default=True, help="Detector error model (noise from 0.5 % of the person's size to 3 %).")
 @scene_options
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")

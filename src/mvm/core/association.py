@@ -320,9 +320,9 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        X, stale = result[1].X, False                    # ``result`` triangulates ``groups``
+        X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
         if merge is not None and len(groups) > 1:
-            groups, X, stale = _merge_persons(merge, X, groups, N)
+            groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
             break
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
@@ -332,7 +332,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         new = _groups_of(assignment, len(groups))
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
-        keep = _credible(new, X, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
+        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
@@ -345,18 +345,19 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     return groups, result
 
 
-def _merge_persons(merge: Callable, X: np.ndarray, groups: list[np.ndarray], N: int):
-    """``merge`` the persons whose 3D poses coincide: ``(groups, X, stale)``. Each merged person
-    keeps the 3D pose of the group it has most poses from until it is re-triangulated
-    (``stale``: ``X`` no longer triangulates ``groups``)."""
+def _merge_persons(merge: Callable, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
+    """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen_most, stale)``. Each
+    merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`_credible`) of the
+    group it has most poses from until it is re-triangulated (``stale``: ``X`` no longer
+    triangulates ``groups``)."""
     merged = merge(X, groups)
     if merged is None:
-        return groups, X, False
+        return groups, X, seen_most, False
     owner = np.full(N, -1)
     for q, g in enumerate(groups):
         owner[g] = q
     survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
-    return [np.sort(np.asarray(g)) for g in merged], X[survivor], True
+    return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen_most[survivor], True
 
 
 def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, keypoint_threshold,
@@ -380,12 +381,14 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     return pose, person, cost
 
 
-def _credible(groups: list[np.ndarray], X: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
               max_proportion_deviation: float) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
-    triangulate to no body, unless they explain most of their views, as no false cluster does)."""
+    triangulate to no body, unless they explain most of their views, as no false cluster does;
+    nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
+    most inlier views of any of its joints: two views agree on a point whatever they saw)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
@@ -393,6 +396,7 @@ def _credible(groups: list[np.ndarray], X: np.ndarray, P: np.ndarray, image_size
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
     keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~((seen_most < min(3, min_group_size)) & (2 * count < visible))
     return keep
 
 

@@ -225,8 +225,20 @@ class Config:
     #: Persons with fewer reconstructed joints than this are discarded. [joints]
     min_person_joints: int = setting(5, ge=1, le=17)
     # --- triangulation -------------------------------------------------------------------
-    #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this. [px]
-    ransac_threshold_px: float = setting(15.0, gt=0)
+    #: A 2D keypoint is a RANSAC inlier when its reprojection error is below this, in person
+    #: sizes (pixels divided by the median over the people detected in that view of the square
+    #: root of their keypoints' box area, as OKS; :mod:`mvm.core.image_units`), so one value
+    #: serves every resolution and distance: lower it to reject more keypoints (fewer, cleaner
+    #: inliers), raise it for a noisier detector. With ``ransac_threshold_sigmas`` it starts
+    #: the first triangulation and bounds the scene's own threshold to half to twice it.
+    #: [person sizes]
+    ransac_threshold: float = setting(0.12, gt=0)
+    #: The RANSAC threshold of each scene (each instant of a rig) is this many standard
+    #: deviations of its detector noise, measured from the inliers of a first triangulation (their
+    #: median reprojection error over 1.18, the median of a 2D Gaussian error of deviation 1):
+    #: raise it to keep more keypoints, lower it to reject more; 0 holds ``ransac_threshold``.
+    #: [standard deviations]
+    ransac_threshold_sigmas: float = setting(3.5, ge=0)
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
@@ -263,7 +275,8 @@ class Config:
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
     #: arcs) is refused unless it explains half the views it projects into: false positives
-    #: that agree in a few close views triangulate to no body. [fraction]
+    #: that agree in a few close views triangulate to no body (or to joints no three of its
+    #: views agree on, refused alike). [fraction]
     association_max_proportion_deviation: float = setting(0.4, gt=0)
     #: Minimum number of inlier views to reconstruct a joint. [views]
     min_views: int = setting(2, ge=2)
@@ -273,10 +286,12 @@ class Config:
     #: Run the refinement (reprojection + λ·pose prior). [bool]
     refine: bool = True
     #: λ, the weight of the pose prior's negative log-likelihood against the robust
-    #: reprojection error (summed squared pixels). [px² per nat]
-    prior_weight: float = setting(10.0, ge=0)
-    #: Scale of the robust (soft-L1) loss on reprojection residuals. [px]
-    robust_scale_px: float = setting(5.0, gt=0)
+    #: reprojection error, whose residuals are in person sizes (as ``ransac_threshold``):
+    #: raise it to trust the prior more than the keypoints. [person sizes² per nat]
+    prior_weight: float = setting(1.6e-4, ge=0)
+    #: Scale of the robust (soft-L1) loss on reprojection residuals: residuals beyond it count
+    #: linearly, not quadratically; lower it to discount large residuals more. [person sizes]
+    robust_scale: float = setting(0.02, gt=0)
     #: Levenberg-Marquardt steps of the refinement per person and outer iteration (one
     #: evaluation of the objective each). [1]
     refine_max_iterations: int = setting(30, ge=1, le=10_000)

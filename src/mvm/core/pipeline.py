@@ -24,13 +24,14 @@ import numpy as np
 from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
+from mvm.core.image_units import in_person_sizes
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.scene import Cameras, Poses2D
-from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate
+from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
 from mvm.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -124,20 +125,42 @@ def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
-                       config: Config, initial: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+                       config: Config, initial: np.ndarray | None = None,
+                       threshold: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
     """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
-    ``association_hypotheses`` of the random hypotheses. Memory: :func:`triangulation_bytes`,
-    refused beyond ``max_affinity_bytes`` before it is taken."""
+    ``association_hypotheses`` of the random hypotheses. ``threshold: (N,)`` the RANSAC
+    threshold of each pose's block (:func:`block_thresholds`; None: ``ransac_threshold``).
+    Memory: :func:`triangulation_bytes`, refused beyond ``max_affinity_bytes`` before it is taken."""
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
     check_triangulation_memory(groups, poses.keypoints.shape[1],
                                hypotheses + (initial is not None) if config.ransac else 0, config)
     obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
+    if threshold is not None:
+        threshold = threshold[np.array([g[0] for g in groups], dtype=np.int64)]
     with np.errstate(all="ignore"):
-        return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
-                                       config.min_parallax_deg, config.seed, use_ransac=config.ransac,
-                                       initial=initial)
+        return obs, ransac_triangulate(obs, config.ransac_threshold if threshold is None else threshold,
+                                       hypotheses, config.min_views, config.min_parallax_deg, config.seed,
+                                       use_ransac=config.ransac, initial=initial)
+
+
+def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObservations, tri: Triangulation,
+                     config: Config) -> np.ndarray | None:
+    """``(N,)`` the RANSAC threshold of each pose's block, ``ransac_threshold_sigmas`` times the
+    noise :func:`mvm.core.triangulate.residual_sigma` measures in the block's triangulation
+    ``obs, tri`` of ``groups`` (at least one), within half to twice ``ransac_threshold`` (which
+    a block without a measure keeps). None where the threshold is held (no RANSAC, or sigmas 0)."""
+    if not config.ransac or config.ransac_threshold_sigmas <= 0:
+        return None
+    base = config.ransac_threshold
+    pose_block = np.zeros(len(poses), dtype=np.int64) if poses.instant is None else \
+        np.unique(poses.instant, return_inverse=True)[1].reshape(-1)
+    blocks = int(pose_block.max(initial=-1)) + 1
+    group_block = pose_block[np.array([g[0] for g in groups], dtype=np.int64)]
+    sigma = residual_sigma(obs, tri, group_block, blocks)
+    scaled = np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base)
+    return np.where(np.isfinite(sigma), scaled, base)[pose_block]
 
 
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
@@ -270,18 +293,21 @@ def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulati
     triangulation. ``X: (P, J, 3)``; ``prior`` as :func:`mvm.core.prior.load_prior` resolves it.
     Returns the poses and ``fallback: (P,)`` bool."""
     try:
-        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, config, prior)
+        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, obs.size, config, prior)
     except _SOLVE_FAILURES as e:
         log.warning("refinement failed (%s); kept the triangulation of every person", e)
         return X, tri.inliers.any(axis=(1, 2))
 
 
-def _refine(X, xy, conf, P, inliers, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
+def _refine(X, xy, conf, P, inliers, size, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
     """:func:`refine_with_fallback` of the arrays of :class:`GroupObservations` and
-    :class:`Triangulation`, a solve that fails outright raised."""
+    :class:`Triangulation`, a solve that fails outright raised. The reprojection residuals are
+    in person sizes (``size: (P, M)`` px, :func:`mvm.core.image_units.in_person_sizes`), the
+    unit of ``robust_scale`` and ``prior_weight``."""
+    xy, P = in_person_sizes(xy, P, size)
     with np.errstate(all="ignore"):
         refined = refine_poses(X, xy, conf, P, inliers, load_prior(config, prior), config.prior_weight,
-                               config.robust_scale_px, config.refine_max_iterations)
+                               config.robust_scale, config.refine_max_iterations)
     broken = (np.isfinite(X).all(-1) & ~np.isfinite(refined.X).all(-1)).any(-1)     # a joint lost or inf
     fallback = refined.fallback | broken
     return np.where(fallback[:, None, None], X, refined.X), fallback
@@ -358,14 +384,16 @@ class Reconstruction:
 
 
 def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], triangulated,
-                    config: Config) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+                    config: Config, threshold: np.ndarray | None = None
+                    ) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
     """:func:`mvm.core.association.associate` with the settings of ``config``: every 2D pose to
     the triangulated person that explains it, within its block; the order of the frames is a
-    cue for a scene (``video_order``), never for the cameras of a rig."""
+    cue for a scene (``video_order``), never for the cameras of a rig. ``threshold``: as
+    :func:`triangulate_groups` takes it."""
     sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
     return associate(
         poses.keypoints, poses.view, cameras.P, cameras.size, groups,
-        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial),
+        lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial, threshold),
         lambda X, g: merge_groups(X, g, poses, config),
         lambda rest: match(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
@@ -386,8 +414,9 @@ def reconstruct_poses(cameras: Cameras, poses: Poses2D, config: Config, prior=No
 def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
                       groups: list[np.ndarray] | None = None) -> Triangulated:
     """The pipeline up to the refinement: groups (``groups``, else :func:`match`),
-    triangulation, merging of duplicates, the association consistent in 3D (``association =
-    "3d"``, not for given groups; settings left to the driver take the scenes' defaults,
+    triangulation (again at each block's own RANSAC threshold, :func:`block_thresholds`),
+    merging of duplicates, the association consistent in 3D (``association = "3d"``, not for
+    given groups; settings left to the driver take the scenes' defaults,
     :meth:`mvm.core.config.Config.for_driver`)."""
     config = config.for_driver("scene")
     timings = {}
@@ -398,16 +427,19 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config)
+    threshold = block_thresholds(poses, groups, obs, tri, config) if groups else None
+    if threshold is not None:
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
     associate_3d = config.association == "3d" and not given              # merges duplicates itself
     merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
     if merged is not None:
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
-        obs, tri = triangulate_groups(cameras, poses, groups, config)
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
     timings["triangulation_s"] = time.perf_counter() - t
     if associate_3d:
         t = time.perf_counter()
-        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config)
+        groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config, threshold)
         timings["association_s"] = time.perf_counter() - t
     return Triangulated(groups, obs, tri, timings)
 
@@ -450,8 +482,8 @@ def _refine_together(parts: list[Triangulated], config: Config, prior) -> list[t
     width; one part alone gets :func:`refine_with_fallback`'s fallback for a failed solve)."""
     if len(parts) == 1:
         return [refine_with_fallback(parts[0].tri.X, parts[0].obs, parts[0].tri, config, prior)]
-    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers)
-                                                   for p in parts])]
+    arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers,
+                                                    p.obs.size) for p in parts])]
     X, fallback = _refine(*arrays, config, prior)
     bounds = np.cumsum([len(p.groups) for p in parts])[:-1]
     return list(zip(np.split(X, bounds), np.split(fallback, bounds)))

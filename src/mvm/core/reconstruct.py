@@ -211,6 +211,20 @@ def _outcome_warnings(scene: Scene, config: Config, rec: Reconstruction, persons
     return []
 
 
+def effective_thresholds(config: Config, threshold: np.ndarray, size: np.ndarray, slots: np.ndarray) -> dict:
+    """The thresholds the persons of a scene got: the RANSAC threshold (``threshold: (P,)``,
+    person sizes; the median), the median person size (``size: (P, M)`` px of the view slots
+    ``slots: (P, M)`` bool) and what the RANSAC threshold and the robust scale came to in
+    pixels (the medians over the slots). NaN without any person."""
+    if not slots.any():
+        return dict.fromkeys(("ransac_threshold", "person_size_px", "ransac_threshold_px", "robust_scale_px"),
+                             float("nan"))
+    per_slot = np.broadcast_to(threshold[:, None], slots.shape)[slots]
+    return {"ransac_threshold": float(np.median(threshold)), "person_size_px": float(np.median(size[slots])),
+            "ransac_threshold_px": float(np.median(per_slot * size[slots])),
+            "robust_scale_px": config.robust_scale * float(np.median(size[slots]))}
+
+
 def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
     persons = _persons(rec)
     keep = rec.stats.keep
@@ -220,6 +234,8 @@ def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
     metrics = {k: (v if not isinstance(v, float) or np.isfinite(v) else float("nan")) for k, v in metrics.items()}
     fallbacks = int(rec.fallback.sum())
     metrics["refine_fallbacks"] = fallbacks
+    metrics.update(effective_thresholds(config, rec.tri.threshold[keep], rec.obs.size[keep],
+                                        rec.obs.members[keep] >= 0))
     timings = dict(rec.timings, total_s=sum(rec.timings.values()))
     warnings_ = _scene_warnings(scene, config) + _triangulation_warnings(rec.tri, config)
     if fallbacks:

@@ -308,11 +308,11 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
     return -prior.to_world(step)
 
 
-def robust_terms(e: np.ndarray, obs: Observations, robust_scale_px: float) -> tuple[np.ndarray, np.ndarray]:
+def robust_terms(e: np.ndarray, obs: Observations, robust_scale: float) -> tuple[np.ndarray, np.ndarray]:
     """The soft-L1 reprojection terms of residuals ``e: (P, M, J, 2)`` (:meth:`Observations.reprojection`):
     ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
     (0 where not fitted)."""
-    f2 = robust_scale_px**2
+    f2 = robust_scale**2
     root = np.sqrt(1.0 + (e[..., 0] ** 2 + e[..., 1] ** 2) / f2)
     c = np.where(obs.fit, obs.conf, 0.0)
     return (c * 2 * f2 * (root - 1)).sum((1, 2)), np.sqrt(2.0 * c / root)
@@ -323,9 +323,9 @@ def _bone_cost(bones: BoneTerms | None, X: np.ndarray) -> float:
 
 
 def fallback_persons(e0: np.ndarray, e1: np.ndarray, depth1: np.ndarray, X: np.ndarray, present: np.ndarray,
-                     obs: Observations, robust_scale_px: float) -> np.ndarray:
+                     obs: Observations, robust_scale: float) -> np.ndarray:
     """``(P,)`` bool: observed persons whose refinement ``X: (P, J, 3)`` is not finite, has a
-    median reprojection error above twice the triangulation's plus ``robust_scale_px``, or
+    median reprojection error above twice the triangulation's plus ``robust_scale``, or
     puts a fitted joint behind a camera. ``e0, e1: (P, M, J, 2)`` the reprojection residuals of
     the triangulation and of the refinement, ``depth1: (P, M, J)`` the refinement's depths."""
     observed = obs.fit.any((1, 2))
@@ -335,13 +335,13 @@ def fallback_persons(e0: np.ndarray, e1: np.ndarray, depth1: np.ndarray, X: np.n
         return row_nanmedian(np.where(obs.fit, np.linalg.norm(e, axis=-1), np.nan).reshape(len(X), -1))
 
     with np.errstate(all="ignore"):
-        worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale_px
+        worse = median_error(e1) > 2.0 * median_error(e0) + robust_scale
         behind = ~(depth1 > 0).all((1, 2))
     return observed & (~finite | worse | behind)
 
 
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
-                 prior=None, prior_weight: float = 10.0, robust_scale_px: float = 5.0,
+                 prior=None, prior_weight: float = 10.0, robust_scale: float = 5.0,
                  max_iterations: int = 30, outer_iterations: int = 3,
                  bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0,
                  tolerance: float = 1e-8) -> RefineResult:
@@ -352,15 +352,15 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         P: ``(P, M, 3, 4)`` projection matrices of the views.
         inliers: ``(P, M, J)`` bool, the keypoints to fit.
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
-        prior_weight: λ, pixels² per nat; robust_scale_px: scale ``f`` of the soft-L1 loss.
+        prior_weight: λ, image units² per nat; robust_scale: scale ``f`` of the soft-L1 loss, in
+            image units (those of ``xy``: pixels, or person sizes as the pipeline passes them).
         max_iterations: Levenberg-Marquardt steps per person and outer iteration.
         outer_iterations: re-linearizations of the robust loss and the prior.
-        bone_lengths: ``(P, B)`` lengths of :data:`mvm.core.keypoints.BONES` each person's bones
-            are pulled to (NaN: none), e.g. its track's; ``bone_weight``: pixels² per squared
-            relative length error (0: no bone term).
-        tolerance: relative change of a person's cost, and of its joints, at which its inner
-            solve stops (the ``ftol``, ``xtol`` of :func:`mvm.core.lm.levenberg_marquardt`), in the last
-            outer iteration; the earlier ones stop at :data:`EARLY_TOLERANCE_FACTOR` times it.
+        bone_lengths: ``(P, B)`` target lengths of :data:`mvm.core.keypoints.BONES` (NaN: none);
+            ``bone_weight``: image units² per squared relative length error (0: no bone term).
+        tolerance: relative change of cost and joints at which a person's inner solve stops
+            (:func:`mvm.core.lm.levenberg_marquardt`) in the last outer iteration; the earlier
+            ones stop at :data:`EARLY_TOLERANCE_FACTOR` times it.
     Returns :class:`RefineResult`.
     """
     X0 = np.asarray(X0, dtype=float)
@@ -375,27 +375,27 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
     prior = prior if prior is not None and prior_weight > 0 else None
     X = np.where(present[..., None], X0, 0.0)
     e0, _ = obs.reprojection(X)
-    robust, sqrt_w = robust_terms(e0, obs, robust_scale_px)
+    robust, sqrt_w = robust_terms(e0, obs, robust_scale)
     linear = linearized_prior(X, present, prior, prior_weight)
     cost_before = float(robust.sum() + linear.energy(X.reshape(Pn, -1)).sum()) + _bone_cost(bones, X)
     for k in range(outer_iterations):
         if k:
             linear = linearized_prior(X, present, prior, prior_weight)
-            sqrt_w = robust_terms(obs.reprojection(X)[0], obs, robust_scale_px)[1]
+            sqrt_w = robust_terms(obs.reprojection(X)[0], obs, robust_scale)[1]
         problem = InnerProblem(obs, sqrt_w, linear, bones)
         inner_tolerance = tolerance if k == outer_iterations - 1 else EARLY_TOLERANCE_FACTOR * tolerance
         X = levenberg_marquardt(X.reshape(Pn, -1), problem, max_iterations, inner_tolerance).reshape(Pn, J, 3)
     X = np.where(present[..., None], X, np.nan)
     with np.errstate(all="ignore"):
         e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
-    fallback = fallback_persons(e0, e1, depth1, X, present, obs, robust_scale_px)
+    fallback = fallback_persons(e0, e1, depth1, X, present, obs, robust_scale)
     X[fallback] = X0[fallback]
     if fallback.any():
         log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     X_fit, e_fit = np.where(present[..., None], X, 0.0), np.where(fallback[:, None, None, None], e0, e1)
 
     def objective_after() -> float:                      # of copies: the caller may change X
-        robust, _ = robust_terms(e_fit, obs, robust_scale_px)
+        robust, _ = robust_terms(e_fit, obs, robust_scale)
         return (float(robust.sum() + prior_energy(X_fit, present, prior, prior_weight).sum())
                 + _bone_cost(bones, X_fit))
 

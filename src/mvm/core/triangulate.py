@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.geometry import dlt_terms, ray_spread_deg, solve_dlt, weighted_dlt
+from mvm.core.image_units import medians_by, view_sizes
 from mvm.core.scene import Cameras, Poses2D
 
 
@@ -25,6 +26,8 @@ class GroupObservations:
         Rt: ``(P, M, 3, 4)`` ``[R | t]`` in a normalized world frame, for conditioning.
         centers: ``(P, M, 3)`` camera centres (world).
         members: ``(P, M)`` pose index, -1 for padding.
+        size: ``(P, M)`` the unit of image distances in each slot's view, px: the median size
+            of the people detected in it (:func:`mvm.core.image_units.view_sizes`; 1 for padding).
         world_scale, world_offset: ``X_world = scale · X_normalized + offset``.
     """
 
@@ -37,6 +40,7 @@ class GroupObservations:
     members: np.ndarray
     world_scale: float
     world_offset: np.ndarray
+    size: np.ndarray
 
 
 def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
@@ -60,8 +64,9 @@ def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
     homogeneous = np.concatenate([kp[..., :2], np.ones(kp.shape[:-1] + (1,))], axis=-1)
     normalized = np.matmul(homogeneous, K_inv[views].transpose(0, 1, 3, 2))[..., :2]
     Pm = np.where(pad[..., None, None], 0.0, cameras.P[views])
+    size = np.where(pad, 1.0, view_sizes(poses, keypoint_threshold)[idx])
     return GroupObservations(kp[..., :2], conf, Pm, normalized, Rt[views], centers_all[views],
-                             members, scale, offset)
+                             members, scale, offset, size)
 
 
 @dataclass
@@ -73,12 +78,14 @@ class Triangulation:
         inliers: ``(P, M, J)`` bool, the 2D keypoints used.
         valid: ``(P, M, J)`` bool, the 2D keypoints available (inliers + outliers).
         parallax_deg: ``(P, J)`` largest angle between inlier rays.
+        threshold: ``(P,)`` the RANSAC inlier threshold each group got, person sizes.
     """
 
     X: np.ndarray
     inliers: np.ndarray
     valid: np.ndarray
     parallax_deg: np.ndarray
+    threshold: np.ndarray
 
 
 @functools.lru_cache(maxsize=64)
@@ -127,7 +134,8 @@ def _sample_pairs(valid: np.ndarray, hypotheses: int, rng) -> tuple[np.ndarray, 
 
 
 def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndarray, np.ndarray]:
-    """``X: (P, J, H, 3)`` world points -> reprojection errors ``(P, M, J, H)`` px and depths."""
+    """``X: (P, J, H, 3)`` world points -> reprojection errors ``(P, M, J, H)`` in person sizes
+    (pixels divided by the slot's ``obs.size``) and depths."""
     Pn, J, H, _ = X.shape
     M = obs.P.shape[1]
     homogeneous = np.concatenate([X, np.ones((Pn, J, H, 1))], axis=-1).reshape(Pn, J * H, 4)
@@ -136,10 +144,10 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
     with np.errstate(divide="ignore", invalid="ignore"):
         du = x[:, :, 0] / depth - obs.xy[..., 0, None]
         dv = x[:, :, 1] / depth - obs.xy[..., 1, None]
-    return np.sqrt(du * du + dv * dv), depth
+    return np.sqrt(du * du + dv * dv) / obs.size[:, :, None, None], depth
 
 
-def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: int,
+def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
                        rng: np.random.Generator | int | None = None, use_ransac: bool = True,
                        initial: np.ndarray | None = None) -> Triangulation:
@@ -147,10 +155,11 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
 
     A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
     ``hypotheses`` random pairs (:func:`_sample_pairs`). Each hypothesis is scored by MSAC,
-    ``Σ min(e², thr²)`` over the available keypoints; the best one's inliers (``e < thr``, in
-    front of the camera) are re-triangulated with confidence weights, twice. A joint with fewer
-    than ``min_views`` inliers or whose inlier rays span less than ``min_parallax_deg`` is left
-    NaN. With ``use_ransac=False`` every
+    ``Σ min(e², thr²)`` over the available keypoints, ``e`` the reprojection error in person
+    sizes (:mod:`mvm.core.image_units`) and ``thr`` the group's ``threshold`` (one number, or
+    ``(P,)``); the best one's inliers (``e < thr``, in front of the camera) are re-triangulated
+    with confidence weights, twice. A joint with fewer than ``min_views`` inliers or whose inlier
+    rays span less than ``min_parallax_deg`` is left NaN. With ``use_ransac=False`` every
     available keypoint is an inlier (the paper's "w/o RANSAC" columns).
 
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
@@ -160,13 +169,14 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     rng = 0 if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
     Pn, M, J = valid.shape
+    threshold = np.broadcast_to(np.asarray(threshold, dtype=float), (Pn,))
     if Pn == 0 or M == 0:
         empty = np.zeros((Pn, J, 3)) * np.nan
-        return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)))
+        return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
     terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
     if use_ransac:
-        inliers = _ransac_inliers(obs, valid, terms, threshold_px, hypotheses, rng, initial)
+        inliers = _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial)
     else:
         inliers = valid.copy()
 
@@ -178,7 +188,7 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
         if not use_ransac:
             break
         err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
-        refreshed = valid & (err[..., 0] < threshold_px) & (depth[..., 0] > 0)
+        refreshed = valid & (err[..., 0] < threshold[:, None, None]) & (depth[..., 0] > 0)
         keep = refreshed.sum(axis=1) >= min_views
         inliers = np.where(keep[:, None, :], refreshed, inliers)
         weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)
@@ -190,7 +200,8 @@ def ransac_triangulate(obs: GroupObservations, threshold_px: float, hypotheses: 
     good = (inliers.sum(axis=1) >= min_views) & (parallax >= min_parallax_deg) & np.isfinite(X).all(-1)
     X[~good] = np.nan
     inliers &= good[:, None, :]
-    return Triangulation(X, inliers, valid, parallax)
+    return Triangulation(X, inliers, valid, parallax, threshold)
+
 
 
 def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tuple[np.ndarray, np.ndarray]:
@@ -202,11 +213,11 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
     return weights, weighted_dlt(terms, weights)
 
 
-def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold_px: float,
+def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold: np.ndarray,
                     hypotheses: int, rng, initial: np.ndarray | None) -> np.ndarray:
     """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score).
     ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
-    world points join the two-view hypotheses."""
+    world points join the two-view hypotheses; ``threshold: (P,)`` person sizes."""
     a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
     # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
     p, j = np.ogrid[:a.shape[0], :a.shape[1]]
@@ -216,9 +227,49 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
     ok = valid[..., None] & (depth > 0) & np.isfinite(err)
-    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold_px) ** 2,
-                                               threshold_px**2), 0.0).sum(axis=1)   # (P, J, H)
+    threshold = threshold[:, None, None, None]
+    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold) ** 2,
+                                               threshold**2), 0.0).sum(axis=1)   # (P, J, H)
     cost[~np.isfinite(X_h).all(-1)] = np.inf
     best = np.argmin(cost, axis=-1)                                           # (P, J)
     p, m, j = np.ogrid[:ok.shape[0], :ok.shape[1], :ok.shape[2]]
-    return (ok & (err < threshold_px))[p, m, j, best[:, None]]
+    return (ok & (err < threshold))[p, m, j, best[:, None]]
+
+
+#: The median of the length of a two-dimensional standard normal error: ``sqrt(2 ln 2)``.
+RAYLEIGH_MEDIAN = float(np.sqrt(2 * np.log(2)))
+
+
+def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray, blocks: int) -> np.ndarray:
+    """The detector's noise in each block (scene, or rig instant) of groups, measured from the
+    triangulation: the per-axis standard deviation ``σ`` of the keypoints' errors, in person
+    sizes, whose inliers' reprojection errors have the median they have.
+
+    The errors of a two-dimensional Gaussian have a Rayleigh distribution; the inliers are
+    those below the threshold ``t``, so their median ``m`` is the one of a Rayleigh cut at
+    ``t``: ``σ`` solves ``2 F(m) = F(t)``, ``F(x) = 1 - exp(-x² / 2σ²)`` (bisection). Each
+    error is first scaled by ``sqrt(2n / (2n - 3))`` for the 3 coordinates its joint's ``n``
+    inliers fitted. ``block: (P,)`` block of each group in ``[0, blocks)`` -> ``(blocks,)``,
+    NaN for a block without any joint of three inliers or more (two views leave the noise
+    unmeasured), inf where the errors fill the threshold evenly (no Gaussian has them).
+    """
+    X = tri.X                                                                 # (P, J, 3)
+    if not len(X):
+        return np.full(blocks, np.nan)
+    err, _ = _reprojection_errors(np.nan_to_num(X)[:, :, None], obs)   # (P, M, J, 1)
+    n = tri.inliers.sum(axis=1)                                               # (P, J)
+    used = tri.inliers & (n >= 3)[:, None, :] & np.isfinite(X).all(-1)[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = err[..., 0] * np.sqrt(2 * n / (2 * n - 3))[:, None, :]
+    m = medians_by(scaled[used], block[np.nonzero(used)[0]], blocks)
+    cut = np.full(blocks, np.inf)
+    np.minimum.at(cut, block, tri.threshold)                                  # the block's threshold
+    lo, hi = np.log(np.maximum(m, 1e-12) / RAYLEIGH_MEDIAN), np.log(np.maximum(m, 1e-12)) + 10.0
+    for _ in range(50):                                                       # bisection on log σ
+        mid = (lo + hi) / 2
+        sigma2 = 2 * np.exp(2 * mid)
+        below = 2 * -np.expm1(-m * m / sigma2) > -np.expm1(-cut * cut / sigma2)   # σ too small
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    sigma = np.exp((lo + hi) / 2)
+    return np.where(2 * m * m >= cut * cut, np.inf, sigma)                     # no Gaussian fits (NaN: no m)
+

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.blas import one_blas_thread
+from mvm.core.image_units import in_person_sizes, view_sizes
 from mvm.core.keypoints import BONES, bone_lengths
 from mvm.core.quality import reprojection_errors
 from mvm.core.scene import Cameras, Poses2D
@@ -68,6 +69,13 @@ def observations(persons: InstantPersons, detections: Poses2D, cameras: Cameras,
     return kp[..., :2], conf, P, persons.inliers & has[..., None] & (conf > 0)
 
 
+def detection_sizes(persons: InstantPersons, detections: Poses2D, keypoint_threshold: float) -> np.ndarray:
+    """``(Q, V)`` the unit of image distances of each person's detection in each camera, px
+    (:func:`mvm.core.image_units.view_sizes`; 1 where the camera has no member)."""
+    members = persons.members
+    return np.where(members >= 0, view_sizes(detections, keypoint_threshold)[np.maximum(members, 0)], 1.0)
+
+
 def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: Cameras) -> InstantPersons:
     """``persons`` with joints ``X: (Q, 17, 3)`` and their reprojection errors recomputed."""
     xy, _, P, used = observations(persons, detections, cameras)
@@ -87,11 +95,12 @@ TOLERANCE = 1e-5
 
 
 def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
-                  config, prior=None, bone_weight: float = 20000.0, outer_iterations: int = OUTER_ITERATIONS,
+                  config, prior=None, bone_weight: float = 0.32, outer_iterations: int = OUTER_ITERATIONS,
                   tolerance: float = TOLERANCE) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
-    ``bone_weight``, px² per squared relative length error). ``config``: a
+    ``bone_weight``, squared person sizes per squared relative length error: the reprojection
+    residuals are in person sizes, :mod:`mvm.core.image_units`). ``config``: a
     :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Once the lengths
     are fixed the persons are independent: one call of :func:`mvm.core.refine.refine_poses`
     solves all of them, with BLAS on one thread (its matrices are small: threads only cost).
@@ -108,8 +117,9 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
         return persons
     lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
     xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
+    xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold))
     with one_blas_thread(), np.errstate(all="ignore"):   # small matrices
-        X = refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale_px,
+        X = refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale,
                          config.refine_max_iterations, bone_lengths=lengths, bone_weight=bone_weight,
                          outer_iterations=outer_iterations, tolerance=tolerance).X
     X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)

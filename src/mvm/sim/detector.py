@@ -58,6 +58,28 @@ class DetectorErrors:
 #: The names of the detector's settings (accepted flat by ``SimConfig.preset`` and ``replace``).
 DETECTOR_FIELDS: tuple[str, ...] = tuple(DetectorErrors.__dataclass_fields__)
 
+#: Detectors from precise to poor, spanning the errors of real ones: noise (fraction of the
+#: person's image size), dropout, swaps, outlier joints, and false poses as a fraction of the
+#: true ones (``false_pose_fraction``; :func:`detector_level` turns it into a rate per view).
+#: 'realistic' is the default :class:`DetectorErrors`, 'crowd' the crowd benchmark's
+#: (:mod:`mvm.eval.crowd`), 'heavy' a poor detector on hard footage.
+DETECTOR_LEVELS: dict[str, dict] = {
+    "precise": dict(noise=0.005, dropout=0.02, swap_prob=0.0, outlier_joint_prob=0.005, false_pose_fraction=0.05),
+    "realistic": dict(noise=0.01, dropout=0.03, swap_prob=0.01, outlier_joint_prob=0.02, false_pose_fraction=0.1),
+    "crowd": dict(noise=0.015, dropout=0.05, swap_prob=0.02, outlier_joint_prob=0.01, false_pose_fraction=0.1),
+    "heavy": dict(noise=0.03, dropout=0.15, swap_prob=0.05, outlier_joint_prob=0.04, false_pose_fraction=0.4),
+}
+
+
+def detector_level(name: str, people: int) -> DetectorErrors:
+    """The detector of :data:`DETECTOR_LEVELS` ``name`` for scenes of ``people`` people (the
+    false poses per view: the level's fraction of them)."""
+    if name not in DETECTOR_LEVELS:
+        raise ValueError(f"unknown detector level {name!r}; known: {', '.join(DETECTOR_LEVELS)}")
+    level = dict(DETECTOR_LEVELS[name])
+    fraction = level.pop("false_pose_fraction")
+    return DetectorErrors(**level, false_pose_rate=fraction * people)
+
 
 @dataclass
 class SimulatedDetections:

@@ -22,7 +22,7 @@ import numpy as np
 from mvm.core.config import check_settings, setting
 from mvm.core.scene import Poses2D, Scene
 from mvm.io.ground_truth import GroundTruth
-from mvm.sim.detector import DETECTOR_FIELDS, DetectorErrors, detect_people, pose_scores
+from mvm.sim.detector import DETECTOR_FIELDS, DetectorErrors, detect_people, detector_level, pose_scores
 from mvm.sim.people import clothes, place_people
 from mvm.sim.projection import project_people
 from mvm.sim.tours import camera_tour, look_at, trajectory_tour
@@ -101,7 +101,7 @@ class SimConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> SimConfig:
-        """A preset of :data:`PRESETS` ('clean', 'realistic', 'hard', 'crowd') with
+        """A preset of :data:`PRESETS` ('clean', 'realistic', 'hard', 'crowd', 'precise', 'heavy') with
         ``overrides`` applied (scene or detector settings, by name)."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
@@ -126,7 +126,9 @@ def crowd_radius(people: int) -> float:
 #: detector, crowded and look-alike people; 'crowd': a frozen crowd as dense as the real ones
 #: (12 people 0.6-1.0 m apart, standing and seated, of similar sizes, a 1080p camera at eye
 #: height 5.5 m away; noise 1.5 % of the person's size, 5 % dropout, 2 % swaps, 1 % outliers,
-#: false poses 10 % of the true ones), see :mod:`mvm.eval.crowd` for the scenes drawn around it.
+#: false poses 10 % of the true ones), see :mod:`mvm.eval.crowd` for the scenes drawn around it;
+#: 'precise' and 'heavy': the 'realistic' scene seen by the most and the least accurate of
+#: :data:`mvm.sim.detector.DETECTOR_LEVELS` (noise 0.5 % and 3 % of the person's size).
 PRESETS: dict[str, dict] = {
     "clean": dict(noise=0.0, dropout=0.0, swap_prob=0.0, outlier_joint_prob=0.0, false_pose_rate=0.0,
                   merge_prob=0.0, appearance_noise=0.05, lighting_drift=0.0, shake_deg=0.2),
@@ -144,6 +146,8 @@ PRESETS: dict[str, dict] = {
                   false_pose_rate=0.1 * 12, merge_prob=0.0, appearance_noise=0.2, lighting_drift=0.2,
                   lookalikes=2),
 }
+for _level in ("precise", "heavy"):
+    PRESETS[_level] = {**PRESETS["realistic"], **dataclasses.asdict(detector_level(_level, SimConfig.people))}
 
 
 def simulate(config: SimConfig | None = None, bank_poses: np.ndarray | None = None,

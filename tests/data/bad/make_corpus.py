@@ -186,7 +186,7 @@ def config() -> None:
     _write("config/bad_utf8.toml", b"tau = 0.2\n# \xff\xfe\n")
     _write("config/not_toml.toml", "tau = \n")
     _write("config/nan.toml", "prior_weight = nan\n")
-    _write("config/negative.toml", "ransac_threshold_px = -2.0\n")
+    _write("config/negative.toml", "ransac_threshold = -2.0\n")
 
 
 def _colmap_bin(name: str, edit) -> None:
