@@ -4,9 +4,9 @@
    camera ``b`` is a candidate person correspondence: a correct pairing gives up to 17 point
    correspondences, a wrong one outliers. The essential matrix is estimated robustly on the
    undistorted, normalized joints: hypotheses from two candidate pairings at once
-   (``cv2.findEssentialMat`` with RANSAC on their joints — a good draw needs only two correct
-   pairings, not five correct points), each scored by the joints it explains, the best refitted
-   with ``cv2.findEssentialMat`` (RANSAC) on the pairings it accepts and decomposed by
+   (``cv2.findEssentialMat`` with a short RANSAC on their joints — a good draw needs only two
+   correct pairings, not five correct points), each scored by the joints it explains, the best refitted with
+   ``cv2.findEssentialMat`` (RANSAC) on the pairings it accepts and decomposed by
    ``cv2.recoverPose``.
 2. **Chaining.** The accepted pairings link 2D poses into persons (connected components at each
    instant). Cameras are placed along a maximum spanning tree of the pairs (weighted by
@@ -49,7 +49,7 @@ CONFIDENCE = 0.9999
 MIN_HYPOTHESES = 30
 #: RANSAC iterations of one hypothesis (on the joints of two pairings: few outliers when both
 #: pairings are right, and a wrong draw is not worth more).
-HYPOTHESIS_ITERATIONS = 64
+HYPOTHESIS_ITERATIONS = 32
 #: Fewest accepted pairings for a camera pair to be used.
 MIN_PAIRINGS = 5
 #: Instants used at most (evenly spread) for the pairs and the bundle adjustment.
@@ -105,7 +105,8 @@ class PeopleCalibration:
         tree: ``[(parent, child)]`` the spanning tree the cameras were placed along.
         points: ``(Q, 17, 3)`` the people's joints (world, metres; NaN: not triangulated);
         point_instant: ``(Q,)`` their instants.
-        scale_m: metres per unit of the adjustment; converged: the solver's status was a success.
+        scale_m: metres per unit of the adjustment; converged: the solver met its tolerance (not
+            its evaluation limit).
     """
 
     R: np.ndarray
@@ -174,6 +175,11 @@ def essential_from_pairings(xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, thre
                             ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Robust essential matrix of candidate pairings (module docstring, step 1).
 
+    Hypotheses: ``cv2.findEssentialMat`` (five points, a short RANSAC) on the joints of two
+    candidate pairings, each scored by the joints it explains in accepted pairings; drawing
+    stops once a draw of two accepted pairings had a ``CONFIDENCE`` chance. The best is
+    refitted by ``cv2.findEssentialMat`` (RANSAC) on the joints it explains.
+
     Args:
         xa, xb: ``(M, 17, 2)`` normalized joints of the ``M`` candidate pairings; ok: ``(M, 17)``
             present in both.
@@ -186,11 +192,10 @@ def essential_from_pairings(xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, thre
     if len(usable) < MIN_PAIRINGS:
         return None
     best = (0, None, None, None)
-    draws = rng.choice(usable, (hypotheses, 2))
-    for n, (i, j) in enumerate(draws):
-        if best[2] is not None:                      # enough draws for two accepted pairings at once
+    for n, (i, j) in enumerate(rng.choice(usable, (hypotheses, 2))):
+        if best[2] is not None:
             good = (best[2][usable].sum() / len(usable)) ** 2
-            if n >= MIN_HYPOTHESES and n >= np.log(1 - CONFIDENCE) / np.log(max(1 - good, 1e-12)):
+            if good > 0 and n >= MIN_HYPOTHESES and n >= np.log(1 - CONFIDENCE) / np.log1p(-min(good, 0.999)):
                 break
         if i == j:
             continue
@@ -204,8 +209,7 @@ def essential_from_pairings(xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, thre
     if best[1] is None or best[2].sum() < MIN_PAIRINGS:
         return None
     _, E, accepted, inlier = best
-    pa, pb = xa[inlier], xb[inlier]                                   # refit on the accepted pairings
-    refit, _ = cv2.findEssentialMat(pa, pb, np.eye(3), cv2.RANSAC, 0.999, threshold)
+    refit, _ = cv2.findEssentialMat(xa[inlier], xb[inlier], np.eye(3), cv2.RANSAC, 0.999, threshold)
     for candidate in _split(refit):
         count, acc, inl = _score(candidate, xa, xb, ok, threshold)
         if count >= best[0]:
@@ -494,7 +498,7 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
                          for c in range(V)])
     observations = np.array([int(np.isfinite(error[camera == c]).sum()) for c in range(V)])
     worst = int(np.argmax(residual))
-    if not converged or residual[worst] > MAX_RESIDUAL_PX:
+    if residual[worst] > MAX_RESIDUAL_PX:
         raise CalibrationError(worst, f"the calibration does not converge (median reprojection error "
                                       f"{residual[worst]:.1f} px)")
     s, W, b = world_from_people(X, R[0][0])

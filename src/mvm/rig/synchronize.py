@@ -3,14 +3,20 @@
 Each camera's *motion signal* is, at every frame, the mean speed of the people it sees: every
 pose is linked to the nearest pose of the next frame (Hungarian assignment on the median
 joint distance relative to the person's image size), and its speed is the median
-displacement of its joints relative to that size (robust to a swapped or outlying joint;
-relative, so near and far people count alike). A camera's offset to the reference camera is
-the lag that maximizes the normalized cross-correlation of the two signals (as Pose2Sim
-does). When the cameras are calibrated, the lags around the best correlation peaks are
-scored by the triangulation error of the alignment they make — for every pose of the camera,
-the smallest median Sampson error (the first-order reprojection error of the optimal two-view
-triangulation) against the reference camera's poses of the aligned frame — and the lowest
-error wins.
+displacement of its joints relative to that size, each joint's step capped (a jumping joint
+is the detector's error). A camera's correlation with the reference camera is the normalized
+cross-correlation of the two signals at every lag (as Pose2Sim does); its peak is reported.
+
+On a rig of several people the signal depends much on the view (who hides whom, which limbs
+move across the image), so the offset is decided by geometry: every lag is scored by the
+triangulation error of the alignment it makes — for every pose of the camera, the smallest
+median Sampson error (the first-order reprojection error of the optimal two-view
+triangulation) against the reference camera's poses of the aligned frame, clipped — and the
+lowest error wins. The epipolar geometry comes from the calibration when the rig has one;
+otherwise it is estimated from the people (:mod:`mvm.rig.calibrate`): roughly (a loose
+threshold) at the correlation's best peaks and lag 0, the most consistent one kept; the lags
+near the best one it gives are then each fitted with their own geometry, the one that fits its
+alignment best gives the geometry every lag is scored with.
 
 Convention (``sync.toml``, :mod:`mvm.io.sync_toml`): the offset of camera ``c`` is the
 number of frames to ADD to its frame numbers to reach the reference camera's: its frame ``f``
@@ -22,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from mvm.rig.calibrate import INLIER_PX, aligned_pairs, essential_from_pairings, normalized_points, sampson
 
 #: Two poses of consecutive frames are one person when their median joint distance is below
 #: this fraction of the person's image size. [1]
@@ -40,10 +48,17 @@ PEAK_SEPARATION = 3
 MIN_PEAK = 0.3
 #: Sampson errors above this are clipped (a wrong pairing counts as this much). [px]
 MAX_ERROR_PX = 30.0
-#: Correlation peaks whose neighbourhoods are scored by the triangulation error, and the
-#: neighbourhood's half-width. [-, frames]
+#: Correlation peaks (with lag 0) at which the epipolar geometry is estimated when the rig is
+#: not calibrated.
 REFINE_PEAKS = 3
-REFINE_WINDOW = 3
+#: The first, rough epipolar geometry accepts joints this far from it (the candidate lag may be
+#: a few frames off, and the people moved meanwhile); the lags within ``REFINE_WINDOW`` of the
+#: best one it gives are then fitted each with its own geometry. [px, frames]
+SEARCH_INLIER_PX = 25.0
+REFINE_WINDOW = 2
+#: Frames used at most, and hypotheses drawn at most, to estimate an epipolar geometry.
+ESTIMATE_FRAMES = 40
+ESTIMATE_HYPOTHESES = 100
 #: With the triangulation error, a lag is ambiguous when another one, ``PEAK_SEPARATION``
 #: frames away or more, has an error below this multiple of the best.
 AMBIGUOUS_ERROR_RATIO = 1.25
@@ -151,42 +166,34 @@ def fundamental_matrix(K_a: np.ndarray, R_a: np.ndarray, t_a: np.ndarray,
                        K_b: np.ndarray, R_b: np.ndarray, t_b: np.ndarray) -> np.ndarray:
     """``F`` with ``x_b^T F x_a = 0`` for pixels of the same point in cameras a and b: ``(3, 3)``."""
     R = R_b @ R_a.T
-    t = t_b - R @ t_a
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return np.linalg.inv(K_b).T @ tx @ R @ np.linalg.inv(K_a)
+    return essential_to_fundamental(_skew(t_b - R @ t_a) @ R, K_a, K_b)
 
 
-def sampson_px(F: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-    """Sampson error (pixels) of correspondences ``xa, xb: (..., 2)`` -> ``(...)``."""
-    ha = np.concatenate([xa, np.ones(xa.shape[:-1] + (1,))], -1)
-    hb = np.concatenate([xb, np.ones(xb.shape[:-1] + (1,))], -1)
-    Fa = ha @ F.T
-    Fb = hb @ F
-    num = np.einsum("...i,...i->...", hb, Fa)
-    den = Fa[..., 0] ** 2 + Fa[..., 1] ** 2 + Fb[..., 0] ** 2 + Fb[..., 1] ** 2
-    return np.abs(num) / np.sqrt(np.maximum(den, 1e-18))
+def _skew(t: np.ndarray) -> np.ndarray:
+    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+
+
+def essential_to_fundamental(E: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> np.ndarray:
+    """``K_b^-T E K_a^-1``: ``(3, 3)``."""
+    return np.linalg.inv(K_b).T @ E @ np.linalg.inv(K_a)
 
 
 def alignment_error(F: np.ndarray, ref_kp: np.ndarray, ref_frame: np.ndarray, kp: np.ndarray, frame: np.ndarray,
-                    lag: int) -> tuple[float, int]:
+                    lag: int) -> float:
     """Triangulation error of aligning a camera's frame ``f`` with the reference's ``f + lag``.
 
     Args:
         F: ``(3, 3)`` reference -> camera fundamental matrix (:func:`fundamental_matrix`).
-        ref_kp: ``(A, 17, 3)``, ref_frame: ``(A,)`` sorted; kp: ``(B, 17, 3)``, frame: ``(B,)``.
+        ref_kp: ``(A, 17, 3)``, ref_frame: ``(A,)``; kp: ``(B, 17, 3)``, frame: ``(B,)``.
     Returns:
-        ``(error, poses)``: the mean over the camera's poses that share an aligned frame of
-        their smallest median Sampson error (px, clipped at ``MAX_ERROR_PX``), and their number.
+        The mean over the camera's poses that share an aligned frame of their smallest median
+        Sampson error (px, clipped at ``MAX_ERROR_PX``); NaN when none does.
     """
-    target = frame + lag
-    lo, hi = np.searchsorted(ref_frame, target), np.searchsorted(ref_frame, target, "right")
-    counts = hi - lo
-    if not counts.sum():
-        return np.nan, 0
-    b = np.repeat(np.arange(len(kp)), counts)
-    a = np.repeat(lo, counts) + (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts))
+    a, b = aligned_pairs(ref_frame, frame, lag)
+    if not len(a):
+        return np.nan
     both = (ref_kp[a, :, 2] > 0) & (kp[b, :, 2] > 0)                                        # (M, 17)
-    err = np.where(both, sampson_px(F, ref_kp[a, :, :2], kp[b, :, :2]), np.nan)
+    err = np.where(both, sampson(F, ref_kp[a, :, :2], kp[b, :, :2]), np.nan)
     with np.testing.suppress_warnings() as sup:
         sup.filter(RuntimeWarning)
         med = np.nanmedian(err, axis=1)
@@ -194,7 +201,31 @@ def alignment_error(F: np.ndarray, ref_kp: np.ndarray, ref_frame: np.ndarray, kp
     best = np.full(len(kp), np.inf)
     np.minimum.at(best, b, med)
     best = best[np.isfinite(best)]
-    return (float(best.mean()), len(best)) if len(best) else (np.nan, 0)
+    return float(best.mean()) if len(best) else np.nan
+
+
+def estimated_fundamental(ref_kp: np.ndarray, ref_frame: np.ndarray, kp: np.ndarray, frame: np.ndarray,
+                          K_ref: np.ndarray, K: np.ndarray, lag: int, rng: np.random.Generator,
+                          threshold_px: float = INLIER_PX) -> tuple[np.ndarray | None, int]:
+    """The fundamental matrix of the people's poses aligned at ``lag``
+    (:func:`mvm.rig.calibrate.essential_from_pairings` on at most ``ESTIMATE_FRAMES`` frames):
+    ``(F or None, joints it explains)``."""
+    frames = np.unique(frame)
+    if len(frames) > ESTIMATE_FRAMES:
+        chosen = frames[np.linspace(0, len(frames) - 1, ESTIMATE_FRAMES).round().astype(int)]
+        rows = np.flatnonzero(np.isin(frame, chosen))
+    else:
+        rows = np.arange(len(frame))
+    a, b = aligned_pairs(ref_frame, frame[rows], lag)
+    b = rows[b]
+    ok = (ref_kp[a, :, 2] > 0) & (kp[b, :, 2] > 0)
+    focal = np.sqrt(0.5 * (K_ref[0, 0] + K_ref[1, 1]) * 0.5 * (K[0, 0] + K[1, 1]))
+    found = essential_from_pairings(normalized_points(ref_kp[a], K_ref), normalized_points(kp[b], K), ok,
+                                    threshold_px / focal, rng, ESTIMATE_HYPOTHESES)
+    if found is None:
+        return None, 0
+    E, _, inlier = found
+    return essential_to_fundamental(E, K_ref, K), int(inlier.sum())
 
 
 def _peaks(values: np.ndarray) -> np.ndarray:
@@ -215,56 +246,72 @@ def _is_ambiguous(best: int, score: np.ndarray, lags: np.ndarray, better_high: b
     return bool(other.max() >= ratio * score[best]) if better_high else bool(other.min() <= ratio * score[best])
 
 
-def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, n_cameras: int, max_offset: int,
-                fundamentals: list[np.ndarray | None] | None = None) -> SyncResult:
+def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K: np.ndarray, max_offset: int,
+                fundamentals: list[np.ndarray | None] | None = None, seed: int = 0) -> SyncResult:
     """Each camera's offset to camera 0 (module docstring).
 
     Args:
         keypoints: ``(N, 17, 3)`` undistorted 2D poses of every camera; camera: ``(N,)``;
             frame: ``(N,)`` each pose's frame number *in its own camera*.
+        K: ``(V, 3, 3)`` intrinsics.
         max_offset: lags ``-max_offset .. max_offset`` are tried.
-        fundamentals: per camera, the reference -> camera fundamental matrix (None: no
-            calibration; the correlation alone decides).
+        fundamentals: per camera, the reference -> camera fundamental matrix of a calibration
+            (None: estimated from the people).
     Returns:
-        :class:`SyncResult`. A camera without poses raises ``ValueError`` naming its index.
+        :class:`SyncResult`. A camera without poses, or whose poses do not overlap the
+        reference camera's, raises ``ValueError`` naming its index.
     """
+    rng = np.random.default_rng(seed)
+    V = len(K)
     lags = np.arange(-max_offset, max_offset + 1)
     signals, firsts = [], []
-    for c in range(n_cameras):
+    for c in range(V):
         rows = camera == c
         if not rows.any():
             raise ValueError(f"camera {c}: no 2D poses")
         first = int(frame[rows].min())
         signals.append(motion_signal(keypoints[rows], frame[rows], first, int(frame[rows].max()) - first + 1))
         firsts.append(first)
-    V, L = n_cameras, len(lags)
+    L = len(lags)
     correlation = np.full((V, L), np.nan)
     offsets, peak_lag = np.zeros(V, int), np.zeros(V, int)
     peak, error, ambiguous = np.ones(V), np.full(V, np.nan), np.zeros(V, bool)
-    ref_rows = np.flatnonzero(camera == 0)
-    ref_rows = ref_rows[np.argsort(frame[ref_rows], kind="stable")]
+    ref = np.flatnonzero(camera == 0)
+    ref_kp, ref_frame = keypoints[ref], frame[ref]
     for c in range(1, V):
         correlation[c] = cross_correlation(signals[0], signals[c], firsts[c] - firsts[0], lags)
         peaks = _peaks(correlation[c])
         if not len(peaks):
             raise ValueError(f"camera {c}: its people's motion overlaps the reference camera's in fewer than "
                              f"{MIN_OVERLAP_FRAMES} frames")
-        top = peaks[0]
-        peak[c], peak_lag[c] = correlation[c, top], lags[top]
-        offsets[c] = lags[top]
-        ambiguous[c] = peak[c] < MIN_PEAK or _is_ambiguous(top, correlation[c], lags, True, AMBIGUOUS_PEAK_RATIO)
-        F = None if fundamentals is None else fundamentals[c]
-        if F is None:
-            continue
+        peak[c], peak_lag[c] = correlation[c, peaks[0]], lags[peaks[0]]
         rows = np.flatnonzero(camera == c)
-        candidates = np.unique(np.clip(np.concatenate([np.arange(p - REFINE_WINDOW, p + REFINE_WINDOW + 1)
-                                                       for p in peaks[:REFINE_PEAKS]]), 0, L - 1))
-        scores = np.full(L, np.nan)
-        for i in candidates:
-            scores[i] = alignment_error(F, keypoints[ref_rows], frame[ref_rows], keypoints[rows], frame[rows],
-                                        int(lags[i]))[0]
-        if np.isfinite(scores).any():
-            best = int(np.nanargmin(scores))
-            offsets[c], error[c] = lags[best], scores[best]
-            ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
+        kp, fr = keypoints[rows], frame[rows]
+
+        def scores_with(F):
+            return np.array([alignment_error(F, ref_kp, ref_frame, kp, fr, int(lag)) for lag in lags])
+
+        F = None if fundamentals is None else fundamentals[c]
+        if F is None:                          # a rough epipolar geometry at the most consistent candidate lag
+            candidates = list(dict.fromkeys([int(lags[p]) for p in peaks[:REFINE_PEAKS]] + [0]))
+            F = max((estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], lag, rng, SEARCH_INLIER_PX)
+                     for lag in candidates), key=lambda found: found[1])[0]
+            if F is not None:                  # then the lags near the best, each with its own geometry
+                near = lags[int(np.nanargmin(scores_with(F)))] + np.arange(-REFINE_WINDOW, REFINE_WINDOW + 1)
+                fits = [estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], int(lag), rng)[0] for lag in near]
+                own = [alignment_error(f, ref_kp, ref_frame, kp, fr, int(lag)) if f is not None else np.nan
+                       for f, lag in zip(fits, near)]
+                if np.isfinite(own).any():
+                    F = fits[int(np.nanargmin(own))]
+        if F is None:
+            offsets[c] = peak_lag[c]
+            ambiguous[c] = peak[c] < MIN_PEAK or _is_ambiguous(peaks[0], correlation[c], lags, True,
+                                                                AMBIGUOUS_PEAK_RATIO)
+            continue
+        scores = scores_with(F)
+        if not np.isfinite(scores).any():
+            raise ValueError(f"camera {c}: shares no instant with the reference camera at any offset")
+        best = int(np.nanargmin(scores))
+        offsets[c], error[c] = lags[best], scores[best]
+        ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
     return SyncResult(offsets, peak, peak_lag, error, ambiguous, lags, correlation)
