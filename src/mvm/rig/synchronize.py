@@ -64,6 +64,15 @@ ESTIMATE_HYPOTHESES = 100
 AMBIGUOUS_ERROR_RATIO = 1.25
 
 
+class SyncError(ValueError):
+    """A camera cannot be synchronized: ``camera`` is its index."""
+
+    def __init__(self, camera: int, problem: str):
+        self.camera = camera
+        self.problem = problem
+        super().__init__(f"camera {camera}: {problem}")
+
+
 @dataclass
 class SyncResult:
     """Offsets of the ``V`` cameras to the reference camera (index 0).
@@ -259,7 +268,7 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
             (None: estimated from the people).
     Returns:
         :class:`SyncResult`. A camera without poses, or whose poses do not overlap the
-        reference camera's, raises ``ValueError`` naming its index.
+        reference camera's, raises :class:`SyncError` naming its index.
     """
     rng = np.random.default_rng(seed)
     V = len(K)
@@ -268,7 +277,7 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
     for c in range(V):
         rows = camera == c
         if not rows.any():
-            raise ValueError(f"camera {c}: no 2D poses")
+            raise SyncError(c, "no 2D poses")
         first = int(frame[rows].min())
         signals.append(motion_signal(keypoints[rows], frame[rows], first, int(frame[rows].max()) - first + 1))
         firsts.append(first)
@@ -282,8 +291,8 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
         correlation[c] = cross_correlation(signals[0], signals[c], firsts[c] - firsts[0], lags)
         peaks = _peaks(correlation[c])
         if not len(peaks):
-            raise ValueError(f"camera {c}: its people's motion overlaps the reference camera's in fewer than "
-                             f"{MIN_OVERLAP_FRAMES} frames")
+            raise SyncError(c, f"its people's motion overlaps the reference camera's in fewer than "
+                               f"{MIN_OVERLAP_FRAMES} frames at every offset up to {max_offset}")
         peak[c], peak_lag[c] = correlation[c, peaks[0]], lags[peaks[0]]
         rows = np.flatnonzero(camera == c)
         kp, fr = keypoints[rows], frame[rows]
@@ -310,7 +319,7 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
             continue
         scores = scores_with(F)
         if not np.isfinite(scores).any():
-            raise ValueError(f"camera {c}: shares no instant with the reference camera at any offset")
+            raise SyncError(c, "shares no people with the reference camera at any offset")
         best = int(np.nanargmin(scores))
         offsets[c], error[c] = lags[best], scores[best]
         ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
