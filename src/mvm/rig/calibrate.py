@@ -18,7 +18,8 @@
    with a Jacobian sparsity, ``x_scale='jac'`` and a soft-L1 loss.
 4. **World frame from the people:** metres from the bone lengths (the mean adult bones of
    :data:`mvm.core.keypoints.MEAN_BONE_LENGTHS_M`), z up along the standing bodies (mid-ankles
-   to mid-shoulders of straight-legged poses), the origin on the floor (the ankles' level, as
+   to mid-shoulders of straight-legged poses; the normal of the floor through their feet when
+   they walk about), the origin on the floor (the ankles' level, as
    the pose bank's frame) under the people's mean position, x along the reference camera's
    right axis seen from above.
 """
@@ -58,6 +59,9 @@ MAX_INSTANTS = 150
 LOSS_SCALE_PX = 3.0
 #: The calibration has not converged when a camera's median reprojection error exceeds this. [px]
 MAX_RESIDUAL_PX = 15.0
+#: The floor is fitted through the people's feet (its normal the vertical) when they spread
+#: this much (standard deviation) along its narrower direction; else the bodies' axis. [m]
+FLOOR_MIN_SPREAD_M = 0.3
 #: Straight legs: hip-to-ankle distance at least this fraction of thigh + shank. [1]
 STRAIGHT_LEG = 0.9
 
@@ -436,11 +440,20 @@ def world_from_people(X: np.ndarray, R0_right: np.ndarray) -> tuple[float, np.nd
         raise CalibrationError(None, "no body is seen whole: the vertical is unknown")
     up = (axis / np.linalg.norm(axis, axis=-1, keepdims=True)).mean(0)
     up /= np.linalg.norm(up)
+    ankles = X[:, _ANKLES]                                                        # the standing foot: the lower ankle
+    lower = np.take_along_axis(ankles, np.nanargmin(np.where(np.isfinite(ankles @ up), ankles @ up, np.inf),
+                                                    axis=1)[:, None, None], 1)[:, 0]
+    lower = lower[np.isfinite(lower).all(-1)]
+    if len(lower) >= 3:                       # people walking about: the floor through their feet is finer
+        _, spread, vt = np.linalg.svd(lower - lower.mean(0), full_matrices=False)
+        if s * spread[1] / np.sqrt(len(lower)) >= FLOOR_MIN_SPREAD_M:
+            up = vt[2] * np.sign(vt[2] @ up)
     x_axis = R0_right - (R0_right @ up) * up
     x_axis /= np.linalg.norm(x_axis)
     W = np.stack([x_axis, np.cross(up, x_axis), up])                              # rows: world x, y, z
     feet = np.einsum("ij,qkj->qki", W, X[:, _ANKLES]) * s                         # (Q, 2, 3)
-    floor = np.nanmedian(np.nanmin(feet[..., 2], axis=1))
+    lowest = np.min(np.where(np.isfinite(feet[..., 2]), feet[..., 2], np.inf), axis=1)
+    floor = float(np.median(lowest[np.isfinite(lowest)]))
     centre = np.nanmean(feet.reshape(-1, 3)[:, :2], axis=0)
     b = -np.array([centre[0], centre[1], floor])
     return s, W, b

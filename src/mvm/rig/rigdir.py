@@ -105,7 +105,7 @@ def find_calibration(rig_dir: Path) -> Path:
     """The calibration of ``rig_dir``: one ``*.toml`` at its top or in ``calibration/``, or a
     COLMAP model in ``sparse/``. Several candidates raise :class:`InputError` (use ``--calib``)."""
     candidates = sorted(p for p in [*rig_dir.glob("*.toml"), *(rig_dir / "calibration").glob("*.toml")]
-                        if p.name.lower() not in ("config.toml", "mvm.toml"))
+                        if p.name.lower() not in ("config.toml", "mvm.toml", "sync.toml"))
     if (rig_dir / "sparse").is_dir():
         candidates.append(rig_dir / "sparse")
     if len(candidates) == 1:
