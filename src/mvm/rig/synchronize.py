@@ -10,7 +10,8 @@ cross-correlation of the two signals at every lag (as Pose2Sim does); its peak i
 On a rig of several people the signal depends much on the view (who hides whom, which limbs
 move across the image), so the offset is decided by geometry: every lag is scored by the
 triangulation error of the alignment it makes — for every pose of the camera, the smallest
-median Sampson error (the first-order reprojection error of the optimal two-view
+mean Sampson error of its joints (each clipped: the moving joints carry the signal, a median
+would keep the still ones) (the first-order reprojection error of the optimal two-view
 triangulation) against the reference camera's poses of the aligned frame, clipped — and the
 lowest error wins. The epipolar geometry comes from the calibration when the rig has one;
 otherwise it is estimated from the people (:mod:`mvm.rig.calibrate`): roughly (a loose
@@ -46,7 +47,9 @@ MIN_OVERLAP_FRAMES = 10
 AMBIGUOUS_PEAK_RATIO = 0.9
 PEAK_SEPARATION = 3
 MIN_PEAK = 0.3
-#: Sampson errors above this are clipped (a wrong pairing counts as this much). [px]
+#: A joint's Sampson error counts at most this much (an outlying joint), a pose's mean error at
+#: most ``MAX_ERROR_PX`` (a wrong pairing). [px]
+MAX_JOINT_ERROR_PX = 15.0
 MAX_ERROR_PX = 30.0
 #: Correlation peaks (with lag 0) at which the epipolar geometry is estimated when the rig is
 #: not calibrated.
@@ -195,17 +198,15 @@ def alignment_error(F: np.ndarray, ref_kp: np.ndarray, ref_frame: np.ndarray, kp
         F: ``(3, 3)`` reference -> camera fundamental matrix (:func:`fundamental_matrix`).
         ref_kp: ``(A, 17, 3)``, ref_frame: ``(A,)``; kp: ``(B, 17, 3)``, frame: ``(B,)``.
     Returns:
-        The mean over the camera's poses that share an aligned frame of their smallest median
+        The mean over the camera's poses that share an aligned frame of their smallest mean
         Sampson error (px, clipped at ``MAX_ERROR_PX``); NaN when none does.
     """
     a, b = aligned_pairs(ref_frame, frame, lag)
     if not len(a):
         return np.nan
     both = (ref_kp[a, :, 2] > 0) & (kp[b, :, 2] > 0)                                        # (M, 17)
-    err = np.where(both, sampson(F, ref_kp[a, :, :2], kp[b, :, :2]), np.nan)
-    with np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
-        med = np.nanmedian(err, axis=1)
+    err = np.minimum(sampson(F, ref_kp[a, :, :2], kp[b, :, :2]), MAX_JOINT_ERROR_PX)
+    med = (err * both).sum(1) / np.maximum(both.sum(1), 1)
     med = np.where(both.sum(1) >= MIN_COMMON_JOINTS, np.minimum(med, MAX_ERROR_PX), MAX_ERROR_PX)
     best = np.full(len(kp), np.inf)
     np.minimum.at(best, b, med)
