@@ -21,6 +21,12 @@ from mvm.sim.rig import detect_views, ring_cameras
 
 #: The capture rate of the CMU motions of the pose bank (their frame numbers). [Hz]
 BANK_RATE_HZ = 120.0
+#: A bank motion is cut where two consecutive samples are further apart than this (source frames,
+#: metres of mean joint distance).
+MAX_SAMPLE_GAP_FRAMES = 60
+MAX_SAMPLE_JUMP_M = 0.15
+#: People turn around over this long when they reach the edge of their area. [s]
+TURN_S = 0.5
 #: Fewest bank poses a motion needs to be played (its samples are a few source frames apart).
 MIN_MOTION_POSES = 40
 
@@ -105,9 +111,14 @@ def bank_motions(min_poses: int = MIN_MOTION_POSES) -> list[tuple[np.ndarray, np
     out = []
     for name in np.unique(motion):
         rows = np.flatnonzero(motion == name)
-        if len(rows) >= min_poses:
-            order = rows[np.argsort(frame[rows])]
-            out.append((frame[order], poses[order]))
+        order = rows[np.argsort(frame[rows])]
+        # cut the motion where its samples are far apart in time or in pose; keep its longest part
+        gap = np.diff(frame[order]) > MAX_SAMPLE_GAP_FRAMES
+        jump = np.linalg.norm(np.diff(poses[order], axis=0), axis=-1).mean(-1) > MAX_SAMPLE_JUMP_M
+        parts = np.split(order, np.flatnonzero(gap | jump) + 1)
+        longest = max(parts, key=len)
+        if len(longest) >= min_poses:
+            out.append((frame[longest], poses[longest]))
     return out
 
 
@@ -136,7 +147,11 @@ def moving_people(people: int, instants: int, rng: np.random.Generator, rate: fl
     raw = start[None] + time[:, None, None] * velocity[None]                      # (T, G, 2)
     pos = area - np.abs(np.mod(raw + area, 4 * area) - 2 * area)                   # reflect into the square
     step = np.diff(pos, axis=0, prepend=pos[:1] - velocity[None] / rate)
-    yaw = np.arctan2(step[..., 1], step[..., 0]) - np.pi / 2                      # the body faces +y
+    yaw = np.unwrap(np.arctan2(step[..., 1], step[..., 0]), axis=0) - np.pi / 2  # the body faces +y
+    width = max(1, int(TURN_S * rate))                                            # turn smoothly at a wall
+    padded = np.concatenate([np.repeat(yaw[:1], width, 0), yaw, np.repeat(yaw[-1:], width, 0)])
+    kernel = np.ones(2 * width + 1) / (2 * width + 1)
+    yaw = np.stack([np.convolve(padded[:, g], kernel, "valid") for g in range(people)], 1)
     c, s = np.cos(yaw)[..., None], np.sin(yaw)[..., None]
     x = c * bodies[..., 0] - s * bodies[..., 1] + pos[..., 0:1]
     y = s * bodies[..., 0] + c * bodies[..., 1] + pos[..., 1:2]
