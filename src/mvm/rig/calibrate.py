@@ -61,7 +61,7 @@ LOSS_SCALE_PX = 3.0
 MAX_RESIDUAL_PX = 15.0
 #: The floor is fitted through the people's feet (its normal the vertical) when they spread
 #: this much (standard deviation) along its narrower direction; else the bodies' axis. [m]
-FLOOR_MIN_SPREAD_M = 0.3
+FLOOR_MIN_SPREAD_M = 0.15
 #: Straight legs: hip-to-ankle distance at least this fraction of thigh + shank. [1]
 STRAIGHT_LEG = 0.9
 

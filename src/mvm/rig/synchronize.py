@@ -25,6 +25,7 @@ shows the instant of the reference camera's frame ``f + offset``.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,8 +103,8 @@ def _pose_scale(keypoints: np.ndarray) -> np.ndarray:
     """Image size of each pose: the diagonal of its present joints' box. ``(N, 17, 3)`` -> ``(N,)``."""
     present = keypoints[..., 2] > 0
     xy = np.where(present[..., None], keypoints[..., :2], np.nan)
-    with np.errstate(invalid="ignore"), np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
+    with warnings.catch_warnings():                                      # a pose without joints: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
         span = np.nanmax(xy, 1) - np.nanmin(xy, 1)
     return np.nan_to_num(np.linalg.norm(span, axis=-1), nan=0.0)
 
@@ -133,8 +134,8 @@ def motion_signal(keypoints: np.ndarray, frame: np.ndarray, first: int, count: i
         step = np.linalg.norm(keypoints[a][:, None, :, :2] - keypoints[b][None, :, :, :2], axis=-1)
         size = np.maximum(np.maximum(scale[a][:, None], scale[b][None]), 1e-9)
         rel = np.where(both, step, np.nan) / size[..., None]
-        with np.testing.suppress_warnings() as sup:
-            sup.filter(RuntimeWarning)
+        with warnings.catch_warnings():                                  # no common joint: NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
             cost = np.nanmedian(rel, axis=-1)
         cost = np.where(both.sum(-1) >= MIN_COMMON_JOINTS, cost, np.inf)
         finite = np.where(np.isfinite(cost), cost, 1e6)
