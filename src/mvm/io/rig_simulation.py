@@ -19,8 +19,6 @@ import numpy as np
 from mvm.io.calib_toml import calib_toml_text, write_calib_toml
 from mvm.io.coco import coco_keypoints_document
 from mvm.io.files import atomic_replace_dir, atomic_write_json, atomic_write_text
-from mvm.sim.detector import pose_scores
-from mvm.sim.rig_scene import RigSimulation
 
 TRUTH_FORMAT = "mvm.rig.groundtruth/1"
 
@@ -31,8 +29,8 @@ def intrinsics_only_text(text: str) -> str:
                    if not line.startswith(("rotation = ", "translation = ")))
 
 
-def truth_document(sim: RigSimulation) -> dict:
-    """The ground truth of ``sim`` as a JSON-ready dict."""
+def truth_document(sim) -> dict:
+    """The ground truth of ``sim`` (a :class:`mvm.sim.rig_scene.RigSimulation`) as a JSON-ready dict."""
     cams = sim.calibration.cameras
     return {"format": TRUTH_FORMAT, "cameras": list(cams.names), "frame_rate": sim.frame_rate,
             "frames": sim.frames,
@@ -45,9 +43,10 @@ def truth_document(sim: RigSimulation) -> dict:
             "poses3d": np.round(sim.poses3d, 5).tolist()}
 
 
-def write_rig_simulation(out: str | Path, sim: RigSimulation, intrinsics_only: bool = False) -> dict[str, Path]:
-    """Write ``sim`` into the rig folder ``out`` and its truth beside it. Returns the paths
-    written (``rig``, ``calibration``, ``truth``, ``true_calibration``)."""
+def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False) -> dict[str, Path]:
+    """Write ``sim`` (a :class:`mvm.sim.rig_scene.RigSimulation`) into the rig folder ``out`` and
+    its truth beside it. Returns the paths written (``rig``, ``calibration``, ``truth``,
+    ``true_calibration``)."""
     out = Path(out)
     cams = sim.calibration.cameras
 
@@ -59,7 +58,7 @@ def write_rig_simulation(out: str | Path, sim: RigSimulation, intrinsics_only: b
             frames, ann_image = np.unique(sim.frame[rows], return_inverse=True)
             document = coco_keypoints_document([f"{name}/{f:06d}.jpg" for f in frames],
                                                [cams.size[v]] * len(frames), ann_image, sim.keypoints[rows],
-                                               pose_scores(sim.keypoints[rows]))
+                                               sim.score[rows])
             atomic_write_json(folder / "pose" / f"{name}.json", document)
 
     truth = out.with_name(out.name + ".groundtruth.json")

@@ -16,7 +16,7 @@ import numpy as np
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.posebank import load_pose_bank
 from mvm.io.calib_toml import RigCalibration
-from mvm.sim.detector import DetectorErrors
+from mvm.sim.detector import DetectorErrors, pose_scores
 from mvm.sim.rig import detect_views, ring_cameras
 
 #: The capture rate of the CMU motions of the pose bank (their frame numbers). [Hz]
@@ -78,7 +78,7 @@ class RigSimulation:
         poses3d: ``(S, G, 17, 3)`` true joints at every instant (metres).
         keypoints: ``(N, 17, 3)`` detected 2D poses, *distorted* pixels (as a detector sees them).
         camera: ``(N,)`` camera of every pose; frame: ``(N,)`` its frame number in that camera;
-        person: ``(N,)`` true person (-1: a false pose).
+        person: ``(N,)`` true person (-1: a false pose); score: ``(N,)`` the pose's confidence.
         frames: frames recorded by every camera (``0 .. frames - 1``).
         frame_rate: Hz.
     """
@@ -91,6 +91,7 @@ class RigSimulation:
     camera: np.ndarray
     frame: np.ndarray
     person: np.ndarray
+    score: np.ndarray
     frames: int
     frame_rate: float
 
@@ -198,4 +199,4 @@ def simulate_rig(config: RigSimConfig = RigSimConfig()) -> RigSimulation:
     keypoints, camera, frame, person = record_rig(calibration, poses3d, offsets, config.frames, rng, config.errors)
     instants = np.arange(S) + offsets.min()
     return RigSimulation(calibration, offsets, instants, poses3d, keypoints, camera, frame, person,
-                         config.frames, config.frame_rate)
+                         pose_scores(keypoints), config.frames, config.frame_rate)
