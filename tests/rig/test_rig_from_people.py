@@ -145,3 +145,17 @@ def test_simulate_rig_command(tmp_path):
     assert read_rig(tmp_path / "r", extrinsics=False).calibration.cameras.names == ("cam_01", "cam_02", "cam_03")
     _one_line_exit_2(_invoke(simulate_cmd, [tmp_path / "s", "--rig", "--cameras", 3, "--offsets", "0,2"]),
                      "--offsets", "3 numbers")
+
+
+def test_read_rig_applies_sync_toml_in_the_reference_numbering(tmp_path):
+    sim = simulate_rig(RigSimConfig(cameras=3, people=2, frames=20, offsets=(0, 2, -3), seed=2))
+    write_rig_simulation(tmp_path / "r", sim)
+    write_sync_toml(tmp_path / "r" / "sync.toml", dict(zip(sim.calibration.cameras.names, sim.sync_offsets.tolist())))
+    data = read_rig(tmp_path / "r", frames="0:10")
+    assert data.offsets == {"cam_01": 0, "cam_02": 2, "cam_03": -3}
+    assert data.frames.tolist() == list(range(10))
+    det = data.detections
+    for c, offset in enumerate(sim.sync_offsets):      # camera c's frame f is the reference frame f + offset
+        mine = (sim.camera == c) & (sim.frame + offset >= 0) & (sim.frame + offset < 10)
+        assert (det.view == c).sum() == mine.sum()
+    assert read_rig(tmp_path / "r", sync=False).offsets is None
