@@ -17,7 +17,8 @@ lowest error wins. The epipolar geometry comes from the calibration when the rig
 otherwise it is estimated from the people (:mod:`mvm.rig.calibrate`): roughly (a loose
 threshold) at the correlation's best peaks and lag 0, the most consistent one kept; the lags
 near the best one it gives are then each fitted with their own geometry, the one that fits its
-alignment best gives the geometry every lag is scored with.
+alignment best gives the geometry every lag is scored with; when that leaves the offset
+ambiguous, every lag is fitted with its own geometry (up to ``MAX_OWN_GEOMETRY_LAGS`` lags).
 
 Convention (``sync.toml``, :mod:`mvm.io.sync_toml`): the offset of camera ``c`` is the
 number of frames to ADD to its frame numbers to reach the reference camera's: its frame ``f``
@@ -60,6 +61,9 @@ REFINE_PEAKS = 3
 #: best one it gives are then fitted each with its own geometry. [px, frames]
 SEARCH_INLIER_PX = 25.0
 REFINE_WINDOW = 2
+#: When the offset found so is ambiguous, every lag is fitted with its own geometry, if there are
+#: at most this many lags.
+MAX_OWN_GEOMETRY_LAGS = 41
 #: Frames used at most, and hypotheses drawn at most, to estimate an epipolar geometry.
 ESTIMATE_FRAMES = 40
 ESTIMATE_HYPOTHESES = 100
@@ -303,15 +307,21 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
             return np.array([alignment_error(F, ref_kp, ref_frame, kp, fr, int(lag)) for lag in lags])
 
         F = None if fundamentals is None else fundamentals[c]
-        if F is None:                          # a rough epipolar geometry at the most consistent candidate lag
+        def own_geometry(chosen):
+            """Each lag of ``chosen`` fitted with its own geometry: ``(fits, their errors)``."""
+            fits = [estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], int(lag), rng)[0] for lag in chosen]
+            return fits, np.array([alignment_error(f, ref_kp, ref_frame, kp, fr, int(lag)) if f is not None else np.nan
+                                   for f, lag in zip(fits, chosen)])
+
+        estimated = F is None
+        if estimated:                          # a rough epipolar geometry at the most consistent candidate lag
             candidates = list(dict.fromkeys([int(lags[p]) for p in peaks[:REFINE_PEAKS]] + [0]))
             F = max((estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], lag, rng, SEARCH_INLIER_PX)
                      for lag in candidates), key=lambda found: found[1])[0]
             if F is not None:                  # then the lags near the best, each with its own geometry
                 near = lags[int(np.nanargmin(scores_with(F)))] + np.arange(-REFINE_WINDOW, REFINE_WINDOW + 1)
-                fits = [estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], int(lag), rng)[0] for lag in near]
-                own = [alignment_error(f, ref_kp, ref_frame, kp, fr, int(lag)) if f is not None else np.nan
-                       for f, lag in zip(fits, near)]
+                near = near[np.isin(near, lags)]
+                fits, own = own_geometry(near)
                 if np.isfinite(own).any():
                     F = fits[int(np.nanargmin(own))]
         if F is None:
@@ -323,6 +333,11 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
         if not np.isfinite(scores).any():
             raise SyncError(c, "shares no people with the reference camera at any offset")
         best = int(np.nanargmin(scores))
-        offsets[c], error[c] = lags[best], scores[best]
         ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
+        if estimated and ambiguous[c] and len(lags) <= MAX_OWN_GEOMETRY_LAGS:   # every lag with its own geometry
+            _, scores = own_geometry(lags)
+            if np.isfinite(scores).any():
+                best = int(np.nanargmin(scores))
+                ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
+        offsets[c], error[c] = lags[best], scores[best]
     return SyncResult(offsets, peak, peak_lag, error, ambiguous, lags, correlation)
