@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
+from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
 from mvm.core.geometry import triangulate_dlt
@@ -353,6 +353,22 @@ def _rotation_matrices(rvec: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(rvec).as_matrix()
 
 
+def jacobian_sparsity(cam: np.ndarray, point: np.ndarray, n_cameras: int, n_points: int) -> coo_matrix:
+    """Which parameters each residual depends on: the ``(2n, 6 (V - 1) + 3 P)`` 0/1 pattern of
+    ``n`` observations of ``point: (n,)`` in ``cam: (n,)`` (x and y rows; camera 0 is fixed)."""
+    n = len(cam)
+    rows, cols = [], []
+    moving = np.flatnonzero(cam > 0)
+    for r in (0, 1):
+        rows.append(np.repeat(2 * moving + r, 6))
+        cols.append((6 * (cam[moving] - 1))[:, None].repeat(6, 1).ravel() + np.tile(np.arange(6), len(moving)))
+        rows.append(np.repeat(2 * np.arange(n) + r, 3))
+        cols.append(6 * (n_cameras - 1) + (3 * point)[:, None].repeat(3, 1).ravel() + np.tile(np.arange(3), n))
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    return coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)),
+                      shape=(2 * n, 6 * (n_cameras - 1) + 3 * n_points))
+
+
 def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,
                   R: np.ndarray, t: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
     """Sparse bundle adjustment (module docstring, step 3). Camera 0 stays fixed.
@@ -384,16 +400,7 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
         z = np.where(np.abs(pc[:, 2]) > 1e-9, pc[:, 2], 1e-9)
         return ((pc[:, :2] / z[:, None] - obs) * f[:, None]).ravel()
 
-    n = len(obs)
-    sparsity = lil_matrix((2 * n, len(params0)), dtype=int)
-    rows = np.arange(n)
-    for k in range(6):
-        moving = cam > 0
-        for r in (0, 1):
-            sparsity[2 * rows[moving] + r, 6 * (cam[moving] - 1) + k] = 1
-    for k in range(3):
-        for r in (0, 1):
-            sparsity[2 * rows + r, 6 * (V - 1) + 3 * point_index + k] = 1
+    sparsity = jacobian_sparsity(cam, point_index, V, P)
     result = least_squares(residuals, params0, jac_sparsity=sparsity, x_scale="jac", loss="soft_l1",
                            f_scale=LOSS_SCALE_PX, method="trf", max_nfev=200)
     cams = result.x[:6 * (V - 1)].reshape(V - 1, 6)
