@@ -46,6 +46,8 @@ def rig() -> None:
 def synchronize_cmd(rig_dir, calib, max_offset):
     """Find each camera's frame offset from the people's motion; write RIG_DIR/sync.toml (frames to
     add to each camera's frame numbers to reach the reference camera's, the first of the calibration)."""
+    import numpy as np
+
     from mvm.rig.prepare import synchronize_rig
 
     found = synchronize_rig(rig_dir, calib, max_offset)
@@ -53,7 +55,7 @@ def synchronize_cmd(rig_dir, calib, max_offset):
     print_table(f"{rig_dir}: offsets to the reference camera {found.names[0]} (searched ±{r.lags.max()} frames, "
                 + ("calibrated" if found.calibrated else "epipolar geometry from the people") + ")",
                 ("camera", "offset (frames)", "triangulation error px", "correlation peak (lag)", "ambiguous"),
-                [(n, f"{int(o):+d}", fmt(e) if e == e else "–", f"{p:.2f} ({int(lag):+d})", "yes" if a else "")
+                [(n, f"{int(o):+d}", fmt(e) if np.isfinite(e) else "–", f"{p:.2f} ({int(lag):+d})", "yes" if a else "")
                  for n, o, e, p, lag, a in zip(found.names, r.offsets, r.error_px, r.peak, r.peak_lag, r.ambiguous)])
     for n, p, a in zip(found.names, r.peak, r.ambiguous):
         if a:

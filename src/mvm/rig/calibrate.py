@@ -34,7 +34,7 @@ from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
 from mvm.core.geometry import triangulate_dlt
-from mvm.core.keypoints import BONES, INDEX, MEAN_BONE_LENGTHS_M, NUM_JOINTS, bone_lengths
+from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, NUM_JOINTS, bone_lengths
 
 #: A joint agrees with an essential matrix within this Sampson error. [px]
 INLIER_PX = 6.0

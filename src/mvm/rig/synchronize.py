@@ -261,6 +261,20 @@ def _is_ambiguous(best: int, score: np.ndarray, lags: np.ndarray, better_high: b
     return bool(other.max() >= ratio * score[best]) if better_high else bool(other.min() <= ratio * score[best])
 
 
+def _scores(F: np.ndarray, pair: tuple, lags: np.ndarray) -> np.ndarray:
+    """:func:`alignment_error` of ``pair = (ref_kp, ref_frame, kp, frame)`` at every lag: ``(L,)``."""
+    return np.array([alignment_error(F, *pair, int(lag)) for lag in lags])
+
+
+def _own_geometry(pair: tuple, K_ref: np.ndarray, K: np.ndarray, lags: np.ndarray, rng: np.random.Generator
+                  ) -> tuple[list, np.ndarray]:
+    """Each lag of ``lags`` fitted with its own epipolar geometry (:func:`estimated_fundamental`):
+    ``(the fundamental matrices (None: not found), their alignment errors (L,))``."""
+    fits = [estimated_fundamental(*pair, K_ref, K, int(lag), rng)[0] for lag in lags]
+    return fits, np.array([alignment_error(f, *pair, int(lag)) if f is not None else np.nan
+                           for f, lag in zip(fits, lags)])
+
+
 def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K: np.ndarray, max_offset: int,
                 fundamentals: list[np.ndarray | None] | None = None, seed: int = 0) -> SyncResult:
     """Each camera's offset to camera 0 (module docstring).
@@ -302,26 +316,18 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
         peak[c], peak_lag[c] = correlation[c, peaks[0]], lags[peaks[0]]
         rows = np.flatnonzero(camera == c)
         kp, fr = keypoints[rows], frame[rows]
-
-        def scores_with(F):
-            return np.array([alignment_error(F, ref_kp, ref_frame, kp, fr, int(lag)) for lag in lags])
+        pair = (ref_kp, ref_frame, kp, fr)
 
         F = None if fundamentals is None else fundamentals[c]
-        def own_geometry(chosen):
-            """Each lag of ``chosen`` fitted with its own geometry: ``(fits, their errors)``."""
-            fits = [estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], int(lag), rng)[0] for lag in chosen]
-            return fits, np.array([alignment_error(f, ref_kp, ref_frame, kp, fr, int(lag)) if f is not None else np.nan
-                                   for f, lag in zip(fits, chosen)])
-
         estimated = F is None
         if estimated:                          # a rough epipolar geometry at the most consistent candidate lag
             candidates = list(dict.fromkeys([int(lags[p]) for p in peaks[:REFINE_PEAKS]] + [0]))
             F = max((estimated_fundamental(ref_kp, ref_frame, kp, fr, K[0], K[c], lag, rng, SEARCH_INLIER_PX)
                      for lag in candidates), key=lambda found: found[1])[0]
             if F is not None:                  # then the lags near the best, each with its own geometry
-                near = lags[int(np.nanargmin(scores_with(F)))] + np.arange(-REFINE_WINDOW, REFINE_WINDOW + 1)
+                near = lags[int(np.nanargmin(_scores(F, pair, lags)))] + np.arange(-REFINE_WINDOW, REFINE_WINDOW + 1)
                 near = near[np.isin(near, lags)]
-                fits, own = own_geometry(near)
+                fits, own = _own_geometry(pair, K[0], K[c], near, rng)
                 if np.isfinite(own).any():
                     F = fits[int(np.nanargmin(own))]
         if F is None:
@@ -329,13 +335,13 @@ def synchronize(keypoints: np.ndarray, camera: np.ndarray, frame: np.ndarray, K:
             ambiguous[c] = peak[c] < MIN_PEAK or _is_ambiguous(peaks[0], correlation[c], lags, True,
                                                                 AMBIGUOUS_PEAK_RATIO)
             continue
-        scores = scores_with(F)
+        scores = _scores(F, pair, lags)
         if not np.isfinite(scores).any():
             raise SyncError(c, "shares no people with the reference camera at any offset")
         best = int(np.nanargmin(scores))
         ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
         if estimated and ambiguous[c] and len(lags) <= MAX_OWN_GEOMETRY_LAGS:   # every lag with its own geometry
-            _, scores = own_geometry(lags)
+            _, scores = _own_geometry(pair, K[0], K[c], lags, rng)
             if np.isfinite(scores).any():
                 best = int(np.nanargmin(scores))
                 ambiguous[c] = _is_ambiguous(best, scores, lags, False, AMBIGUOUS_ERROR_RATIO)
