@@ -5,6 +5,7 @@ import click
 
 from mvm.cli.common import (
     Group,
+    Number,
     config_options,
     fmt,
     parse_sets,
@@ -31,9 +32,77 @@ def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
                          {**{k: "--rig-set" for k in values}, **{k: "--" + k.replace("_", "-") for k in flags}})
 
 
-@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+class RigGroup(Group):
+    """The ``rig`` group lists its commands in the order of the user's path, not alphabetically."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(self.commands)
+
+
+@click.group(cls=RigGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def rig() -> None:
-    """Synchronized camera rigs: Calib.toml + 2D poses per camera -> tracked 3D poses and .trc."""
+    """Camera rigs: Calib.toml + 2D poses per camera -> tracked 3D poses and .trc.
+
+    \b
+    The path of a rig folder, each step's output the next one's input:
+      mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
+      mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
+      mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
+    """
+
+
+@rig.command("synchronize")
+@click.argument("rig_dir", type=click.Path(file_okay=False))
+@click.option("--calib", type=click.Path(), default=None,
+              help="Calibration (default: found in RIG_DIR); without rotations and translations the epipolar "
+                   "geometry is estimated from the people.")
+@click.option("--max-offset", type=Number(int, ge=1), default=None,
+              help="Largest offset searched, in frames (default 60, or what the shortest video allows).")
+def synchronize_cmd(rig_dir, calib, max_offset):
+    """Find each camera's frame offset from the people's motion; write RIG_DIR/sync.toml (frames to
+    add to each camera's frame numbers to reach the reference camera's, the first of the calibration)."""
+    import numpy as np
+
+    from mvm.rig.prepare import synchronize_rig
+
+    found = synchronize_rig(rig_dir, calib, max_offset)
+    r = found.result
+    print_table(f"{rig_dir}: offsets to the reference camera {found.names[0]} (searched ±{r.lags.max()} frames, "
+                + ("calibrated" if found.calibrated else "epipolar geometry from the people") + ")",
+                ("camera", "offset (frames)", "triangulation error px", "correlation peak (lag)", "ambiguous"),
+                [(n, f"{int(o):+d}", fmt(e) if np.isfinite(e) else "–", f"{p:.2f} ({int(lag):+d})", "yes" if a else "")
+                 for n, o, e, p, lag, a in zip(found.names, r.offsets, r.error_px, r.peak, r.peak_lag, r.ambiguous)])
+    for n, p, a in zip(found.names, r.peak, r.ambiguous):
+        if a:
+            say(f"warning: camera {n}: offset ambiguous (correlation peak {p:.2f}); check it, or trim its video")
+    say(f"wrote {found.path}")
+
+
+@rig.command("calibrate")
+@click.argument("rig_dir", type=click.Path(file_okay=False))
+@click.option("--from-people", "from_people", is_flag=True, required=True,
+              help="Find every camera's rotation and position from the people's 2D poses (no calibration object).")
+@click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
+              help="The Calib.toml to write (use it with mvm rig reconstruct --calib).")
+@click.option("--intrinsics", type=click.Path(dir_okay=False), default=None,
+              help="Calib.toml with the cameras' intrinsics (default: RIG_DIR's calibration; rotations and "
+                   "translations may be absent and are not used).")
+@click.option("--seed", default=0, show_default=True, type=Number(int, ge=0),
+              help="Random seed of the robust estimation.")
+def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
+    """Calibrate the rig's extrinsics from the people it sees: metres from their bone lengths, z up
+    along their bodies, the origin on the floor under them. Synchronize first (sync.toml is used)."""
+    from mvm.rig.prepare import calibrate_rig_from_people
+
+    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed)
+    cams = found.calibration.cameras
+    r = found.result
+    frames = "synchronized by sync.toml" if found.sync else "frame numbers as they are"
+    print_table(f"{rig_dir}: calibrated from people ({frames})",
+                ("camera", "position x, y, z (m)", "residual px", "joints"),
+                [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]), fmt(r.residual_px[v]), str(r.observations[v]))
+                 for v, n in enumerate(cams.names)])
+    say(f"wrote {found.path}")
 
 
 @rig.command("reconstruct")
@@ -85,5 +154,8 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
             "check its calibration, or raise ransac_threshold (--set ransac_threshold=...)")
+    if r.get("sync_offsets"):
+        say("synchronized by sync.toml (frame numbers are the reference camera's): "
+            + ", ".join(f"{n} {o:+d}" for n, o in r["sync_offsets"].items()))
     say(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
         f"{result.outputs['recap']}")

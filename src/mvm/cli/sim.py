@@ -59,11 +59,26 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
               help="Also render the frames into SCENE_DIR/frames (for mvm export and training).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [simulate] table, over the preset (mvm config prints one).")
-def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render, config_path):
+@click.option("--rig", is_flag=True,
+              help="Simulate a camera rig instead: SCENE_DIR becomes a rig folder (Calib.toml, pose/<camera>.json) "
+                   "for mvm rig synchronize / calibrate / reconstruct; the truth goes beside it.")
+@click.option("--cameras", default=5, show_default=True, type=Number(int, ge=1, le=30),
+              help="With --rig: cameras on a ring around the people (1-30).")
+@click.option("--offsets", default=None, metavar="O1,O2,...",
+              help="With --rig: each camera's frame offset (camera c's frame f shows the instant f + Oc; "
+                   "mvm rig synchronize finds Oc - O1).")
+@click.option("--intrinsics-only", is_flag=True,
+              help="With --rig: write Calib.toml without rotations and translations (for mvm rig calibrate "
+                   "--from-people); the full one goes beside the folder.")
+def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render, config_path, rig, cameras,
+                 offsets, intrinsics_only):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
-    (SCENE_DIR.groundtruth.json)."""
+    (SCENE_DIR.groundtruth.json). With --rig, a rig of cameras around moving people."""
     from mvm.io.ground_truth import write_simulation
     from mvm.sim.simulate import simulate
+
+    if rig:
+        return simulate_rig_cmd(scene_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only)
 
     with refused(ValueError):
         sim = read_sim(config_path, preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
@@ -81,6 +96,46 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         ("merged poses", str(int((truth.merged_with >= 0).sum()))),
         ("scene", str(scene_dir)), ("ground truth", str(truth_path))]
         + ([("rendered frames", f"{scene_dir}/frames")] if render else []))
+
+
+def parse_offsets(text: str | None, cameras: int) -> tuple[int, ...]:
+    """``"0,3,-2"`` -> ``(0, 3, -2)``, one whole number per camera (None: none)."""
+    from mvm.errors import InputError
+
+    if not text:
+        return ()
+    try:
+        values = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise InputError("--offsets", text, "expected whole numbers separated by commas, e.g. 0,3,-2") from None
+    if len(values) != cameras:
+        raise InputError("--offsets", text, f"expected {cameras} numbers (one per camera), got {len(values)}")
+    return values
+
+
+def simulate_rig_cmd(rig_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only):
+    """``mvm simulate --rig``: a simulated rig folder and its truth (:mod:`mvm.io.rig_simulation`),
+    with the preset's detector errors (no merged poses: a rig's detector sees each camera alone)."""
+    import dataclasses
+
+    from mvm.io.rig_simulation import write_rig_simulation
+    from mvm.sim.rig_scene import RigSimConfig, simulate_rig
+    from mvm.sim.simulate import SimConfig
+
+    with refused(ValueError):
+        given = {k: v for k, v in (("people", people), ("frames", frames), ("seed", seed)) if v is not None}
+        config = RigSimConfig(cameras=cameras, offsets=parse_offsets(offsets, cameras), **given,
+                              errors=dataclasses.replace(SimConfig.preset(preset).detector, merge_prob=0.0))
+        sim = simulate_rig(config)
+        paths = write_rig_simulation(rig_dir, sim, intrinsics_only)
+    names = sim.calibration.cameras.names
+    measure_table(f"mvm simulate --rig ({preset})", [
+        ("cameras", f"{len(names)} ({', '.join(names)})"), ("people", str(config.people)),
+        ("frames per camera", str(config.frames)), ("2D poses", str(len(sim.keypoints))),
+        ("false positives", str(int((sim.person < 0).sum()))),
+        ("offsets to add (sync)", ", ".join(f"{n} {o:+d}" for n, o in zip(names, sim.sync_offsets))),
+        ("calibration", f"{paths['calibration']}" + (" (intrinsics only)" if intrinsics_only else "")),
+        ("ground truth", f"{paths['truth']}, {paths['true_calibration']}")])
 
 
 @command("demo")

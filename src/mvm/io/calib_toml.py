@@ -82,8 +82,10 @@ CAMERA_KEYS = frozenset(("matrix", "rotation", "translation", "size", "distortio
 """The keys that make a table of a Calib.toml a camera."""
 
 
-def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
-    """Build a :class:`RigCalibration` from a parsed Calib.toml document (``path`` names it in errors)."""
+def parse_calib(data: dict, path: str | Path = "<calib>", extrinsics: bool = True) -> RigCalibration:
+    """Build a :class:`RigCalibration` from a parsed Calib.toml document (``path`` names it in errors).
+    ``extrinsics=False`` accepts cameras without ``rotation`` and ``translation`` (intrinsics only):
+    their ``R`` and ``t`` are NaN."""
     K, R, t, size, names, dist, fisheye = [], [], [], [], [], [], []
     metadata = {}
     for section, table in data.items():
@@ -101,11 +103,12 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
             raise InputError(path, f"[{section}].name", f"expected a string, got {name!r}")
         check_name(name, path, f"[{section}].name")
         K.append(_array(table, "matrix", (3, 3), path, section))
-        rvec = _array(table, "rotation", (3,), path, section)
-        R.append(cv2.Rodrigues(rvec)[0])
-        t.append(_array(table, "translation", (3,), path, section))
+        known = extrinsics or "rotation" in table or "translation" in table
+        rvec = _array(table, "rotation", (3,), path, section) if known else None
+        R.append(cv2.Rodrigues(rvec)[0] if known else np.full((3, 3), np.nan))
+        t.append(_array(table, "translation", (3,), path, section) if known else np.full(3, np.nan))
         size.append(_array(table, "size", (2,), path, section))
-        _check_camera(K[-1], R[-1], size[-1], path, section)
+        _check_camera(K[-1], R[-1] if known else np.eye(3), size[-1], path, section)
         d = _array(table, "distortions", (), path, section).reshape(-1) if "distortions" in table else np.zeros(0)
         fish = table.get("fisheye", False)
         if not isinstance(fish, bool):
@@ -127,10 +130,11 @@ def parse_calib(data: dict, path: str | Path = "<calib>") -> RigCalibration:
     return RigCalibration(cameras, tuple(dist), np.array(fisheye, dtype=bool).reshape(V), metadata)
 
 
-def read_calib_toml(path: str | Path) -> RigCalibration:
-    """Read a Calib.toml file; any problem raises one :class:`InputError` naming the table and key."""
+def read_calib_toml(path: str | Path, extrinsics: bool = True) -> RigCalibration:
+    """Read a Calib.toml file; any problem raises one :class:`InputError` naming the table and key.
+    ``extrinsics=False``: cameras may lack ``rotation`` and ``translation`` (:func:`parse_calib`)."""
     path = Path(path)
-    return parse_calib(load_toml(path), path)
+    return parse_calib(load_toml(path), path, extrinsics)
 
 
 def _fmt(value) -> str:

@@ -257,6 +257,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     summary["tracks"] = tracking.tracks
     summary["tracks_resumed"] = tracking.resumed
     summary["persons_not_linked_few_joints"] = tracking.unlinked
+    summary["sync_offsets"] = rig.offsets
     counts = np.bincount(np.asarray(flags, dtype=int).ravel(), minlength=len(FLAG_NAMES))
     summary["joint_flags"] = {n: round(float(c / max(counts.sum(), 1)), 4) for n, c in zip(FLAG_NAMES, counts)}
     summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"]

@@ -4,6 +4,7 @@
 
     RIG_DIR/
       Calib.toml | calibration/*.toml | sparse/ (COLMAP)   the cameras (or --calib PATH)
+      sync.toml                                           frame offsets (optional, mvm.io.sync_toml)
       pose/ (or RIG_DIR itself)
         <camera>/          OpenPose or OpenPifPaf JSON, one file per frame (frame number in the name)
         <camera>.json      or one COCO keypoints file per camera (frame number in file_name)
@@ -48,6 +49,8 @@ class RigData:
         detections: the 2D poses, undistorted; ``view`` is the camera, ``instant`` indexes ``frames``.
         sources: camera name -> the folder or file its poses came from.
         pose_format: "openpose", "openpifpaf" or "coco".
+        offsets: camera name -> frames added to its frame numbers (from ``sync.toml``), or None
+            when the frame numbers were used as they are.
     """
 
     calibration: RigCalibration
@@ -55,6 +58,7 @@ class RigData:
     detections: Poses2D
     sources: dict
     pose_format: str
+    offsets: dict | None = None
 
 
 def _normalize(name: str) -> str:
@@ -103,7 +107,7 @@ def find_calibration(rig_dir: Path) -> Path:
     """The calibration of ``rig_dir``: one ``*.toml`` at its top or in ``calibration/``, or a
     COLMAP model in ``sparse/``. Several candidates raise :class:`InputError` (use ``--calib``)."""
     candidates = sorted(p for p in [*rig_dir.glob("*.toml"), *(rig_dir / "calibration").glob("*.toml")]
-                        if p.name.lower() not in ("config.toml", "mvm.toml"))
+                        if p.name.lower() not in ("config.toml", "mvm.toml", "sync.toml"))
     if (rig_dir / "sparse").is_dir():
         candidates.append(rig_dir / "sparse")
     if len(candidates) == 1:
@@ -115,8 +119,9 @@ def find_calibration(rig_dir: Path) -> Path:
                                                                       for c in candidates) + " (pass --calib)")
 
 
-def read_calibration(path: Path) -> tuple[RigCalibration, object]:
-    """A calibration file or COLMAP model -> ``(calibration, colmap model or None)``."""
+def read_calibration(path: Path, extrinsics: bool = True) -> tuple[RigCalibration, object]:
+    """A calibration file or COLMAP model -> ``(calibration, colmap model or None)``.
+    ``extrinsics=False``: a Calib.toml may lack rotations and translations (NaN)."""
     if path.is_dir():
         from mvm.core.scene import Cameras
         from mvm.io.colmap import read_colmap
@@ -131,7 +136,7 @@ def read_calibration(path: Path) -> tuple[RigCalibration, object]:
         from mvm.io.panoptic_calib import read_panoptic_calibration
 
         return read_panoptic_calibration(path), None
-    return read_calib_toml(path), None
+    return read_calib_toml(path, extrinsics), None
 
 
 def _pose_root(rig_dir: Path) -> Path:
@@ -182,22 +187,26 @@ def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.
 
 
 def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: str, root: Path,
-                  start: int | None, stop: int | None,
-                  workers: int | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                  start: int | None, stop: int | None, workers: int | None = None,
+                  shifts: list[int] | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The 2D poses of each camera's source of ``paths`` (its per-frame ``files``,
     :func:`_source_format`) with a frame number in ``[start, stop)`` (None: open):
-    ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. Per-frame files outside the range
-    are not read; the files of all cameras are read on ``workers`` processes
-    (:func:`mvm.parallel.fork_map`)."""
+    ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. ``shifts``: per camera, frames
+    added to its frame numbers first (the range applies to the shifted numbers, which are
+    returned). Per-frame files outside the range are not read; the files of all cameras are
+    read on ``workers`` processes (:func:`mvm.parallel.fork_map`)."""
     low, high = -np.inf if start is None else start, np.inf if stop is None else stop
+    shifts = shifts or [0] * len(paths)
     if fmt == "coco":
         out = []
-        for path in paths:
+        for path, shift in zip(paths, shifts):
             f, kp, score = _read_coco_source(path, root)
+            f = f + shift
             keep = (f >= low) & (f < high)
             out.append((f[keep], kp[keep], score[keep]))
         return out
-    listings = [[(f, file) for f, file in listing if low <= f < high] for listing in files]
+    listings = [[(f + shift, file) for f, file in listing if low <= f + shift < high]
+                for listing, shift in zip(files, shifts)]
     flat = [file for files in listings for _, file in files]
     parts = fork_map_ranges(lambda r: _read_frame_files(flat[r.start:r.stop], fmt, root), len(flat), 100, workers)
     per_file = iter([read for part in parts for read in part])
@@ -228,16 +237,47 @@ def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
         raise InputError("--frames", spec, "expected START:STOP frame numbers, e.g. 0:1000") from None
 
 
+def sync_shifts(offsets: dict[str, int], names: list[str], path: Path) -> list[int]:
+    """The offsets of the cameras ``names`` (:mod:`mvm.io.sync_toml`); a camera missing from
+    them raises :class:`InputError` naming it and ``path``."""
+    missing = [n for n in names if n not in offsets]
+    if missing:
+        raise InputError(path, "[offsets]", f"no offset for camera {', '.join(missing)} "
+                                            "(run mvm rig synchronize again)")
+    return [offsets[n] for n in names]
+
+
+def check_overlap(frames: list[np.ndarray], names: list[str], path: Path) -> None:
+    """Every camera's shifted ``frames`` must share instants with the first camera's: a
+    camera whose offset moves it past the other videos raises :class:`InputError` naming it."""
+    if not frames or not len(frames[0]):
+        return
+    low, high = frames[0].min(), frames[0].max()
+    for name, f in zip(names[1:], frames[1:]):
+        if len(f) and (f.max() < low or f.min() > high):
+            raise InputError(path, f"[offsets].{name}", f"the offset moves camera {name} beyond the videos' "
+                                                        f"length (its frames {f.min()}..{f.max()}, the reference's "
+                                                        f"{low}..{high})")
+
+
 def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str | None = None,
-             workers: int | None = None) -> RigData:
+             workers: int | None = None, extrinsics: bool = True, sync: bool = True) -> RigData:
     """Read ``rig_dir``: its calibration, the 2D poses of its cameras (undistorted), the frames
     (``"START:STOP"`` frame numbers, :func:`parse_frames`). The pose files are read on
-    ``workers`` processes (default: :func:`mvm.parallel.available_workers`)."""
+    ``workers`` processes (default: :func:`mvm.parallel.available_workers`).
+
+    With ``sync`` and a ``RIG_DIR/sync.toml``, each camera's frame numbers are shifted by its
+    offset (the reference camera's numbering; ``frames`` selects in it). ``extrinsics=False``
+    accepts a Calib.toml without rotations and translations (NaN)."""
+    from mvm.io.sync_toml import SYNC_FILE, read_sync_toml
+
     rig_dir = Path(rig_dir)
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a directory")
     calib_path = Path(calib) if calib else find_calibration(rig_dir)
-    calibration, colmap_model = read_calibration(calib_path)
+    calibration, colmap_model = read_calibration(calib_path, extrinsics)
+    sync_path = rig_dir / SYNC_FILE
+    offsets = read_sync_toml(sync_path) if sync and sync_path.is_file() else None
     sources = pose_sources(rig_dir)
     names = calibration.cameras.names
     try:
@@ -262,7 +302,11 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     if len(set(formats)) > 1:
         raise InputError(_pose_root(rig_dir), None, f"mixed pose formats: {sorted(set(formats))}")
     fmt = formats[0]
-    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers)
+    used_names = [names[c] for c in used]
+    shifts = sync_shifts(offsets, used_names, sync_path) if offsets is not None else None
+    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers, shifts)
+    if offsets is not None:
+        check_overlap([f for f, _, _ in read], used_names, sync_path)
     kps = [kp for _, kp, _ in read]
     scores = [score for _, _, score in read]
     frame_of = [f for f, _, _ in read]
@@ -284,7 +328,8 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     log.info("%s: %d cameras, %d instants, %d 2D poses (%s)", rig_dir, len(used), len(all_frames),
              len(detections), fmt)
     return RigData(calibration, all_frames, detections,
-                   {names[c]: sources[entries[matched[c]]] for c in used}, fmt)
+                   {names[c]: sources[entries[matched[c]]] for c in used}, fmt,
+                   None if shifts is None else dict(zip(used_names, shifts)))
 
 
 def subset_calibration(calibration: RigCalibration, index: np.ndarray) -> RigCalibration:
