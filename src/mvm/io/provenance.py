@@ -218,13 +218,14 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
 
 
 def stale_reason(output: str | Path, inputs: Mapping[str, object]) -> str | None:
-    """For a command that reads ``output``: why it no longer matches its ``inputs`` as they are
-    now (settings are not compared), or None when it does or when it has no record (an output
-    made elsewhere is taken as it is)."""
+    """For a command that reads ``output``: why it no longer matches those of its ``inputs``
+    that its record names (settings are not compared), or None when it does or when it has no
+    record (an output made elsewhere is taken as it is)."""
     record = read_record(output)
     if record is None:
         return None
-    return compare(record, {k: v for k, v in fingerprints(inputs).items() if k in record["inputs"]})
+    known = {name: value for name, value in inputs.items() if name in record["inputs"]}
+    return compare({**record, "inputs": {k: record["inputs"][k] for k in known}}, fingerprints(known))
 
 
 def check_fresh(output: str | Path, inputs: Mapping[str, object], command: str) -> None:

@@ -106,7 +106,7 @@ class FramePoses:
 # --------------------------------------------------------------------------- the stage
 
 
-def _registered_names(scene: Path) -> set[str] | None:
+def registered_names(scene: Path) -> set[str] | None:
     """Image names in ``scene/sparse`` (None when there is no model yet)."""
     sparse = scene / "sparse"
     if not sparse.is_dir():
@@ -254,7 +254,9 @@ def detect_inputs(scene: Path, registered: set[str] | None, source=None, checkpo
     return inputs
 
 
-def _detect_settings(kind: str, fmt: str | None, options: DetectOptions) -> dict:
+def detect_settings(kind: str, fmt: str | None, options: DetectOptions) -> dict:
+    """The settings that shape the 2D poses (:mod:`mvm.io.provenance`): the options but those
+    saying how the detector runs (batch size, device), the detector and the import's format."""
     settings = asdict(options)
     for how in ("batch_size", "device", "download"):                 # how it runs, not what it finds
         settings.pop(how)
@@ -298,9 +300,9 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     if out.is_file() and not force and read_record(out) is None:
         raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to replace "
                                     "them")
-    registered = _registered_names(scene)
+    registered = registered_names(scene)
     inputs = detect_inputs(scene, registered, source, checkpoint)
-    settings = _detect_settings(kind, fmt, options)
+    settings = detect_settings(kind, fmt, options)
     hashed = fingerprints(inputs)
     why = "forced" if force else why_redo(out, inputs, settings, DETECT_STAGE)
     if why is None:

@@ -184,7 +184,8 @@ def sfm_inputs(scene: str | Path) -> dict[str, Path]:
     return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR}
 
 
-def _sfm_settings(options: SfmOptions) -> dict:
+def sfm_settings(options: SfmOptions) -> dict:
+    """The settings that shape the cameras (:mod:`mvm.io.provenance`; the thread count does not)."""
     settings = asdict(options)
     settings.pop("threads")                              # how fast, not what
     return {"source": "sfm", **settings}
@@ -230,7 +231,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
     scene = Path(scene)
     report_path = scene / SFM_DIR / SFM_REPORT
-    settings = _sfm_settings(options)
+    settings = sfm_settings(options)
     _check_replaceable(scene, settings, force)
     hashed = fingerprints(sfm_inputs(scene))
     why = "forced" if force else why_redo(report_path, sfm_inputs(scene), settings, SFM_STAGE,
