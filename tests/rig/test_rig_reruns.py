@@ -31,9 +31,10 @@ def test_an_empty_frame_selection_keeps_the_previous_outputs(rig_dir, frames, pr
 
 
 def test_a_scene_directory_is_not_a_rig(tmp_path):
+    import numpy as np
+
     from mvm.io.colmap import write_colmap
     from mvm.sim.tours import cameras_looking_at
-    import numpy as np
 
     centers = np.stack([np.linspace(-1, 1, 8), np.full(8, -4.0), np.full(8, 1.6)], axis=1)
     cameras = cameras_looking_at(centers, [0.0, 0.0, 1.0], (400.0, 400.0), (480, 270))

@@ -284,10 +284,9 @@ def _reconstruct(clip: Clip, options: BatchOptions) -> None:
 
 
 def _export(clip: Clip, options: BatchOptions) -> None:
+    from mvm.io.provenance import fingerprints, forget, write_record
     from mvm.io.scene_dir import output_dir, read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
-
-    from mvm.io.provenance import fingerprints, forget, write_record
 
     scene = Path(clip.scene)
     poses3d = scene / options.output / "poses3d.json"

@@ -84,6 +84,12 @@ def _hash_file(path: Path) -> str:
         os.close(fd)
 
 
+def clear_hash_cache() -> None:
+    """Forget the hashes this process computed: the next check reads every input again, as a
+    new process does."""
+    _SEEN.clear()
+
+
 def fingerprint(path: str | Path) -> str:
     """The content hash of ``path``: of a file, its bytes; of a folder, the sorted list of
     ``(relative name, hash)`` of the files under it (names starting with ``.``, such as lock
@@ -169,7 +175,8 @@ def _flat(settings, prefix: str = "") -> dict:
         return {prefix or "settings": settings}
     out = {}
     for k, v in settings.items():
-        out.update(_flat(v, f"{prefix}.{k}" if prefix else k) if isinstance(v, dict) else {f"{prefix}.{k}" if prefix else k: v})
+        key = f"{prefix}.{k}" if prefix else k
+        out.update(_flat(v, key) if isinstance(v, dict) else {key: v})
     return out
 
 
@@ -213,7 +220,8 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
         return "no output yet"
     record = read_record(output)
     if record is None:
-        return f"{output.name} has no record of its inputs (made elsewhere, by an earlier version or an interrupted run)"
+        return (f"{output.name} has no record of its inputs (made elsewhere, by an earlier version or an "
+                "interrupted run)")
     return compare(record, fingerprints(inputs), settings, stage)
 
 

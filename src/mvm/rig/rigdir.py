@@ -248,11 +248,13 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         matched = match_cameras(names, list(sources))
     except ValueError as e:
         raise InputError(_pose_root(rig_dir), None, str(e)) from None
-    scene = " (a scene directory of one moving camera? use `mvm reconstruct`)" if (rig_dir / "poses2d.json").is_file() else ""
+    scene = ("" if not (rig_dir / "poses2d.json").is_file() else
+             " (a scene directory of one moving camera? use `mvm reconstruct`)")
     if not matched:
+        shown = ", ".join(names[:10]) + (" …" if len(names) > 10 else "")
         raise InputError(_pose_root(rig_dir), None, f"no pose folder matches a camera of {calib_path} "
-                                                    f"(cameras: {', '.join(names[:10])}{' …' if len(names) > 10 else ''}; "
-                                                    f"found: {', '.join(sources) or 'nothing'}){scene}")
+                                                    f"(cameras: {shown}; found: {', '.join(sources) or 'nothing'})"
+                                                    f"{scene}")
     if len(matched) < 2:
         raise InputError(rig_dir, None, f"not a rig: {len(matched)} of the {len(names)} cameras of {calib_path.name} "
                                         f"has a pose folder, a rig needs 2{scene}")

@@ -16,7 +16,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.paths import check_name
-from mvm.io.provenance import forget, fingerprints, why_redo, write_record
+from mvm.io.provenance import fingerprints, forget, why_redo, write_record
 
 log = logging.getLogger(__name__)
 
