@@ -133,11 +133,12 @@ def _batches(paths: list, config: Config, output: str, prior) -> Iterator[list[t
 def _read(path: Path, config: Config, output: str) -> tuple:
     """``(path, scene, output folder, seconds to read, fingerprints)`` of a scene read and
     checked, or ``(path, exception, None, None, None)``; the fingerprints of its inputs
-    (:mod:`mvm.io.provenance`) are taken before it is read, for the output's record."""
+    (:mod:`mvm.io.provenance`), taken once the guarded readers accepted them, are for the
+    output's record."""
     try:
         t = time.perf_counter()
-        hashed = fingerprints(reconstruction_inputs(path))
         scene = read_scene(path)
+        hashed = fingerprints(reconstruction_inputs(path))
         out_dir = output_dir(path, output)
         read_s = time.perf_counter() - t
         validate_scene(scene, str(path))

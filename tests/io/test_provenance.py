@@ -60,7 +60,7 @@ def test_folder_fingerprint_is_its_files_names_and_contents(tmp_path):
 def test_a_fifo_is_refused_not_read(tmp_path):
     fifo = tmp_path / "fifo"
     os.mkfifo(fifo)
-    with pytest.raises(InputError, match="not a regular file"):
+    with pytest.raises(InputError, match="is a FIFO"):
         fingerprint(fifo)
 
 

@@ -24,6 +24,7 @@ import dataclasses
 import hashlib
 import os
 import stat
+import sys
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -31,6 +32,7 @@ from pathlib import Path
 import orjson
 
 from mvm.errors import InputError
+from mvm.io.checks import check_input_file
 from mvm.io.files import atomic_write_json
 
 RECORD_FORMAT = "mvm.inputs/1"
@@ -57,7 +59,9 @@ def record_path(output: str | Path) -> Path:
 
 def _hash_file(path: Path) -> str:
     """BLAKE2b of the bytes of the regular file ``path``, read in chunks; a FIFO, a device or a
-    socket is refused (never read) with one :class:`InputError` line."""
+    socket is refused (never read) with the guarded reader's line
+    (:func:`mvm.io.checks.check_input_file`; any size: a video may be large)."""
+    check_input_file(path, limit=sys.maxsize)
     try:
         fd = os.open(path, _READ_FLAGS)
     except OSError as e:
