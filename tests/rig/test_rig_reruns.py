@@ -52,3 +52,17 @@ def test_the_output_set_records_its_inputs(rig_dir):
     assert record["inputs"]["Calib.toml"] == fingerprint(rig_dir / "Calib.toml")
     assert record["inputs"]["pose"] == fingerprint(rig_dir / "pose")
     assert "workers" not in record["settings"]["options"]
+
+
+def test_a_rerun_keeps_an_up_to_date_set_and_redoes_a_changed_one(rig_dir):
+    before = fingerprint(rig_dir / "mvm")
+    result = CliRunner().invoke(main, ["rig", "reconstruct", str(rig_dir), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert "output set: kept (up to date)" in result.output and "kept " in result.output
+    assert fingerprint(rig_dir / "mvm") == before
+    result = CliRunner().invoke(main, ["rig", "reconstruct", str(rig_dir), "--workers", "1", "--smoothing", "none"])
+    assert result.exit_code == 0, result.output
+    assert "output set: made: setting options.smoothing changed since the rig reconstruction" in result.output
+    result = CliRunner().invoke(main, ["rig", "reconstruct", str(rig_dir), "--workers", "1", "--smoothing", "none",
+                                       "--force"])
+    assert "output set: made: forced" in result.output

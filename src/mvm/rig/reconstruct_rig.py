@@ -248,6 +248,34 @@ def check_smoothing(options: RigOptions) -> None:
                                       "frame_rate or filter_order, or use smoothing = savgol")
 
 
+def rig_reason(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
+               calib: str | Path | None = None, frames: str | None = None,
+               output: str | Path | None = None) -> str | None:
+    """Why :func:`reconstruct_rig` with these arguments would make the output set again (None:
+    the set's record says it was made from these inputs with these settings)."""
+    from mvm.io.provenance import why_redo
+
+    config = (config or Config()).for_driver("rig")
+    options = options or RigOptions()
+    check_smoothing(options)
+    out_dir = check_rig_output(rig_dir, calib, output)
+    return why_redo(out_dir / "poses3d.jsonl", rig_fingerprint_inputs(rig_dir, calib),
+                    rig_settings(config, options, calib, frames), RIG_STAGE,
+                    exists=(out_dir / "poses3d.jsonl").is_file() and (out_dir / "recap.json").is_file())
+
+
+def kept_set(rig_dir: str | Path, calib: str | Path | None = None,
+             output: str | Path | None = None) -> tuple[dict, dict]:
+    """The recap and the paths of an output set kept as it is (:func:`rig_reason` said it is up
+    to date): ``(recap, {"poses3d", "tracks", "recap"})``."""
+    from mvm.io.checks import load_json_object
+
+    out_dir = check_rig_output(rig_dir, calib, output)
+    recap_path = out_dir / "recap.json"
+    return load_json_object(recap_path), {"poses3d": out_dir / "poses3d.jsonl", "recap": recap_path,
+                                          "tracks": sorted((out_dir / "tracks").glob("*.trc"))}
+
+
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
                     calib: str | Path | None = None, frames: str | None = None, output: str | Path | None = None,
                     prior=None, progress: Callable[[int, int], None] | None = None) -> RigResult:

@@ -120,6 +120,21 @@ def check_models(options: DetectOptions, checkpoint: str | Path | None = None) -
         raise InputError(None, None, "; ".join(problems))
 
 
+def fetch_missing_models(options: DetectOptions) -> None:
+    """Download now the published models of ``options.detector`` that the cache lacks (when
+    downloads are allowed), so that a failed download ends a run before its first heavy step."""
+    from mvm.video.models import cache_dir
+
+    if options.detector not in ("rtmo", "rtmpose") or not options.download:
+        return
+    specs = ([(YOLOX[options.mode], options.person_model, "--person-model"),
+              (RTMPOSE[options.mode], options.model, "--model")] if options.detector == "rtmpose"
+             else [(RTMO[options.mode], options.model, "--model")])
+    for spec, path, option in specs:
+        if path is None and not (cache_dir() / spec.url.rsplit("/", 1)[-1]).is_file():
+            resolve_model(spec, None, True, option=option)
+
+
 def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:
     """The detector ``options.detector`` (``rtmo``, ``rtmpose`` or ``mvm`` with ``checkpoint``)."""
     if options.detector == "mvm":

@@ -171,13 +171,14 @@ def check_run(video: str | Path, scene: str | Path, detections=None, checkpoint=
     """Everything :func:`run_video` can check in a second, checked before any work, each problem
     one :class:`InputError` line: the video and the cameras exist; the detector's model files
     (every one, named with its option) or the imported detections, read and matched against
-    the size the frames will have; the scene directory and its output folder can be written."""
+    the size the frames will have; the scene directory and its output folder can be written.
+    Then the published models the cache lacks are downloaded, before the first heavy step."""
     from dataclasses import replace
 
     from mvm.io.files import make_dir
     from mvm.io.scene_dir import output_dir
     from mvm.video.detect import detector_kind
-    from mvm.video.detectors import check_models
+    from mvm.video.detectors import check_models, fetch_missing_models
     from mvm.video.frames import frame_size
     from mvm.video.importers import check_detections_fit, imported_keypoints
 
@@ -205,6 +206,8 @@ def check_run(video: str | Path, scene: str | Path, detections=None, checkpoint=
 
         raise output_error(scene, e) from None
     output_dir(scene, output)
+    if kind in ("rtmo", "rtmpose"):
+        fetch_missing_models(replace(detect_options, detector=kind))
 
 
 def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | None = None,
