@@ -93,6 +93,8 @@ def coco_results_in_scene(path: str | Path, names: list[str]) -> tuple[np.ndarra
     path = Path(path)
     results = read_coco_results(path)
     image = results_frame_index(results, names)
+    if names and any(not isinstance(i, str) for i in results.image_ids):
+        log.info("%s: an integer image_id is a 1-based position in the scene's frame list (1 = %s)", path, names[0])
     keep = image >= 0
     if not keep.all():
         log.warning("%s: %d results name images that are not in the scene and are ignored", path, int((~keep).sum()))
