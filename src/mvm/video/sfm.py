@@ -203,8 +203,9 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
                                        f"--cameras {sparse} to use it")
     before = (read_record(scene / SFM_DIR / SFM_REPORT) or {}).get("settings", {})
     if before.get("source") in ("colmap", "trajectory") and settings.get("source") == "sfm":
-        raise InputError(sparse, None, f"cameras imported from {before.get('cameras')}: give --force to replace "
-                                       f"them with SfM's, or --cameras {before.get('cameras')} to keep them")
+        origin = read_sfm_report(scene).source.split(":", 1)[-1]
+        raise InputError(sparse, None, f"cameras imported from {origin}: give --force to replace them with SfM's, "
+                                       f"or --cameras {origin} to keep them")
 
 
 def _replace_model(scene: Path, write) -> None:
@@ -314,7 +315,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     model_dir = find_model_dir(Path(model))
     in_place = Path(model).resolve() == (scene / "sparse").resolve()
     inputs = {"cameras": model_dir} if not in_place else {}
-    settings = {"source": "colmap", "cameras": str(model)}
+    settings = {"source": "colmap"}
     if not in_place:
         _check_replaceable(scene, settings, force)
     report_path = scene / SFM_DIR / SFM_REPORT
@@ -360,7 +361,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
 
     scene = Path(scene)
     inputs = {"cameras": Path(path), FRAMES_INDEX: scene / FRAMES_INDEX}
-    settings = {"source": "trajectory", "cameras": str(path)}
+    settings = {"source": "trajectory"}
     _check_replaceable(scene, settings, force)
     report_path = scene / SFM_DIR / SFM_REPORT
     hashed = fingerprints(inputs)
