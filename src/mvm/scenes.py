@@ -20,7 +20,15 @@ from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
 from mvm.errors import InputError
 from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
-from mvm.io.scene_dir import output_dir, poses3d_document, read_scene, write_poses3d
+from mvm.io.provenance import fingerprints, forget, write_record
+from mvm.io.scene_dir import (
+    RECONSTRUCT_STAGE,
+    output_dir,
+    poses3d_document,
+    read_scene,
+    reconstruction_inputs,
+    write_poses3d,
+)
 from mvm.parallel import Forked, available_workers, split
 
 #: Fewest scenes worth a worker process of their own (a fork costs about a third of a small scene).
@@ -123,28 +131,32 @@ def _batches(paths: list, config: Config, output: str, prior) -> Iterator[list[t
 
 
 def _read(path: Path, config: Config, output: str) -> tuple:
-    """``(path, scene, output folder, seconds to read)`` of a scene read and checked, or
-    ``(path, exception, None, None)``."""
+    """``(path, scene, output folder, seconds to read, fingerprints)`` of a scene read and
+    checked, or ``(path, exception, None, None, None)``; the fingerprints of its inputs
+    (:mod:`mvm.io.provenance`), taken once the guarded readers accepted them, are for the
+    output's record."""
     try:
         t = time.perf_counter()
         scene = read_scene(path)
+        hashed = fingerprints(reconstruction_inputs(path))
         out_dir = output_dir(path, output)
         read_s = time.perf_counter() - t
         validate_scene(scene, str(path))
         check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
                               config, str(path / "poses2d.json"))
-        return path, scene, out_dir, read_s
+        return path, scene, out_dir, read_s, hashed
     except Exception as e:                                # noqa: BLE001 - this scene's failure, reported in order
-        return path, e, None, None
+        return path, e, None, None, None
 
 
 def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
-    """``(path, result, output folder, poses3d.json document)`` of each scene :func:`_read`
-    in ``batch``, reconstructed together, or ``(path, exception, None, None)``."""
-    scenes = [scene for _, scene, _, _ in batch if not isinstance(scene, Exception)]
+    """``(path, result, output folder, what to write)`` of each scene :func:`_read` in
+    ``batch``, reconstructed together (what to write: the ``poses3d.json`` document, the scene
+    and the fingerprints of its inputs, for :func:`_write`), or ``(path, exception, None, None)``."""
+    scenes = [scene for _, scene, _, _, _ in batch if not isinstance(scene, Exception)]
     results = iter(reconstruct_many(scenes, config, prior))
     out = []
-    for path, scene, out_dir, read_s in batch:
+    for path, scene, out_dir, read_s, hashed in batch:
         outcome = scene if isinstance(scene, Exception) else next(results)
         if isinstance(outcome, Exception):
             out.append((path, outcome, None, None))
@@ -155,7 +167,7 @@ def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
                                         {"warnings": list(outcome.warnings),
                                          "timings_s": {k: round(v, 4) for k, v in outcome.timings.items()},
                                          "config": asdict(config)})
-            out.append((path, outcome, out_dir, document))
+            out.append((path, outcome, out_dir, (document, path, hashed)))
         except Exception as e:                            # noqa: BLE001 - this scene's failure, reported in order
             out.append((path, e, None, None))
     return out
@@ -187,13 +199,19 @@ def _finished(path, outcome, write: Future | None) -> tuple:
     return path, outcome
 
 
-def _write(out_dir: Path, document: dict, config: Config) -> None:
-    """Write ``out_dir/poses3d.json``. Runs on the same scene may compute at once; writing is
-    one at a time, and the temporary files of a killed run are removed by the next one."""
+def _write(out_dir: Path, made: tuple, config: Config) -> None:
+    """Write ``out_dir/poses3d.json`` and its record (``made``: the document, the scene and its
+    fingerprints). Runs on the same scene may compute at once; writing is one at a time, and
+    the temporary files of a killed run are removed by the next one."""
+    document, scene, hashed = made
     try:
         with exclusive_lock(out_dir, config.lock_timeout_s):
             remove_stale_temporaries(out_dir, "poses3d.json")
+            forget(out_dir / "poses3d.json")
             write_poses3d(out_dir / "poses3d.json", document)
+            if hashed is not None:
+                write_record(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
+                             {"config": asdict(config), "metric_scale": False}, hashed)
     except LockTimeout:
         raise InputError(out_dir, None, f"another mvm run has been writing here for more than "
                                         f"{config.lock_timeout_s:g} s (lock_timeout_s)") from None

@@ -186,7 +186,7 @@ def test_concurrent_runs_on_one_scene(reference, tmp_path):
     assert codes == [0, 0, 0], [p.stderr.read().decode() for p in processes]
     assert state(scene, reference[1]) == "complete"
     assert stale_temporaries(scene) == []
-    assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.json"]
+    assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.inputs.json", "poses3d.json"]
 
 
 def test_a_run_that_cannot_get_the_lock_refuses_cleanly(reference, tmp_path):

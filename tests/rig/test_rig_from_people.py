@@ -86,8 +86,8 @@ def _one_line_exit_2(result, *words):
 def test_one_camera_refused(tmp_path):
     root = tmp_path / "one"
     write_rig_simulation(root, simulate_rig(RigSimConfig(cameras=1, people=2, frames=20)), intrinsics_only=True)
-    _one_line_exit_2(_invoke(rig, ["synchronize", root]), "Calib.toml", "one camera")
-    _one_line_exit_2(_invoke(rig, ["calibrate", root, "--from-people", "-o", tmp_path / "c.toml"]), "one camera")
+    _one_line_exit_2(_invoke(rig, ["synchronize", root]), "Calib.toml", "a rig needs 2")
+    _one_line_exit_2(_invoke(rig, ["calibrate", root, "--from-people", "-o", tmp_path / "c.toml"]), "a rig needs 2")
     assert not (root / "sync.toml").exists() and not (tmp_path / "c.toml").exists()
 
 

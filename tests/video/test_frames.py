@@ -51,10 +51,13 @@ def test_extract_frames_skips_blurred_and_keeps_timestamps(video, tmp_path):
     assert cv2.imread(str(scene / "frames" / "frame_00004.jpg")).shape == (90, 160, 3)
     again = read_frame_index(scene)
     assert again.names == index.names and np.allclose(again.timestamps, index.timestamps)
-    # done work is skipped, forced work is redone
+    # done work is kept, work with other options or forced is redone
     stamp = (scene / "frames.json").stat().st_mtime_ns
-    extract_frames(video, scene, FrameOptions(rate=1.0))
+    assert extract_frames(video, scene, FrameOptions(rate=5.0, width=160)).why is None
     assert (scene / "frames.json").stat().st_mtime_ns == stamp
+    redone = extract_frames(video, scene, FrameOptions(rate=1.0, width=160))
+    assert redone.why == "setting rate changed since the frame extraction (5.0 -> 1.0)"
+    assert len(redone.names) == 3 and sorted(p.name for p in (scene / "frames").iterdir()) == list(redone.names)
     assert len(extract_frames(video, scene, FrameOptions(rate=1.0, blur_ratio=0), force=True).names) == 3
 
 

@@ -92,11 +92,16 @@ def test_camera_centres_and_poses_match_truth(run_result, capsys):
 
 
 def test_rerun_skips_done_stages(run_result, tmp_path):
+    from mvm.video.frames import FrameOptions
     from mvm.video.run import run_video
+    from mvm.video.sfm import SfmOptions
 
     truth, scene, _ = run_result
     before = (scene / "mvm" / "poses3d.json").stat().st_mtime_ns
-    report = run_video(scene.parent / "tour.mp4", scene, detections=scene.parent / "detections.json")
+    report = run_video(scene.parent / "tour.mp4", scene, detections=scene.parent / "detections.json",
+                       frame_options=FrameOptions(blur_ratio=0),
+                       sfm_options=SfmOptions(camera_model="SIMPLE_PINHOLE", max_features=2048))
     assert report.seconds["sfm"] < 2 and report.seconds["frames"] < 2
+    assert report.why == {"frames": None, "sfm": None, "detect": None, "reconstruct": None}
     assert report.reconstruction.skipped
     assert (scene / "mvm" / "poses3d.json").stat().st_mtime_ns == before

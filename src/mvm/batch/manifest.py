@@ -288,6 +288,16 @@ class Manifest:
                         f"{result.host}:{result.pid}", result.clip, result.stage))
             self._log(db, run, result.clip, result.stage, "retry" if retry else "fail", result.error)
 
+    def reopen(self, run: int, clip: str, stage: str, reason: str) -> bool:
+        """Put a ``done`` or ``skipped`` stage back to ``pending``: its outputs are out of date
+        (``reason``: what changed). False when it is in another state."""
+        with self.transaction() as db:
+            cur = db.execute("UPDATE stages SET state = 'pending', detail = ?, run = NULL, lease_until = NULL "
+                             "WHERE clip = ? AND stage = ? AND state IN ('done', 'skipped')", (reason, clip, stage))
+            if cur.rowcount:
+                self._log(db, run, clip, stage, "reopen", reason)
+            return cur.rowcount == 1
+
     def skip(self, run: int, clip: str, stage: str, detail: str, stats: dict | None = None,
              checksum: str | None = None, files: int = 0) -> bool:
         """Mark a pending (or failed) stage ``skipped``: nothing to do, or its outputs were already there."""

@@ -27,10 +27,10 @@ from mvm.batch.stages import (
     StageResult,
     checksum,
     clip_stats,
-    is_present,
     not_applicable,
     one_line,
     output_files,
+    stage_reason,
 )
 from mvm.errors import InputError
 
@@ -76,6 +76,9 @@ class BatchSummary:
     recovered: int
     stage_seconds: dict = field(default_factory=dict)
     training_set: Path | None = None
+    #: (clip, stage, why) of each stage done before and redone by this run, as its inputs or
+    #: settings changed (or ``forced``).
+    redone: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def clips_per_second(self) -> float:
@@ -97,7 +100,7 @@ def parse_stages(text: str | None) -> tuple[str, ...]:
 class _Driver:
     def __init__(self, root: Path, clips: list[Clip], stages: tuple[str, ...], manifest: Manifest, run: int,
                  engine, options: BatchOptions, retries: int, progress: Progress,
-                 on_progress: Callable[[Progress], None] | None):
+                 on_progress: Callable[[Progress], None] | None, force: bool = False):
         self.root, self.stages, self.manifest, self.run = root, stages, manifest, run
         self.engine, self.options, self.retries = engine, options, retries
         self.clips = {c.id: c for c in clips}
@@ -109,11 +112,15 @@ class _Driver:
         self.failed: list[tuple[str, str, str]] = []
         self.committed = self.retried = 0
         self.stage_seconds = {s: 0.0 for s in stages}
+        self.force = force
+        #: (clip, stage) this run has found up to date or committed: not looked at again.
+        self.settled: set[tuple[str, str]] = set()
+        self.redone: list[tuple[str, str, str]] = []
 
     def _skip_present(self, clip: Clip, stage: str) -> None:
         files = output_files(clip.scene, stage, self.options.output)
         stats = clip_stats(clip.scene, self.options.output) if stage in ("reconstruct", "export") else None
-        self.manifest.skip(self.run, clip.id, stage, "present: outputs already complete", stats,
+        self.manifest.skip(self.run, clip.id, stage, "present: outputs up to date", stats,
                            checksum(clip.scene, files) if files else None, len(files))
 
     def next_stage(self, cid: str) -> str | None:
@@ -139,23 +146,36 @@ class _Driver:
         log.warning("%s: %s: %s", cid, stage, result.error)
 
     def _next_stage(self, cid: str) -> str | None:
+        """The clip's first stage not settled in this run: kept when its outputs are up to date
+        (:func:`~mvm.batch.stages.stage_reason`), else claimed; a stage done by an earlier run
+        whose inputs or settings changed (or every stage with ``force``) is opened again, and
+        with it, through their inputs, the stages after it."""
         clip = self.clips[cid]
         while self.cursor[cid] < len(self.stages):
             stage = self.stages[self.cursor[cid]]
-            state = self.manifest.state(cid, stage)
-            if state in ("done", "skipped"):
+            if (cid, stage) in self.settled:
                 self.cursor[cid] += 1
                 continue
+            state = self.manifest.state(cid, stage)
             if state == "running":
                 self.progress.elsewhere += 1
                 return None
             reason = not_applicable(clip, stage)
             if reason is not None:
-                self.manifest.skip(self.run, cid, stage, reason)
+                if state not in ("done", "skipped"):
+                    self.manifest.skip(self.run, cid, stage, reason)
+                self.settled.add((cid, stage))
                 continue
-            if is_present(clip, stage, self.options.output):
-                self._skip_present(clip, stage)
+            why = "forced" if self.force else stage_reason(clip, stage, self.options)
+            if why is None:
+                if state not in ("done", "skipped"):
+                    self._skip_present(clip, stage)
+                self.settled.add((cid, stage))
                 continue
+            if state in ("done", "skipped"):
+                self.manifest.reopen(self.run, cid, stage, why)
+                self.redone.append((cid, stage, why))
+                log.info("%s: %s: redone: %s", cid, stage, why)
             if self.manifest.claim(self.run, cid, stage):
                 return stage
             self.progress.elsewhere += 1
@@ -180,6 +200,7 @@ class _Driver:
         if result.ok:
             if self.manifest.commit(self.run, result):
                 self.committed += 1
+                self.settled.add(key)
                 self.queue.appendleft(result.clip)      # the clip's next stage goes first
             else:
                 self.progress.elsewhere += 1
@@ -239,9 +260,11 @@ def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm"
 
 def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = "local", workers: int | None = None,
               address: str | None = None, retries: int = 2, options: BatchOptions | None = None,
-              on_progress: Callable[[Progress], None] | None = None) -> BatchSummary:
+              on_progress: Callable[[Progress], None] | None = None, force: bool = False) -> BatchSummary:
     """Run ``stages`` on every clip of ``root`` that has not done them, recording each
-    (clip, stage) in ``ROOT/.mvm/manifest.sqlite``.
+    (clip, stage) in ``ROOT/.mvm/manifest.sqlite``. A stage done before is done again when its
+    inputs or settings changed since (the records of :mod:`mvm.io.provenance`; the summary's
+    ``redone`` says why), and so are the stages whose inputs it changes.
 
     Args:
         root: videos and scene directories (:mod:`mvm.batch.clips`).
@@ -252,6 +275,7 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
             OS error); bad input fails at once.
         options: the stages' settings (default :class:`BatchOptions`).
         on_progress: called with :class:`Progress` as the run advances.
+        force: redo every stage of every clip, whatever the records of their outputs say.
     Returns:
         :class:`BatchSummary`. A failed clip is recorded with its error; the others go on.
     """
@@ -270,7 +294,8 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
         recovered = manifest.recover_stale(run)
         if recovered:
             log.warning("%d stage(s) claimed by a run that died go back to pending", len(recovered))
-        driver = _Driver(root, clips, stages, manifest, run, eng, options, retries, Progress(len(clips)), on_progress)
+        driver = _Driver(root, clips, stages, manifest, run, eng, options, retries, Progress(len(clips)), on_progress,
+                         force)
         driver.loop(started)
         outcome = "finished"
     finally:
@@ -284,4 +309,4 @@ def run_batch(root: str | Path, stages: tuple[str, ...] = STAGES, engine: str = 
     manifest.close()
     return BatchSummary(run, engine, eng.capacity, len(clips), driver.progress.done, driver.failed + left_out,
                         driver.progress.elsewhere, time.perf_counter() - started, driver.committed,
-                        driver.retried, len(recovered), driver.stage_seconds, training)
+                        driver.retried, len(recovered), driver.stage_seconds, training, driver.redone)

@@ -122,16 +122,85 @@ def output_files(scene: str | Path, stage: str, output: str = "mvm") -> list[Pat
     return [path] if path.is_file() else []
 
 
-def is_present(clip: Clip, stage: str, output: str = "mvm") -> bool:
-    """Whether ``stage``'s outputs are already complete in the clip's scene directory. Every
-    stage writes its last file (the index: ``frames.json``, ``sfm/report.json``, …) only after
-    the others, so its presence means the stage finished."""
+def record_of(scene: str | Path, stage: str, output: str = "mvm") -> Path:
+    """The output whose record (:mod:`mvm.io.provenance`) says what ``stage`` made it from."""
+    scene = Path(scene)
+    return {"frames": scene / "frames.json", "sfm": scene / "sfm" / "report.json", "detect": scene / "poses2d.json",
+            "reconstruct": scene / output / "poses3d.json",
+            "export": scene / output / SUPERVISION_DIR}[stage]
+
+
+#: The stages' names in the reasons of a rerun.
+STAGE_NAMES = {"frames": "the frame extraction", "sfm": "the camera estimation", "detect": "the detection",
+               "reconstruct": "the reconstruction", "export": "the export"}
+
+
+def stage_inputs(clip: Clip, stage: str, output: str = "mvm") -> dict:
+    """The inputs of ``stage`` of ``clip`` that can be named without its settings (for
+    ``mvm status``; :func:`stage_reason` adds the rest)."""
+    from mvm.io.scene_dir import reconstruction_inputs
+
     scene = Path(clip.scene)
-    if stage == "sfm":
-        return (scene / "sparse").is_dir() and (clip.video is None or (scene / "sfm" / "report.json").is_file())
     if stage == "frames":
-        return (scene / "frames.json").is_file()
-    return bool(output_files(scene, stage, output))
+        return {Path(clip.video).name: Path(clip.video)} if clip.video else {}
+    if stage == "sfm":
+        return {"frames.json": scene / "frames.json", "frames": scene / "frames"}
+    if stage == "detect":
+        inputs = {"frames.json": scene / "frames.json", "frames": scene / "frames"}
+        return {**inputs, "detections": Path(clip.detections)} if clip.detections else inputs
+    inputs = reconstruction_inputs(scene)
+    if stage == "export":
+        inputs = {"poses3d.json": scene / output / "poses3d.json", **inputs}
+    return inputs
+
+
+def _export_settings(options: BatchOptions) -> dict:
+    return {"min_keypoints": options.min_keypoints}
+
+
+def stage_reason(clip: Clip, stage: str, options: BatchOptions) -> str | None:
+    """Why ``stage`` of ``clip`` must run (None: its outputs are there and their record says
+    they were made from the inputs and settings it would use now). A camera model or 2D poses
+    without a record were made elsewhere: the clip's input, kept."""
+    from dataclasses import replace
+
+    from mvm.io.provenance import read_record, why_redo
+    from mvm.io.scene_dir import reconstruction_inputs
+
+    scene = Path(clip.scene)
+    output = options.output
+    if stage == "frames":
+        from mvm.video.frames import frames_reason
+
+        return frames_reason(clip.video, scene, options.frames)
+    if stage == "sfm":
+        from mvm.video.sfm import sfm_inputs, sfm_settings
+
+        report = scene / "sfm" / "report.json"
+        if (scene / "sparse").is_dir() and not report.is_file():
+            return None                                     # cameras made elsewhere
+        return why_redo(report, sfm_inputs(scene), sfm_settings(replace(options.sfm, threads=1)),
+                        STAGE_NAMES[stage], exists=report.is_file() and (scene / "sparse").is_dir())
+    if stage == "detect":
+        from mvm.io.pose_format import pose_format
+        from mvm.video.detect import detect_inputs, detect_settings, registered_names
+
+        out = scene / "poses2d.json"
+        if out.is_file() and read_record(out) is None:
+            return None                                     # 2D poses made elsewhere
+        kind = options.detect.detector or ("mvm" if options.checkpoint is not None else "import")
+        source = clip.detections if kind == "import" else None
+        if kind == "import" and source is None:
+            return "no output yet" if not out.is_file() else None
+        fmt = pose_format(source)[0] if source is not None else None
+        inputs = detect_inputs(scene, registered_names(scene), source, options.checkpoint if kind == "mvm" else None)
+        return why_redo(out, inputs, detect_settings(kind, fmt, options.detect), STAGE_NAMES[stage])
+    if stage == "reconstruct":
+        return why_redo(scene / output / "poses3d.json", reconstruction_inputs(scene),
+                        {"config": dataclasses.asdict(options.config.for_driver("scene")), "metric_scale": False},
+                        STAGE_NAMES[stage])
+    return why_redo(record_of(scene, stage, output), stage_inputs(clip, stage, output), _export_settings(options),
+                    STAGE_NAMES[stage], exists=(scene / output / SUPERVISION_DIR / "annotations.json").is_file())
 
 
 def not_applicable(clip: Clip, stage: str) -> str | None:
@@ -215,6 +284,7 @@ def _reconstruct(clip: Clip, options: BatchOptions) -> None:
 
 
 def _export(clip: Clip, options: BatchOptions) -> None:
+    from mvm.io.provenance import fingerprints, forget, write_record
     from mvm.io.scene_dir import output_dir, read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
 
@@ -222,10 +292,14 @@ def _export(clip: Clip, options: BatchOptions) -> None:
     poses3d = scene / options.output / "poses3d.json"
     if not poses3d.is_file():
         raise InputError(poses3d, None, "not found: the clip is not reconstructed")
+    inputs = stage_inputs(clip, "export", options.output)
+    hashed = fingerprints(inputs)
     frames = scene / "frames"
     item = (read_scene(scene), read_poses3d(poses3d, root=scene), frames if frames.is_dir() else None)
-    export_supervision([item], output_dir(scene, options.output) / SUPERVISION_DIR, link="none",
-                       min_keypoints=options.min_keypoints)
+    folder = output_dir(scene, options.output) / SUPERVISION_DIR
+    forget(folder)
+    export_supervision([item], folder, link="none", min_keypoints=options.min_keypoints)
+    write_record(folder, STAGE_NAMES["export"], inputs, _export_settings(options), hashed)
 
 
 _RUN = {"frames": _frames, "sfm": _sfm, "detect": _detect, "reconstruct": _reconstruct, "export": _export}

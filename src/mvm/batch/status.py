@@ -6,10 +6,10 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mvm.batch.clips import discover_clips
+from mvm.batch.clips import Clip, discover_clips
 from mvm.batch.manifest import STATES, Manifest
 from mvm.batch.runner import TRAINING_SET
-from mvm.batch.stages import STAGES, checksum, output_files
+from mvm.batch.stages import STAGES, checksum, output_files, record_of, stage_inputs
 from mvm.errors import InputError
 
 
@@ -46,7 +46,9 @@ class Status:
     """The state of a root: ``stages[stage][state]`` counts; ``clips`` counts of clips done,
     failed, running and pending (clips found on disk but not yet in the manifest are pending);
     ``failed``: (clip, stage, error); ``statistics``: :func:`dataset_statistics`;
-    ``mismatched``: clips whose committed files no longer match their checksum (with ``verify``)."""
+    ``mismatched``: clips whose committed files no longer match their checksum (with ``verify``);
+    ``stale``: (clip, stage, why) of the done stages whose inputs changed since they were made
+    (:func:`mvm.io.provenance.stale_reason`; ``mvm batch`` redoes them)."""
 
     root: Path
     stages: dict
@@ -57,13 +59,15 @@ class Status:
     runs: int
     training_set: str | None = None
     mismatched: list[tuple[str, str]] = field(default_factory=list)
+    stale: list[tuple[str, str, str]] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"root": str(self.root), "clips": self.clips, "stages": self.stages,
                 "failed": [{"clip": c, "stage": s, "error": e} for c, s, e in self.failed],
                 "statistics": self.statistics, "stage_seconds": self.seconds, "runs": self.runs,
                 "training_set": self.training_set,
-                "checksum_mismatches": [{"clip": c, "stage": s} for c, s in self.mismatched]}
+                "checksum_mismatches": [{"clip": c, "stage": s} for c, s in self.mismatched],
+                "stale": [{"clip": c, "stage": s, "why": w} for c, s, w in self.stale]}
 
 
 def clip_state(states: list[str]) -> str:
@@ -87,11 +91,24 @@ def _matches(scene: str, row: dict) -> bool:
         return False
 
 
-def batch_status(root: str | Path, verify: bool = False) -> Status:
-    """The state of ``root``'s manifest (:class:`Status`). With ``verify``, the files of every
-    committed stage are hashed again and compared with the recorded checksum (found under the
-    root where it is now, even when the root was moved). Reads only: nothing is written. A
-    manifest that is not one, or a corrupt cell, raises an InputError naming the file."""
+def _stale(clip: Clip, stage: str, output: str) -> str | None:
+    """Why the outputs of a done ``stage`` of ``clip`` are out of date (None: they are, as far
+    as their record tells, or they have none)."""
+    from mvm.io.provenance import stale_reason
+
+    try:
+        return stale_reason(record_of(clip.scene, stage, output), stage_inputs(clip, stage, output))
+    except InputError as e:
+        return str(e)
+
+
+def batch_status(root: str | Path, verify: bool = False, output: str = "mvm") -> Status:
+    """The state of ``root``'s manifest (:class:`Status`). Every done stage's inputs are hashed
+    and compared with its outputs' record (``stale``: what ``mvm batch`` would redo). With
+    ``verify``, the files of every committed stage are hashed again and compared with the
+    recorded checksum (found under the root where it is now, even when the root was moved).
+    Reads only: nothing is written. A manifest that is not one, or a corrupt cell, raises an
+    InputError naming the file."""
     root = Path(root)
     manifest = Manifest(root, create=False)
     try:
@@ -106,7 +123,8 @@ def batch_status(root: str | Path, verify: bool = False) -> Status:
         on_disk = []
     stages = {s: {state: 0 for state in STATES} for s in STAGES if any(r["stage"] == s for r in rows)}
     per_clip: dict[str, list[str]] = {cid: [] for cid in clips}
-    failed, seconds, stats_rows, mismatched = [], {}, [], []
+    failed, seconds, stats_rows, mismatched, stale = [], {}, [], [], []
+    found = {c.id: c for c in on_disk}
     for r in rows:
         stages[r["stage"]][r["state"]] += 1
         per_clip.setdefault(r["clip"], []).append(r["state"])
@@ -120,6 +138,12 @@ def batch_status(root: str | Path, verify: bool = False) -> Status:
             stats_rows.append((clips[r["clip"]]["sequence"], r["stats"]))
         if verify and r["state"] == "done" and r["checksum"] and not _matches(clips[r["clip"]]["scene"], r):
             mismatched.append((r["clip"], r["stage"]))
+        if r["state"] in ("done", "skipped") and clips[r["clip"]]["scene"]:
+            known = clips[r["clip"]]
+            clip = found.get(r["clip"]) or Clip(r["clip"], known["sequence"], known["scene"], known["video"])
+            why = _stale(clip, r["stage"], output)
+            if why is not None:
+                stale.append((r["clip"], r["stage"], why))
     counts = {"total": 0, "done": 0, "failed": 0, "running": 0, "pending": 0}
     for states in per_clip.values():
         counts[clip_state(states)] += 1
@@ -128,4 +152,5 @@ def batch_status(root: str | Path, verify: bool = False) -> Status:
     training = root / TRAINING_SET
     return Status(root, stages, counts, failed, dataset_statistics(stats_rows),
                   {k: round(v, 3) for k, v in seconds.items()}, runs,
-                  str(training) if training.is_file() else None, mismatched)
+                  str(training) if training.is_file() else None, mismatched,
+                  sorted(stale, key=lambda row: (row[0], STAGES.index(row[1]))))

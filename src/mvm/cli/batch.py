@@ -73,12 +73,14 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
               help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
                    "(mvm config prints one).")
 @click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
+@click.option("--force", is_flag=True, help="Redo every stage of every clip, even those up to date.")
 def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
-              focal_px, config_path, sets):
+              focal_px, config_path, sets, force):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
-    not done, a failed clip is recorded with its error while the others go on, and the merged
+    not done or out of date (its inputs or settings changed: redone with every stage after it,
+    and said why), a failed clip is recorded with its error while the others go on, and the merged
     training set of all exported clips is written to ROOT/.mvm/training/annotations.json.
     Exit status 2 when a clip failed.
     """
@@ -97,7 +99,7 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
                 bar.update(task, total=p.clips, completed=p.done + p.failed,
                            info=f"{p.done} done, {p.failed} failed, {p.running} running, {p.per_second:.2f} clips/s")
 
-            summary = run_batch(root, chosen, engine, workers, address, retries, options, update)
+            summary = run_batch(root, chosen, engine, workers, address, retries, options, update, force)
     except KeyboardInterrupt:
         err().print(f"interrupted: finished stages are recorded; `mvm batch {root}` continues", style="yellow")
         sys.exit(130)
@@ -110,6 +112,10 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
     if summary.training_set:
         rows.append(("training set", str(summary.training_set)))
     measure_table(f"mvm batch: {root} (run {summary.run}, {summary.engine}, {summary.workers} workers)", rows)
+    for clip, stage, why in summary.redone[:20]:
+        print_line(f"redone: {clip}: {stage}: {why}")
+    if len(summary.redone) > 20:
+        err().print(f"… and {len(summary.redone) - 20} more stages redone")
     for clip, stage, error in summary.failed[:20]:
         print_line(f"failed: {clip}: {stage}: {error}")
     if len(summary.failed) > 20:
@@ -158,6 +164,10 @@ def status_cmd(root, as_json, verify):
     out().print(data)
     for clip, stage, error in status.failed[:20]:
         print_line(f"failed: {clip}: {stage}: {error}", out())
+    for clip, stage, why in status.stale[:20]:
+        print_line(f"out of date: {clip}: {stage}: {why} (mvm batch {root} redoes it)", out())
+    if len(status.stale) > 20:
+        print_line(f"… and {len(status.stale) - 20} more stages out of date", out())
     if status.training_set:
         out().print(f"training set: {status.training_set}")
     for clip, stage in status.mismatched:

@@ -31,7 +31,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
                complete: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
     from mvm.io.outputs import check_output_location
-    from mvm.io.scene_dir import read_poses3d, read_scene, scene_inputs
+    from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import export_supervision
 
     check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
@@ -40,6 +40,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
         poses3d = scene_dir / output_name / "poses3d.json"
         if not poses3d.is_file():
             raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
+        check_reconstruction_fresh(scene_dir, poses3d)
         frames = scene_dir / "frames"
         return read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 

@@ -9,6 +9,7 @@ from mvm.cli.common import (
     config_options,
     fmt,
     parse_sets,
+    print_line,
     print_table,
     progress,
     read_config,
@@ -127,21 +128,28 @@ def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
                    "1: this process only).")
 @click.option("--rig-set", "rig_sets", multiple=True, metavar="KEY=VALUE",
               help="Override one rig setting (batch_size, max_link_distance_m, max_gap, up, ...).")
+@click.option("--force", is_flag=True, help="Reconstruct even if the output set is up to date.")
 @config_options
 def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_inferred, frame_rate, workers,
-                    rig_sets, config_path, sets, refine):
+                    rig_sets, force, config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
-    from mvm.rig.reconstruct_rig import reconstruct_rig
+    from mvm.rig.reconstruct_rig import kept_set, reconstruct_rig, rig_reason
 
     config = read_config(config_path, sets, "rig", refine=refine, complete=False if no_complete else None)
     options = read_rig_options(config_path, rig_sets, smoothing=smoothing, frame_rate=frame_rate, workers=workers,
                                trc_inferred=True if trc_inferred else None)
-    with progress() as bar:
-        task = bar.add_task("instants", total=None)
-        result = reconstruct_rig(rig_dir, config, options, calib, frames, output,
-                                 progress=lambda done, total: bar.update(task, completed=done, total=total))
-    r = result.recap
+    why = "forced" if force else rig_reason(rig_dir, config, options, calib, frames, output)
+    if why is None:
+        recap_dict, outputs = kept_set(rig_dir, calib, output)
+    else:
+        with progress() as bar:
+            task = bar.add_task("instants", total=None)
+            result = reconstruct_rig(rig_dir, config, options, calib, frames, output,
+                                     progress=lambda done, total: bar.update(task, completed=done, total=total))
+        recap_dict, outputs = result.recap, result.outputs
+    print_line("output set: " + ("kept (up to date)" if why is None else f"made: {why}"))
+    r = recap_dict
     flags = r["joint_flags"]
     names = list(r["excluded_per_camera"])
     print_table(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
@@ -157,5 +165,5 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     if r.get("sync_offsets"):
         say("synchronized by sync.toml (frame numbers are the reference camera's): "
             + ", ".join(f"{n} {o:+d}" for n, o in r["sync_offsets"].items()))
-    say(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
-        f"{result.outputs['recap']}")
+    say(f"{'wrote' if why is not None else 'kept'} {outputs['poses3d']}, {len(outputs['tracks'])} .trc file(s), "
+        f"{outputs['recap']}")

@@ -65,7 +65,8 @@ detect_options = [
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
                  help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
     click.option("--import", "source", type=click.Path(), default=None,
-                 help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
+                 help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory "
+                      "(a COCO results image_id is a frame's file name, or its 1-based position in frames.json)."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
                  default=None, help="Format of --import (guessed by default)."),
     click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default=None,
@@ -134,6 +135,12 @@ def _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features, v
                   max_features=max_features, vocab_tree=vocab_tree)
 
 
+def _say_why(stage: str, why: str | None) -> None:
+    """One line on stderr: whether ``stage`` was kept (up to date) or made again, and why."""
+    err().print(f"{stage}: " + ("kept (up to date)" if why is None else f"made: {why}"), highlight=False,
+                markup=False)
+
+
 def _sfm_rows(report):
     total = len(report.registered) + len(report.unregistered)
     return [("cameras from", report.source), ("registered frames", f"{len(report.registered)} / {total}"),
@@ -147,7 +154,7 @@ def _sfm_rows(report):
 @click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
 @_options(frame_options)
 @config_option
-@click.option("--force", is_flag=True, help="Redo even if frames.json exists.")
+@click.option("--force", is_flag=True, help="Redo even if frames.json is up to date.")
 def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, force):
     """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
     from mvm.video.frames import extract_frames
@@ -155,6 +162,7 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, f
     with refused(ValueError), stage_progress(rate_column()) as update:
         index = extract_frames(video, scene, _frame_options(config_path, rate, max_frames, width, blur_ratio), force,
                                lambda d, t: update("frames", d, t))
+    _say_why("frames", index.why)
     measure_table("mvm frames", [("frames kept", str(len(index.names))),
                                  ("skipped as blurred", str(len(index.skipped))),
                                  ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
@@ -167,7 +175,7 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, f
               help="Use these cameras instead of SfM: a COLMAP model directory or a RealEstate10K/"
                    "MannequinChallenge camera file.")
 @config_option
-@click.option("--force", is_flag=True, help="Redo even if the model exists.")
+@click.option("--force", is_flag=True, help="Redo even if the model is up to date; replace a model mvm did not make.")
 def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, cameras, config_path, force):
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
@@ -177,9 +185,10 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
             report = sfm.run_sfm(scene, _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
                                                      vocab_tree), force)
         elif Path(cameras).is_dir():
-            report = sfm.import_colmap(cameras, scene)
+            report = sfm.import_colmap(cameras, scene, force)
         else:
-            report = sfm.import_trajectory(cameras, scene)
+            report = sfm.import_trajectory(cameras, scene, force)
+    _say_why("cameras", report.why)
     measure_table("mvm sfm", _sfm_rows(report))
     if report.unregistered:
         err().print(f"not registered (excluded): {', '.join(report.unregistered[:10])}", style="yellow")
@@ -189,7 +198,7 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @click.argument("scene", type=click.Path(file_okay=False))
 @_options(detect_options)
 @config_option
-@click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
+@click.option("--force", is_flag=True, help="Redo even if poses2d.json is up to date; replace one mvm did not make.")
 def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
                config_path, force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
@@ -201,6 +210,7 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
+    _say_why("2D poses", d.why)
     measure_table("mvm detect", [("source", d.source), ("frames", str(len(d.names))),
                                  ("2D poses", str(len(d.keypoints))),
                                  ("frames skipped (unreadable)", str(len(d.skipped))),
@@ -240,6 +250,8 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
                                                    vocab_tree),
                           detect_options=options, config=config,
                           metric_scale=metric, force="all" if "all" in force else tuple(force), progress=update)
+    for stage, why in r.why.items():
+        _say_why(stage, why)
     rec = r.reconstruction
     scale = rec.scale.to_json()
     rows = [("frames", str(len(r.frames.names)))] + _sfm_rows(r.sfm) + [

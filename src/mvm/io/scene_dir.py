@@ -89,6 +89,26 @@ def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
     return [*entries, out / "poses3d.json"]
 
 
+#: The reconstruction's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+RECONSTRUCT_STAGE = "the reconstruction"
+
+
+def reconstruction_inputs(scene: str | Path) -> dict[str, Path]:
+    """What a scene's ``poses3d.json`` is made from (:mod:`mvm.io.provenance`): ``poses2d.json``
+    and the camera model in ``sparse/``."""
+    scene = Path(scene)
+    return {POSES2D: scene / POSES2D, SPARSE: scene / SPARSE}
+
+
+def check_reconstruction_fresh(scene: str | Path, poses3d: str | Path) -> None:
+    """Refuse to read a ``poses3d.json`` whose ``poses2d.json`` or ``sparse/`` changed since it
+    was made (its record says so): one line naming the command that brings it up to date."""
+    from mvm.io.provenance import check_fresh
+
+    check_fresh(poses3d, reconstruction_inputs(scene),
+                f"mvm reconstruct {scene}` (or `mvm run` again, for a scene made from a video)")
+
+
 def output_dir(scene: str | Path, output: str = "mvm") -> Path:
     """The folder ``scene/output`` that receives a scene's results, checked before any work:
     ``output`` is a relative name that stays in the scene, not one of its inputs (``frames/``,

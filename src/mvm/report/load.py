@@ -13,7 +13,13 @@ from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.ground_truth import GroundTruth
-from mvm.io.scene_dir import load_poses3d_document, output_dir, parse_poses3d, read_scene
+from mvm.io.scene_dir import (
+    check_reconstruction_fresh,
+    load_poses3d_document,
+    output_dir,
+    parse_poses3d,
+    read_scene,
+)
 
 log = logging.getLogger(__name__)
 
@@ -94,12 +100,15 @@ def _seconds(value) -> float | None:
 
 
 def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
-    """Read a reconstructed scene directory (and its ground truth when one lies beside it)."""
+    """Read a reconstructed scene directory (and its ground truth when one lies beside it). A
+    ``poses3d.json`` whose inputs changed since it was made is refused in one line naming the
+    command to run (:func:`mvm.io.scene_dir.check_reconstruction_fresh`)."""
     path = Path(scene_dir)
     scene = read_scene(path)
     poses3d = output_dir(path, output) / "poses3d.json"
     if not (poses3d.exists() or poses3d.is_symlink()):
         raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
+    check_reconstruction_fresh(path, poses3d)
     document = load_poses3d_document(poses3d, root=path)
     persons = parse_poses3d(document, poses3d, scene.poses)
     metrics = _object(document, "metrics", poses3d)

@@ -16,12 +16,13 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.provenance import fingerprints, write_record
 from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.output_set import check_rig_output, replace_output_set
+from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig
 from mvm.rig.skeleton import refine_tracks
@@ -30,6 +31,29 @@ from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, tr
 log = logging.getLogger(__name__)
 
 POSES3D_LINES_FORMAT = "mvm.rig.poses3d/1"
+#: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+RIG_STAGE = "the rig reconstruction"
+
+
+def rig_fingerprint_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> dict[str, Path]:
+    """What a rig's output set is made from (:mod:`mvm.io.provenance`): the calibration and
+    every pose source, named relative to ``rig_dir`` where they lie in it."""
+    rig_dir = Path(rig_dir)
+    named = {}
+    for path in rig_inputs(rig_dir, calib):
+        try:
+            named[path.relative_to(rig_dir).as_posix()] = path
+        except ValueError:
+            named[str(path)] = path
+    return named
+
+
+def rig_settings(config: Config, options: RigOptions, calib, frames: str | None) -> dict:
+    """The settings that shape a rig's output set (the process count does not)."""
+    settings = {"config": asdict(config), "options": asdict(options), "calib": str(calib) if calib else None,
+                "frames": frames}
+    settings["options"].pop("workers", None)
+    return settings
 
 
 @dataclass
@@ -225,20 +249,53 @@ def check_smoothing(options: RigOptions) -> None:
                                       "frame_rate or filter_order, or use smoothing = savgol")
 
 
+def rig_reason(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
+               calib: str | Path | None = None, frames: str | None = None,
+               output: str | Path | None = None) -> str | None:
+    """Why :func:`reconstruct_rig` with these arguments would make the output set again (None:
+    the set's record says it was made from these inputs with these settings)."""
+    from mvm.io.provenance import why_redo
+
+    config = (config or Config()).for_driver("rig")
+    options = options or RigOptions()
+    check_smoothing(options)
+    out_dir = check_rig_output(rig_dir, calib, output)
+    return why_redo(out_dir / "poses3d.jsonl", rig_fingerprint_inputs(rig_dir, calib),
+                    rig_settings(config, options, calib, frames), RIG_STAGE,
+                    exists=(out_dir / "poses3d.jsonl").is_file() and (out_dir / "recap.json").is_file())
+
+
+def kept_set(rig_dir: str | Path, calib: str | Path | None = None,
+             output: str | Path | None = None) -> tuple[dict, dict]:
+    """The recap and the paths of an output set kept as it is (:func:`rig_reason` said it is up
+    to date): ``(recap, {"poses3d", "tracks", "recap"})``."""
+    from mvm.io.checks import load_json_object
+
+    out_dir = check_rig_output(rig_dir, calib, output)
+    recap_path = out_dir / "recap.json"
+    return load_json_object(recap_path), {"poses3d": out_dir / "poses3d.jsonl", "recap": recap_path,
+                                          "tracks": sorted((out_dir / "tracks").glob("*.trc"))}
+
+
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
                     calib: str | Path | None = None, frames: str | None = None, output: str | Path | None = None,
                     prior=None, progress: Callable[[int, int], None] | None = None) -> RigResult:
     """Reconstruct, track, complete and write a rig: ``<output>/poses3d.jsonl``,
     ``<output>/tracks/*.trc``, ``<output>/recap.json`` (``output`` defaults to ``RIG_DIR/mvm``).
 
-    The three are one set: written into a temporary folder beside ``output`` and swapped in
+    The three are one set, with the record of its inputs and settings (``poses3d.inputs.json``,
+    :mod:`mvm.io.provenance`): written into a temporary folder beside ``output`` and swapped in
     whole, so a failed or killed run leaves the previous set as it was (or no set), never a mix.
+    A run that would produce nothing (a frame range without poses, a folder that is not a rig)
+    is refused before anything is written.
     """
     config = (config or Config()).for_driver("rig")
     options = options or RigOptions()
     check_smoothing(options)
     timings = {}
     out_dir = check_rig_output(rig_dir, calib, output)
+    inputs = rig_fingerprint_inputs(rig_dir, calib)
+    hashed = fingerprints(inputs)                                    # before reading: never newer than the set
     t0 = time.perf_counter()
     rig = read_rig(rig_dir, calib, frames, options.workers)
     timings["read_s"] = time.perf_counter() - t0
@@ -276,6 +333,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
                                                  "config": asdict(config), "options": asdict(options),
                                                  "calibration": rig.calibration.metadata.get("source"),
                                                  "pose_format": rig.pose_format}, pretty=True)
+        write_record(folder / "poses3d.jsonl", RIG_STAGE, inputs, rig_settings(config, options, calib, frames), hashed)
 
     replace_output_set(build, out_dir, config.lock_timeout_s)
     outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})

@@ -225,16 +225,20 @@ def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: s
 
 
 def parse_frames(spec: str | None) -> tuple[int | None, int | None]:
-    """``"a:b"`` (b excluded; either may be empty) or ``"a"`` -> ``(start, stop)``."""
+    """``"a:b"`` (b excluded; either may be empty) or ``"a"`` -> ``(start, stop)``. A range that
+    holds no frame (``30:10``) is refused."""
     if not spec:
         return None, None
     try:
         if ":" not in spec:
             return int(spec), int(spec) + 1
         a, b = spec.split(":", 1)
-        return (int(a) if a.strip() else None), (int(b) if b.strip() else None)
+        start, stop = (int(a) if a.strip() else None), (int(b) if b.strip() else None)
     except ValueError:
         raise InputError("--frames", spec, "expected START:STOP frame numbers, e.g. 0:1000") from None
+    if start is not None and stop is not None and stop <= start:
+        raise InputError("--frames", spec, "selects no frame: STOP (excluded) must be above START")
+    return start, stop
 
 
 def sync_shifts(offsets: dict[str, int], names: list[str], path: Path) -> list[int]:
@@ -284,10 +288,16 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         matched = match_cameras(names, list(sources))
     except ValueError as e:
         raise InputError(_pose_root(rig_dir), None, str(e)) from None
+    scene = ("" if not (rig_dir / "poses2d.json").is_file() else
+             " (a scene directory of one moving camera? use `mvm reconstruct`)")
     if not matched:
+        shown = ", ".join(names[:10]) + (" …" if len(names) > 10 else "")
         raise InputError(_pose_root(rig_dir), None, f"no pose folder matches a camera of {calib_path} "
-                                                    f"(cameras: {', '.join(names)}; "
-                                                    f"found: {', '.join(sources) or 'nothing'})")
+                                                    f"(cameras: {shown}; found: {', '.join(sources) or 'nothing'})"
+                                                    f"{scene}")
+    if len(matched) < 2:
+        raise InputError(rig_dir, None, f"not a rig: {len(matched)} of the {len(names)} cameras of {calib_path.name} "
+                                        f"has a pose folder, a rig needs 2{scene}")
     for c in range(len(names)):
         if c not in matched:
             log.warning("camera %s: no pose folder; it is not used", names[c])
@@ -316,6 +326,9 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     cam_of = np.concatenate(cam_of) if kps else np.zeros(0, int)
     score = np.concatenate(scores) if kps else np.zeros(0)
     all_frames, instant = np.unique(frame_of, return_inverse=True)
+    if not len(all_frames):
+        raise InputError(*(("--frames", frames, "selects no frame with 2D poses") if frames else
+                           (_pose_root(rig_dir), None, "no 2D pose in the pose folders")))
     calibration = subset_calibration(calibration, np.array(used))
     model = None
     if colmap_model is not None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,16 +27,19 @@ from mvm.io.files import atomic_write_json
 from mvm.io.images import UndecodableImage, read_image
 from mvm.io.paths import resolve_in
 from mvm.io.pose_format import pose_format
+from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
 from mvm.video.appearance import colour_descriptor
-from mvm.video.detectors import FrameDetector, make_detector
-from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
-from mvm.video.importers import import_detections
+from mvm.video.detectors import FrameDetector, check_models, make_detector
+from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
+from mvm.video.importers import check_detections_fit, import_detections
 from mvm.video.models import MODES
 from mvm.video.rtm import RtmOptions
 
 log = logging.getLogger(__name__)
 
 POSES2D = "poses2d.json"
+#: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+DETECT_STAGE = "the detection"
 APPEARANCE = ("auto", "colour", "network", "none")
 DETECTORS = ("rtmo", "rtmpose", "mvm", "import")
 DEVICES = ("cpu", "cuda")
@@ -96,12 +99,14 @@ class FramePoses:
     appearance: np.ndarray | None = None
     source: str = ""
     skipped: tuple[str, ...] = ()
+    #: Why the poses were made by this call (None: kept, up to date).
+    why: str | None = field(default=None, compare=False)
 
 
 # --------------------------------------------------------------------------- the stage
 
 
-def _registered_names(scene: Path) -> set[str] | None:
+def registered_names(scene: Path) -> set[str] | None:
     """Image names in ``scene/sparse`` (None when there is no model yet)."""
     sparse = scene / "sparse"
     if not sparse.is_dir():
@@ -237,6 +242,38 @@ def _keep(found: _Found, names: list[str], registered: set[str] | None, options:
             score[keep], appearance)
 
 
+def detect_inputs(scene: Path, registered: set[str] | None, source=None, checkpoint=None) -> dict:
+    """What the 2D poses are made from (:mod:`mvm.io.provenance`): the frames, their index, the
+    names of the frames that have a camera, and the imported detections or the network's
+    checkpoint."""
+    inputs = {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR,
+              "registered frames": sorted(registered) if registered is not None else None}
+    if source is not None:
+        inputs["detections"] = Path(source)
+    if checkpoint is not None:
+        inputs["checkpoint"] = Path(checkpoint)
+    return inputs
+
+
+def detect_settings(kind: str, fmt: str | None, options: DetectOptions) -> dict:
+    """The settings that shape the 2D poses (:mod:`mvm.io.provenance`): the options but those
+    saying how the detector runs (batch size, device), the detector and the import's format."""
+    settings = asdict(options)
+    for how in ("batch_size", "device", "download"):                 # how it runs, not what it finds
+        settings.pop(how)
+    return {**settings, "detector": kind, "format": fmt}
+
+
+def _frame_size(scene: Path, names: list[str]) -> tuple[int, int] | None:
+    """The frames' size (w, h): from ``frames.json``, else the first readable frame; None when unknown."""
+    if (scene / FRAMES_INDEX).is_file():
+        return read_frame_index(scene).size
+    for _, images in read_frames(scene, names[:5], 1, warn=False):
+        if images[0] is not None:
+            return images[0].shape[1], images[0].shape[0]
+    return None
+
+
 def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint: str | Path | None = None,
                  fmt: str | None = None, options: DetectOptions = DetectOptions(), force: bool = False,
                  progress: Callable[[int, int], None] | None = None) -> FramePoses:
@@ -245,22 +282,45 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     The detector is ``options.detector``: ``rtmo`` / ``rtmpose`` (ONNX models), ``mvm`` (the
     network, ``checkpoint``) or ``import`` (``source``, in format ``fmt``); when None, the one
     that ``source`` or ``checkpoint`` implies. Frames that SfM did not register (when
-    ``scene/sparse`` exists) and frames that cannot be read are left out. Skipped when
-    ``poses2d.json`` exists, unless ``force``. ``progress(done, total)`` after each batch.
+    ``scene/sparse`` exists) and frames that cannot be read are left out.
+
+    Kept when the record of ``poses2d.json`` (``poses2d.inputs.json``) says it was made from
+    these frames, cameras, detections (or checkpoint) and settings, unless ``force``; the result's
+    ``why`` says why it was made again. A ``poses2d.json`` mvm did not make is never replaced
+    without ``force``. Checked before any frame is read: the detector's model files (each
+    named with its option), imported detections that name no frame or were made on frames of
+    another size. ``progress(done, total)`` after each batch.
     """
     scene = Path(scene)
     out = scene / POSES2D
-    kind = _detector_kind(options, source, checkpoint)
-    if out.is_file() and not force:
-        log.info("%s exists: 2D poses already detected (use force to redo)", out)
+    kind = detector_kind(options, source, checkpoint)
+    if kind == "import":
+        fmt = fmt or pose_format(source)[0]
+    else:
+        check_models(replace(options, detector=kind), checkpoint)
+    if out.is_file() and not force and read_record(out) is None:
+        raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to replace "
+                                    "them")
+    registered = registered_names(scene)
+    inputs = detect_inputs(scene, registered, source, checkpoint)
+    settings = detect_settings(kind, fmt, options)
+    hashed = fingerprints(inputs)
+    why = "forced" if force else why_redo(out, inputs, settings, DETECT_STAGE)
+    if why is None:
+        log.info("%s is up to date (made from these frames and detections with these settings)", out)
         coco = read_coco_keypoints(out)
         return FramePoses(coco.file_names, coco.sizes, coco.keypoints, coco.ann_image, coco.score,
                           coco.appearance, "existing")
-    registered = _registered_names(scene)
+    log.info("%s: detecting 2D poses: %s", scene, why)
     names = _frame_names(scene, registered)
     if kind == "import":
-        fmt = fmt or pose_format(source)[0]
         imported = import_detections(source, scene, names, fmt)
+        if not len(imported[0]):
+            raise InputError(source, None, f"no detection is of a frame of {scene} (its frames are named like "
+                                           f"{names[0]}): nothing to reconstruct")
+        size = _frame_size(scene, names)
+        if size is not None:
+            check_detections_fit(imported[0], size, source)
         detector, info = None, {"detector": "import", "format": fmt, "file": str(source)}
     else:
         imported, detector = None, make_detector(replace(options, detector=kind), checkpoint)
@@ -275,11 +335,15 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
             "skipped_frames": list(skipped)}
     document = coco_keypoints_document(names, sizes, image, keypoints, score, None, appearance)
     document["info"] = info
+    forget(out)
     atomic_write_json(out, document)
-    return FramePoses(tuple(names), sizes, keypoints, image, score, appearance, label, skipped)
+    write_record(out, DETECT_STAGE, inputs, settings, hashed)
+    return FramePoses(tuple(names), sizes, keypoints, image, score, appearance, label, skipped, why)
 
 
-def _detector_kind(options: DetectOptions, source, checkpoint) -> str:
+def detector_kind(options: DetectOptions, source, checkpoint) -> str:
+    """The detector that runs: ``options.detector``, else the one ``source`` (``import``) or
+    ``checkpoint`` (``mvm``) implies; a contradiction raises ``ValueError``."""
     kind = options.detector or ("import" if source is not None else "mvm" if checkpoint is not None else None)
     if kind is None:
         raise ValueError("no detector: name one (rtmo, rtmpose, mvm) or give detections to import")

@@ -21,7 +21,7 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.video.appearance import pool_features
-from mvm.video.models import RTMO, RTMPOSE, YOLOX, resolve_model, sha256
+from mvm.video.models import RTMO, RTMPOSE, YOLOX, model_problem, resolve_model, sha256
 
 if TYPE_CHECKING:
     from mvm.video.detect import DetectOptions
@@ -52,7 +52,7 @@ def _rtm_detector(options: DetectOptions) -> FrameDetector:
         models = [_model_info(path, options.model, spec.url)]
     else:
         person_spec, pose_spec = YOLOX[options.mode], RTMPOSE[options.mode]
-        person = resolve_model(person_spec, options.person_model, options.download)
+        person = resolve_model(person_spec, options.person_model, options.download, option="--person-model")
         pose = resolve_model(pose_spec, options.model, options.download)
         model = RtmPose(person, pose, options.device, person_spec.size, pose_spec.size, pose_spec.mean,
                         pose_spec.std, options.rtm)
@@ -90,6 +90,50 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDe
 
     info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
     return FrameDetector(lambda frames: [one(f) for f in frames], info)
+
+
+def check_models(options: DetectOptions, checkpoint: str | Path | None = None) -> None:
+    """Check, before any work, every file the detector ``options.detector`` needs, each named
+    with the option that supplies it (``rtmpose``: ``--person-model`` for the person detector
+    and ``--model`` for the pose model), and its runtime: one :class:`InputError` line listing
+    every problem. Reads nothing but the files' status (a second at most)."""
+    import importlib.util
+
+    problems = []
+    if options.detector == "mvm":
+        if checkpoint is None:
+            problems.append("--checkpoint: the mvm detector needs its checkpoint")
+        elif not Path(checkpoint).is_file():
+            problems.append(f"--checkpoint: {checkpoint}: file not found")
+        elif importlib.util.find_spec("torch") is None:
+            problems.append('--detector mvm: the network needs torch: pip install "mvm[net]"')
+    elif options.detector in ("rtmo", "rtmpose"):
+        specs = ([(YOLOX[options.mode], options.person_model, "--person-model"),
+                  (RTMPOSE[options.mode], options.model, "--model")] if options.detector == "rtmpose"
+                 else [(RTMO[options.mode], options.model, "--model")])
+        for spec, path, option in specs:
+            problem = model_problem(spec, path, options.download, option)
+            if problem is not None:
+                problems.append(problem if path is None else problem.replace(f"{option}: ", f"{option} {path}: ", 1))
+        if importlib.util.find_spec("onnxruntime") is None:
+            problems.append(f'--detector {options.detector}: needs ONNX Runtime: pip install "mvm[detect]"')
+    if problems:
+        raise InputError(None, None, "; ".join(problems))
+
+
+def fetch_missing_models(options: DetectOptions) -> None:
+    """Download now the published models of ``options.detector`` that the cache lacks (when
+    downloads are allowed), so that a failed download ends a run before its first heavy step."""
+    from mvm.video.models import cache_dir
+
+    if options.detector not in ("rtmo", "rtmpose") or not options.download:
+        return
+    specs = ([(YOLOX[options.mode], options.person_model, "--person-model"),
+              (RTMPOSE[options.mode], options.model, "--model")] if options.detector == "rtmpose"
+             else [(RTMO[options.mode], options.model, "--model")])
+    for spec, path, option in specs:
+        if path is None and not (cache_dir() / spec.url.rsplit("/", 1)[-1]).is_file():
+            resolve_model(spec, None, True, option=option)
 
 
 def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:

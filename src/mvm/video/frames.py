@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -16,12 +16,15 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.paths import check_name
+from mvm.io.provenance import fingerprints, forget, why_redo, write_record
 
 log = logging.getLogger(__name__)
 
 FRAMES_DIR = "frames"
 FRAMES_INDEX = "frames.json"
 FRAMES_FORMAT = "mvm.frames/1"
+#: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+FRAMES_STAGE = "the frame extraction"
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,8 @@ class FrameIndex:
     timestamps: np.ndarray
     sharpness: np.ndarray
     skipped: tuple[int, ...] = ()
+    #: Why the frames were extracted by this call (None: kept, up to date). Not written.
+    why: str | None = field(default=None, compare=False)
 
     def to_json(self) -> dict:
         return {"format": FRAMES_FORMAT, "video": self.video, "fps": self.fps,
@@ -145,6 +150,21 @@ def _open_video(video: Path):
     return capture
 
 
+def frame_size(video: str | Path, options: FrameOptions = FrameOptions()) -> tuple[int, int] | None:
+    """The size (w, h) the frames of ``video`` will have with ``options``, from the video's
+    header (nothing decoded); None when the header does not say."""
+    capture = _open_video(Path(video))
+    try:
+        w, h = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH)), int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    finally:
+        capture.release()
+    if w <= 0 or h <= 0:
+        return None
+    if options.width is None or options.width == w:
+        return w, h
+    return options.width, int(round(h * options.width / w))
+
+
 def _stream_to_disk(video: Path, frames_dir: Path, options: FrameOptions, progress):
     """Decode the sampled frames and write each at once -> ``numbers (F,)``, ``sharpness (F,)``,
     the frame size (w, h) and the video's fps."""
@@ -169,36 +189,73 @@ def _stream_to_disk(video: Path, frames_dir: Path, options: FrameOptions, progre
     return np.array(numbers, dtype=np.int64), np.array(sharp), size, fps
 
 
+def frame_inputs(video: str | Path) -> dict[str, Path]:
+    """What the frames are made from (:mod:`mvm.io.provenance`): the video file."""
+    return {Path(video).name: Path(video)}
+
+
+def _frame_settings(options: FrameOptions) -> dict:
+    return asdict(options)
+
+
+def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
+                  force: bool = False) -> str | None:
+    """Why :func:`extract_frames` would decode ``video`` again (None: ``frames.json`` is up to
+    date: made from this video's bytes with these options)."""
+    if force:
+        return "forced"
+    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), _frame_settings(options), FRAMES_STAGE)
+
+
 def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
                    force: bool = False, progress: Callable[[int, int], None] | None = None) -> FrameIndex:
     """Decode ``video`` into ``scene/frames/frame_NNNNN.jpg`` (NNNNN: the frame number) and
-    write ``scene/frames.json``. Skipped when ``frames.json`` exists, unless ``force``.
+    write ``scene/frames.json`` with its record (``frames.inputs.json``: the video's hash and
+    the options). Kept when the record says it was made from this video with these options,
+    unless ``force``; the returned index's ``why`` says why it was made again.
 
     Frames are decoded and written one at a time (bounded memory whatever the video's length);
-    blurred ones are removed once the median sharpness is known. ``progress(done, total)`` is
-    called after each decoded candidate frame.
+    blurred ones are removed once the median sharpness is known, and so are the frames of an
+    earlier extraction that this one does not keep. ``progress(done, total)`` is called after
+    each decoded candidate frame.
     """
     video, scene = Path(video), Path(scene)
     index_path = scene / FRAMES_INDEX
-    if index_path.is_file() and not force:
-        log.info("%s exists: frames already extracted (use force to redo)", index_path)
+    if not video.is_file():
+        raise InputError(video, None, "video file not found")
+    hashed = fingerprints(frame_inputs(video))
+    why = frames_reason(video, scene, options, force)
+    if why is None:
+        log.info("%s is up to date (made from %s with these options)", index_path, video.name)
         return read_frame_index(scene)
+    log.info("%s: extracting frames: %s", scene, why)
     frames_dir = scene / FRAMES_DIR
+    forget(index_path)
     numbers, sharp, size, fps = _stream_to_disk(video, frames_dir, options, progress)
     keep = sharp_mask(sharp, options.blur_ratio)
     skipped = tuple(int(k) for k in numbers[~keep])
     if skipped:
         log.warning("%s: %d of %d sampled frames are blurred (sharpness below %.2f × median) and "
                     "skipped: %s", video, len(skipped), len(numbers), options.blur_ratio, list(skipped)[:20])
-    for k in skipped:
-        (frames_dir / frame_name(k)).unlink(missing_ok=True)
     kept = numbers[keep]
     index = FrameIndex(str(video), fps, size, tuple(frame_name(k) for k in kept),
-                       kept, kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped)
+                       kept, kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped, why)
+    _remove_other_frames(frames_dir, set(index.names))
     document = index.to_json()
     document["options"] = asdict(options)
     atomic_write_json(index_path, document, pretty=True)
+    write_record(index_path, FRAMES_STAGE, frame_inputs(video), _frame_settings(options), hashed)
     return index
+
+
+def _remove_other_frames(frames_dir: Path, keep: set[str]) -> None:
+    """Delete the frame files mvm wrote (``frame_NNNNN.jpg``) that are not in ``keep``: the
+    blurred frames and those of an earlier extraction with other options."""
+    import re
+
+    for path in frames_dir.glob("frame_*.jpg"):
+        if path.name not in keep and re.fullmatch(r"frame_\d{5,}\.jpg", path.name):
+            path.unlink(missing_ok=True)
 
 
 def read_frame_index(scene: str | Path) -> FrameIndex:

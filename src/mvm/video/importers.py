@@ -50,6 +50,41 @@ def import_detections(source: str | Path, scene: str | Path, names: list[str],
     return _from_per_frame(read_openpose_dir(source), numbers, source)
 
 
+#: Imported keypoints outside the frame (by more than 5% of its size) above this fraction of
+#: the confident ones: the detections were made on frames of another size.
+OUTSIDE_LIMIT = 0.05
+
+
+def check_detections_fit(keypoints: np.ndarray, size: tuple[int, int], source: str | Path) -> None:
+    """Refuse, in one :class:`InputError` line naming ``source``, detections made on frames of
+    another size: more than :data:`OUTSIDE_LIMIT` of the confident keypoints of ``keypoints:
+    (N, 17, 3)`` lie outside the ``size`` (w, h) frames (by over 5% of their size)."""
+    w, h = size
+    xy = keypoints[keypoints[..., 2] > 0][:, :2]
+    if not len(xy) or w <= 0 or h <= 0:
+        return
+    outside = (xy[:, 0] < -0.05 * w) | (xy[:, 0] > 1.05 * w) | (xy[:, 1] < -0.05 * h) | (xy[:, 1] > 1.05 * h)
+    if outside.mean() > OUTSIDE_LIMIT:
+        x, y = np.nanmax(xy, axis=0)
+        raise InputError(source, None, f"{outside.mean():.0%} of the keypoints lie outside the {w}×{h} frames "
+                                       f"(they reach x = {x:.0f}, y = {y:.0f} px): detections made on frames of "
+                                       "another size? Extract the frames at that size (--width), or scale them")
+
+
+def imported_keypoints(source: str | Path, fmt: str | None = None) -> np.ndarray:
+    """Every pose of ``source`` whatever its frame -> ``keypoints: (N, 17, 3)``, confidence in
+    [0, 1]: for the checks made before any work (:func:`check_detections_fit`)."""
+    source = Path(source)
+    fmt = fmt or pose_format(source)[0]
+    if fmt == "coco-results":
+        return as_confidence(read_coco_results(source).keypoints)
+    if fmt == "coco":
+        return read_coco_keypoints(source).keypoints
+    per_frame = read_openpifpaf_dir(source) if fmt == "openpifpaf" else read_openpose_dir(source)
+    kps = [v[0] if isinstance(v, tuple) else v for v in per_frame.values()]
+    return np.concatenate(kps) if kps else np.zeros((0, NUM_JOINTS, 3))
+
+
 def coco_results_in_scene(path: str | Path, names: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The COCO results file ``path`` -> ``keypoints: (N, 17, 3)`` (confidence in [0, 1]),
     ``image: (N,)`` index into ``names``, ``score: (N,)`` (in [0, 1]; where the file gives none,
@@ -58,6 +93,8 @@ def coco_results_in_scene(path: str | Path, names: list[str]) -> tuple[np.ndarra
     path = Path(path)
     results = read_coco_results(path)
     image = results_frame_index(results, names)
+    if names and any(not isinstance(i, str) for i in results.image_ids):
+        log.info("%s: an integer image_id is a 1-based position in the scene's frame list (1 = %s)", path, names[0])
     keep = image >= 0
     if not keep.all():
         log.warning("%s: %d results name images that are not in the scene and are ignored", path, int((~keep).sum()))

@@ -105,7 +105,8 @@ def sha256(path: str | Path) -> str:
 
 
 def download(url: str, target: str | Path, expected_sha256: str | None = None,
-             progress: Callable[[int, int], None] | None = None, timeout_s: float = 60.0) -> Path:
+             progress: Callable[[int, int], None] | None = None, timeout_s: float = 60.0,
+             option: str = "--model") -> Path:
     """Download ``url`` to ``target`` atomically (a temporary file in the same folder, renamed
     once complete and verified). ``expected_sha256``: the file's SHA-256 (or its leading hex
     digits); the digest is also written to ``target.sha256``. Raises :class:`InputError` naming
@@ -140,7 +141,7 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
     except (URLError, OSError, ValueError) as e:
         reason = getattr(e, "reason", None) or e
         raise InputError(url, None, f"cannot download ({reason}): fetch this file and put it at {target}, "
-                                    "or pass its path with --model") from None
+                                    f"or pass its path with {option}") from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -280,25 +281,45 @@ def onnx_in_zip(archive: Path, folder: Path | None = None) -> Path:
     return target
 
 
-def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
-                  progress: Callable[[int, int], None] | None = None) -> Path:
-    """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx``, or the published
-    ``.zip``, extracted into the cache), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
-    false, in which case a missing file is an :class:`InputError` naming what to fetch)."""
+def model_problem(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
+                  option: str = "--model") -> str | None:
+    """What is wrong with a model before any work, in a phrase naming ``option`` (None: nothing
+    known): a given file that is missing or not a regular file, a published model neither in
+    the cache nor allowed to be fetched. Reads nothing but the file's status."""
     if path is not None:
         path = Path(path)
         if not path.exists() and not path.is_symlink():
-            raise InputError(path, None, "model file not found")
+            return f"{option}: model file not found"
+        try:
+            check_input_file(path)
+        except InputError as e:
+            return f"{option}: {e.problem}"
+        return None
+    archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
+    if not archive.is_file() and not download_ok:
+        return f"{option}: model not in the cache: fetch {spec.url} and put it at {archive}, or give {option} PATH"
+    return None
+
+
+def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
+                  progress: Callable[[int, int], None] | None = None, option: str = "--model") -> Path:
+    """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx``, or the published
+    ``.zip``, extracted into the cache), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
+    false, in which case a missing file is an :class:`InputError` naming what to fetch).
+    ``option``: the command-line option that gives ``path``, named in the errors."""
+    problem = model_problem(spec, path, download_ok, option)
+    if problem is not None:
+        raise InputError(path if path is not None else cache_dir() / spec.url.rsplit("/", 1)[-1], None, problem)
+    if path is not None:
+        path = Path(path)
         check_input_file(path)
         if path.suffix.lower() != ".zip":
             return path
         return onnx_in_zip(path, cache_dir() / f"{path.stem}-{sha256(path)[:12]}")
     archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
     if not archive.is_file():
-        if not download_ok:
-            raise InputError(archive, None, f"model not in the cache: fetch {spec.url} and put it here")
         log.info("downloading %s to %s", spec.url, archive)
-        download(spec.url, archive, spec.sha256, progress)
+        download(spec.url, archive, spec.sha256, progress, option=option)
     else:
         verify_cached(archive, spec.sha256)
     return onnx_in_zip(archive)

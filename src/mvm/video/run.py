@@ -1,6 +1,10 @@
 """From a video file to 3D poses: frames -> cameras -> 2D poses + appearance -> reconstruction
--> metric scale. Every stage writes its outputs atomically into the scene directory and is
-skipped when they exist, unless forced (``force`` names the stages to redo, or ``"all"``).
+-> metric scale. Every stage writes its outputs atomically into the scene directory with a
+record of its inputs and settings (:mod:`mvm.io.provenance`), and is kept on a rerun when they
+are unchanged; a stage whose inputs or settings changed is redone, and so is every stage whose
+inputs it changes. ``force`` names stages to redo whatever the records say (or ``"all"``).
+Everything checkable in a second is checked before the first frame is decoded
+(:func:`check_run`).
 """
 from __future__ import annotations
 
@@ -17,15 +21,24 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_write_json
 from mvm.io.outputs import atomic_replace_dir
+from mvm.io.provenance import fingerprint, fingerprints, forget, why_redo, write_record
+from mvm.io.scene_dir import RECONSTRUCT_STAGE, reconstruction_inputs
 from mvm.video.detect import DetectOptions, FramePoses, detect_scene
 from mvm.video.frames import FrameIndex, FrameOptions, extract_frames
 from mvm.video.metric_scale import people_scale
-from mvm.video.sfm import SFM_DIR, SfmOptions, SfmReport, import_colmap, import_trajectory, run_sfm
+from mvm.video.sfm import (
+    SCALE_FILE,
+    SFM_DIR,
+    SfmOptions,
+    SfmReport,
+    import_colmap,
+    import_trajectory,
+    run_sfm,
+)
 
 log = logging.getLogger(__name__)
 
 STAGES = ("frames", "sfm", "detect", "reconstruct")
-SCALE_FILE = "scale.json"
 
 
 @dataclass
@@ -55,6 +68,8 @@ class ReconstructReport:
     scale: ScaleRecord
     path: Path
     skipped: bool = False
+    #: Why the reconstruction was made by this call (None: kept, up to date).
+    why: str | None = None
 
 
 def _read_scale(scene: Path) -> float:
@@ -88,20 +103,27 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
     from the people's bone lengths, recorded under ``"scale"`` in ``poses3d.json``.
 
     With ``metric_scale`` the model in ``sparse/`` and the 3D poses are multiplied by s*, so
-    that the world is in metres; otherwise s* is only recorded.
+    that the world is in metres; otherwise s* is only recorded. Kept when the record of
+    ``poses3d.json`` says it was made from this ``poses2d.json`` and ``sparse/`` (as scaled)
+    with these settings, unless ``force``; the report's ``why`` says why it was made again.
     """
     from mvm.io.scene_dir import load_poses3d_document, poses3d_document, write_poses3d
     from mvm.scenes import reconstruct_dir
 
     scene = Path(scene)
     out = scene / output / "poses3d.json"
-    if out.is_file() and not force:
-        log.info("%s exists: already reconstructed (use force to redo)", out)
+    config = (config or Config()).for_driver("scene")
+    inputs = reconstruction_inputs(scene)
+    settings = {"config": asdict(config), "metric_scale": metric_scale}
+    hashed = fingerprints(inputs)
+    why = "forced" if force else why_redo(out, inputs, settings, RECONSTRUCT_STAGE)
+    if why is None:
+        log.info("%s is up to date (made from this poses2d.json and sparse/ with these settings)", out)
         doc = load_poses3d_document(out, root=scene)
         record = (ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict)
                   else ScaleRecord("none", None, None, False))
         return ReconstructReport(len(doc.get("persons", [])), doc.get("metrics", {}), record, out, skipped=True)
-    config = (config or Config()).for_driver("scene")
+    log.info("%s: reconstructing: %s", scene, why)
     result = reconstruct_dir(scene, config, output)
     s, bones = people_scale(result.persons.keypoints3d) if len(result.persons) else (float("nan"), 0)
     before = _read_scale(scene)
@@ -113,30 +135,80 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
         result.persons.keypoints3d = result.persons.keypoints3d * s
         record = ScaleRecord("people", 1.0, before * s, True, bones)
         atomic_write_json(scene / SFM_DIR / SCALE_FILE, {"source": "people", "sfm_units_per_model_unit": before * s})
+        hashed["sparse"] = fingerprint(scene / "sparse")                # the model as scaled
     else:
         record = ScaleRecord("people", s, before * s, False, bones)
     document = poses3d_document(result.persons, result.scene.poses, result.metrics,
                                 {"timings_s": {k: round(v, 4) for k, v in result.timings.items()},
                                  "config": asdict(config), "scale": record.to_json()})
+    forget(out)
     write_poses3d(out, document)
-    return ReconstructReport(len(result.persons), result.metrics, record, out)
+    write_record(out, RECONSTRUCT_STAGE, inputs, settings, hashed)
+    return ReconstructReport(len(result.persons), result.metrics, record, out, why=why)
 
 
 @dataclass
 class RunReport:
-    """What :func:`run_video` did: each stage's result and seconds (0 when skipped)."""
+    """What :func:`run_video` did: each stage's result and seconds; ``why``: per stage, why it
+    was made by this run (None: kept, up to date)."""
 
     frames: FrameIndex | None = None
     sfm: SfmReport | None = None
     detections: FramePoses | None = None
     reconstruction: ReconstructReport | None = None
     seconds: dict = field(default_factory=dict)
+    why: dict = field(default_factory=dict)
 
 
 def _forced(force, stage: str) -> bool:
     if force is True or force == "all":
         return True
     return bool(force) and stage in force
+
+
+def check_run(video: str | Path, scene: str | Path, detections=None, checkpoint=None, detections_format=None,
+              cameras=None, frame_options: FrameOptions = FrameOptions(),
+              detect_options: DetectOptions = DetectOptions(), output: str = "mvm") -> None:
+    """Everything :func:`run_video` can check in a second, checked before any work, each problem
+    one :class:`InputError` line: the video and the cameras exist; the detector's model files
+    (every one, named with its option) or the imported detections, read and matched against
+    the size the frames will have; the scene directory and its output folder can be written.
+    Then the published models the cache lacks are downloaded, before the first heavy step."""
+    from dataclasses import replace
+
+    from mvm.io.files import make_dir
+    from mvm.io.scene_dir import output_dir
+    from mvm.video.detect import detector_kind
+    from mvm.video.detectors import check_models, fetch_missing_models
+    from mvm.video.frames import frame_size
+    from mvm.video.importers import check_detections_fit, imported_keypoints
+
+    video, scene = Path(video), Path(scene)
+    if not video.is_file():
+        raise InputError(video, None, "video file not found")
+    if cameras is not None and not Path(cameras).exists():
+        raise InputError(cameras, "--cameras", "not found")
+    kind = detector_kind(detect_options, detections, checkpoint)
+    if kind == "import":
+        if not Path(detections).exists():
+            raise InputError(detections, "--import", "not found")
+        size = frame_size(video, frame_options)
+        if size is not None:
+            check_detections_fit(imported_keypoints(detections, detections_format), size, detections)
+    else:
+        check_models(replace(detect_options, detector=kind), checkpoint)
+    make_dir(scene)
+    probe = scene / ".mvm-write-check"
+    try:
+        probe.touch()
+        probe.unlink()
+    except OSError as e:
+        from mvm.io.files import output_error
+
+        raise output_error(scene, e) from None
+    output_dir(scene, output)
+    if kind in ("rtmo", "rtmpose"):
+        fetch_missing_models(replace(detect_options, detector=kind))
 
 
 def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | None = None,
@@ -155,10 +227,13 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
         cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
             camera file to use instead of SfM.
         force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;
-            a redone stage also redoes the stages after it.
+            a forced stage also forces the stages after it. Without it a stage is redone when
+            its inputs or settings changed (the report's ``why`` says which).
         progress: ``progress(stage, done, total)``.
     """
     scene = Path(scene)
+    check_run(video, scene, detections, checkpoint, detections_format, cameras, frame_options, detect_options,
+              output)
     report = RunReport()
     redo = False
 
@@ -179,13 +254,9 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
     if cameras is None:
         report.sfm = run_sfm(scene, sfm_options, force=again)
     elif Path(cameras).is_dir():
-        report.sfm = (import_colmap(cameras, scene) if again or not (scene / "sparse").is_dir()
-                      else run_sfm(scene, sfm_options))
+        report.sfm = import_colmap(cameras, scene, force=again)
     else:
-        report.sfm = (import_trajectory(cameras, scene) if again or not (scene / "sparse").is_dir()
-                      else run_sfm(scene, sfm_options))
-    if again:
-        (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+        report.sfm = import_trajectory(cameras, scene, force=again)
     report.seconds["sfm"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -196,4 +267,8 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
     t = time.perf_counter()
     report.reconstruction = reconstruct_scene(scene, config, output, metric_scale, force=step("reconstruct"))
     report.seconds["reconstruct"] = time.perf_counter() - t
+    report.why = {"frames": report.frames.why, "sfm": report.sfm.why, "detect": report.detections.why,
+                  "reconstruct": report.reconstruction.why}
+    for stage, why in report.why.items():
+        log.info("%s: %s", stage, "kept: up to date" if why is None else f"redone: {why}")
     return report

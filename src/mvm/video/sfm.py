@@ -19,12 +19,17 @@ from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
 from mvm.io.outputs import atomic_replace_dir
-from mvm.video.frames import FRAMES_DIR, list_frames
+from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
+from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
 
 log = logging.getLogger(__name__)
 
 SFM_DIR = "sfm"
 SFM_REPORT = "report.json"
+#: The model's scale relative to SfM's units (written by the metric scaling of the reconstruction).
+SCALE_FILE = "scale.json"
+#: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+SFM_STAGE = "the camera estimation"
 #: COLMAP's camera models (``pycolmap.CameraModelId``, written out: the settings are checked
 #: without importing pycolmap).
 CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL", "RADIAL_FISHEYE",
@@ -81,9 +86,12 @@ class SfmReport:
     points: int
     centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     seconds: dict = field(default_factory=dict)
+    #: Why the cameras were made by this call (None: kept, up to date). Not written.
+    why: str | None = field(default=None, compare=False)
 
     def to_json(self) -> dict:
         d = asdict(self)
+        d.pop("why")
         d["centers"] = np.round(self.centers, 6).tolist()
         d["reprojection_error_px"] = (round(float(self.reprojection_error_px), 4)
                                       if np.isfinite(self.reprojection_error_px) else None)
@@ -171,11 +179,51 @@ def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions):
     return max(models.values(), key=lambda r: r.num_reg_images())
 
 
+def sfm_inputs(scene: str | Path) -> dict[str, Path]:
+    """What the cameras are estimated from (:mod:`mvm.io.provenance`): the frames and their index."""
+    scene = Path(scene)
+    return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR}
+
+
+def sfm_settings(options: SfmOptions) -> dict:
+    """The settings that shape the cameras (:mod:`mvm.io.provenance`; the thread count does not)."""
+    settings = asdict(options)
+    settings.pop("threads")                              # how fast, not what
+    return {"source": "sfm", **settings}
+
+
+def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
+    """Refuse to replace ``scene/sparse`` without ``force`` when mvm did not make it (a model
+    imported by hand, a simulated scene's cameras), or when it holds imported cameras and
+    ``settings`` ask for SfM's."""
+    sparse = scene / "sparse"
+    if force or not sparse.is_dir() or not any(sparse.iterdir()):
+        return
+    if not (scene / SFM_DIR / SFM_REPORT).is_file():
+        raise InputError(sparse, None, "a camera model mvm did not make: give --force to replace it, or "
+                                       f"--cameras {sparse} to use it")
+    before = (read_record(scene / SFM_DIR / SFM_REPORT) or {}).get("settings", {})
+    if before.get("source") in ("colmap", "trajectory") and settings.get("source") == "sfm":
+        origin = read_sfm_report(scene).source.split(":", 1)[-1]
+        raise InputError(sparse, None, f"cameras imported from {origin}: give --force to replace them with SfM's, "
+                                       f"or --cameras {origin} to keep them")
+
+
+def _replace_model(scene: Path, write) -> None:
+    """Put the model ``write(folder)`` makes in place of ``scene/sparse``; its scale is SfM's again."""
+    forget(scene / SFM_DIR / SFM_REPORT)
+    atomic_replace_dir(write, scene / "sparse", replace_unmarked=True)
+    (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+
+
 def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool = False) -> SfmReport:
     """Estimate the camera of every frame of ``scene/frames`` and write ``scene/sparse``.
 
-    Skipped when ``scene/sfm/report.json`` and ``scene/sparse`` exist, unless ``force``.
-    Frames that do not register are listed in the report and logged as a warning.
+    Kept when ``scene/sfm/report.json``'s record (``report.inputs.json``) says it was made from
+    these frames with these options, unless ``force``; the report's ``why`` says why it was
+    made again. A model in ``scene/sparse`` that mvm did not make, or imported cameras, is
+    never replaced without ``force`` (one :class:`InputError` line). Frames that do not
+    register are listed in the report and logged as a warning.
     """
     import time
 
@@ -185,9 +233,15 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
     scene = Path(scene)
     report_path = scene / SFM_DIR / SFM_REPORT
-    if report_path.is_file() and (scene / "sparse").is_dir() and not force:
-        log.info("%s exists: cameras already estimated (use force to redo)", report_path)
+    settings = sfm_settings(options)
+    _check_replaceable(scene, settings, force)
+    hashed = fingerprints(sfm_inputs(scene))
+    why = "forced" if force else why_redo(report_path, sfm_inputs(scene), settings, SFM_STAGE,
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+    if why is None:
+        log.info("%s is up to date (made from these frames with these options)", report_path)
         return read_sfm_report(scene)
+    log.info("%s: estimating the cameras: %s", scene, why)
     names = list_frames(scene)
     frames_dir = scene / FRAMES_DIR
     check_frames(frames_dir, names, root=scene)
@@ -205,13 +259,15 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     seconds["matching"], t = time.perf_counter() - t, time.perf_counter()
     rec = _map(database, frames_dir, work, options)
     seconds["mapping"] = time.perf_counter() - t
-    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
+    _replace_model(scene, lambda tmp: rec.write_binary(str(tmp)))
     report = _report(rec, names, "colmap")
     report.seconds = {k: round(v, 3) for k, v in seconds.items()}
+    report.why = why
     _warn_unregistered(report, scene)
     document = report.to_json()
     document["options"] = asdict(options)
     atomic_write_json(report_path, document, pretty=True)
+    write_record(report_path, SFM_STAGE, sfm_inputs(scene), settings, hashed)
     return report
 
 
@@ -248,26 +304,41 @@ def read_sfm_report(scene: str | Path) -> SfmReport:
         raise InputError(path, None, f"not an SfM report: {e}") from None
 
 
-def import_colmap(model: str | Path, scene: str | Path) -> SfmReport:
+def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> SfmReport:
     """Copy an existing COLMAP model (text or binary, ``model`` or ``model/0``) into
-    ``scene/sparse`` and write the report."""
+    ``scene/sparse`` and write the report. Kept when already imported from this model's
+    bytes; a model in ``scene/sparse`` that mvm did not make is not replaced without ``force``."""
     import pycolmap
 
     from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
+    in_place = Path(model).resolve() == (scene / "sparse").resolve()
+    inputs = {"cameras": model_dir} if not in_place else {}
+    settings = {"source": "colmap"}
+    if not in_place:
+        _check_replaceable(scene, settings, force)
+    report_path = scene / SFM_DIR / SFM_REPORT
+    hashed = fingerprints(inputs)
+    why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+    if why is None and not in_place:
+        log.info("%s is up to date (imported from %s)", report_path, model_dir)
+        return read_sfm_report(scene)
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises several types with C++ context
         raise InputError(model_dir, None,
                          f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
-    if Path(model).resolve() != (scene / "sparse").resolve():
-        atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
+    if not in_place:
+        _replace_model(scene, lambda tmp: rec.write_binary(str(tmp)))
     names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))
     report = _report(rec, names, f"colmap:{model_dir}")
+    report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(report_path, report.to_json(), pretty=True)
+    write_record(report_path, SFM_STAGE, inputs, settings, hashed)
     return report
 
 
@@ -280,16 +351,27 @@ def trajectory_frames(timestamps_s: np.ndarray, trajectory_us: np.ndarray, toler
     return np.where(np.abs(t[nearest] - timestamps_s) <= tolerance_s, nearest, -1)
 
 
-def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
+def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) -> SfmReport:
     """Cameras from a RealEstate10K / MannequinChallenge camera file (``mvm.io.trajectory``),
     matched to the frames of ``scene`` by timestamp (within half a frame), written to
-    ``scene/sparse``. Frames without a line are excluded with a warning."""
+    ``scene/sparse``. Frames without a line are excluded with a warning. Kept when already
+    made from these bytes and frames; a model mvm did not make is not replaced without ``force``."""
     from mvm.core.scene import Cameras
     from mvm.io.colmap import write_colmap
     from mvm.io.trajectory import read_trajectory
     from mvm.video.frames import read_frame_index
 
     scene = Path(scene)
+    inputs = {"cameras": Path(path), FRAMES_INDEX: scene / FRAMES_INDEX}
+    settings = {"source": "trajectory"}
+    _check_replaceable(scene, settings, force)
+    report_path = scene / SFM_DIR / SFM_REPORT
+    hashed = fingerprints(inputs)
+    why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+    if why is None:
+        log.info("%s is up to date (imported from %s)", report_path, path)
+        return read_sfm_report(scene)
     traj = read_trajectory(path)
     index = read_frame_index(scene)
     tolerance = 0.5 / index.fps if index.fps > 0 else 0.02
@@ -304,12 +386,14 @@ def import_trajectory(path: str | Path, scene: str | Path) -> SfmReport:
     K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = fx, fy, cx, cy, 1.0
     cameras = Cameras(K, traj.R[line[ok]], traj.t[line[ok]], np.broadcast_to([float(w), float(h)], (V, 2)).copy(),
                       tuple(n for n, k in zip(index.names, ok) if k))
-    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras), scene / "sparse", replace_unmarked=True)
+    _replace_model(scene, lambda tmp: write_colmap(tmp, cameras))
     report = SfmReport(f"trajectory:{path}", list(cameras.names),
                        [n for n, k in zip(index.names, ok) if not k], float("nan"),
                        float(np.mean(cameras.focal)), 0, cameras.centers)
+    report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(report_path, report.to_json(), pretty=True)
+    write_record(report_path, SFM_STAGE, inputs, settings, hashed)
     return report
 
 
