@@ -15,6 +15,7 @@ drivers complete missing joints (:mod:`mvm.core.completion`) after :func:`refine
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -24,6 +25,7 @@ import numpy as np
 from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import associate, frame_sequence
 from mvm.core.config import Config
+from mvm.core.keyframes import frame_windows, spread_views
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
@@ -82,6 +84,47 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
                                          config.tau, config.min_pose_score, config.min_group_size)
         groups += [rows[g] for rows, block in zip(batch, found) for g in block]
     return groups
+
+
+def keyframe_rows(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
+    """The poses the grouping of a scene compares: those of ``config.keyframes`` well-spread
+    frames (:func:`mvm.core.keyframes.spread_views`) of a longer video, the association in 3D
+    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer,
+    the instants of a rig, or ``association = "paper"``, which has no other way to take them).
+    ``config``: resolved for the scene driver."""
+    if poses.instant is not None or config.association != "3d":
+        return None
+    used = np.unique(poses.view)
+    if len(used) <= config.keyframes:
+        return None
+    key = spread_views(used, config.keyframes, _sequence(cameras, poses, config), cameras.centers)
+    return np.flatnonzero(np.isin(poses.view, key))
+
+
+def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
+    """:func:`match` on the poses of :func:`keyframe_rows` (all of them for a short video).
+    Memory: the affinity of those poses only, whatever the length of the video."""
+    rows = keyframe_rows(cameras, poses, config)
+    if rows is None:
+        return match(cameras, poses, config)
+    return [rows[g] for g in match(cameras, poses.subset(rows), config)]
+
+
+def match_windows(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
+    """:func:`match` within windows of ``config.keyframes`` consecutive frames of a scene
+    (:func:`mvm.core.keyframes.frame_windows`), each window a block: time and memory linear in
+    the frames. Poses within one window (a short video): :func:`match` itself."""
+    if poses.instant is not None or not len(poses):
+        return match(cameras, poses, config)
+    window = frame_windows(poses.view, config.keyframes, _sequence(cameras, poses, config))
+    if window.max() == 0:
+        return match(cameras, poses, config)
+    return match(cameras, dataclasses.replace(poses, instant=window), config)
+
+
+def _sequence(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
+    """``(V,)`` position of each view in the video, or None: unordered photos, or a rig."""
+    return frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
 
 
 def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
@@ -361,12 +404,12 @@ def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], 
     """:func:`mvm.core.association.associate` with the settings of ``config``: every 2D pose to
     the triangulated person that explains it, within its block; the order of the frames is a
     cue for a scene (``video_order``), never for the cameras of a rig."""
-    sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
+    sequence = _sequence(cameras, poses, config)
     return associate(
         poses.keypoints, poses.view, cameras.P, cameras.size, groups,
         lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial),
         lambda X, g: merge_groups(X, g, poses, config),
-        lambda rest: match(cameras, poses.subset(rest), config),
+        lambda rest: match_windows(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
         min_group_size=config.min_group_size, min_support=config.association_min_support,
         max_proportion_deviation=config.association_max_proportion_deviation,
@@ -393,7 +436,7 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     t = time.perf_counter()
     given = groups is not None
     if groups is None:
-        groups = match(cameras, poses, config)
+        groups = match_keyframes(cameras, poses, config)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config)

@@ -11,7 +11,7 @@ import numpy as np
 from mvm.core.affinity import affinity_bytes
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, Triangulated, refine_all, triangulate_poses
+from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, refine_all, triangulate_poses
 from mvm.core.quality import scene_quality
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
@@ -84,7 +84,8 @@ def check_affinity_memory(n_poses: int, appearance: bool, config: Config, source
         raise InputError(source, "annotations",
                          f"{n_poses} 2D poses need {need / 2**20:.0f} MiB for the affinity matrix, more than "
                          f"max_affinity_bytes = {config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit "
-                         f"(--set max_affinity_bytes=...) or split the scene into smaller ones")
+                         f"(--set max_affinity_bytes=...), lower keyframes (--set keyframes=...) or split the scene into "
+                         "smaller ones")
 
 
 def reconstruct(scene: Scene, config: Config | None = None, prior=None,
@@ -137,8 +138,9 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
 def _triangulated(scene: Scene, config: Config, groups: list[np.ndarray] | None) -> Triangulated:
     """The scene checked, and its pipeline up to the refinement."""
     validate_scene(scene)
-    check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
-                          config, scene.name)
+    rows = keyframe_rows(scene.cameras, scene.poses, config) if groups is None else None
+    check_affinity_memory(len(scene.poses) if rows is None else len(rows),
+                          config.use_appearance and scene.poses.appearance is not None, config, scene.name)
     return triangulate_poses(scene.cameras, scene.poses, config, groups)
 
 
