@@ -237,6 +237,10 @@ class Config:
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
+    #: A person seen in more views than this (a long video) draws and scores its RANSAC
+    #: hypotheses on this many of them, well spread along the video and confident; its
+    #: inliers are then taken among all its views, and the triangulation uses them all. [views]
+    max_triangulation_views: int = setting(150, ge=2)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True
     #: Two persons whose joints are on average closer than this fraction of the torso length

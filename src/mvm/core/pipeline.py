@@ -141,28 +141,30 @@ def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
 TRIANGULATION_BYTES_PER_ENTRY = 64
 
 
-def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int) -> int:
+def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int, max_views: int | None = None) -> int:
     """Peak memory of :func:`triangulate_groups`: groups are padded to the largest one's ``M``
-    views, and each of the ``H`` hypotheses of every joint is scored in every view slot at once,
-    so ``P · M · J · (H + 1) ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes (the ``+ 1``: the
-    padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no RANSAC), at most
-    the ``M (M - 1) / 2`` pairs of views (:func:`mvm.core.triangulate.ransac_triangulate`)."""
+    views, and each of the ``H`` hypotheses of every joint is scored in ``S = min(M, max_views)``
+    view slots at once, so ``P · (M + S · H) · J ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes
+    (the ``M``: the padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no
+    RANSAC), at most the ``S (S - 1) / 2`` pairs of views
+    (:func:`mvm.core.triangulate.ransac_triangulate`)."""
     widest = max((len(g) for g in groups), default=0)
-    H = min(int(hypotheses), max(1, widest * (widest - 1) // 2)) if hypotheses > 0 else 0
-    return len(groups) * widest * int(joints) * (H + 1) * TRIANGULATION_BYTES_PER_ENTRY
+    scored = widest if max_views is None else min(widest, int(max_views))
+    H = min(int(hypotheses), max(1, scored * (scored - 1) // 2)) if hypotheses > 0 else 0
+    return len(groups) * (widest + scored * H) * int(joints) * TRIANGULATION_BYTES_PER_ENTRY
 
 
 def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses: int, config: Config) -> None:
     """Refuse, before it is allocated, a triangulation that needs more than ``max_affinity_bytes``
     (:func:`triangulation_bytes`): one :class:`~mvm.errors.InputError` line naming the setting."""
-    need = triangulation_bytes(groups, joints, hypotheses)
+    need = triangulation_bytes(groups, joints, hypotheses, config.max_triangulation_views)
     if need > config.max_affinity_bytes:
         widest = max(len(g) for g in groups)
         raise InputError(None, "max_affinity_bytes",
                          f"triangulating {len(groups)} candidate persons of up to {widest} views with {hypotheses} "
                          f"RANSAC hypotheses needs {need / 2**20:.0f} MiB, more than max_affinity_bytes = "
                          f"{config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit (--set max_affinity_bytes=...), "
-                         "lower ransac_hypotheses, or split the scene into smaller ones")
+                         "lower ransac_hypotheses or max_triangulation_views, or split the scene into smaller ones")
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
@@ -179,7 +181,7 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold_px, hypotheses, config.min_views,
                                        config.min_parallax_deg, config.seed, use_ransac=config.ransac,
-                                       initial=initial)
+                                       initial=initial, max_views=config.max_triangulation_views)
 
 
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
