@@ -76,10 +76,14 @@ def validate_scene(scene: Scene, source: str | None = None) -> None:
         raise InputError(source, f"annotations[id={poses.ids[n]}]", "confidence or score outside [0, 1] or not finite")
 
 
-def check_affinity_memory(n_poses: int, appearance: bool, config: Config, source: str | None) -> None:
+def check_affinity_memory(scene: Scene, config: Config, source: str | None) -> None:
     """Refuse, before any work, a scene whose affinity needs more than ``max_affinity_bytes``
-    (:func:`mvm.core.affinity.affinity_bytes`: ``4 N²`` bytes, ``8 N²`` with appearance)."""
-    need = affinity_bytes(n_poses, appearance)
+    (:func:`mvm.core.affinity.affinity_bytes`: ``4 N²`` bytes, ``8 N²`` with appearance, for
+    the ``N`` poses the grouping compares: those of the keyframes of a long video,
+    :func:`mvm.core.pipeline.keyframe_rows`). ``config``: resolved for the scene driver."""
+    rows = keyframe_rows(scene.cameras, scene.poses, config)
+    n_poses = len(scene.poses) if rows is None else len(rows)
+    need = affinity_bytes(n_poses, config.use_appearance and scene.poses.appearance is not None)
     if need > config.max_affinity_bytes:
         raise InputError(source, "annotations",
                          f"{n_poses} 2D poses need {need / 2**20:.0f} MiB for the affinity matrix, more than "
@@ -138,9 +142,8 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
 def _triangulated(scene: Scene, config: Config, groups: list[np.ndarray] | None) -> Triangulated:
     """The scene checked, and its pipeline up to the refinement."""
     validate_scene(scene)
-    rows = keyframe_rows(scene.cameras, scene.poses, config) if groups is None else None
-    check_affinity_memory(len(scene.poses) if rows is None else len(rows),
-                          config.use_appearance and scene.poses.appearance is not None, config, scene.name)
+    if groups is None:                                    # given groups need no affinity
+        check_affinity_memory(scene, config, scene.name)
     return triangulate_poses(scene.cameras, scene.poses, config, groups)
 
 
