@@ -107,3 +107,18 @@ def test_only_the_keyframes_poses_count_against_the_affinity_limit():
         check_affinity_memory(scene, config.replace(max_affinity_bytes=limit, association="paper"), "s")
     given = Config(refine=False, max_affinity_bytes=40 * 2**20)          # below any affinity, above the triangulation
     assert len(reconstruct(scene, given, groups=true_groups(truth.person)).persons) == 4
+
+
+def test_windows_find_a_missed_person_and_drop_clusters_of_false_poses():
+    """The poses no person explains, grouped window by window: a person all of whose poses are
+    left over is found (in every window it is seen in); the false poses make no group."""
+    from mvm.core.pipeline import match_windows
+
+    scene, truth = _long_scene()
+    left = np.flatnonzero((truth.person == 0) | (truth.person < 0))
+    config = Config(keyframes=30).for_driver("scene")
+    groups = match_windows(scene.cameras, scene.poses.subset(left), config)
+    assert groups and all((truth.person[left[g]] == 0).mean() > 0.9 for g in groups)
+    found = np.concatenate(groups)
+    assert (truth.person[left[found]] == 0).sum() >= 0.8 * (truth.person == 0).sum()
+    assert len(groups) <= 4                                               # at most one per window

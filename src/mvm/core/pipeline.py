@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import associate, frame_sequence
+from mvm.core.association import associate, frame_sequence, visible_frames
 from mvm.core.config import Config
 from mvm.core.keyframes import frame_windows, spread_views
 from mvm.core.matching import greedy_groups
@@ -119,7 +119,29 @@ def match_windows(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.n
     window = frame_windows(poses.view, config.keyframes, _sequence(cameras, poses, config))
     if window.max() == 0:
         return match(cameras, poses, config)
-    return match(cameras, dataclasses.replace(poses, instant=window), config)
+    groups = match(cameras, dataclasses.replace(poses, instant=window), config)
+    return [g for g, keep in zip(groups, _window_support(cameras, poses, groups, window, config)) if keep]
+
+
+def _window_support(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], window: np.ndarray,
+                    config: Config) -> np.ndarray:
+    """``(P,)`` bool: the groups of :func:`match_windows` that triangulate to a person
+    (``min_person_joints``) explaining at least ``association_min_support`` of their window's
+    frames it projects into. A person the keyframes missed is seen all along its window; a
+    cluster of a few false poses is not, and is dropped before the association pairs it with
+    every pose of the video."""
+    if not groups:
+        return np.zeros(0, dtype=bool)
+    _, tri = triangulate_groups(cameras, poses, groups, config)
+    keep = np.isfinite(tri.X).all(-1).sum(-1) >= config.min_person_joints
+    for w in np.unique(window[[g[0] for g in groups]]):
+        mine = np.flatnonzero(window[[g[0] for g in groups]] == w)
+        views = np.unique(poses.view[window == w])
+        with np.errstate(all="ignore"):
+            visible = visible_frames(tri.X[mine], cameras.P[views], cameras.size[views])
+        count = np.array([len(groups[i]) for i in mine])
+        keep[mine] &= count >= config.association_min_support * visible
+    return keep
 
 
 def _sequence(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
