@@ -128,6 +128,12 @@ def table(rows: list[dict]) -> str:
             t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
             m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
             steps.append(f"{a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory")
+        if len(sel) > 1:
+            a, b = sel[0], sel[-1]
+            doublings = math.log2(b["frames"] / a["frames"])
+            t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
+            m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
+            steps.append(f"on average {a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory per doubling")
         lines.append(f"- {people} people: " + ("; ".join(steps) or "—"))
     return "\n".join(lines)
 
