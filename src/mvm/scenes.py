@@ -142,8 +142,7 @@ def _read(path: Path, config: Config, output: str) -> tuple:
         out_dir = output_dir(path, output)
         read_s = time.perf_counter() - t
         validate_scene(scene, str(path))
-        check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
-                              config, str(path / "poses2d.json"))
+        check_affinity_memory(scene, config, str(path / "poses2d.json"))
         return path, scene, out_dir, read_s, hashed
     except Exception as e:                                # noqa: BLE001 - this scene's failure, reported in order
         return path, e, None, None, None

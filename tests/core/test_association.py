@@ -9,7 +9,8 @@ from scipy.optimize import linear_sum_assignment
 
 from mvm.core.association import assign_per_frame, associate, reprojection_cost
 from mvm.core.config import Config
-from mvm.core.pipeline import merge_duplicates, triangulate_groups
+from mvm.core.duplicates import merge_duplicates
+from mvm.core.pipeline import triangulate_groups
 from mvm.core.reconstruct import reconstruct
 from mvm.metrics.poses import matching_precision_recall
 from mvm.sim.simulate import SimConfig, simulate

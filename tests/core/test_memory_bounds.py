@@ -8,10 +8,11 @@ import tracemalloc
 import numpy as np
 import pytest
 
-import mvm.core.pipeline as pipeline
+import mvm.core.duplicates as duplicates
 from mvm.core.config import Config
+from mvm.core.duplicates import duplicate_pairs
 from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
-from mvm.core.pipeline import duplicate_pairs, match, triangulate_groups, triangulation_bytes
+from mvm.core.pipeline import match, triangulate_groups, triangulation_bytes
 from mvm.errors import InputError
 from mvm.sim.simulate import SimConfig, simulate
 
@@ -50,7 +51,7 @@ def _candidates(P: int, rng) -> np.ndarray:
 
 @pytest.mark.parametrize("chunk", [1, 7, 2**14])
 def test_duplicates_in_chunks_equal_the_pair_by_pair_test(monkeypatch, chunk):
-    monkeypatch.setattr(pipeline, "DUPLICATE_PAIRS_CHUNK", chunk)
+    monkeypatch.setattr(duplicates, "DUPLICATE_PAIRS_CHUNK", chunk)
     rng = np.random.default_rng(3)
     for P, blocks in ((0, 1), (1, 1), (2, 1), (9, 1), (40, 6), (60, 60)):
         X = _candidates(P, rng)

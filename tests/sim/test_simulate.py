@@ -194,3 +194,25 @@ def test_real_trajectory_tour_spans_the_requested_arc():
     assert abs(np.degrees(np.ptp(angles)) - 50.0) < 8.0
     assert np.isclose(scene.cameras.K[0, 0, 0], np.median(trajectory.intrinsics[:, 0]) * sim.image_width)
     assert len(scene.poses) > 40
+
+
+def test_a_crowd_of_another_size_keeps_the_density_of_the_preset():
+    """The 'crowd' preset of 30 people: its disc and false poses follow the crowd, everyone
+    stands at least min_separation from the others and at most max_separation from a neighbour."""
+    from mvm.eval.crowd import pelvis_spacing
+    from mvm.sim.simulate import crowd_radius
+
+    sim = SimConfig.preset("crowd", people=30, frames=3, seed=1)
+    assert (sim.crowd_radius, sim.detector.false_pose_rate) == (crowd_radius(30), pytest.approx(3.0))
+    assert SimConfig.preset("crowd", people=30, crowd_radius=9.0).crowd_radius == 9.0
+    assert SimConfig.preset("crowd").crowd_radius == crowd_radius(12)
+    _, truth = simulate(sim)
+    spacing = pelvis_spacing(truth.poses3d)
+    assert len(truth.poses3d) == 30
+    assert spacing.min() >= sim.min_separation - 1e-6 and spacing.max() <= sim.max_separation + 1e-6
+
+
+def test_real_lengths_are_within_the_settings_bounds():
+    """A two-minute video (3,600 frames at 30 frames/s) of 30 people is a valid scene."""
+    sim = SimConfig.preset("realistic", people=30, frames=3600)
+    assert (sim.people, sim.frames) == (30, 3600)

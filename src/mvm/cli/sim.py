@@ -23,10 +23,10 @@ from mvm.cli.common import (
 def scene_options(f):
     """``--people``, ``--frames``, ``--arc`` and ``--seed`` of a simulated scene."""
     for option in reversed([
-        click.option("--people", default=None, type=Number(int, ge=1, le=15),
-                     help="Persons in the scene (1-15, default 6)."),
-        click.option("--frames", default=None, type=Number(int, ge=20, le=300),
-                     help="Frames of the camera tour (20-300, default 100)."),
+        click.option("--people", default=None, type=Number(int, ge=1, le=30),
+                     help="Persons in the scene (1-30, default 6)."),
+        click.option("--frames", default=None, type=Number(int, ge=20, le=3600),
+                     help="Frames of the camera tour (20-3600: two minutes at 30 frames/s; default 100)."),
         click.option("--arc", "arc_deg", default=None, type=Number(float, ge=5, le=180),
                      help="Total angle of the tour (deg, 5-180, default 60)."),
         click.option("--seed", default=None, type=SEED, help="Random seed of the simulation (default 0)."),
@@ -43,15 +43,17 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
     from mvm.sim.simulate import SimConfig
 
     flags = {k: v for k, v in flags.items() if v is not None}
-    base = SimConfig.preset(preset) if preset else SimConfig()
+    base = SimConfig.preset(preset, **{k: flags[k] for k in ("people",) if k in flags}) if preset else SimConfig()
     return load_settings(SimConfig, "simulate", config_path, flags,
                          {k: {"arc_deg": "--arc"}.get(k, "--" + k) for k in flags}, base=base)
 
 
 @command("simulate")
 @click.argument("scene_dir", type=click.Path(file_okay=False))
-@click.option("--preset", type=click.Choice(["clean", "precise", "realistic", "hard", "heavy"]), default="realistic",
-              show_default=True, help="Detector error model (noise from 0.5 % of the person's size to 3 %).")
+@click.option("--preset", type=click.Choice(["clean", "precise", "realistic", "hard", "heavy", "crowd"]),
+              default="realistic", show_default=True,
+              help="Detector error model (noise from 0.5 % of the person's size to 3 %; 'crowd': a dense frozen "
+                   "crowd of 12 people, 1080p).")
 @scene_options
 @click.option("--trajectory", type=click.Path(dir_okay=False, exists=True), default=None,
               help="Follow a real camera path (RealEstate10K / MannequinChallenge camera file).")

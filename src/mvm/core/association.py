@@ -37,7 +37,8 @@ _CLIP_GATES = 2.0
 
 def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.ndarray,
                       pose: np.ndarray, person: np.ndarray, keypoint_threshold: float,
-                      min_common_keypoints: int, swap_above: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+                      min_common_keypoints: int, swap_above: float = 0.0,
+                      max_cost: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Normalized distance of 2D poses to the reprojection of 3D persons, for candidate pairs.
 
     The distance of a pose is the median, over the joints both observed and reconstructed, of
@@ -53,6 +54,8 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
         pose, person: ``(K,)`` candidate pairs (indices into ``keypoints`` and ``X``).
         keypoint_threshold: confidence below which a keypoint is missing.
         min_common_keypoints: with fewer joints both observed and reconstructed, the cost is inf.
+        max_cost: costs at least this large are inf (a caller that reads no larger cost is
+            spared sorting the distances of the pairs that cannot match).
     Returns:
         ``cost: (K,)`` in person sizes (inf where undefined), and ``size: (K,)`` the person's
         image size ``sqrt(w h)`` of its reprojected joints' bounding box, px.
@@ -89,7 +92,7 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     cost = np.full(K, np.inf)
     cost[near] = _median_distance(keypoints[pose[near]], uv_all[person_of_pair[near], frame_of_pair[near]],
                                   seen_all[person_of_pair[near], frame_of_pair[near]], size[near],
-                                  keypoint_threshold, min_common_keypoints, swap_above)
+                                  keypoint_threshold, min_common_keypoints, swap_above, max_cost)
     return cost, np.where(np.isfinite(cost), size, np.nan)
 
 
@@ -103,24 +106,39 @@ def _used(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _median_distance(kp: np.ndarray, uv: np.ndarray, seen: np.ndarray, size: np.ndarray,
-                     keypoint_threshold: float, min_common_keypoints: int, swap_above: float) -> np.ndarray:
+                     keypoint_threshold: float, min_common_keypoints: int, swap_above: float,
+                     max_cost: float = np.inf) -> np.ndarray:
     """Median normalized keypoint distance, the pose as detected or, where that is at least
-    ``swap_above``, left-right swapped back if that is closer.
+    ``swap_above``, left-right swapped back if that is closer; inf where at least ``max_cost``.
     ``kp: (K, J, 3)``, ``uv: (K, J, 2)``, ``seen: (K, J)``, ``size: (K,)`` -> ``(K,)``."""
-    def median(kp, uv, seen, size):
-        common = seen & (kp[..., 2] >= keypoint_threshold)
-        with np.errstate(invalid="ignore"):
-            d = np.linalg.norm(kp[..., :2] - uv, axis=-1) / size[:, None]
-        d = np.sort(np.where(common, d, np.inf).astype(np.float32), axis=1)
-        n = common.sum(1)
-        value = d[np.arange(len(d)), np.maximum((n - 1) // 2, 0)].astype(float)
-        return np.where(n >= min_common_keypoints, value, np.inf)
-
-    cost = median(kp, uv, seen, size)
+    xy, observed = kp[..., :2], kp[..., 2] >= keypoint_threshold
+    cost = _median(xy, uv, seen & observed, size, min_common_keypoints, max_cost)
     # Swapped back only where the pose as detected does not fit (a swap then shows).
     far = np.flatnonzero(cost >= swap_above)
-    cost[far] = np.fmin(cost[far], median(kp[far][:, FLIP_PERMUTATION], uv[far], seen[far], size[far]))
+    swapped = _median(xy[far][:, FLIP_PERMUTATION], uv[far], seen[far] & observed[far][:, FLIP_PERMUTATION],
+                      size[far], min_common_keypoints, max_cost)
+    cost[far] = np.fmin(cost[far], swapped)
     return cost
+
+
+def _median(xy: np.ndarray, uv: np.ndarray, common: np.ndarray, size: np.ndarray, min_common: int,
+            max_cost: float = np.inf) -> np.ndarray:
+    """Median over the ``common: (K, J)`` joints of the distance of ``xy`` to ``uv`` (``(K, J, 2)``)
+    in sizes ``size: (K,)``; inf with fewer than ``min_common`` joints, or where it is at least
+    ``max_cost``: fewer than half the joints closer than that, found by counting, so that only
+    the pairs that may match are sorted. The distances are taken coordinate by coordinate and
+    sorted in float32 (a reduction over a last axis of two and a sort in float64 cost twice as much)."""
+    with np.errstate(invalid="ignore"):
+        d = xy - uv
+        d *= d
+        distance = np.where(common, np.sqrt(d[..., 0] + d[..., 1]) / size[:, None], np.inf).astype(np.float32)
+    n = np.count_nonzero(common, axis=1)
+    rank = np.maximum((n - 1) // 2, 0)                                      # the lower median's
+    out = np.full(len(n), np.inf)
+    may = np.flatnonzero((n >= min_common) & (np.count_nonzero(distance < max_cost, axis=1) > rank))
+    distance = np.sort(distance[may], axis=1)
+    out[may] = distance[np.arange(len(may)), rank[may]]
+    return out
 
 
 def assign_per_frame(cost: np.ndarray, pose: np.ndarray, person: np.ndarray, slot: np.ndarray,
@@ -367,9 +385,11 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     get a lower cost (never a higher one), so large motion between frames costs nothing."""
     group_scene = np.array([pose_scene[g[0]] for g in groups])
     pose, person = _candidate_pairs(pose_scene, group_scene, np.flatnonzero(eligible), usable)
+    temporal = sequence is not None and temporal_weight > 0
+    max_cost = gate / (1 - temporal_weight) if temporal and temporal_weight < 1 else np.inf if temporal else gate
     cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
-                                   min_common_keypoints, swap_above=gate)
-    if sequence is not None and temporal_weight > 0:
+                                   min_common_keypoints, swap_above=gate, max_cost=max_cost)
+    if temporal:
         current = np.full(len(keypoints), -1)
         for q, g in enumerate(groups):
             current[g] = q

@@ -222,6 +222,13 @@ class Config:
     min_pose_score: float = setting(0.05, ge=0, le=1)
     #: Groups with fewer 2D poses than this are discarded (their poses stay unmatched). [poses]
     min_group_size: int = setting(3, ge=1)
+    #: On a longer video the grouping (whose cost grows as the square of the poses it compares)
+    #: runs on this many frames only, evenly spread along the video (by camera position for
+    #: unordered photos); the association in 3D then brings every other frame's poses in by
+    #: reprojection, at a cost linear in the frames, and groups what no person explains in
+    #: windows of this many consecutive frames. A scene of this many frames or fewer is grouped
+    #: whole. Used with ``association = "3d"``. [frames]
+    keyframes: int = setting(150, ge=3)
     #: Persons with fewer reconstructed joints than this are discarded. [joints]
     min_person_joints: int = setting(5, ge=1, le=17)
     # --- triangulation -------------------------------------------------------------------
@@ -242,6 +249,10 @@ class Config:
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
+    #: A person seen in more views than this (a long video) draws and scores its RANSAC
+    #: hypotheses on this many of them, well spread along the video and confident; its
+    #: inliers are then taken among all its views, and the triangulation uses them all. [views]
+    max_triangulation_views: int = setting(150, ge=2)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True
     #: Two persons whose joints are on average closer than this fraction of the torso length
@@ -332,4 +343,4 @@ _LEFT_TO_DRIVER = {"association": "auto", "complete": None}
 DRIVER_DEFAULTS = {"scene": {"association": "3d", "complete": False},
                    "rig": {"association": "paper", "complete": True}}
 #: Settings of :class:`Config` a driver never reads: given to it, they are refused, not ignored.
-UNUSED_BY_DRIVER = {"scene": (), "rig": ("video_order", "max_affinity_bytes")}
+UNUSED_BY_DRIVER = {"scene": (), "rig": ("video_order", "max_affinity_bytes", "keyframes")}

@@ -15,6 +15,7 @@ drivers complete missing joints (:mod:`mvm.core.completion`) after :func:`refine
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -22,9 +23,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import associate, frame_sequence
+from mvm.core.association import associate, frame_sequence, visible_frames
 from mvm.core.config import Config
+from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
+from mvm.core.keyframes import frame_windows, spread_views
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
@@ -85,6 +88,69 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
     return groups
 
 
+def keyframe_rows(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
+    """The poses the grouping of a scene compares: those of ``config.keyframes`` well-spread
+    frames (:func:`mvm.core.keyframes.spread_views`) of a longer video, the association in 3D
+    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer,
+    the instants of a rig, or ``association = "paper"``, which has no other way to take them).
+    ``config``: resolved for the scene driver."""
+    if poses.instant is not None or config.association != "3d":
+        return None
+    used = np.unique(poses.view)
+    if len(used) <= config.keyframes:
+        return None
+    key = spread_views(used, config.keyframes, _sequence(cameras, poses, config), cameras.centers)
+    return np.flatnonzero(np.isin(poses.view, key))
+
+
+def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
+    """:func:`match` on the poses of :func:`keyframe_rows` (all of them for a short video).
+    Memory: the affinity of those poses only, whatever the length of the video."""
+    rows = keyframe_rows(cameras, poses, config)
+    if rows is None:
+        return match(cameras, poses, config)
+    return [rows[g] for g in match(cameras, poses.subset(rows), config)]
+
+
+def match_windows(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
+    """:func:`match` within windows of ``config.keyframes`` consecutive frames of a scene
+    (:func:`mvm.core.keyframes.frame_windows`), each window a block: time and memory linear in
+    the frames. Poses within one window (a short video): :func:`match` itself."""
+    if poses.instant is not None or not len(poses):
+        return match(cameras, poses, config)
+    window = frame_windows(poses.view, config.keyframes, _sequence(cameras, poses, config))
+    if window.max() == 0:
+        return match(cameras, poses, config)
+    groups = match(cameras, dataclasses.replace(poses, instant=window), config)
+    return [g for g, keep in zip(groups, _window_support(cameras, poses, groups, window, config)) if keep]
+
+
+def _window_support(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], window: np.ndarray,
+                    config: Config) -> np.ndarray:
+    """``(P,)`` bool: the groups of :func:`match_windows` that triangulate to a person
+    (``min_person_joints``) explaining at least ``association_min_support`` of their window's
+    frames it projects into. A person the keyframes missed is seen all along its window; a
+    cluster of a few false poses is not, and is dropped before the association pairs it with
+    every pose of the video."""
+    if not groups:
+        return np.zeros(0, dtype=bool)
+    _, tri = triangulate_groups(cameras, poses, groups, config)
+    keep = np.isfinite(tri.X).all(-1).sum(-1) >= config.min_person_joints
+    for w in np.unique(window[[g[0] for g in groups]]):
+        mine = np.flatnonzero(window[[g[0] for g in groups]] == w)
+        views = np.unique(poses.view[window == w])
+        with np.errstate(all="ignore"):
+            visible = visible_frames(tri.X[mine], cameras.P[views], cameras.size[views])
+        count = np.array([len(groups[i]) for i in mine])
+        keep[mine] &= count >= config.association_min_support * visible
+    return keep
+
+
+def _sequence(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
+    """``(V,)`` position of each view in the video, or None: unordered photos, or a rig."""
+    return frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
+
+
 def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
     """Whether poses of ``view, score: (n,)`` can make a group: a group holds one pose per view
     and at least ``min_group_size`` poses, all of score ``min_pose_score`` or more, so poses
@@ -99,29 +165,31 @@ def _may_group(view: np.ndarray, score: np.ndarray, config: Config) -> bool:
 TRIANGULATION_BYTES_PER_ENTRY = 64
 
 
-def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int) -> int:
+def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int, max_views: int | None = None) -> int:
     """Peak memory of :func:`triangulate_groups`: groups are padded to the largest one's ``M``
-    views, and each of the ``H`` hypotheses of every joint is scored in every view slot at once,
-    so ``P · M · J · (H + 1) ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes (the ``+ 1``: the
-    padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no RANSAC), at most
-    the ``M (M - 1) / 2`` pairs of views (:func:`mvm.core.triangulate.ransac_triangulate`)."""
+    views, and each of the ``H`` hypotheses of every joint is scored in ``S = min(M, max_views)``
+    view slots at once, so ``P · (M + S · H) · J ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes
+    (the ``M``: the padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no
+    RANSAC), at most the ``S (S - 1) / 2`` pairs of views
+    (:func:`mvm.core.triangulate.ransac_triangulate`)."""
     widest = max((len(g) for g in groups), default=0)
-    H = min(int(hypotheses), max(1, widest * (widest - 1) // 2)) if hypotheses > 0 else 0
-    return len(groups) * widest * int(joints) * (H + 1) * TRIANGULATION_BYTES_PER_ENTRY
+    scored = widest if max_views is None else min(widest, int(max_views))
+    H = min(int(hypotheses), max(1, scored * (scored - 1) // 2)) if hypotheses > 0 else 0
+    return len(groups) * (widest + scored * H) * int(joints) * TRIANGULATION_BYTES_PER_ENTRY
 
 
 def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses: int, config: Config) -> None:
     """Refuse, before it is allocated, a triangulation that needs more than ``max_affinity_bytes``
     (:func:`triangulation_bytes`): one :class:`~mvm.errors.InputError` line naming the setting."""
-    need = triangulation_bytes(groups, joints, hypotheses)
+    need = triangulation_bytes(groups, joints, hypotheses, config.max_triangulation_views)
     if need > config.max_affinity_bytes:
         widest = max(len(g) for g in groups)
         raise InputError(None, "max_affinity_bytes",
                          f"triangulating {len(groups)} candidate persons of up to {widest} views with {hypotheses} "
                          f"RANSAC hypotheses needs {need / 2**20:.0f} MiB, more than max_affinity_bytes = "
                          f"{config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit "
-                         "(--set max_affinity_bytes=...), lower ransac_hypotheses, or split the scene into "
-                         "smaller ones")
+                         "(--set max_affinity_bytes=...), lower ransac_hypotheses or max_triangulation_views, "
+                         "or split the scene into smaller ones")
 
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
@@ -142,7 +210,8 @@ def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold if threshold is None else threshold,
                                        hypotheses, config.min_views, config.min_parallax_deg, config.seed,
-                                       use_ransac=config.ransac, initial=initial)
+                                       use_ransac=config.ransac, initial=initial,
+                                       max_views=config.max_triangulation_views)
 
 
 def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObservations, tri: Triangulation,
@@ -161,125 +230,6 @@ def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObserva
     sigma = residual_sigma(obs, tri, group_block, blocks)
     scaled = np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base)
     return np.where(np.isfinite(sigma), scaled, base)[pose_block]
-
-
-def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
-    """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
-
-    Two persons are duplicates when their mean joint distance, over the joints both have, is
-    below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
-    keeps the test free of the model's unknown scale; also when one is the mirror of the other
-    (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
-    ``block: (P,)``; only pairs within a block are compared.
-
-    Memory: the ``(P, P)`` result, and the pairs compared :data:`DUPLICATE_PAIRS_CHUNK` at a time
-    (a block of thousands of persons has millions of pairs, each ``2 J 3`` differences).
-    """
-    from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
-
-    P = len(X)
-    close = np.zeros((P, P), dtype=bool)
-    with np.errstate(invalid="ignore", divide="ignore"):                    # all-NaN rows: NaN
-        bones = X[:, [LEFT_SHOULDER, RIGHT_SHOULDER]] - X[:, [LEFT_HIP, RIGHT_HIP]]
-        torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
-        for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
-            diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
-            mean = _nanmean(np.sqrt((diff * diff).sum(-1)), axis=-1)          # (2, K)
-            close[i, j] = np.fmin(mean[0], mean[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
-    return close
-
-
-#: Pairs of persons :func:`duplicate_pairs` compares at once: about 3 kB of working memory each.
-DUPLICATE_PAIRS_CHUNK = 2**14
-
-
-def _block_pairs(block: np.ndarray, max_pairs: int):
-    """Yield ``(i, j)``: every ordered pair of different persons of one block (``block: (P,)``),
-    in chunks of about ``max_pairs`` pairs (a person's pairs are never split)."""
-    order = np.argsort(block, kind="stable")
-    _, start, count = np.unique(block[order], return_index=True, return_counts=True)
-    first = np.repeat(start, count)                                         # (P,) in sorted order
-    length = np.repeat(count, count)
-    ends = np.cumsum(length)
-    if not len(ends):
-        return
-    cuts = np.unique(np.searchsorted(ends, np.arange(max_pairs, ends[-1], max_pairs), side="right"))
-    for rows in np.split(np.arange(len(order)), cuts):
-        if not len(rows):
-            continue
-        n = length[rows]
-        offset = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-        i = np.repeat(order[rows], n)
-        j = order[np.repeat(first[rows], n) + offset]
-        keep = i != j
-        yield i[keep], j[keep]
-
-
-def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
-    """``np.nanmean(a, axis)``, the same numbers (NaN where a slice has none), without its
-    warning machinery."""
-    missing = np.isnan(a)
-    return np.where(missing, 0.0, a).sum(axis) / (~missing).sum(axis)
-
-
-def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
-                     max_relative_distance: float, close: np.ndarray | None = None) -> list[np.ndarray] | None:
-    """Merge groups whose triangulated poses coincide (a person split into two groups), as
-    :func:`duplicate_pairs` finds them (``close: (P, P)`` when already computed).
-
-    The smaller group's poses join the larger one, except those from views the larger group
-    already has; triangulation then treats a swapped keypoint as any other outlier.
-
-    ``X: (P, J, 3)``; ``groups``: pose indices; ``view: (N,)``. Returns the new groups, or None
-    when nothing merges.
-    """
-    P = len(groups)
-    if close is None:
-        close = duplicate_pairs(X, np.zeros(P, dtype=int), max_relative_distance) if P >= 2 else None
-    if close is None or not close.any():
-        return None
-    order = np.argsort([-len(g) for g in groups], kind="stable")
-    absorbed = np.zeros(P, dtype=bool)
-    merged = {int(p): list(groups[p]) for p in range(P)}
-    for p in order:
-        if absorbed[p]:
-            continue
-        for q in order:
-            if q == p or absorbed[q] or not close[p, q] or len(groups[q]) > len(merged[p]):
-                continue
-            views = set(view[merged[p]].tolist())
-            merged[p] += [m for m in groups[q] if view[m] not in views]
-            absorbed[q] = True
-    return [np.array(merged[p]) for p in range(P) if not absorbed[p]]
-
-
-def group_blocks(poses: Poses2D, groups: list[np.ndarray]) -> np.ndarray:
-    """``(P,)`` block (instant) of each group, 0 for every group of a scene."""
-    if poses.instant is None or not groups:
-        return np.zeros(len(groups), dtype=np.int64)
-    return poses.instant[[g[0] for g in groups]]
-
-
-def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
-                 config: Config) -> list[np.ndarray] | None:
-    """:func:`merge_duplicates` within each block (groups come block by block, as from
-    :func:`match`), the duplicates of every block found at once. ``X: (P, J, 3)``. Returns the
-    new groups, or None when nothing merges."""
-    if config.merge_distance <= 0 or len(groups) < 2:
-        return None
-    block = group_blocks(poses, groups)
-    close = duplicate_pairs(X, block, config.merge_distance)
-    if not close.any():
-        return None
-    out: list[np.ndarray] = []
-    bounds = np.flatnonzero(np.diff(block)) + 1
-    for rows in np.split(np.arange(len(groups)), bounds):
-        part = [groups[i] for i in rows]
-        if close[rows[0]:rows[-1] + 1].any():
-            part = merge_duplicates(X[rows], part, poses.view, config.merge_distance,
-                                    close[rows[0]:rows[-1] + 1, rows[0]:rows[-1] + 1]) or part
-        out += part
-    return out
 
 
 #: What a refinement that fails outright raises (bad numbers the fallback cannot catch person by person).
@@ -390,12 +340,12 @@ def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], 
     the triangulated person that explains it, within its block; the order of the frames is a
     cue for a scene (``video_order``), never for the cameras of a rig. ``threshold``: as
     :func:`triangulate_groups` takes it."""
-    sequence = frame_sequence(cameras.names) if config.video_order and poses.instant is None else None
+    sequence = _sequence(cameras, poses, config)
     return associate(
         poses.keypoints, poses.view, cameras.P, cameras.size, groups,
         lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial, threshold),
         lambda X, g: merge_groups(X, g, poses, config),
-        lambda rest: match(cameras, poses.subset(rest), config),
+        lambda rest: match_windows(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
         min_group_size=config.min_group_size, min_support=config.association_min_support,
         max_proportion_deviation=config.association_max_proportion_deviation,
@@ -423,7 +373,7 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     t = time.perf_counter()
     given = groups is not None
     if groups is None:
-        groups = match(cameras, poses, config)
+        groups = match_keyframes(cameras, poses, config)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config)

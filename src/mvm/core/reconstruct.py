@@ -11,7 +11,7 @@ import numpy as np
 from mvm.core.affinity import affinity_bytes
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, Triangulated, refine_all, triangulate_poses
+from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, refine_all, triangulate_poses
 from mvm.core.quality import scene_quality
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
@@ -77,15 +77,20 @@ def validate_scene(scene: Scene, source: str | None = None) -> None:
         raise InputError(source, f"annotations[id={poses.ids[n]}]", "confidence or score outside [0, 1] or not finite")
 
 
-def check_affinity_memory(n_poses: int, appearance: bool, config: Config, source: str | None) -> None:
+def check_affinity_memory(scene: Scene, config: Config, source: str | None) -> None:
     """Refuse, before any work, a scene whose affinity needs more than ``max_affinity_bytes``
-    (:func:`mvm.core.affinity.affinity_bytes`: ``4 N²`` bytes, ``8 N²`` with appearance)."""
-    need = affinity_bytes(n_poses, appearance)
+    (:func:`mvm.core.affinity.affinity_bytes`: ``4 N²`` bytes, ``8 N²`` with appearance, for
+    the ``N`` poses the grouping compares: those of the keyframes of a long video,
+    :func:`mvm.core.pipeline.keyframe_rows`). ``config``: resolved for the scene driver."""
+    rows = keyframe_rows(scene.cameras, scene.poses, config)
+    n_poses = len(scene.poses) if rows is None else len(rows)
+    need = affinity_bytes(n_poses, config.use_appearance and scene.poses.appearance is not None)
     if need > config.max_affinity_bytes:
         raise InputError(source, "annotations",
                          f"{n_poses} 2D poses need {need / 2**20:.0f} MiB for the affinity matrix, more than "
                          f"max_affinity_bytes = {config.max_affinity_bytes / 2**20:.0f} MiB; raise the limit "
-                         f"(--set max_affinity_bytes=...) or split the scene into smaller ones")
+                         "(--set max_affinity_bytes=...), lower keyframes (--set keyframes=...) or split the "
+                         "scene into smaller ones")
 
 
 def reconstruct(scene: Scene, config: Config | None = None, prior=None,
@@ -138,8 +143,8 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
 def _triangulated(scene: Scene, config: Config, groups: list[np.ndarray] | None) -> Triangulated:
     """The scene checked, and its pipeline up to the refinement."""
     validate_scene(scene)
-    check_affinity_memory(len(scene.poses), config.use_appearance and scene.poses.appearance is not None,
-                          config, scene.name)
+    if groups is None:                                    # given groups need no affinity
+        check_affinity_memory(scene, config, scene.name)
     return triangulate_poses(scene.cameras, scene.poses, config, groups)
 
 

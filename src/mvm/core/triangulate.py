@@ -150,7 +150,7 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
 def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
                        rng: np.random.Generator | int | None = None, use_ransac: bool = True,
-                       initial: np.ndarray | None = None) -> Triangulation:
+                       initial: np.ndarray | None = None, max_views: int | None = None) -> Triangulation:
     """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
 
     A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
@@ -165,6 +165,12 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
     triangulation of nearly the same groups: few random hypotheses then suffice. ``rng``: a
     ``numpy.random.Generator`` or the seed of one (None: 0), made only if pairs are drawn.
+
+    ``max_views``: groups of more views (a person seen in thousands of frames of a long video)
+    draw and score their hypotheses on that many well-spread views of each person
+    (:func:`spread_slots`); the inliers are then those of the best hypothesis's weighted DLT in
+    every view, and the refits use them all. Cost: ``P · (M + max_views · H) · J``, never
+    ``P · M · J · H``. None: every view.
     """
     rng = 0 if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
@@ -175,10 +181,10 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
     terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
-    if use_ransac:
-        inliers = _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial)
-    else:
-        inliers = valid.copy()
+    inliers = (valid.copy() if not use_ransac
+               else _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views)
+               if max_views is not None and M > max_views
+               else _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial))
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
     solved = None
@@ -273,3 +279,49 @@ def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray
     sigma = np.exp((lo + hi) / 2)
     return np.where(2 * m * m >= cut * cut, np.inf, sigma)                     # no Gaussian fits (NaN: no m)
 
+
+
+
+def spread_slots(conf: np.ndarray, count: int) -> np.ndarray:
+    """``count`` of each group's view slots, well spread along the group and confident:
+    the slots holding keypoints are cut into ``count`` runs of consecutive slots (a group's
+    poses come in frame order: runs along the video, so spread in parallax), and each run gives
+    its slot of largest summed confidence. ``conf: (P, M, J)`` -> ``(P, count)`` slot indices in
+    increasing order, -1 for padding (a group of fewer slots)."""
+    weight = conf.sum(-1)                                                   # (P, M)
+    present = weight > 0
+    n = present.sum(1, keepdims=True)
+    run = np.where(present, (np.cumsum(present, 1) - 1) * count // np.maximum(n, 1), count)
+    key = run - weight / (weight.max(initial=0.0) + 1.0)                    # in a run, the most confident first
+    order = np.argsort(key, axis=1, kind="stable")
+    sorted_run = np.take_along_axis(run, order, 1)
+    first = np.ones(sorted_run.shape, dtype=bool)
+    first[:, 1:] = sorted_run[:, 1:] != sorted_run[:, :-1]
+    M = conf.shape[1]
+    slots = np.sort(np.where(first & (sorted_run < count), order, M), axis=1)[:, :count]
+    return np.where(slots < M, slots, -1)
+
+
+def take_slots(obs: GroupObservations, slots: np.ndarray) -> GroupObservations:
+    """The observations of the view ``slots: (P, S)`` of each group (-1: padding)."""
+    pad = slots < 0
+    p = np.arange(len(slots))[:, None]
+    idx = np.where(pad, 0, slots)
+    return GroupObservations(obs.xy[p, idx], np.where(pad[..., None], 0.0, obs.conf[p, idx]),
+                             np.where(pad[..., None, None], 0.0, obs.P[p, idx]), obs.normalized_xy[p, idx],
+                             obs.Rt[p, idx], obs.centers[p, idx], np.where(pad, -1, obs.members[p, idx]),
+                             obs.world_scale, obs.world_offset, np.where(pad, 1.0, obs.size[p, idx]))
+
+
+def _spread_ransac_inliers(obs: GroupObservations, valid: np.ndarray, threshold: np.ndarray, hypotheses: int, rng,
+                           initial: np.ndarray | None, max_views: int) -> np.ndarray:
+    """:func:`_ransac_inliers` of ``max_views`` well-spread views of each group
+    (:func:`spread_slots`), whose inliers' weighted DLT then gives the inliers ``(P, M, J)``
+    among all the views (reprojection error below each group's ``threshold: (P,)``, in person
+    sizes, in front of the camera)."""
+    sub = take_slots(obs, spread_slots(obs.conf, max_views))
+    terms = dlt_terms(sub.normalized_xy.transpose(0, 2, 1, 3), sub.Rt[:, None])     # (10, P, J, S)
+    chosen = _ransac_inliers(sub, sub.conf > 0, terms, threshold, hypotheses, rng, initial)
+    X = weighted_dlt(terms, np.where(chosen, sub.conf, 0.0).transpose(0, 2, 1))       # (P, J, 3) normalized
+    err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
+    return valid & (err[..., 0] < threshold[:, None, None]) & (depth[..., 0] > 0)

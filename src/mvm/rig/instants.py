@@ -16,7 +16,8 @@ import numpy as np
 
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, group_blocks, reconstruct_poses
+from mvm.core.duplicates import group_blocks
+from mvm.core.pipeline import Reconstruction, reconstruct_poses
 from mvm.core.prior import load_prior
 from mvm.core.scene import Cameras, Poses2D
 from mvm.parallel import fork_map_ranges

@@ -102,9 +102,14 @@ class SimConfig:
     @classmethod
     def preset(cls, name: str, **overrides) -> SimConfig:
         """A preset of :data:`PRESETS` ('clean', 'realistic', 'hard', 'crowd', 'precise', 'heavy') with
-        ``overrides`` applied (scene or detector settings, by name)."""
+        ``overrides`` applied (scene or detector settings, by name). A 'crowd' of another
+        number of people keeps its density: its disc (:func:`crowd_radius`) and its false poses
+        (a tenth of the true ones) follow ``people`` unless given."""
         if name not in PRESETS:
             raise ValueError(f"unknown preset {name!r}; known: {', '.join(PRESETS)}")
+        if name == "crowd" and "people" in overrides:            # the disc and the false poses follow the crowd
+            people = overrides["people"]
+            overrides = {"crowd_radius": crowd_radius(people), "false_pose_rate": 0.1 * people, **overrides}
         return cls().replace(**{**PRESETS[name], **overrides})
 
     def replace(self, **changes) -> SimConfig:

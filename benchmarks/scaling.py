@@ -1,0 +1,177 @@
+"""How the reconstruction's cost grows with the length of the video and the size of the crowd.
+
+    python benchmarks/scaling.py [--quick] [--max-frames 1200] [--people 5,10,20]
+                                 [--preset realistic] [--arc 120] [--out DIR]
+
+Scenes: ``simulate(SimConfig.preset(preset, people=p, frames=f, arc_deg=arc, seed=seed))`` for
+frames 150, 300, 600, 1,200, 2,400, 3,600 (doubling, then the two-minute video) and 5, 10, 20
+people. Each size is written as a scene directory and reconstructed in a process of its own, as
+``mvm reconstruct`` does (:func:`mvm.scenes.reconstruct_dir`, default settings): the table gives
+that process's wall time (start-up included), its peak resident memory, the time of every stage,
+and pairwise precision / recall, persons estimated / found / true and MPJPE, beside the oracle on
+the same scene (the true grouping, RANSAC/DLT triangulation, no refinement, as
+:mod:`mvm.eval.crowd` scores it; also in a process of its own). Below the table: the growth of
+time and memory per doubling of the frames, for every crowd size.
+
+``--quick``: 10 people, 150 to 600 frames. ``--max-frames`` drops the longer videos.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+FRAMES = (150, 300, 600, 1200, 2400, 3600)
+PEOPLE = (5, 10, 20)
+QUICK_FRAMES = (150, 300, 600)
+QUICK_PEOPLE = (10,)
+STAGES = ("matching_s", "triangulation_s", "association_s", "refinement_s")
+
+
+def run_child(scene_dir: Path, mode: str) -> dict:
+    """Reconstruct ``scene_dir`` in a child process (``mode``: ``method`` or ``oracle``): its
+    JSON row, with ``process_s`` (wall time of the whole process) and ``peak_mib`` (its peak
+    resident memory, from ``wait4``)."""
+    with tempfile.TemporaryFile("w+") as out:
+        t = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, __file__, "--child", mode, str(scene_dir)], stdout=out,
+                                env={**os.environ, "OMP_NUM_THREADS": "1"})
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t
+        out.seek(0)
+        text = out.read()
+    if proc.returncode != 0:
+        return {"error": f"exit {proc.returncode}", "process_s": wall, "peak_mib": usage.ru_maxrss / 1024}
+    row = json.loads(text.strip().splitlines()[-1])
+    return {**row, "process_s": wall, "peak_mib": usage.ru_maxrss / 1024}
+
+
+def child(mode: str, scene_dir: str) -> None:
+    """The body of a child process: reconstruct, score against the truth, print one JSON line."""
+    import numpy as np
+
+    from mvm.core.config import Config
+    from mvm.eval.crowd import true_groups
+    from mvm.eval.demo import evaluate
+    from mvm.io.ground_truth import ground_truth_path, read_ground_truth
+
+    if mode == "method":
+        from mvm.scenes import reconstruct_dir
+
+        result = reconstruct_dir(scene_dir, Config())
+    else:
+        from mvm.core.reconstruct import reconstruct
+        from mvm.io.scene_dir import read_scene
+
+        scene = read_scene(scene_dir)
+        truth = read_ground_truth(ground_truth_path(scene_dir))
+        person = dict(zip(range(1, len(truth.person) + 1), truth.person))
+        true_person = [person[int(i)] for i in scene.poses.ids]
+        result = reconstruct(scene, Config(refine=False), groups=true_groups(np.asarray(true_person)))
+    report = evaluate(result, read_ground_truth(ground_truth_path(scene_dir)))
+    print(json.dumps({k: report[k] for k in ("precision", "recall", "mpjpe_mm", "persons_found",
+                                             "persons_estimated", "persons_true", "poses")}
+                     | {k: float(v) for k, v in report["timings"].items()}))
+
+
+def measure(people: int, frames: int, args, work: Path) -> dict:
+    """The row of one size: simulate, write, reconstruct by the method and by the oracle."""
+    from mvm.io.ground_truth import write_simulation
+    from mvm.sim.simulate import SimConfig, simulate
+
+    sim = SimConfig.preset(args.preset, people=people, frames=frames, arc_deg=args.arc, seed=args.seed)
+    scene, truth = simulate(sim)
+    scene_dir = work / f"p{people}_f{frames}" / "scene"
+    write_simulation(scene_dir, scene, truth, sim)
+    row = {"people": people, "frames": frames, "poses": len(scene.poses)}
+    row["method"] = run_child(scene_dir, "method")
+    row["oracle"] = run_child(scene_dir, "oracle") if not args.no_oracle else {}
+    return row
+
+
+def _fmt(value, digits: int) -> str:
+    return "—" if value is None or value != value else f"{value:,.{digits}f}"
+
+
+def table(rows: list[dict]) -> str:
+    """The scaling table (markdown) and the growth per doubling of the frames."""
+    lines = ["| people | frames | 2D poses | process s | peak MiB | matching / triangulation / association / "
+             "refinement s | precision | recall | persons est. / found / true | MPJPE mm | oracle precision / "
+             "recall | oracle MPJPE mm |",
+             "|---:|---:|---:|---:|---:|---|---:|---:|---|---:|---|---:|"]
+    for r in rows:
+        m, o = r["method"], r["oracle"]
+        if "error" in m:
+            lines.append(f"| {r['people']} | {r['frames']:,} | {r['poses']:,} | {m['error']} | "
+                         f"{_fmt(m['peak_mib'], 0)} | | | | | | | |")
+            continue
+        stages = " / ".join(_fmt(m.get(k, 0.0), 2) for k in STAGES)
+        lines.append(f"| {r['people']} | {r['frames']:,} | {r['poses']:,} | {_fmt(m['process_s'], 1)} | "
+                     f"{_fmt(m['peak_mib'], 0)} | {stages} | {m['precision']:.4f} | {m['recall']:.4f} | "
+                     f"{m['persons_estimated']} / {m['persons_found']} / {m['persons_true']} | "
+                     f"{_fmt(m['mpjpe_mm'], 1)} | "
+                     + (f"{o['precision']:.4f} / {o['recall']:.4f} | {_fmt(o['mpjpe_mm'], 1)} |"
+                        if o and "error" not in o else "— | — |"))
+    lines += ["", "Growth per doubling of the frames (time, memory; from the row before):", ""]
+    for people in dict.fromkeys(r["people"] for r in rows):
+        sel = [r for r in rows if r["people"] == people and "error" not in r["method"]]
+        steps = []
+        for a, b in zip(sel, sel[1:]):
+            doublings = math.log2(b["frames"] / a["frames"])
+            t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
+            m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
+            steps.append(f"{a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory")
+        if len(sel) > 1:
+            a, b = sel[0], sel[-1]
+            doublings = math.log2(b["frames"] / a["frames"])
+            t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
+            m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
+            steps.append(f"on average {a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory per doubling")
+        lines.append(f"- {people} people: " + ("; ".join(steps) or "—"))
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="10 people, 150-600 frames.")
+    parser.add_argument("--max-frames", type=int, default=None, help="Drop the videos longer than this.")
+    parser.add_argument("--people", default=None, help="Crowd sizes, comma-separated (default 5,10,20).")
+    parser.add_argument("--frames", default=None, help="Video lengths, comma-separated (default 150-3600).")
+    parser.add_argument("--preset", default="realistic", help="Simulator preset (detector errors).")
+    parser.add_argument("--arc", type=float, default=120.0, help="Angle of the tour, degrees.")
+    parser.add_argument("--seed", type=int, default=2)
+    parser.add_argument("--no-oracle", action="store_true", help="Skip the oracle (half the time).")
+    parser.add_argument("--out", default=None, help="Write scaling.md and scaling.json into this folder.")
+    parser.add_argument("--child", nargs=2, metavar=("MODE", "SCENE_DIR"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        child(*args.child)
+        return
+    people = [int(p) for p in args.people.split(",")] if args.people else (QUICK_PEOPLE if args.quick else PEOPLE)
+    frames = [int(f) for f in args.frames.split(",")] if args.frames else (QUICK_FRAMES if args.quick else FRAMES)
+    frames = [f for f in frames if args.max_frames is None or f <= args.max_frames]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="mvm-scaling-") as tmp:
+        for p in people:
+            for f in frames:
+                rows.append(measure(p, f, args, Path(tmp)))
+                m = rows[-1]["method"]
+                print(f"{p} people, {f} frames: {json.dumps(m)}", file=sys.stderr, flush=True)
+    text = table(rows)
+    print(text)
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "scaling.md").write_text(text + "\n")
+        (out / "scaling.json").write_text(json.dumps(rows, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
