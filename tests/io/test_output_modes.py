@@ -90,19 +90,11 @@ def test_pipeline_outputs_give_the_umask_mode(tmp_path, umask):
 
 @pytest.fixture(scope="module")
 def tiny_net(tmp_path_factory):
-    """A tiny network trained for 2 steps on 4 synthetic 64 px images -> (checkpoint, an image)."""
-    from mvm.cli.net import train_cmd
-    from mvm.sim import people_images as images
+    """A tiny trained network -> (checkpoint, an image)."""
+    from helpers import tiny_network
 
-    base = tmp_path_factory.mktemp("net")
-    data = images.synthetic_dataset(base / "data", 4, (64, 64), seed=5)
-    config = base / "tiny.toml"
-    config.write_text(f'[model]\nbackbone = "resnet18"\nstride = 16\nwidth = 8\n[data]\ninput_size = 64\n'
-                      f'[[data.train]]\nannotations = "{data}"\n[optim]\nsteps = 2\nbatch_size = 2\n'
-                      f'[output]\nout_dir = "{base / "run"}"\ndevice = "cpu"\n')
-    result = CliRunner().invoke(train_cmd, [str(config)])
-    assert result.exit_code == 0, result.output
-    return base / "run" / "checkpoint-0000002.pt", base / "data" / "images" / "000000.png"
+    checkpoint, images = tiny_network(tmp_path_factory.mktemp("net"))
+    return checkpoint, images[0]
 
 
 def test_predictions_give_the_umask_mode(tmp_path, umask, tiny_net):

@@ -64,6 +64,8 @@ detect_options = [
                  help="Frames given to the detector at once (default 4)."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
                  help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
+    click.option("--input-size", type=Number(int, ge=16, le=4096), default=None,     # as mvm predict
+                 help="Long edge of mvm's network input, 16 to 4096 px (default: as trained)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
@@ -100,14 +102,16 @@ def _frame_options(config_path, rate, max_frames, width, blur_ratio):
 
 
 def _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
-                    appearance):
+                    appearance, input_size=None):
     """The detection settings; when no detector is named (option or file), the installed one (rtmo)."""
     from mvm.video.detect import DetectOptions
     from mvm.video.detectors import available_detector
 
     options = _table(DetectOptions, "detect", config_path, detector=detector, model=model, person_model=person_model,
-                     mode=mode, device=device, batch_size=batch_size, appearance=appearance)
+                     mode=mode, device=device, batch_size=batch_size, appearance=appearance, input_size=input_size)
     detector = options.detector if options.detector != "import" else None
+    if input_size is not None and checkpoint is None:
+        raise InputError(None, "--input-size", "sizes mvm's network: goes with --checkpoint")
     if source is not None and (detector or checkpoint):
         raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
     if checkpoint is not None and detector not in (None, "mvm"):
@@ -188,14 +192,14 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @_options(detect_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json exists.")
-def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
-               config_path, force):
+def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
+               appearance, config_path, force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
     from mvm.video.detect import detect_scene
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance)
+                                  source, appearance, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
@@ -218,14 +222,14 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
-            cameras, config_path, metric, force):
+            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
+            appearance, cameras, config_path, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.video.run import run_video
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance)
+                                  source, appearance, input_size)
     with refused(ValueError):
         config = read_config(config_path, ())
         with stage_progress(rate_column()) as update:
