@@ -27,13 +27,25 @@ def refuse(error: Exception) -> None:
 
 class _OneLineErrors:
     """An :class:`~mvm.errors.InputError` escaping a command (its options included) ends in one
-    line and exit status 2, whether the command runs under ``mvm`` or on its own."""
+    line and exit status 2, whether the command runs under ``mvm`` or on its own; SIGINT or
+    SIGTERM (:mod:`mvm.cli.process`) in the line ``mvm: interrupted (SIGTERM)`` and the shell's
+    status, 128 + the signal."""
 
     def main(self, *args, **kwargs):
         try:
             return super().main(*args, **kwargs)
         except InputError as e:
             refuse(e)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as e:
+            from mvm.cli.process import interrupted_line
+
+            line, status = interrupted_line(e)
+            click.echo(line, err=True)
+            sys.exit(status)
 
 
 class Command(_OneLineErrors, click.Command):
