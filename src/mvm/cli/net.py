@@ -5,11 +5,12 @@ Each command is a thin call of one library function; a bad input raises
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
-from mvm.cli.common import FOCAL, Number, command, each_isolated, refuse_unused, report_failures
+from mvm.cli.common import FOCAL, Number, command, each_isolated, progress, refuse_unused, report_failures
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.errors import InputError
 
@@ -85,7 +86,8 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
 
         click.echo(f"{plot_metrics(Path(cfg.out_dir) / 'metrics.jsonl', Path(cfg.out_dir) / 'curves.png')}")
         return
-    path = train(cfg, resume=resume)
+    with train_progress() as update:
+        path = train(cfg, resume=resume, progress=update)
     from mvm.io.checks import load_json_object
 
     meta = load_json_object(path.with_suffix(".json"))
@@ -97,6 +99,21 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
         click.echo("validation: " + ", ".join(f"{k} {'-' if v is None else f'{v:.4f}'}" for k, v in shown.items()))
         for name, reason in validation["missing"].items():
             click.echo(f"  {name}: missing ({reason})")
+
+
+@contextmanager
+def train_progress():
+    """A bar of training steps with the last logged loss; yields ``update(step, steps, losses)``."""
+    from rich.progress import TextColumn
+
+    with progress(TextColumn("{task.fields[loss]}")) as bar:
+        task = bar.add_task("training steps", total=None, loss="")
+
+        def update(step: int, steps: int, losses: dict | None) -> None:
+            fields = {"loss": f"loss {losses['total']:.4g}"} if losses and "total" in losses else {}
+            bar.update(task, completed=step, total=steps, **fields)
+
+        yield update
 
 
 def _check_train_output(cfg, config: Path, resume: str | None) -> None:

@@ -17,6 +17,7 @@ from mvm.cli.common import (
     read_config,
     refused,
     say,
+    stage_progress,
 )
 
 
@@ -72,7 +73,9 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         if render:
             from mvm.sim.mannequin_video import render_frames
 
-            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed)
+            with stage_progress() as update:
+                render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed,
+                              progress=lambda done, total: update("rendering", done, total))
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"
     measure_table(f"mvm simulate ({preset})", [
         ("people", f"{len(truth.poses3d)} ({labels})"), ("frames", str(len(scene.cameras))),
@@ -96,8 +99,8 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
     config = read_config(config_path, sets, refine=refine)
     sim = read_sim(config_path, people=people, frames=frames, arc_deg=arc_deg, seed=seed)
     t = time.perf_counter()
-    with refused(ValueError):
-        report = run_demo(Path(out_dir), sim, config, render=render)
+    with refused(ValueError), stage_progress() as update:
+        report = run_demo(Path(out_dir), sim, config, render=render, progress=update)
     measure_table(f"mvm demo: {sim.people} people, {sim.frames} frames, {sim.arc_deg:g}° tour (seed {sim.seed})", [
         ("persons found / true", f"{report['persons_found']} / {report['persons_true']}"),
         ("2D poses (false positives)", f"{report['poses']} ({report['false_poses']})"),

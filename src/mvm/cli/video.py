@@ -174,10 +174,10 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
 
-    with refused(ValueError):
+    with refused(ValueError), stage_progress() as update:
         if cameras is None:
             report = sfm.run_sfm(scene, _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
-                                                     vocab_tree), force)
+                                                     vocab_tree), force, update)
         elif Path(cameras).is_dir():
             report = sfm.import_colmap(cameras, scene)
         else:
