@@ -17,8 +17,10 @@ from mvm.cli.common import (
     measure_table,
     out,
     print_line,
+    print_table,
     progress,
     read_config,
+    say,
 )
 
 
@@ -124,8 +126,6 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
 @click.option("--verify", is_flag=True, help="Hash every committed stage's files again and compare.")
 def status_cmd(root, as_json, verify):
     """What is done, failed and pending in ROOT, and the data set's statistics."""
-    from rich.table import Table
-
     from mvm.batch import batch_status
 
     status = batch_status(root, verify=verify)
@@ -135,32 +135,25 @@ def status_cmd(root, as_json, verify):
         click.echo(json.dumps(status.to_json(), indent=1))
         sys.exit(1 if status.mismatched else 0)
     c = status.clips
-    stages = Table(title=f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
-                         f"{c['running']} running, {c['pending']} pending ({status.runs} runs)")
-    stages.add_column("stage")
-    for state in ("done", "skipped", "failed", "running", "pending"):
-        stages.add_column(state, justify="right")
-    stages.add_column("worker s", justify="right")
-    for stage, counts in status.stages.items():
-        stages.add_row(stage, *(str(counts[s]) for s in ("done", "skipped", "failed", "running", "pending")),
-                       _f(status.seconds.get(stage)))
-    out().print(stages)
+    states = ("done", "skipped", "failed", "running", "pending")
+    print_table(f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
+                f"{c['running']} running, {c['pending']} pending ({status.runs} runs)",
+                ("stage", *states, "worker s"),
+                [(stage, *(str(counts[s]) for s in states), _f(status.seconds.get(stage)))
+                 for stage, counts in status.stages.items()])
     s = status.statistics
-    data = Table(title="data set")
-    data.add_column("statistic")
-    data.add_column("value", justify="right")
-    for label, key in (("sequences", "sequences"), ("clips", "clips"), ("frames", "frames"),
-                       ("unmatched 2D poses", "unmatched_poses2d"), ("matched 2D poses", "matched_poses2d"),
-                       ("generated 3D poses", "poses3d"), ("avg. clips per sequence", "clips_per_sequence"),
-                       ("avg. frames per clip", "frames_per_clip"),
-                       ("avg. 2D joints per triangulation", "joints2d_per_triangulation")):
-        data.add_row(label, _f(s[key]))
-    out().print(data)
+    print_table("data set", ("statistic", "value"),
+                [(label, _f(s[key])) for label, key in (
+                    ("sequences", "sequences"), ("clips", "clips"), ("frames", "frames"),
+                    ("unmatched 2D poses", "unmatched_poses2d"), ("matched 2D poses", "matched_poses2d"),
+                    ("generated 3D poses", "poses3d"), ("avg. clips per sequence", "clips_per_sequence"),
+                    ("avg. frames per clip", "frames_per_clip"),
+                    ("avg. 2D joints per triangulation", "joints2d_per_triangulation"))])
     for clip, stage, error in status.failed[:20]:
         print_line(f"failed: {clip}: {stage}: {error}", out())
     if status.training_set:
-        out().print(f"training set: {status.training_set}")
+        say(f"training set: {status.training_set}")
     for clip, stage in status.mismatched:
-        out().print(f"checksum mismatch: {clip}: {stage}", style="red")
+        print_line(f"checksum mismatch: {clip}: {stage}", out(), style="red")
     if status.mismatched:
         sys.exit(1)

@@ -197,25 +197,64 @@ def fmt(value, digits: int = 2, thousands: bool = False) -> str:
     return str(value)
 
 
-def print_table(title: str | None, columns, rows, fold_first: bool = False) -> None:
+def print_table(title: str | None, columns, rows, fold_first: bool = False, caption: str | None = None,
+                console=None) -> None:
     """Print a recap of text cells ``rows: [(cell, ...)]`` under ``columns`` (the first left-aligned,
     the others right-aligned): a rich table on a terminal; elsewhere (a file, a pipe) the title
-    as a ``# `` line, then tab-separated lines under a header line, for scripts to read (and
-    without rich's layout, about 1 ms a row). ``fold_first``: the first column wraps rather
-    than being cut (paths)."""
+    and the ``caption`` as ``# `` lines, then tab-separated lines under a header line, for scripts
+    to read (and without rich's layout, about 1 ms a row).
+
+    On a terminal the table keeps every cell whole within the console's width (80 columns and
+    up): a table that would be wider drops its box's side lines; ``fold_first`` (paths) breaks a
+    first-column cell after a ``/`` rather than mid-name. ``caption``: a line under the table
+    (what its abbreviations mean)."""
     if not is_terminal(sys.stdout):
-        lines = [] if title is None else [f"# {title}"]
+        lines = [f"# {text}" for text in (title, caption) if text is not None]
         click.echo("\n".join(lines + ["\t".join(row) for row in [tuple(columns), *rows]]))
         return
+    from rich import box
     from rich.table import Table
 
-    table = Table(title=title)
+    console = console or out()
+    widths = _widths(columns, rows)
+    wide = not table_fits(columns, rows, console.width)
+    if wide:              # no side lines, one space of padding: a gap of 2 between columns
+        table = Table(title=title, caption=caption, box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False,
+                      padding=(0, 1, 0, 0))
+    else:
+        table = Table(title=title, caption=caption)
+    if fold_first and rows:
+        room = console.width - sum(w + (2 if wide else 3) for w in widths[1:]) - (1 if wide else 4)
+        rows = [(_fold_path(row[0], max(room, 12)), *row[1:]) for row in rows]
     table.add_column(columns[0], overflow="fold" if fold_first else "ellipsis")
-    for column in columns[1:]:
-        table.add_column(column, justify="right")
+    for column, width in zip(columns[1:], widths[1:]):       # numbers whole; a long text (a path) folds
+        table.add_column(column, justify="right", overflow="fold", min_width=width if width <= 12 else len(column))
     for row in rows:
         table.add_row(*row)
-    out().print(table)
+    console.print(table)
+
+
+def _widths(columns, rows) -> list[int]:
+    return [max(len(line) for cell in cells for line in str(cell).splitlines() or [""]) for cells in zip(columns, *rows)]
+
+
+def table_fits(columns, rows, width: int) -> bool:
+    """Whether a boxed rich table of ``columns`` and ``rows`` shows every cell whole in ``width`` columns."""
+    return sum(_widths(columns, rows)) + 3 * len(columns) + 1 <= width
+
+
+def _fold_path(path: str, width: int) -> str:
+    """``path`` in lines of at most ``width`` characters, broken after a ``/`` (mid-name only
+    where a name alone is longer)."""
+    if len(path) <= width:
+        return path
+    lines, line = [], ""
+    for part in path.replace("/", "/\0").split("\0"):
+        if line and len(line) + len(part) > width:
+            lines.append(line)
+            line = ""
+        line += part
+    return "\n".join(lines + [line])
 
 
 def measure_table(title: str, rows) -> None:

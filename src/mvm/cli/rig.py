@@ -1,6 +1,8 @@
 """``mvm rig``: synchronized camera rigs (every instant a static scene)."""
 from __future__ import annotations
 
+import sys
+
 import click
 
 from mvm.cli.common import (
@@ -75,15 +77,53 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     r = result.recap
     flags = r["joint_flags"]
     names = list(r["excluded_per_camera"])
-    print_table(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
-                f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
-                + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v),
-                ("keypoint", "error px", "views", *[f"excl. {n}" for n in names]),
-                [(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
-                  *[fmt(r["excluded_per_camera"][n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])])
+    print_rig_recap(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
+                    f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
+                    + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v), r)
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
             "check its calibration, or raise ransac_threshold_px (--set ransac_threshold_px=...)")
     say(f"wrote {result.outputs['poses3d']}, {len(result.outputs['tracks'])} .trc file(s), "
         f"{result.outputs['recap']}")
+
+
+#: What ``excl.`` means in the rig recap, said once under it.
+EXCLUDED_NOTE = "excl.: share of a camera's keypoints that triangulation excluded as outliers (RANSAC)"
+
+
+def print_rig_recap(title: str, r: dict) -> None:
+    """The recap of a rig reconstruction (``r``: its ``recap.json``): per keypoint the
+    reprojection error, the views and, per camera, the share excluded. Where one column per
+    camera does not fit the terminal (at 80 columns, more than 3 cameras), the table is split: per
+    keypoint the mean and the worst camera's share, then one row per camera. A pipe gets every
+    column (tab-separated lines)."""
+    from mvm.cli.common import is_terminal, out, table_fits
+
+    names = list(r["excluded_per_camera"])
+    per_camera = r["excluded_per_camera"]
+    columns = ("keypoint", "error px", "views", *[f"excl. {n}" for n in names])
+    rows = [(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
+             *[fmt(per_camera[n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])]
+    if not is_terminal(sys.stdout) or table_fits(columns, rows, out().width):
+        print_table(title, columns, rows, caption=EXCLUDED_NOTE)
+        return
+
+    def share(n, j):
+        value = per_camera[n][j]
+        return -1.0 if value is None else value
+
+    rows = []
+    for j, kp in enumerate(r["keypoints"]):
+        known = [per_camera[n][j] for n in names if per_camera[n][j] is not None]
+        worst = max(names, key=lambda n: share(n, j), default=None)
+        rows.append((kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
+                     fmt(sum(known) / len(known) if known else None),
+                     "–" if worst is None or per_camera[worst][j] is None else f"{fmt(per_camera[worst][j])} {worst}"))
+    print_table(title, ("keypoint", "error px", "views", "excl. mean", "excl. most (camera)"), rows)
+    camera_rows = []
+    for n in names:
+        j = max(range(len(r["keypoints"])), key=lambda j: share(n, j))
+        camera_rows.append((n, fmt(r["excluded_overall_per_camera"][n]),
+                            "–" if per_camera[n][j] is None else f"{r['keypoints'][j]} {fmt(per_camera[n][j])}"))
+    print_table(None, ("camera", "excl. overall", "excl. most (keypoint)"), camera_rows, caption=EXCLUDED_NOTE)
