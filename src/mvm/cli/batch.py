@@ -10,6 +10,8 @@ from mvm.cli.common import (
     FOCAL,
     MAX_FRAMES,
     RATE,
+    REFINE_OPTION,
+    SET_OPTION,
     WIDTH,
     command,
     err,
@@ -29,7 +31,7 @@ def _f(value) -> str:
 
 
 def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoint=None, detector=None,
-                       max_frames=None, rate=None, width=None, focal_px=None):
+                       max_frames=None, rate=None, width=None, focal_px=None, refine=None):
     """The :class:`~mvm.batch.BatchOptions` of a settings file (its ``[reconstruct]``,
     ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
     command's own options (an option left at None keeps the file's value)."""
@@ -46,7 +48,7 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
                              {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
 
     return table(BatchOptions, "batch", checkpoint=checkpoint).replace(
-        config=read_config(config_path, sets), frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate,
+        config=read_config(config_path, sets, refine=refine), frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate,
                                                              width=width),
         sfm=table(SfmOptions, "sfm", focal_px=focal_px), detect=table(DetectOptions, "detect", detector=detector))
 
@@ -74,9 +76,10 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
                    "(mvm config prints one).")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
+@SET_OPTION
+@REFINE_OPTION
 def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
-              focal_px, config_path, sets):
+              focal_px, config_path, sets, refine):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
@@ -90,7 +93,7 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
 
     chosen = parse_stages(stages)
     options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, max_frames=max_frames,
-                                 rate=rate, width=width, focal_px=focal_px)
+                                 rate=rate, width=width, focal_px=focal_px, refine=refine)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")

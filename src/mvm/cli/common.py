@@ -388,17 +388,72 @@ FOCAL = Number(float, gt=0)
 SEED = Number(int, ge=0, le=2**63 - 1)
 
 
+#: ``--set`` and ``--refine/--no-refine``: the reconstruction settings of every command that reconstructs.
+SET_OPTION = click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                          help="Override one reconstruction setting, e.g. --set tau=0.25 (repeatable).")
+REFINE_OPTION = click.option("--refine/--no-refine", default=None,
+                             help="Run the pose-prior refinement (default: the settings file's, else on).")
+
+
 def config_options(f):
     """``--config``, ``--set`` and ``--refine/--no-refine`` of the reconstruction settings."""
     for option in reversed([
         click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
                      help="TOML settings file, one table per settings object (mvm config prints one)."),
-        click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-                     help="Override one setting, e.g. --set tau=0.25 (repeatable)."),
-        click.option("--refine/--no-refine", default=None, help="Run the pose-prior refinement."),
+        SET_OPTION, REFINE_OPTION,
     ]):
         f = option(f)
     return f
+
+
+#: File suffixes that name an image or a video (lower case).
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".gif"})
+VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".avi", ".mov", ".mkv", ".webm", ".gif"})
+
+
+class OutputPath(click.ParamType):
+    """``-o``: the path of a command's main product. ``suffixes``: the file formats the command
+    writes (e.g. ``(".html",)``); ``folder``: a path without one of them is a folder. A name
+    with an image or video suffix the command does not write is refused in one line, rather
+    than becoming a folder named ``out.gif``."""
+
+    name = "path"
+
+    def __init__(self, suffixes: tuple[str, ...] = (), folder: bool = True, product: str = "a folder"):
+        self.suffixes, self.folder, self.product = tuple(suffixes), folder, product
+
+    def convert(self, value, param, ctx):
+        from pathlib import Path
+
+        path = str(value)
+        suffix = Path(path).suffix.lower()
+        if suffix in self.suffixes:
+            return path
+        if not self.folder or suffix in IMAGE_SUFFIXES | VIDEO_SUFFIXES:
+            kind = "a video" if suffix in VIDEO_SUFFIXES - IMAGE_SUFFIXES else "an image" if suffix else "no file type"
+            option = "-o" if "-o" in getattr(param, "opts", ()) else _option_name(param)
+            raise InputError(None, option, f"{path} names {kind}{f' ({suffix})' if suffix else ''}, "
+                                           f"but {command_name()} writes {self.product}")
+        return path
+
+
+def resolve_output_name(name: str | None, legacy: str | None, legacy_option: str, default: str = "mvm") -> str:
+    """The ``--output-name`` of a scene's output folder; ``legacy`` is the same given with the
+    deprecated ``legacy_option`` (a note on stderr says so). Both given and different: refused."""
+    if legacy is not None:
+        if name is not None and name != legacy:
+            raise InputError(None, legacy_option, f"contradicts --output-name {name!r}: give --output-name only")
+        click.echo(f"mvm: note: {legacy_option} of {command_name()} names the output folder inside the scene: it is "
+                   "deprecated, use --output-name (-o is the output path, as in every command)", err=True)
+    return name or legacy or default
+
+
+def output_name_options(f):
+    """``--output-name NAME`` (the scene's output folder) and its deprecated spelling ``--output``."""
+    f = click.option("--output", "legacy_output", default=None, hidden=True,
+                     help="Deprecated spelling of --output-name.")(f)
+    return click.option("--output-name", default=None, metavar="NAME",
+                        help="The scene's output folder holding poses3d.json [default: mvm].")(f)
 
 
 def command_name() -> str:

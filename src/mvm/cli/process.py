@@ -92,8 +92,8 @@ def interrupted_line(error: KeyboardInterrupt) -> tuple[str, int]:
 
 @contextlib.contextmanager
 def native_output_to_log():
-    """Run the block with file descriptor 2 sent to a temporary file and ``sys.stderr`` on a
-    copy of the original descriptor; afterwards every non-empty line the native libraries wrote
+    """Run the block with file descriptor 2 sent to a temporary file and ``sys.stderr`` (where
+    it writes to descriptor 2) on a copy of the original descriptor; afterwards every non-empty line the native libraries wrote
     is a debug record of the ``mvm.native`` logger. Where descriptor 2 cannot be duplicated it
     does nothing."""
     try:
@@ -103,18 +103,24 @@ def native_output_to_log():
         yield
         return
     original = sys.stderr
+    try:
+        on_fd2 = original.fileno() == 2
+    except (OSError, ValueError, AttributeError):     # a stream of its own (a test's capture): left as it is
+        on_fd2 = False
     capture = tempfile.TemporaryFile()
     try:
         os.dup2(capture.fileno(), 2)
-        sys.stderr = os.fdopen(os.dup(saved), "w", buffering=1, encoding=getattr(original, "encoding", None) or "utf-8",
-                               errors="backslashreplace")
+        if on_fd2:
+            sys.stderr = os.fdopen(os.dup(saved), "w", buffering=1,
+                                   encoding=getattr(original, "encoding", None) or "utf-8", errors="backslashreplace")
         try:
             yield
         finally:
-            with contextlib.suppress(Exception):
-                sys.stderr.flush()
-                sys.stderr.close()
-            sys.stderr = original
+            if on_fd2:
+                with contextlib.suppress(Exception):
+                    sys.stderr.flush()
+                    sys.stderr.close()
+                sys.stderr = original
             os.dup2(saved, 2)
             capture.seek(0)
             for line in capture.read().decode("utf-8", "replace").splitlines():

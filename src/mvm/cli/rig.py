@@ -7,6 +7,7 @@ import click
 
 from mvm.cli.common import (
     Group,
+    OutputPath,
     config_options,
     fmt,
     parse_sets,
@@ -44,7 +45,8 @@ def rig() -> None:
               help="Calibration: Calib.toml, a COLMAP model folder or a Panoptic calibration JSON "
                    "(default: found in RIG_DIR).")
 @click.option("--frames", default=None, metavar="START:STOP", help="Frame numbers to use, STOP excluded.")
-@click.option("--output", "-o", type=click.Path(file_okay=False), default=None,
+@click.option("--output", "-o", type=OutputPath(product="a folder (poses3d.jsonl, .trc files, recap.json)"),
+              default=None,
               help="Output folder (default RIG_DIR/mvm).")
 @click.option("--smoothing", type=click.Choice(["none", "butterworth", "savgol"]), default=None,
               help="Temporal smoothing of each track (default butterworth, cut-off 6 Hz or a fifth "

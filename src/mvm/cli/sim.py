@@ -9,6 +9,7 @@ import click
 from mvm.cli.common import (
     SEED,
     Number,
+    OutputPath,
     command,
     config_options,
     fmt,
@@ -87,7 +88,8 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
 
 @command("demo")
 @scene_options
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="mvm-demo",
+@click.option("-o", "--out", "out_dir", type=OutputPath(product="a folder (the scene and its ground truth)"),
+              default="mvm-demo",
               show_default=True, help="Where to write the simulated scene and its ground truth.")
 @click.option("--render", is_flag=True,
               help="Also render the frames into OUT/scene/frames (for mvm report, overlay, export and training).")
@@ -120,7 +122,8 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
 
 @command("bench")
 @click.option("--quick", is_flag=True, help="Two tiny clips and short sweeps (seconds, for CI).")
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="benchmarks/results",
+@click.option("-o", "--out", "out_dir", type=OutputPath(product="a folder of tables and plots"),
+              default="benchmarks/results",
               show_default=True, help="Folder for paper_tables.md, clips.csv, sweeps.csv, matching_time.png.")
 @click.option("--refine/--no-refine", default=False, show_default=True, help="Run the pose-prior refinement.")
 @click.option("--trajectories", type=click.Path(file_okay=False, exists=True), default=None,

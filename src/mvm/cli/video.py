@@ -14,7 +14,10 @@ from mvm.cli.common import (
     MAX_FRAMES,
     RATE,
     WIDTH,
+    REFINE_OPTION,
+    SET_OPTION,
     Number,
+    OutputPath,
     command,
     err,
     measure_table,
@@ -147,7 +150,8 @@ def _sfm_rows(report):
 
 @command("frames")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+              help="The scene directory to write (frames/, frames.json).")
 @_options(frame_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if frames.json exists.")
@@ -210,20 +214,23 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 
 @command("run")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+              help="The scene directory to write (frames, cameras, 2D poses, mvm/poses3d.json).")
 @_options(frame_options + sfm_options + detect_options)
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM (COLMAP model directory or camera file).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [frames], [sfm], [detect] and [reconstruct] tables (mvm config "
                    "prints one); the options given here win.")
+@SET_OPTION
+@REFINE_OPTION
 @click.option("--metric/--no-metric", default=True, show_default=True,
               help="Scale the world to metres from the people's bone lengths.")
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
             vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
-            appearance, cameras, config_path, metric, force):
+            appearance, cameras, config_path, sets, refine, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.video.run import run_video
 
@@ -231,7 +238,7 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
                                   source, appearance, input_size)
     with refused(ValueError):
-        config = read_config(config_path, ())
+        config = read_config(config_path, sets, refine=refine)
         with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras,
