@@ -82,7 +82,7 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDe
 
     def one(image: np.ndarray):
         rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-        with torch.inference_mode():                 # no autograd graph: as fast as mvm predict
+        with torch.inference_mode():                 # no autograd bookkeeping at all
             poses, _, scale = evaluate.run_model(model, rgb, size)
         kp, score = poses.keypoints, poses.score
         features = captured["features"][0].float().cpu().numpy()          # (C, h, w) of the letterboxed input
