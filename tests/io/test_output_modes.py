@@ -105,3 +105,13 @@ def test_predictions_give_the_umask_mode(tmp_path, umask, tiny_net):
     assert result.exit_code == 0, result.output
     assert (tmp_path / "p" / "predictions.json").is_file()
     assert _check_tree(tmp_path / "p", umask) >= 3
+
+
+def test_downloaded_model_gets_the_umask_mode(tmp_path, umask):
+    from mvm.video.models import download
+
+    served = tmp_path / "served.onnx"
+    served.write_bytes(b"onnx" * 100)
+    target = download(served.as_uri(), tmp_path / "cache" / "model.onnx")
+    assert target.read_bytes() == served.read_bytes()
+    assert _mode(target) == EXPECTED[umask][0]
