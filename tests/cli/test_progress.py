@@ -74,6 +74,7 @@ def test_train_command_draws_its_steps(tmp_path, monkeypatch):
     from contextlib import contextmanager
 
     import mvm.cli.net as net
+
     from helpers import tiny_network
 
     calls = []

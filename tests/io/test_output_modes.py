@@ -101,7 +101,7 @@ def test_predictions_give_the_umask_mode(tmp_path, umask, tiny_net):
     from mvm.cli.net import predict_cmd
 
     checkpoint, image = tiny_net
-    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(checkpoint), "--out", str(tmp_path / "p")])
+    result = CliRunner().invoke(predict_cmd, [str(image), "--checkpoint", str(checkpoint), "-o", str(tmp_path / "p")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "p" / "predictions.json").is_file()
     assert _check_tree(tmp_path / "p", umask) >= 3

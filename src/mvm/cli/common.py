@@ -235,7 +235,9 @@ def print_table(title: str | None, columns, rows, fold_first: bool = False, capt
 
 
 def _widths(columns, rows) -> list[int]:
-    return [max(len(line) for cell in cells for line in str(cell).splitlines() or [""]) for cells in zip(columns, *rows)]
+    """The widest line of every column's cells, header included."""
+    return [max(len(line) for cell in cells for line in str(cell).splitlines() or [""])
+            for cells in zip(columns, *rows)]
 
 
 def table_fits(columns, rows, width: int) -> bool:

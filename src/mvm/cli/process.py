@@ -93,9 +93,9 @@ def interrupted_line(error: KeyboardInterrupt) -> tuple[str, int]:
 @contextlib.contextmanager
 def native_output_to_log():
     """Run the block with file descriptor 2 sent to a temporary file and ``sys.stderr`` (where
-    it writes to descriptor 2) on a copy of the original descriptor; afterwards every non-empty line the native libraries wrote
-    is a debug record of the ``mvm.native`` logger. Where descriptor 2 cannot be duplicated it
-    does nothing."""
+    it writes to descriptor 2) on a copy of the original descriptor; afterwards every non-empty
+    line the native libraries wrote is a debug record of the ``mvm.native`` logger. Where
+    descriptor 2 cannot be duplicated it does nothing."""
     try:
         sys.stderr.flush()
         saved = os.dup(2)
