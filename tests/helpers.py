@@ -61,3 +61,21 @@ def cmu_walk(z_up: bool = True):
     if not z_up:
         return walk
     return np.stack([walk[..., 0] - walk[..., 0].mean(), -walk[..., 2], walk[..., 1]], -1)
+
+
+def tiny_network(folder: Path, input_size: int = 64, steps: int = 2):
+    """A tiny pose network (resnet18, width 8) trained for ``steps`` steps on 4 synthetic
+    ``input_size`` px images under ``folder`` -> ``(checkpoint .pt, the training images)``."""
+    from click.testing import CliRunner
+
+    from mvm.cli.net import train_cmd
+    from mvm.sim import people_images as images
+
+    data = images.synthetic_dataset(folder / "data", 4, (input_size, input_size), seed=5)
+    config = folder / "tiny.toml"
+    config.write_text(f'[model]\nbackbone = "resnet18"\nstride = 16\nwidth = 8\n[data]\ninput_size = {input_size}\n'
+                      f'[[data.train]]\nannotations = "{data}"\n[optim]\nsteps = {steps}\nbatch_size = 2\n'
+                      f'[output]\nout_dir = "{folder / "run"}"\ndevice = "cpu"\n')
+    result = CliRunner().invoke(train_cmd, [str(config)])
+    assert result.exit_code == 0, result.output
+    return folder / "run" / f"checkpoint-{steps:07d}.pt", sorted((folder / "data" / "images").iterdir())

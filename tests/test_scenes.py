@@ -214,7 +214,7 @@ def test_the_command_recaps_tab_separated_in_a_pipe_and_checks_workers(three):
 
     root, truths = three
     paths = [str(root / n) for n in ("a", "b")]
-    run = CliRunner().invoke(main, ["reconstruct", *paths, "--no-refine", "-o", "cli", "--workers", "2"])
+    run = CliRunner().invoke(main, ["reconstruct", *paths, "--no-refine", "--output-name", "cli", "--workers", "2"])
     assert run.exit_code == 0, run.output
     lines = [line.split("\t") for line in run.stdout.splitlines() if not line.startswith("# ")]
     assert lines[0] == list(RECAP_COLUMNS) and [row[0] for row in lines[1:]] == paths

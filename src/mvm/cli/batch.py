@@ -10,6 +10,8 @@ from mvm.cli.common import (
     FOCAL,
     MAX_FRAMES,
     RATE,
+    REFINE_OPTION,
+    SET_OPTION,
     WIDTH,
     command,
     err,
@@ -17,8 +19,10 @@ from mvm.cli.common import (
     measure_table,
     out,
     print_line,
+    print_table,
     progress,
     read_config,
+    say,
 )
 
 
@@ -27,7 +31,7 @@ def _f(value) -> str:
 
 
 def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoint=None, detector=None,
-                       max_frames=None, rate=None, width=None, focal_px=None):
+                       max_frames=None, rate=None, width=None, focal_px=None, refine=None):
     """The :class:`~mvm.batch.BatchOptions` of a settings file (its ``[reconstruct]``,
     ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
     command's own options (an option left at None keeps the file's value)."""
@@ -44,8 +48,8 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
                              {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
 
     return table(BatchOptions, "batch", checkpoint=checkpoint).replace(
-        config=read_config(config_path, sets), frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate,
-                                                             width=width),
+        config=read_config(config_path, sets, refine=refine),
+        frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate, width=width),
         sfm=table(SfmOptions, "sfm", focal_px=focal_px), detect=table(DetectOptions, "detect", detector=detector))
 
 
@@ -72,10 +76,11 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
                    "(mvm config prints one).")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="Override one reconstruction setting.")
+@SET_OPTION
+@REFINE_OPTION
 @click.option("--force", is_flag=True, help="Redo every stage of every clip, even those up to date.")
 def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
-              focal_px, config_path, sets, force):
+              focal_px, config_path, sets, refine, force):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
@@ -90,7 +95,7 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
 
     chosen = parse_stages(stages)
     options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, max_frames=max_frames,
-                                 rate=rate, width=width, focal_px=focal_px)
+                                 rate=rate, width=width, focal_px=focal_px, refine=refine)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")
@@ -130,8 +135,6 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
 @click.option("--verify", is_flag=True, help="Hash every committed stage's files again and compare.")
 def status_cmd(root, as_json, verify):
     """What is done, failed and pending in ROOT, and the data set's statistics."""
-    from rich.table import Table
-
     from mvm.batch import batch_status
 
     status = batch_status(root, verify=verify)
@@ -141,27 +144,20 @@ def status_cmd(root, as_json, verify):
         click.echo(json.dumps(status.to_json(), indent=1))
         sys.exit(1 if status.mismatched else 0)
     c = status.clips
-    stages = Table(title=f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
-                         f"{c['running']} running, {c['pending']} pending ({status.runs} runs)")
-    stages.add_column("stage")
-    for state in ("done", "skipped", "failed", "running", "pending"):
-        stages.add_column(state, justify="right")
-    stages.add_column("worker s", justify="right")
-    for stage, counts in status.stages.items():
-        stages.add_row(stage, *(str(counts[s]) for s in ("done", "skipped", "failed", "running", "pending")),
-                       _f(status.seconds.get(stage)))
-    out().print(stages)
+    states = ("done", "skipped", "failed", "running", "pending")
+    print_table(f"mvm status: {root} — {c['total']} clips: {c['done']} done, {c['failed']} failed, "
+                f"{c['running']} running, {c['pending']} pending ({status.runs} runs)",
+                ("stage", *states, "worker s"),
+                [(stage, *(str(counts[s]) for s in states), _f(status.seconds.get(stage)))
+                 for stage, counts in status.stages.items()])
     s = status.statistics
-    data = Table(title="data set")
-    data.add_column("statistic")
-    data.add_column("value", justify="right")
-    for label, key in (("sequences", "sequences"), ("clips", "clips"), ("frames", "frames"),
-                       ("unmatched 2D poses", "unmatched_poses2d"), ("matched 2D poses", "matched_poses2d"),
-                       ("generated 3D poses", "poses3d"), ("avg. clips per sequence", "clips_per_sequence"),
-                       ("avg. frames per clip", "frames_per_clip"),
-                       ("avg. 2D joints per triangulation", "joints2d_per_triangulation")):
-        data.add_row(label, _f(s[key]))
-    out().print(data)
+    print_table("data set", ("statistic", "value"),
+                [(label, _f(s[key])) for label, key in (
+                    ("sequences", "sequences"), ("clips", "clips"), ("frames", "frames"),
+                    ("unmatched 2D poses", "unmatched_poses2d"), ("matched 2D poses", "matched_poses2d"),
+                    ("generated 3D poses", "poses3d"), ("avg. clips per sequence", "clips_per_sequence"),
+                    ("avg. frames per clip", "frames_per_clip"),
+                    ("avg. 2D joints per triangulation", "joints2d_per_triangulation"))])
     for clip, stage, error in status.failed[:20]:
         print_line(f"failed: {clip}: {stage}: {error}", out())
     for clip, stage, why in status.stale[:20]:
@@ -169,8 +165,8 @@ def status_cmd(root, as_json, verify):
     if len(status.stale) > 20:
         print_line(f"… and {len(status.stale) - 20} more stages out of date", out())
     if status.training_set:
-        out().print(f"training set: {status.training_set}")
+        say(f"training set: {status.training_set}")
     for clip, stage in status.mismatched:
-        out().print(f"checksum mismatch: {clip}: {stage}", style="red")
+        print_line(f"checksum mismatch: {clip}: {stage}", out(), style="red")
     if status.mismatched:
         sys.exit(1)

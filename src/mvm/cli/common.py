@@ -27,13 +27,25 @@ def refuse(error: Exception) -> None:
 
 class _OneLineErrors:
     """An :class:`~mvm.errors.InputError` escaping a command (its options included) ends in one
-    line and exit status 2, whether the command runs under ``mvm`` or on its own."""
+    line and exit status 2, whether the command runs under ``mvm`` or on its own; SIGINT or
+    SIGTERM (:mod:`mvm.cli.process`) in the line ``mvm: interrupted (SIGTERM)`` and the shell's
+    status, 128 + the signal."""
 
     def main(self, *args, **kwargs):
         try:
             return super().main(*args, **kwargs)
         except InputError as e:
             refuse(e)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as e:
+            from mvm.cli.process import interrupted_line
+
+            line, status = interrupted_line(e)
+            click.echo(line, err=True)
+            sys.exit(status)
 
 
 class Command(_OneLineErrors, click.Command):
@@ -185,25 +197,66 @@ def fmt(value, digits: int = 2, thousands: bool = False) -> str:
     return str(value)
 
 
-def print_table(title: str | None, columns, rows, fold_first: bool = False) -> None:
+def print_table(title: str | None, columns, rows, fold_first: bool = False, caption: str | None = None,
+                console=None) -> None:
     """Print a recap of text cells ``rows: [(cell, ...)]`` under ``columns`` (the first left-aligned,
     the others right-aligned): a rich table on a terminal; elsewhere (a file, a pipe) the title
-    as a ``# `` line, then tab-separated lines under a header line, for scripts to read (and
-    without rich's layout, about 1 ms a row). ``fold_first``: the first column wraps rather
-    than being cut (paths)."""
+    and the ``caption`` as ``# `` lines, then tab-separated lines under a header line, for scripts
+    to read (and without rich's layout, about 1 ms a row).
+
+    On a terminal the table keeps every cell whole within the console's width (80 columns and
+    up): a table that would be wider drops its box's side lines; ``fold_first`` (paths) breaks a
+    first-column cell after a ``/`` rather than mid-name. ``caption``: a line under the table
+    (what its abbreviations mean)."""
     if not is_terminal(sys.stdout):
-        lines = [] if title is None else [f"# {title}"]
+        lines = [f"# {text}" for text in (title, caption) if text is not None]
         click.echo("\n".join(lines + ["\t".join(row) for row in [tuple(columns), *rows]]))
         return
+    from rich import box
     from rich.table import Table
 
-    table = Table(title=title)
+    console = console or out()
+    widths = _widths(columns, rows)
+    wide = not table_fits(columns, rows, console.width)
+    if wide:              # no side lines, one space of padding: a gap of 2 between columns
+        table = Table(title=title, caption=caption, box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False,
+                      padding=(0, 1, 0, 0))
+    else:
+        table = Table(title=title, caption=caption)
+    if fold_first and rows:
+        room = console.width - sum(w + (2 if wide else 3) for w in widths[1:]) - (1 if wide else 4)
+        rows = [(_fold_path(row[0], max(room, 12)), *row[1:]) for row in rows]
     table.add_column(columns[0], overflow="fold" if fold_first else "ellipsis")
-    for column in columns[1:]:
-        table.add_column(column, justify="right")
+    for column, width in zip(columns[1:], widths[1:]):       # numbers whole; a long text (a path) folds
+        table.add_column(column, justify="right", overflow="fold", min_width=width if width <= 12 else len(column))
     for row in rows:
         table.add_row(*row)
-    out().print(table)
+    console.print(table)
+
+
+def _widths(columns, rows) -> list[int]:
+    """The widest line of every column's cells, header included."""
+    return [max(len(line) for cell in cells for line in str(cell).splitlines() or [""])
+            for cells in zip(columns, *rows)]
+
+
+def table_fits(columns, rows, width: int) -> bool:
+    """Whether a boxed rich table of ``columns`` and ``rows`` shows every cell whole in ``width`` columns."""
+    return sum(_widths(columns, rows)) + 3 * len(columns) + 1 <= width
+
+
+def _fold_path(path: str, width: int) -> str:
+    """``path`` in lines of at most ``width`` characters, broken after a ``/`` (mid-name only
+    where a name alone is longer)."""
+    if len(path) <= width:
+        return path
+    lines, line = [], ""
+    for part in path.replace("/", "/\0").split("\0"):
+        if line and len(line) + len(part) > width:
+            lines.append(line)
+            line = ""
+        line += part
+    return "\n".join(lines + [line])
 
 
 def measure_table(title: str, rows) -> None:
@@ -275,60 +328,6 @@ def _option_name(param) -> str:
     return longest.upper() if not longest.startswith("-") else longest
 
 
-def failure_line(item, error: BaseException) -> str:
-    """One line for ``error`` raised while handling ``item`` (a scene, a clip, an image): an
-    InputError names its file already; any other error is prefixed with the item and its type."""
-    if isinstance(error, InputError):
-        return str(error)
-    text = " ".join(str(error).split()) or "(no message)"
-    return f"{item}: {type(error).__name__}: {text}"
-
-
-def report_failure(item, error: Exception, failed: list, console=None) -> None:
-    """``error`` is ``item``'s failure: appended to ``failed`` and printed as one line (the
-    traceback of an error other than bad input goes to the debug log, ``mvm -vv``)."""
-    if not isinstance(error, InputError):
-        logging.getLogger("mvm").debug("%s failed", item, exc_info=error)
-    failed.append(item)
-    print_line(f"mvm: error: {failure_line(item, error)}", console)
-
-
-def each_isolated(items, work, failed: list, console=None):
-    """Yield ``(item, work(item))`` for every item, each isolated from the others: any exception
-    while handling one item is that item's failure (:func:`report_failure`), and the next item
-    is done."""
-    for item in items:
-        try:
-            result = work(item)
-        except Exception as e:                      # one item's failure is not the run's
-            report_failure(item, e, failed, console)
-        else:
-            yield item, result
-
-
-def run_outcomes(total: int, outcomes, label: str = "") -> tuple[list, list]:
-    """A progress bar over ``outcomes``, ``(item, result or Exception)`` pairs from a library
-    driver that isolates its items itself (e.g. :func:`mvm.scenes.reconstruct_dirs`); each
-    exception is reported as :func:`report_failure` does. Returns ``([(item, result)], [failed item])``."""
-    done, failed = [], []
-    with progress() as bar:
-        task = bar.add_task(label, total=total)
-        for item, outcome in outcomes:
-            if isinstance(outcome, Exception):
-                report_failure(item, outcome, failed, bar.console)
-            else:
-                done.append((item, outcome))
-            bar.update(task, advance=1, description=f"{label} {getattr(item, 'name', item)}".strip())
-    return done, failed
-
-
-def report_failures(failed: list, total: int, kind: str = "scene") -> None:
-    """After a run over several inputs: how many failed, and exit status 2 when any did."""
-    if failed:
-        err().print(f"{len(failed)} of {total} {kind}(s) failed", style="red")
-        sys.exit(2)
-
-
 #: Option types of the frame selection and cameras, shared by ``frames``, ``run`` and ``batch``.
 RATE = Number(float, gt=0, le=1000)
 MAX_FRAMES = Number(int, ge=1)
@@ -337,17 +336,72 @@ FOCAL = Number(float, gt=0)
 SEED = Number(int, ge=0, le=2**63 - 1)
 
 
+#: ``--set`` and ``--refine/--no-refine``: the reconstruction settings of every command that reconstructs.
+SET_OPTION = click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                          help="Override one reconstruction setting, e.g. --set tau=0.25 (repeatable).")
+REFINE_OPTION = click.option("--refine/--no-refine", default=None,
+                             help="Run the pose-prior refinement (default: the settings file's, else on).")
+
+
 def config_options(f):
     """``--config``, ``--set`` and ``--refine/--no-refine`` of the reconstruction settings."""
     for option in reversed([
         click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
                      help="TOML settings file, one table per settings object (mvm config prints one)."),
-        click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-                     help="Override one setting, e.g. --set tau=0.25 (repeatable)."),
-        click.option("--refine/--no-refine", default=None, help="Run the pose-prior refinement."),
+        SET_OPTION, REFINE_OPTION,
     ]):
         f = option(f)
     return f
+
+
+#: File suffixes that name an image or a video (lower case).
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".gif"})
+VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".avi", ".mov", ".mkv", ".webm", ".gif"})
+
+
+class OutputPath(click.ParamType):
+    """``-o``: the path of a command's main product. ``suffixes``: the file formats the command
+    writes (e.g. ``(".html",)``); ``folder``: a path without one of them is a folder. A name
+    with an image or video suffix the command does not write is refused in one line, rather
+    than becoming a folder named ``out.gif``."""
+
+    name = "path"
+
+    def __init__(self, suffixes: tuple[str, ...] = (), folder: bool = True, product: str = "a folder"):
+        self.suffixes, self.folder, self.product = tuple(suffixes), folder, product
+
+    def convert(self, value, param, ctx):
+        from pathlib import Path
+
+        path = str(value)
+        suffix = Path(path).suffix.lower()
+        if suffix in self.suffixes:
+            return path
+        if not self.folder or suffix in IMAGE_SUFFIXES | VIDEO_SUFFIXES:
+            kind = "a video" if suffix in VIDEO_SUFFIXES - IMAGE_SUFFIXES else "an image" if suffix else "no file type"
+            option = "-o" if "-o" in getattr(param, "opts", ()) else _option_name(param)
+            raise InputError(None, option, f"{path} names {kind}{f' ({suffix})' if suffix else ''}, "
+                                           f"but {command_name()} writes {self.product}")
+        return path
+
+
+def resolve_output_name(name: str | None, legacy: str | None, legacy_option: str, default: str = "mvm") -> str:
+    """The ``--output-name`` of a scene's output folder; ``legacy`` is the same given with the
+    deprecated ``legacy_option`` (a note on stderr says so). Both given and different: refused."""
+    if legacy is not None:
+        if name is not None and name != legacy:
+            raise InputError(None, legacy_option, f"contradicts --output-name {name!r}: give --output-name only")
+        click.echo(f"mvm: note: {legacy_option} of {command_name()} names the output folder inside the scene: it is "
+                   "deprecated, use --output-name (-o is the output path, as in every command)", err=True)
+    return name or legacy or default
+
+
+def output_name_options(f):
+    """``--output-name NAME`` (the scene's output folder) and its deprecated spelling ``--output``."""
+    f = click.option("--output", "legacy_output", default=None, hidden=True,
+                     help="Deprecated spelling of --output-name.")(f)
+    return click.option("--output-name", default=None, metavar="NAME",
+                        help="The scene's output folder holding poses3d.json [default: mvm].")(f)
 
 
 def command_name() -> str:

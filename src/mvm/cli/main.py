@@ -41,10 +41,16 @@ class _Commands(Group):
 @click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="mvm")
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
-def main(verbose: int) -> None:
+@click.pass_context
+def main(ctx: click.Context, verbose: int) -> None:
     """mvm: multi-person 3D human poses from many views of a static scene."""
+    from mvm.cli.process import install_signal_handlers, native_output_to_log
+
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)]
     logging.basicConfig(level=level, format="%(message)s", handlers=[LogHandler()])
+    install_signal_handlers()
+    if not verbose:               # COLMAP's, FFmpeg's and OpenCV's own lines go to the log, not the terminal
+        ctx.with_resource(native_output_to_log())
 
 
 def run() -> None:

@@ -5,18 +5,20 @@ Each command is a thin call of one library function; a bad input raises
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
-from mvm.cli.common import FOCAL, Number, command, each_isolated, refuse_unused, report_failures
+from mvm.cli.common import FOCAL, Number, OutputPath, command, progress, refuse_unused
 from mvm.cli.common import parse_sets as _parse_sets
+from mvm.cli.failures import each_isolated, report_failures
 from mvm.errors import InputError
 
 
 @command("export")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--out", "out_dir", required=True, type=OutputPath(product="a dataset directory"),
               help="Dataset directory to write (annotations.json, images/).")
 @click.option("--link", type=click.Choice(["symlink", "copy", "none"]), default="symlink", show_default=True,
               help="How the frames get into the dataset.")
@@ -34,6 +36,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import export_supervision
 
+    out_dir = Path(out_dir)
     check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
 
     def read(scene_dir):
@@ -86,7 +89,8 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
 
         click.echo(f"{plot_metrics(Path(cfg.out_dir) / 'metrics.jsonl', Path(cfg.out_dir) / 'curves.png')}")
         return
-    path = train(cfg, resume=resume)
+    with train_progress() as update:
+        path = train(cfg, resume=resume, progress=update)
     from mvm.io.checks import load_json_object
 
     meta = load_json_object(path.with_suffix(".json"))
@@ -98,6 +102,21 @@ def train_cmd(config: Path, sets: tuple[str, ...], resume: str | None, device: s
         click.echo("validation: " + ", ".join(f"{k} {'-' if v is None else f'{v:.4f}'}" for k, v in shown.items()))
         for name, reason in validation["missing"].items():
             click.echo(f"  {name}: missing ({reason})")
+
+
+@contextmanager
+def train_progress():
+    """A bar of training steps with the last logged loss; yields ``update(step, steps, losses)``."""
+    from rich.progress import TextColumn
+
+    with progress(TextColumn("{task.fields[loss]}")) as bar:
+        task = bar.add_task("training steps", total=None, loss="")
+
+        def update(step: int, steps: int, losses: dict | None) -> None:
+            fields = {"loss": f"loss {losses['total']:.4g}"} if losses and "total" in losses else {}
+            bar.update(task, completed=step, total=steps, **fields)
+
+        yield update
 
 
 def _check_train_output(cfg, config: Path, resume: str | None) -> None:
@@ -119,8 +138,8 @@ def _check_train_output(cfg, config: Path, resume: str | None) -> None:
 @click.argument("images", nargs=-1, required=True, type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--checkpoint", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="A checkpoint .pt written by mvm train (its .json beside it).")
-@click.option("--out", "out_dir", default="predictions", show_default=True,
-              type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--out", "out_dir", default="predictions", show_default=True,
+              type=OutputPath(product="a folder (predictions.json and overlays)"),
               help="Where predictions.json and the overlays go.")
 @click.option("--focal", "focal_px", default=None, type=FOCAL, help="Focal length in pixels (default: the long edge).")
 @click.option("--input-size", default=None, type=Number(int, ge=16, le=4096),   # mvm.net.predict.MAX_INPUT_SIZE
@@ -132,6 +151,7 @@ def predict_cmd(images: tuple[Path, ...], checkpoint: Path, out_dir: Path, focal
     """Multi-person 2D poses, relative depths and calibrated 3D poses of IMAGES."""
     from mvm.net.predict import predict
 
+    out_dir = Path(out_dir)
     results = predict(list(images), checkpoint, out_dir, input_size=input_size, focal_px=focal_px, device=device)
     for r in results:
         click.echo(f"{r['image']}: {len(r['persons'])} people")

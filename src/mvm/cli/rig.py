@@ -1,11 +1,14 @@
 """``mvm rig``: synchronized camera rigs (every instant a static scene)."""
 from __future__ import annotations
 
+import sys
+
 import click
 
 from mvm.cli.common import (
     Group,
     Number,
+    OutputPath,
     config_options,
     fmt,
     parse_sets,
@@ -112,7 +115,8 @@ def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
               help="Calibration: Calib.toml, a COLMAP model folder or a Panoptic calibration JSON "
                    "(default: found in RIG_DIR).")
 @click.option("--frames", default=None, metavar="START:STOP", help="Frame numbers to use, STOP excluded.")
-@click.option("--output", "-o", type=click.Path(file_okay=False), default=None,
+@click.option("--output", "-o", type=OutputPath(product="a folder (poses3d.jsonl, .trc files, recap.json)"),
+              default=None,
               help="Output folder (default RIG_DIR/mvm).")
 @click.option("--smoothing", type=click.Choice(["none", "butterworth", "savgol"]), default=None,
               help="Temporal smoothing of each track (default butterworth, cut-off 6 Hz or a fifth "
@@ -152,12 +156,9 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     r = recap_dict
     flags = r["joint_flags"]
     names = list(r["excluded_per_camera"])
-    print_table(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
-                f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
-                + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v),
-                ("keypoint", "error px", "views", *[f"excl. {n}" for n in names]),
-                [(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
-                  *[fmt(r["excluded_per_camera"][n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])])
+    print_rig_recap(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
+                    f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
+                    + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v), r)
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
@@ -167,3 +168,44 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
             + ", ".join(f"{n} {o:+d}" for n, o in r["sync_offsets"].items()))
     say(f"{'wrote' if why is not None else 'kept'} {outputs['poses3d']}, {len(outputs['tracks'])} .trc file(s), "
         f"{outputs['recap']}")
+
+
+#: What ``excl.`` means in the rig recap, said once under it.
+EXCLUDED_NOTE = "excl.: share of a camera's keypoints that triangulation excluded as outliers (RANSAC)"
+
+
+def print_rig_recap(title: str, r: dict) -> None:
+    """The recap of a rig reconstruction (``r``: its ``recap.json``): per keypoint the
+    reprojection error, the views and, per camera, the share excluded. Where one column per
+    camera does not fit the terminal (at 80 columns, more than 3 cameras), the table is split: per
+    keypoint the mean and the worst camera's share, then one row per camera. A pipe gets every
+    column (tab-separated lines)."""
+    from mvm.cli.common import is_terminal, out, table_fits
+
+    names = list(r["excluded_per_camera"])
+    per_camera = r["excluded_per_camera"]
+    columns = ("keypoint", "error px", "views", *[f"excl. {n}" for n in names])
+    rows = [(kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
+             *[fmt(per_camera[n][j]) for n in names]) for j, kp in enumerate(r["keypoints"])]
+    if not is_terminal(sys.stdout) or table_fits(columns, rows, out().width):
+        print_table(title, columns, rows, caption=EXCLUDED_NOTE)
+        return
+
+    def share(n, j):
+        value = per_camera[n][j]
+        return -1.0 if value is None else value
+
+    rows = []
+    for j, kp in enumerate(r["keypoints"]):
+        known = [per_camera[n][j] for n in names if per_camera[n][j] is not None]
+        worst = max(names, key=lambda n: share(n, j), default=None)
+        rows.append((kp, fmt(r["error_per_keypoint_px"][j]), fmt(r["views_per_keypoint"][j]),
+                     fmt(sum(known) / len(known) if known else None),
+                     "–" if worst is None or per_camera[worst][j] is None else f"{fmt(per_camera[worst][j])} {worst}"))
+    print_table(title, ("keypoint", "error px", "views", "excl. mean", "excl. most (camera)"), rows)
+    camera_rows = []
+    for n in names:
+        j = max(range(len(r["keypoints"])), key=lambda j: share(n, j))
+        camera_rows.append((n, fmt(r["excluded_overall_per_camera"][n]),
+                            "–" if per_camera[n][j] is None else f"{r['keypoints'][j]} {fmt(per_camera[n][j])}"))
+    print_table(None, ("camera", "excl. overall", "excl. most (keypoint)"), camera_rows, caption=EXCLUDED_NOTE)

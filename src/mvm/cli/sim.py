@@ -9,6 +9,7 @@ import click
 from mvm.cli.common import (
     SEED,
     Number,
+    OutputPath,
     command,
     config_options,
     fmt,
@@ -17,6 +18,7 @@ from mvm.cli.common import (
     read_config,
     refused,
     say,
+    stage_progress,
 )
 
 
@@ -90,7 +92,9 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         if render:
             from mvm.sim.mannequin_video import render_frames
 
-            render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed)
+            with stage_progress() as update:
+                render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed,
+                              progress=lambda done, total: update("rendering", done, total))
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"
     measure_table(f"mvm simulate ({preset})", [
         ("people", f"{len(truth.poses3d)} ({labels})"), ("frames", str(len(scene.cameras))),
@@ -142,7 +146,8 @@ def simulate_rig_cmd(rig_dir, preset, people, frames, seed, cameras, offsets, in
 
 @command("demo")
 @scene_options
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="mvm-demo",
+@click.option("-o", "--out", "out_dir", type=OutputPath(product="a folder (the scene and its ground truth)"),
+              default="mvm-demo",
               show_default=True, help="Where to write the simulated scene and its ground truth.")
 @click.option("--render", is_flag=True,
               help="Also render the frames into OUT/scene/frames (for mvm report, overlay, export and training).")
@@ -154,8 +159,8 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
     config = read_config(config_path, sets, refine=refine)
     sim = read_sim(config_path, people=people, frames=frames, arc_deg=arc_deg, seed=seed)
     t = time.perf_counter()
-    with refused(ValueError):
-        report = run_demo(Path(out_dir), sim, config, render=render)
+    with refused(ValueError), stage_progress() as update:
+        report = run_demo(Path(out_dir), sim, config, render=render, progress=update)
     measure_table(f"mvm demo: {sim.people} people, {sim.frames} frames, {sim.arc_deg:g}° tour (seed {sim.seed})", [
         ("persons found / true", f"{report['persons_found']} / {report['persons_true']}"),
         ("2D poses (false positives)", f"{report['poses']} ({report['false_poses']})"),
@@ -175,7 +180,8 @@ def demo_cmd(people, frames, arc_deg, seed, out_dir, render, config_path, sets, 
 
 @command("bench")
 @click.option("--quick", is_flag=True, help="Two tiny clips and short sweeps (seconds, for CI).")
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="benchmarks/results",
+@click.option("-o", "--out", "out_dir", type=OutputPath(product="a folder of tables and plots"),
+              default="benchmarks/results",
               show_default=True, help="Folder for paper_tables.md, clips.csv, sweeps.csv, matching_time.png.")
 @click.option("--refine/--no-refine", default=False, show_default=True, help="Run the pose-prior refinement.")
 @click.option("--trajectories", type=click.Path(file_okay=False, exists=True), default=None,

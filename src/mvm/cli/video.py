@@ -13,8 +13,11 @@ from mvm.cli.common import (
     FOCAL,
     MAX_FRAMES,
     RATE,
+    REFINE_OPTION,
+    SET_OPTION,
     WIDTH,
     Number,
+    OutputPath,
     command,
     err,
     measure_table,
@@ -64,6 +67,8 @@ detect_options = [
                  help="Frames given to the detector at once (default 4)."),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
                  help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
+    click.option("--input-size", type=Number(int, ge=16, le=4096), default=None,     # as mvm predict
+                 help="Long edge of mvm's network input, 16 to 4096 px (default: as trained)."),
     click.option("--import", "source", type=click.Path(), default=None,
                  help="Detections to import: COCO results/dataset JSON, OpenPifPaf or OpenPose directory "
                       "(a COCO results image_id is a frame's file name, or its 1-based position in frames.json)."),
@@ -101,14 +106,16 @@ def _frame_options(config_path, rate, max_frames, width, blur_ratio):
 
 
 def _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
-                    appearance):
+                    appearance, input_size=None):
     """The detection settings; when no detector is named (option or file), the installed one (rtmo)."""
     from mvm.video.detect import DetectOptions
     from mvm.video.detectors import available_detector
 
     options = _table(DetectOptions, "detect", config_path, detector=detector, model=model, person_model=person_model,
-                     mode=mode, device=device, batch_size=batch_size, appearance=appearance)
+                     mode=mode, device=device, batch_size=batch_size, appearance=appearance, input_size=input_size)
     detector = options.detector if options.detector != "import" else None
+    if input_size is not None and checkpoint is None:
+        raise InputError(None, "--input-size", "sizes mvm's network: goes with --checkpoint")
     if source is not None and (detector or checkpoint):
         raise InputError(None, "--import", "imported detections replace the detector: drop --detector/--checkpoint")
     if checkpoint is not None and detector not in (None, "mvm"):
@@ -151,7 +158,8 @@ def _sfm_rows(report):
 
 @command("frames")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+              help="The scene directory to write (frames/, frames.json).")
 @_options(frame_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if frames.json is up to date.")
@@ -180,10 +188,10 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
     """Estimate the camera of every frame of SCENE (writes SCENE/sparse)."""
     from mvm.video import sfm
 
-    with refused(ValueError):
+    with refused(ValueError), stage_progress() as update:
         if cameras is None:
             report = sfm.run_sfm(scene, _sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
-                                                     vocab_tree), force)
+                                                     vocab_tree), force, update)
         elif Path(cameras).is_dir():
             report = sfm.import_colmap(cameras, scene, force)
         else:
@@ -199,14 +207,14 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 @_options(detect_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json is up to date; replace one mvm did not make.")
-def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
-               config_path, force):
+def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
+               appearance, config_path, force):
     """2D poses and appearance of every frame of SCENE (writes SCENE/poses2d.json)."""
     from mvm.video.detect import detect_scene
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance)
+                                  source, appearance, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
@@ -220,28 +228,31 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 
 @command("run")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=click.Path(file_okay=False), required=True, help="Scene directory.")
+@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+              help="The scene directory to write (frames, cameras, 2D poses, mvm/poses3d.json).")
 @_options(frame_options + sfm_options + detect_options)
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM (COLMAP model directory or camera file).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [frames], [sfm], [detect] and [reconstruct] tables (mvm config "
                    "prints one); the options given here win.")
+@SET_OPTION
+@REFINE_OPTION
 @click.option("--metric/--no-metric", default=True, show_default=True,
               help="Scale the world to metres from the people's bone lengths.")
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
 def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, source, fmt, appearance,
-            cameras, config_path, metric, force):
+            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
+            appearance, cameras, config_path, sets, refine, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.video.run import run_video
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance)
+                                  source, appearance, input_size)
     with refused(ValueError):
-        config = read_config(config_path, ())
+        config = read_config(config_path, sets, refine=refine)
         with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras,

@@ -1,6 +1,7 @@
 """The built-in default: simulate a mannequin scene, reconstruct it, compare with the truth."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -36,10 +37,12 @@ def evaluate(result, truth) -> dict:
 
 
 def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None = None,
-             render: bool = False) -> dict:
+             render: bool = False, progress: Callable[[str, int, int | None], None] | None = None) -> dict:
     """Simulate into ``out_dir/scene`` (ground truth beside it), reconstruct, evaluate. With
     ``render`` the frames are rendered into ``out_dir/scene/frames`` too (for report, overlay,
-    export and training)."""
+    export and training). ``progress(stage, done, total)``: ``rendering`` frame by frame,
+    ``reconstructing`` at its start and end."""
+    tell = progress or (lambda stage, done, total: None)
     sim = sim or SimConfig()
     scene, truth = simulate(sim)
     scene_dir = Path(out_dir) / "scene"
@@ -47,8 +50,11 @@ def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None 
     if render:
         from mvm.sim.mannequin_video import render_frames
 
-        render_frames(scene_dir / "frames", scene.cameras, truth.poses3d, sim.seed)
+        render_frames(scene_dir / "frames", scene.cameras, truth.poses3d, sim.seed,
+                      progress=lambda done, total: tell("rendering", done, total))
+    tell("reconstructing", 0, 1)
     result = reconstruct_dir(scene_dir, config or Config())
+    tell("reconstructing", 1, 1)
     report = evaluate(result, truth)
     report.update(scene=str(scene_dir), poses3d=str(scene_dir / "mvm" / "poses3d.json"),
                   ground_truth=str(truth_path))

@@ -6,6 +6,10 @@ and Windows), and the directory is fsynced so that the rename survives a power l
 process killed at any point leaves the previous file (or none) and at most a stale
 temporary file, which :func:`remove_stale_temporaries` deletes on the next run.
 
+The temporary file is created private (``0600``) by :func:`tempfile.mkstemp`; before it is
+renamed into place it gets the mode a plain ``open`` would have given it, ``0666`` less the
+process umask (:func:`new_file_mode`), so that outputs are as readable as the user's umask says.
+
 Every operating-system error of a write (a read-only or immutable folder, a folder on the
 way that is a file, an output name taken by a folder, a full disk) is raised as one
 :class:`OutputError` line naming the path, exit status 2, and leaves no temporary file.
@@ -67,6 +71,31 @@ def make_dir(path: str | Path) -> Path:
     return path
 
 
+def process_umask() -> int:
+    """The process umask, read without changing it where ``/proc`` tells it (elsewhere set and
+    restored at once)."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def new_file_mode() -> int:
+    """The mode of a new file under the process umask: ``0644`` under umask ``022``."""
+    return 0o666 & ~process_umask()
+
+
+def new_dir_mode() -> int:
+    """The mode of a new folder under the process umask: ``0755`` under umask ``022``."""
+    return 0o777 & ~process_umask()
+
+
 def fsync_dir(directory: Path) -> None:
     """Make a rename in ``directory`` durable (POSIX; a no-op where directories cannot be opened)."""
     try:
@@ -92,9 +121,14 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
         raise OutputError(path, None, "cannot write: is a directory, expected a file")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}", suffix=suffix, dir=path.parent)
-        os.close(fd)
     except OSError as e:
         raise output_error(path, e) from None
+    try:
+        os.fchmod(fd, new_file_mode())             # mkstemp's 0600 would leak into the output
+    except (OSError, AttributeError):              # no fchmod (Windows): modes do not apply
+        pass
+    finally:
+        os.close(fd)
     try:
         yield Path(tmp)
         os.replace(tmp, path)

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from mvm.io.files import TEMPORARY_INFIX, OutputError, fsync_dir, make_dir, output_error
+from mvm.io.files import TEMPORARY_INFIX, OutputError, fsync_dir, make_dir, new_dir_mode, output_error
 
 try:
     import fcntl
@@ -125,13 +125,16 @@ def _mark_output(folder: Path) -> None:
 
 
 def make_temporary_dir(path: str | Path) -> Path:
-    """A fresh folder ``.NAME.mvm-tmp-RANDOM`` beside ``path`` carrying :data:`TEMPORARY_MARKER`."""
+    """A fresh folder ``.NAME.mvm-tmp-RANDOM`` beside ``path`` carrying :data:`TEMPORARY_MARKER`,
+    with the mode of a new folder under the process umask (``0755`` under ``022``), not
+    :func:`tempfile.mkdtemp`'s private ``0700``: it becomes the output folder."""
     path = Path(path)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}{TEMPORARY_INFIX}", dir=path.parent))
     except OSError as e:
         raise output_error(path, e) from None
     try:
+        os.chmod(tmp, new_dir_mode())
         (tmp / TEMPORARY_MARKER).touch()
     except OSError as e:
         shutil.rmtree(tmp, ignore_errors=True)

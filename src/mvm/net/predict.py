@@ -118,6 +118,13 @@ def check_input_size(size, source: str | Path | None, field: str) -> int:
     return size
 
 
+def trained_input_size(meta: dict, checkpoint: str | Path) -> int:
+    """The input size (long edge, px) the network of ``checkpoint`` was trained at, from its
+    metadata ``meta`` (385 where an old checkpoint does not say), checked."""
+    return check_input_size(meta.get("config", {}).get("input_size", 385), Path(checkpoint).with_suffix(".json"),
+                            "config.input_size")
+
+
 def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Path | None = None,
             input_size: int | None = None, focal_px: float | None = None,
             decoder: DecoderConfig = DecoderConfig(), device: str = "auto") -> list[dict]:
@@ -140,8 +147,7 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
     if input_size is not None:
         check_input_size(input_size, None, "--input-size")
     model, meta = load_model(checkpoint, device=str(select_device(device)))
-    size = input_size or check_input_size(meta.get("config", {}).get("input_size", 385),
-                                          Path(checkpoint).with_suffix(".json"), "config.input_size")
+    size = input_size or trained_input_size(meta, checkpoint)
     results = []
     out = Path(out_dir) if out_dir is not None else None
     for path in images:

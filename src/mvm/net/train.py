@@ -37,7 +37,9 @@ def train(config: TrainConfig, resume: str | Path | None = None, progress=None) 
         config: the run's settings.
         resume: a checkpoint ``.pt`` to continue from, ``"auto"`` for the latest complete one
             in ``config.out_dir`` (a fresh start when there is none), or None.
-        progress: optional callback ``progress(step, losses: dict)`` called every ``log_every`` steps.
+        progress: optional callback ``progress(step, steps, losses)`` after every step: the
+            steps done, the run's ``steps``, and the mean losses (a dict) every ``log_every``
+            steps and at the last one, else None.
 
     Under ``torchrun`` (``WORLD_SIZE`` > 1) every process trains a replica
     (DistributedDataParallel, ``batch_size`` images each); only rank 0 writes.
@@ -85,11 +87,12 @@ def _train(cfg: TrainConfig, resume, progress, dist: Distributed) -> Path:
                 LOG.info("time limit of %.0f s reached at step %d (%d steps this run)", cfg.max_seconds, step,
                          step - clock.start_step)
             last = step >= cfg.steps or out_of_time
+            mean = None
             if step % cfg.log_every == 0 or last:
                 mean = clock.flush()
                 _log_losses(log, step, cfg, mean, clock.rate(), optimizer)
-                if progress is not None:
-                    progress(step, mean)
+            if progress is not None:
+                progress(step, cfg.steps, mean)
             validation = None
             if cfg.val is not None and dist.main and (last or (cfg.val_every and step % cfg.val_every == 0)):
                 validation = validate(ema.state, cfg, device)

@@ -7,6 +7,7 @@ torso) and a disc (head), drawn far to near with OpenCV.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -204,11 +205,13 @@ def render_video(path: str | Path, config: RenderConfig = RenderConfig(),
 
 
 def render_frames(out_dir: str | Path, cameras: Cameras, poses3d: np.ndarray, seed: int = 0,
-                  config: RenderConfig = RenderConfig()) -> list[Path]:
+                  config: RenderConfig = RenderConfig(),
+                  progress: Callable[[int, int], None] | None = None) -> list[Path]:
     """Render the frame of every camera of a scene into ``out_dir`` under its camera name.
 
     ``poses3d: (G, 17, 3)`` in the cameras' world (metres, z up); the room of ``config``
-    surrounds them. Frames are written atomically; returns their paths.
+    surrounds them. Frames are written atomically; returns their paths. ``progress(done,
+    total)`` before the first frame and after each.
     """
     from mvm.io.files import atomic_write_bytes
 
@@ -218,6 +221,8 @@ def render_frames(out_dir: str | Path, cameras: Cameras, poses3d: np.ndarray, se
     shirts, trousers = rng.uniform(40, 230, (len(poses3d), 3)), rng.uniform(20, 120, (len(poses3d), 3))
     out_dir = Path(out_dir)
     paths = []
+    if progress:
+        progress(0, len(cameras))
     for v in range(len(cameras)):
         size = (int(cameras.size[v, 0]), int(cameras.size[v, 1]))
         image = render_room(cameras.K[v], cameras.R[v], cameras.centers[v], size, textures, config)
@@ -228,4 +233,6 @@ def render_frames(out_dir: str | Path, cameras: Cameras, poses3d: np.ndarray, se
         path = out_dir / cameras.names[v]
         atomic_write_bytes(path, data.tobytes())
         paths.append(path)
+        if progress:
+            progress(v + 1, len(cameras))
     return paths

@@ -75,8 +75,9 @@ class DetectOptions:
     min_score: float = setting(0.0, ge=0, le=1)
     #: Poses with fewer keypoints above ``keypoint_threshold`` are dropped. [keypoints]
     min_keypoints: int = setting(3, ge=0, le=17)
-    #: The mvm network's input (longer side); larger finds smaller people, slower. [px]
-    input_size: int = setting(641, ge=32, le=8192)
+    #: The mvm network's input (longer side); larger finds smaller people and costs the
+    #: square of it. None: the size the network was trained at (its checkpoint's JSON). [px]
+    input_size: int | None = setting(None, ge=16, le=4096)
     #: Where the detector runs: "cpu" or "cuda" (torch for "mvm", ONNX Runtime for the RTM
     #: detectors). [name]
     device: str = setting("cpu", choices=DEVICES)
@@ -195,6 +196,8 @@ def _detect_frames(scene: Path, names: list[str], detector: FrameDetector | None
     found = _Found([], [], [], [], np.zeros((len(names), 2)), np.ones(len(names), dtype=bool))
     need_images = detector is not None or options.appearance != "none"
     done = 0
+    if progress:
+        progress(0, len(names))                      # the bar shows before the first batch is done
     for indices, images in read_frames(scene, names, options.batch_size if detector else 1, warn=need_images):
         ok = [k for k, image in enumerate(images) if image is not None or not need_images]
         for k, image in enumerate(images):

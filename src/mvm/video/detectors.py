@@ -68,19 +68,23 @@ def _rtm_detector(options: DetectOptions) -> FrameDetector:
 def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDetector:
     """The network of ``mvm.net`` (imported lazily: torch is an optional dependency). The
     appearance pools the backbone's last feature map (the paper's "last conv layer") along
-    the limbs."""
+    the limbs. The network runs at ``options.input_size``, by default the size it was trained at."""
     try:
-        from mvm.net.evaluate import run_model
-        from mvm.net.predict import load_model
+        import torch
+
+        from mvm.net import evaluate
+        from mvm.net.predict import load_model, trained_input_size
     except ImportError as e:
         raise InputError(checkpoint, None, f"the pose network (mvm.net) is not available: {e}") from None
-    model, _ = load_model(checkpoint, device=options.device)
+    model, meta = load_model(checkpoint, device=options.device)
+    size = options.input_size or trained_input_size(meta, checkpoint)
     captured = {}
     model.backbone.register_forward_hook(lambda module, inputs, output: captured.__setitem__("features", output))
 
     def one(image: np.ndarray):
         rgb = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
-        poses, _, scale = run_model(model, rgb, options.input_size)
+        with torch.inference_mode():                 # no autograd bookkeeping at all
+            poses, _, scale = evaluate.run_model(model, rgb, size)
         kp, score = poses.keypoints, poses.score
         features = captured["features"][0].float().cpu().numpy()          # (C, h, w) of the letterboxed input
         boxed = kp.copy()
@@ -88,7 +92,8 @@ def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDe
         app = pool_features(features, boxed, model.spec.stride, options.keypoint_threshold)
         return kp, score, app
 
-    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device}
+    info = {"detector": "mvm", "models": [_model_info(Path(checkpoint), checkpoint)], "device": options.device,
+            "input_size": size}
     return FrameDetector(lambda frames: [one(f) for f in frames], info)
 
 

@@ -13,6 +13,7 @@ The URLs are the ones RTMLib (``rtmlib.tools.solution.body.Body``) uses.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
@@ -30,7 +31,7 @@ from urllib.request import urlopen
 
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file
-from mvm.io.files import OutputError, make_dir, output_error
+from mvm.io.files import OutputError, make_dir, new_file_mode, output_error
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +116,8 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    with contextlib.suppress(OSError, AttributeError):
+        os.fchmod(fd, new_file_mode())                 # the umask's mode, not mkstemp's 0600
     digest = hashlib.sha256()
     try:
         with os.fdopen(fd, "wb") as out, urlopen(url, timeout=timeout_s) as response:

@@ -252,7 +252,7 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
     t = time.perf_counter()
     again = step("sfm")
     if cameras is None:
-        report.sfm = run_sfm(scene, sfm_options, force=again)
+        report.sfm = run_sfm(scene, sfm_options, force=again, progress=progress)
     elif Path(cameras).is_dir():
         report.sfm = import_colmap(cameras, scene, force=again)
     else:

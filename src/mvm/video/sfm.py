@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import tempfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -161,8 +162,10 @@ def _match_features(database: Path, frames: int, options: SfmOptions) -> None:
                               device=pycolmap.Device.cpu)
 
 
-def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions):
-    """Incremental mapping -> the model that registers the most frames."""
+def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions,
+         registered: Callable[[int], None] | None = None):
+    """Incremental mapping -> the model that registers the most frames. ``registered(count)``
+    after the initial pair and after each frame added to the model."""
     import pycolmap
 
     mapping = pycolmap.IncrementalPipelineOptions()
@@ -171,8 +174,18 @@ def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions):
     mapping.ba_refine_focal_length = options.refine_focal or options.focal_px is None
     mapping.ba_refine_extra_params = options.camera_model not in ("SIMPLE_PINHOLE", "PINHOLE")
     mapping.multiple_models = False
+    count = 0
+
+    def added(frames: int) -> Callable[[], None]:
+        def call() -> None:
+            nonlocal count
+            count += frames
+            registered(count)
+        return call
+
+    callbacks = {"initial_image_pair_callback": added(2), "next_image_callback": added(1)} if registered else {}
     with tempfile.TemporaryDirectory(dir=work) as tmp:
-        models = pycolmap.incremental_mapping(database, frames_dir, tmp, mapping)
+        models = pycolmap.incremental_mapping(database, frames_dir, tmp, mapping, **callbacks)
     if not models:
         raise InputError(frames_dir, None, "SfM found no model: too few matched features "
                                            "(more texture, more frames or a higher max_features)")
@@ -216,7 +229,12 @@ def _replace_model(scene: Path, write) -> None:
     (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
 
 
-def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool = False) -> SfmReport:
+#: The stages of :func:`run_sfm` as its ``progress`` names them.
+SFM_STAGES = ("sfm: features", "sfm: matching", "sfm: registered frames")
+
+
+def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool = False,
+            progress: Callable[[str, int, int | None], None] | None = None) -> SfmReport:
     """Estimate the camera of every frame of ``scene/frames`` and write ``scene/sparse``.
 
     Kept when ``scene/sfm/report.json``'s record (``report.inputs.json``) says it was made from
@@ -224,6 +242,9 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     made again. A model in ``scene/sparse`` that mvm did not make, or imported cameras, is
     never replaced without ``force`` (one :class:`InputError` line). Frames that do not
     register are listed in the report and logged as a warning.
+    ``progress(stage, done, total)``: each of :data:`SFM_STAGES` starts (0 done) and ends
+    (total done; features and matching have no count in between), and the mapping counts
+    every frame it registers out of the frames.
     """
     import time
 
@@ -252,12 +273,19 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     database = work / "database.db"
     database.unlink(missing_ok=True)
     seconds = {}
+    features, matching, mapping = SFM_STAGES
+    tell = progress or (lambda stage, done, total: None)
     t = time.perf_counter()
+    tell(features, 0, None)
     _extract_features(database, frames_dir, names, options)
+    tell(features, len(names), len(names))
     seconds["features"], t = time.perf_counter() - t, time.perf_counter()
+    tell(matching, 0, None)
     _match_features(database, len(names), options)
+    tell(matching, len(names), len(names))
     seconds["matching"], t = time.perf_counter() - t, time.perf_counter()
-    rec = _map(database, frames_dir, work, options)
+    tell(mapping, 0, len(names))
+    rec = _map(database, frames_dir, work, options, lambda count: tell(mapping, count, len(names)))
     seconds["mapping"] = time.perf_counter() - t
     _replace_model(scene, lambda tmp: rec.write_binary(str(tmp)))
     report = _report(rec, names, "colmap")
