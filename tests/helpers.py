@@ -79,3 +79,21 @@ def tiny_network(folder: Path, input_size: int = 64, steps: int = 2):
     result = CliRunner().invoke(train_cmd, [str(config)])
     assert result.exit_code == 0, result.output
     return folder / "run" / f"checkpoint-{steps:07d}.pt", sorted((folder / "data" / "images").iterdir())
+
+
+def run_at_once(args: list[str], runs: int = 3) -> list[int]:
+    """Start ``mvm ARGS`` ``runs`` times at once and wait for them: each must end either done
+    (exit 0) or refused in one line because another run holds the output's lock (exit 2).
+    Returns the exit statuses."""
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-c", "from mvm.cli.main import run; run()", *map(str, args)]
+    processes = [subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                 for _ in range(runs)]
+    for p in processes:
+        p.wait(300)
+        errors = p.stderr.read().strip().splitlines()
+        assert p.returncode == 0 or (p.returncode == 2 and len(errors) == 1
+                                     and "another mvm run is writing" in errors[0]), errors
+    return [p.returncode for p in processes]
