@@ -178,3 +178,23 @@ def test_a_member_without_a_name_is_refused(tmp_path, cache):
     archive = _zip(tmp_path / "m.zip", [(zipfile.ZipInfo(""), b"x"), ("m.onnx", MODEL)])
     with pytest.raises(InputError, match="empty name"):
         resolve_model(SPEC, archive)
+
+
+def test_a_cached_model_or_its_digest_that_is_not_a_regular_file_is_one_line(tmp_path):
+    """A FIFO (or a folder) in the cache where a model or its ``.sha256`` should be never hangs
+    the run: one line naming it."""
+    import os
+
+    from mvm.errors import InputError
+    from mvm.video.models import verify_cached
+
+    fifo = tmp_path / "model.onnx"
+    os.mkfifo(fifo)
+    with pytest.raises(InputError, match="model.onnx") as e:
+        verify_cached(fifo)
+    assert "\n" not in str(e.value)
+    model = tmp_path / "other.onnx"
+    model.write_bytes(b"weights")
+    (tmp_path / "other.onnx.sha256").mkdir()
+    with pytest.raises(InputError, match=r"other\.onnx\.sha256"):
+        verify_cached(model)

@@ -30,7 +30,7 @@ from urllib.error import URLError
 from urllib.request import urlopen
 
 from mvm.errors import InputError
-from mvm.io.checks import check_input_file
+from mvm.io.checks import check_input_file, read_text
 from mvm.io.files import OutputError, make_dir, new_file_mode, output_error
 
 log = logging.getLogger(__name__)
@@ -97,9 +97,10 @@ def cache_dir() -> Path:
 
 
 def sha256(path: str | Path) -> str:
-    """Hex SHA-256 of a file."""
+    """Hex SHA-256 of a file (a regular file of bounded size, :func:`mvm.io.checks.check_input_file`,
+    else an :class:`InputError`: a FIFO or a device in the cache never hangs the run)."""
     digest = hashlib.sha256()
-    with open(path, "rb") as f:
+    with open(check_input_file(path), "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
@@ -159,7 +160,8 @@ def verify_cached(path: Path, expected_sha256: str | None = None) -> str:
     """The SHA-256 of a cached file, checked against ``expected_sha256`` and the digest
     recorded at its download; a mismatch is an :class:`InputError` that says to delete it."""
     digest = sha256(path)
-    recorded = _sidecar(path).read_text().strip() if _sidecar(path).is_file() else None
+    sidecar = _sidecar(path)
+    recorded = read_text(sidecar).strip() if sidecar.exists() or sidecar.is_symlink() else None
     for want in (expected_sha256, recorded):
         if want and not digest.startswith(want.lower()):
             raise InputError(path, None, f"checksum mismatch (SHA-256 {digest[:16]}…, expected {want[:16]}…): "
