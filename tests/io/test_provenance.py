@@ -95,3 +95,25 @@ def test_readers_refuse_a_stale_output_in_one_line(tmp_path):
         check_fresh(out, {"poses2d.json": source}, "mvm reconstruct S")
     assert str(e.value) == (f"{out}: out of date: poses2d.json changed since the reconstruction: "
                             "run `mvm reconstruct S` first")
+
+
+@pytest.mark.parametrize("kind", ["fifo", "folder", "garbage", "not an object", "other format", "huge"])
+def test_a_record_that_cannot_be_read_is_no_record(tmp_path, kind):
+    """A record that is a FIFO (never read: no hang), a folder, not JSON, of another format or
+    larger than a record can be makes its output out of date, never a traceback."""
+    from mvm.io.provenance import RECORD_MAX_BYTES, read_record, record_path, why_redo
+
+    output = tmp_path / "poses3d.json"
+    output.write_text("{}")
+    record = record_path(output)
+    if kind == "fifo":
+        os.mkfifo(record)
+    elif kind == "folder":
+        record.mkdir()
+    else:
+        record.write_bytes({"garbage": b"\xff{", "not an object": b"[1, 2]",
+                            "other format": b'{"format": "x", "inputs": {}}',
+                            "huge": b'{"format": "mvm.inputs/1", "inputs": {}, "pad": "' + b"x" * RECORD_MAX_BYTES
+                            + b'"}'}[kind])
+    assert read_record(output) is None
+    assert why_redo(output, {}, None, "the output") is not None

@@ -32,10 +32,12 @@ from pathlib import Path
 import orjson
 
 from mvm.errors import InputError
-from mvm.io.checks import check_input_file
+from mvm.io.checks import check_input_file, read_bytes
 from mvm.io.files import atomic_write_json
 
 RECORD_FORMAT = "mvm.inputs/1"
+#: The largest record read back (one holds a few hashes and the settings). [bytes]
+RECORD_MAX_BYTES = 2**20
 #: Suffix of a record beside its output: ``poses2d.json`` -> ``poses2d.inputs.json``.
 RECORD_SUFFIX = ".inputs.json"
 #: The fingerprint of an input that is not there.
@@ -148,9 +150,11 @@ def read_record(output: str | Path) -> dict | None:
     """The record of ``output``, or None when there is none or it cannot be read (an output
     without a usable record is never up to date)."""
     path = record_path(output)
+    if not (path.exists() or path.is_symlink()):
+        return None
     try:
-        data = orjson.loads(path.read_bytes())
-    except (OSError, orjson.JSONDecodeError):
+        data = orjson.loads(read_bytes(path, limit=RECORD_MAX_BYTES))   # a FIFO or a huge file: no record
+    except (InputError, orjson.JSONDecodeError):
         return None
     if not isinstance(data, dict) or data.get("format") != RECORD_FORMAT or not isinstance(data.get("inputs"), dict):
         return None
