@@ -97,3 +97,18 @@ def run_at_once(args: list[str], runs: int = 3) -> list[int]:
         assert p.returncode == 0 or (p.returncode == 2 and len(errors) == 1
                                      and "another mvm run is writing" in errors[0]), errors
     return [p.returncode for p in processes]
+
+
+def coco_results(truth, rng, noise_px: float = 0.5, scale: float = 1.0, skip: int = 0) -> list[dict]:
+    """The projected true joints (+ noise) of every frame, COCO results by file name
+    (``scale``: in pixels of frames that size; ``skip``: leave out the first persons)."""
+    results = []
+    cams = truth.cameras
+    for v, name in enumerate(cams.names):
+        X = np.concatenate([truth.poses3d, np.ones(truth.poses3d.shape[:2] + (1,))], axis=2) @ cams.P[v].T
+        uv = (X[..., :2] / X[..., 2:] + rng.normal(0, noise_px, X[..., :2].shape)) * scale
+        for g in range(skip, len(uv)):
+            kp = np.concatenate([uv[g], np.full((17, 1), 0.9)], axis=1)
+            results.append({"image_id": name, "category_id": 1, "keypoints": kp.reshape(-1).round(3).tolist(),
+                            "score": 0.9})
+    return results

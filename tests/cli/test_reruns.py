@@ -17,22 +17,9 @@ from mvm.io.colmap import write_colmap
 from mvm.io.provenance import fingerprint, read_record
 from mvm.sim.mannequin_video import RenderConfig, render_video
 
+from helpers import coco_results
+
 CONFIG = RenderConfig(frames=8, width=240, height=136, focal_px=200.0, seed=3)
-
-
-def coco_results(truth, rng, noise_px: float = 0.5, scale: float = 1.0, skip: int = 0) -> list[dict]:
-    """The projected true joints (+ noise) of every frame, COCO results by file name
-    (``scale``: in pixels of frames that size; ``skip``: leave out the first persons)."""
-    results = []
-    cams = truth.cameras
-    for v, name in enumerate(cams.names):
-        X = np.concatenate([truth.poses3d, np.ones(truth.poses3d.shape[:2] + (1,))], axis=2) @ cams.P[v].T
-        uv = (X[..., :2] / X[..., 2:] + rng.normal(0, noise_px, X[..., :2].shape)) * scale
-        for g in range(skip, len(uv)):
-            kp = np.concatenate([uv[g], np.full((17, 1), 0.9)], axis=1)
-            results.append({"image_id": name, "category_id": 1, "keypoints": kp.reshape(-1).round(3).tolist(),
-                            "score": 0.9})
-    return results
 
 
 @pytest.fixture(scope="module")

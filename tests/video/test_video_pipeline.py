@@ -12,23 +12,11 @@ from mvm.io.colmap import read_colmap
 from mvm.metrics.poses import similarity_transform
 from mvm.sim.mannequin_video import RenderConfig, render_video
 
+from helpers import coco_results
+
 FRAMES = 40
 
 pytestmark = pytest.mark.slow                          # SfM of the rendered clip: about 30 s
-
-
-def coco_results(truth, rng, noise_px: float = 0.5) -> list[dict]:
-    """Projected true joints (+ noise) of every frame, COCO results keyed by file name."""
-    results = []
-    cams = truth.cameras
-    for v, name in enumerate(cams.names):
-        X = np.concatenate([truth.poses3d, np.ones(truth.poses3d.shape[:2] + (1,))], axis=2) @ cams.P[v].T
-        uv = X[..., :2] / X[..., 2:] + rng.normal(0, noise_px, X[..., :2].shape)
-        for g in range(len(uv)):
-            kp = np.concatenate([uv[g], np.full((17, 1), 0.9)], axis=1)
-            results.append({"image_id": name, "category_id": 1, "keypoints": kp.reshape(-1).round(3).tolist(),
-                            "score": 0.9})
-    return results
 
 
 @pytest.fixture(scope="module")
