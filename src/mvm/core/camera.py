@@ -84,39 +84,37 @@ def undistort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fish
     """Undo the lens of one camera: distorted pixels ``xy: (..., 2)`` -> ``(..., 2)`` pixels of the
     pinhole camera ``K: (3, 3)`` (NaN stays NaN). OpenCV's iterative inversion
     (:data:`UNDISTORT_CRITERIA`)."""
-    xy = np.asarray(xy, dtype=float)
-    if not has_lens(distortion):
-        return xy.copy()
-    distortion = np.asarray(distortion, dtype=float).reshape(-1)
-    points, finite = _finite_rows(xy)
-    out = np.full(xy.shape, np.nan)
-    if len(points):
+    def move(points: np.ndarray, d: np.ndarray) -> np.ndarray:
         flat = points.reshape(-1, 1, 2)
         if fisheye:
-            moved = cv2.fisheye.undistortPoints(flat, K, distortion, P=K)
-        else:
-            moved = cv2.undistortPoints(flat, K, distortion, R=None, P=K, criteria=UNDISTORT_CRITERIA)
-        out[finite] = moved.reshape(-1, 2)
-    return out
+            return cv2.fisheye.undistortPoints(flat, K, d, P=K)
+        return cv2.undistortPoints(flat, K, d, R=None, P=K, criteria=UNDISTORT_CRITERIA)
+
+    return _through_lens(xy, distortion, move)
 
 
 def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fisheye: bool = False) -> np.ndarray:
     """Apply the lens of one camera (the inverse of :func:`undistort`): pixels of the pinhole
     camera ``K: (3, 3)``, ``xy: (..., 2)`` -> distorted pixels ``(..., 2)`` (NaN stays NaN)."""
+    def move(points: np.ndarray, d: np.ndarray) -> np.ndarray:
+        rays = (np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.linalg.inv(K).T).reshape(-1, 1, 3)
+        zero = np.zeros(3)
+        project_points = cv2.fisheye.projectPoints if fisheye else cv2.projectPoints
+        return project_points(rays, zero, zero, K, d)[0]
+
+    return _through_lens(xy, distortion, move)
+
+
+def _through_lens(xy: np.ndarray, distortion: np.ndarray | None, move) -> np.ndarray:
+    """``move(points: (n, 2), distortion) -> (n, 1, 2)`` applied to the finite points of
+    ``xy: (..., 2)`` (NaN stays NaN); a copy of ``xy`` when the camera has no lens."""
     xy = np.asarray(xy, dtype=float)
     if not has_lens(distortion):
         return xy.copy()
-    distortion = np.asarray(distortion, dtype=float).reshape(-1)
     points, finite = _finite_rows(xy)
     out = np.full(xy.shape, np.nan)
     if len(points):
-        rays = np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.linalg.inv(K).T
-        zero = np.zeros(3)
-        if fisheye:
-            moved, _ = cv2.fisheye.projectPoints(rays.reshape(-1, 1, 3), zero, zero, K, distortion)
-        else:
-            moved, _ = cv2.projectPoints(rays.reshape(-1, 1, 3), zero, zero, K, distortion)
-        out[finite] = moved.reshape(-1, 2)
+        out[finite] = move(points, np.asarray(distortion, dtype=float).reshape(-1)).reshape(-1, 2)
     return out
 
 
