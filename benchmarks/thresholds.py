@@ -92,10 +92,27 @@ def oracle_config(config: Config) -> Config:
     return config.replace(refine=False, ransac_hypotheses=EXHAUSTIVE, merge_distance=0.0)
 
 
+class _Tally:
+    """One method's scores summed over the draws: persons found, true and spurious, and the
+    joint errors of the persons found."""
+
+    def __init__(self):
+        self.found = self.total = self.spurious = 0
+        self.errors: list[float] = []
+
+    def add(self, found: int, total: int, spurious: int, errors: list[float]) -> None:
+        self.found, self.total, self.spurious = self.found + found, self.total + total, self.spurious + spurious
+        self.errors += errors
+
+    def summary(self, draws: int) -> dict:
+        return {"recall": self.found / max(self.total, 1), "spurious": self.spurious / draws,
+                "mpjpe_mm": 1000 * float(np.mean(self.errors)) if self.errors else float("nan")}
+
+
 def rig_case(sample, n_cameras: int, errors: DetectorErrors, seeds: int, configs) -> dict:
     index = spread_cameras(sample.calibration.cameras, n_cameras)
     cameras = sample.calibration.cameras.subset(index)
-    out = {name: [[], [], 0, 0, 0] for name, _ in configs}
+    out = {name: _Tally() for name, _ in configs}
     for seed in range(seeds):
         poses, person = rig_detections(sample, index, seed, errors)
         for name, config in configs:
@@ -110,18 +127,12 @@ def rig_case(sample, n_cameras: int, errors: DetectorErrors, seeds: int, configs
             else:
                 persons = reconstruct_instants(cameras, poses, config, workers=1)
                 estimates = [persons.X[persons.instant == t] for t in range(len(sample.poses))]
-            found, total, spurious, errs = _score(estimates, sample.poses)
-            row = out[name]
-            row[0] += errs
-            row[2] += found
-            row[3] += total
-            row[4] += spurious
-    return {name: {"recall": r[2] / max(r[3], 1), "spurious": r[4] / seeds,
-                   "mpjpe_mm": 1000 * float(np.mean(r[0])) if r[0] else float("nan")} for name, r in out.items()}
+            out[name].add(*_score(estimates, sample.poses))
+    return {name: tally.summary(seeds) for name, tally in out.items()}
 
 
 def crowd_case(seeds: int, configs) -> dict:
-    out = {name: [[], 0, 0, 0] for name, _ in configs}
+    out = {name: _Tally() for name, _ in configs}
     for seed in range(seeds):
         scene, truth = simulate(crowd_config(seed))
         for name, config in configs:
@@ -134,14 +145,8 @@ def crowd_case(seeds: int, configs) -> dict:
                 X = np.array(X).reshape(-1, 17, 3)
             else:
                 X = reconstruct(scene, config).persons.keypoints3d
-            found, total, spurious, errs = _score([X], [truth.poses3d])
-            row = out[name]
-            row[0] += errs
-            row[1] += found
-            row[2] += total
-            row[3] += spurious
-    return {name: {"recall": r[1] / max(r[2], 1), "spurious": r[3] / seeds,
-                   "mpjpe_mm": 1000 * float(np.mean(r[0])) if r[0] else float("nan")} for name, r in out.items()}
+            out[name].add(*_score([X], [truth.poses3d]))
+    return {name: tally.summary(seeds) for name, tally in out.items()}
 
 
 def main() -> int:
