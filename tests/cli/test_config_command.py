@@ -175,3 +175,14 @@ def test_an_option_given_wins_over_the_file(tmp_path):
     path.write_text("[simulate]\npeople = 9\nframes = 50\n[simulate.detector]\ndropout = 0.2\n")
     assert read_sim(str(path), "clean", frames=30) == SimConfig.preset("clean", people=9, frames=30, dropout=0.2)
     assert read_sim(None) == SimConfig()
+
+
+def test_check_of_a_fifo_a_folder_or_a_missing_file_is_one_line(tmp_path):
+    import os
+
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    for path, problem in ((fifo, "FIFO"), (tmp_path, "folder"), (tmp_path / "none.toml", "not found")):
+        result = CliRunner().invoke(main, ["config", "--check", str(path)])
+        assert result.exit_code == 2 and result.stderr.count("\n") == 1, result.output
+        assert str(path) in result.stderr and problem in result.stderr, result.stderr

@@ -147,6 +147,11 @@ def test_simulate_rig_command(tmp_path):
     assert read_rig(tmp_path / "r", extrinsics=False).calibration.cameras.names == ("cam_01", "cam_02", "cam_03")
     _one_line_exit_2(_invoke(simulate_cmd, [tmp_path / "s", "--rig", "--cameras", 3, "--offsets", "0,2"]),
                      "--offsets", "3 numbers")
+    _one_line_exit_2(_invoke(simulate_cmd, [tmp_path / "s", "--rig", "--cameras", 3, "--offsets", "0,x,1"]),
+                     "--offsets", "whole numbers")
+    _one_line_exit_2(_invoke(simulate_cmd, [tmp_path / "s", "--rig", "--cameras", 3, "--frames", 20,
+                                            "--offsets", "0,10" + "0" * 30 + ",1"]), "offsets")
+    assert not (tmp_path / "s").exists()
 
 
 def test_read_rig_applies_sync_toml_in_the_reference_numbering(tmp_path):

@@ -7,7 +7,7 @@ from mvm.cli.common import command
 
 
 @command("config")
-@click.option("--check", "check", type=click.Path(dir_okay=False), default=None, metavar="FILE.toml",
+@click.option("--check", "check", type=click.Path(), default=None, metavar="FILE.toml",
               help="Check this settings file (tables, keys, types and ranges) without running anything.")
 def config_cmd(check: str | None) -> None:
     """Print every setting of every command with its default, unit and allowed values, as a
