@@ -73,3 +73,22 @@ def test_poses3d_has_every_field(tmp_path, bank_poses):
     assert set(document["metrics"]) >= {"E_R_px", "outliers", "G_k", "persons", "matched_poses", "unmatched_poses"}
     text = (tmp_path / "s" / "mvm" / "poses3d.json").read_text()
     assert "NaN" not in text and "Infinity" not in text
+
+
+def test_folder_where_a_file_is_wanted_is_one_line(tmp_path):
+    """click's own path checks (a folder given for a file option or argument, a missing file that
+    must exist) end in mvm's one line naming the option, not a three-line usage message."""
+    folder = tmp_path / "a folder"
+    folder.mkdir()
+    cases = [
+        (["rig", "calibrate", str(tmp_path), "--from-people", "-o", str(folder)], "--output"),
+        (["reconstruct", str(tmp_path), "--config", str(folder)], "--config"),
+        (["frames", str(folder)], "VIDEO"),
+        (["simulate", str(tmp_path / "s"), "--trajectory", str(tmp_path / "missing.txt")], "--trajectory"),
+    ]
+    for args, name in cases:
+        r = CliRunner().invoke(main, args)
+        lines = r.stderr.strip().splitlines()
+        assert r.exit_code == 2, (args, r.output)
+        assert len(lines) == 1 and lines[0].startswith(f"mvm: error: {name}: "), (args, lines)
+    assert not any(folder.iterdir())

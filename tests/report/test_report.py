@@ -279,3 +279,29 @@ def test_report_is_never_written_over_or_among_the_scenes_inputs(scene_dir, tmp_
             write_report(scene_dir, path=path)
         assert (path.read_bytes() if path.is_file() else None) == before
     assert write_report(scene_dir, path=tmp_path / "r.html").is_file()
+
+
+def test_summary_never_replaces_what_mvm_did_not_write(tmp_path, scene_dir):
+    """A user's own summary.html, a folder or a link of that name stays as it is, refused in one
+    line; mvm's own page is rewritten."""
+    from mvm.io.files import OutputError
+
+    root = tmp_path / "data"
+    root.mkdir(exist_ok=True)
+    page = root / "summary.html"
+    page.write_text("<html>my notes</html>")
+    with pytest.raises(OutputError, match="not a summary page mvm wrote"):
+        write_summary(root, [scene_dir])
+    assert page.read_text() == "<html>my notes</html>"
+    page.unlink()
+    page.mkdir()
+    with pytest.raises(OutputError, match="not a file"):
+        write_summary(root, [scene_dir])
+    page.rmdir()
+    page.symlink_to(tmp_path / "elsewhere.html")
+    with pytest.raises(OutputError, match="not a file"):
+        write_summary(root, [scene_dir])
+    assert not (tmp_path / "elsewhere.html").exists()
+    page.unlink()
+    first = write_summary(root, [scene_dir]).read_text()
+    assert write_summary(root, [scene_dir]).read_text() == first

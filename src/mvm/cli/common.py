@@ -37,6 +37,16 @@ class _OneLineErrors:
         except InputError as e:
             refuse(e)
 
+    def make_context(self, info_name, args, parent=None, **extra):
+        """A path argument or option that click refuses (a folder where a file is wanted, a file
+        that must exist and does not) is bad input too: one line naming the option and the path."""
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.BadParameter as e:
+            if e.param is None or not isinstance(e.param.type, click.Path):
+                raise
+            raise InputError(None, _option_name(e.param), e.message.rstrip(".")) from None
+
     def invoke(self, ctx):
         try:
             return super().invoke(ctx)

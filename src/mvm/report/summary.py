@@ -11,12 +11,13 @@ from urllib.parse import quote
 
 from mvm.errors import InputError
 from mvm.io.checks import load_json
-from mvm.io.files import atomic_write_text
+from mvm.io.files import OutputError, atomic_write_text
 from mvm.report.page import REPORT_NAME
 
 log = logging.getLogger(__name__)
 
 SUMMARY_NAME = "summary.html"
+_TITLE = b"<title>mvm summary: "
 _COLUMNS = (("persons", "persons", 0), ("matched_poses", "matched", 0), ("unmatched_poses", "unmatched", 0),
             ("E_R_px", "E<sub>R</sub> px", 2), ("outliers", "outliers", 1), ("G_k", "|G<sub>k</sub>|", 1))
 
@@ -68,13 +69,27 @@ td,th{{border-bottom:1px solid #eee;padding:4px 12px;text-align:right}}td:first-
     return html, linked
 
 
+def _check_replaceable(path: Path) -> None:
+    """Refuse, in one line, to replace at ``path`` anything but a summary page mvm wrote: a
+    folder, a link, a FIFO or a user's own file of that name."""
+    if not os.path.lexists(path):
+        return
+    if path.is_symlink() or not path.is_file():
+        raise OutputError(path, None, "exists and is not a file: move it away, the summary page is written here")
+    with open(path, "rb") as f:
+        head = f.read(512)
+    if _TITLE not in head:
+        raise OutputError(path, None, "is not a summary page mvm wrote: move it away, the summary page is written here")
+
+
 def write_summary(root: str | Path, scene_dirs, output: str = "mvm") -> Path:
     """Write ``<root>/summary.html`` linking the report of every scene in ``scene_dirs`` that has
     one (scenes without a report are listed, unlinked). Returns the page's path."""
     root = Path(root)
     scenes = [Path(s) for s in scene_dirs]
-    html, linked = summary_html(root, scenes, output)
     path = root / SUMMARY_NAME
+    _check_replaceable(path)
+    html, linked = summary_html(root, scenes, output)
     atomic_write_text(path, html)
     log.info("%s: %d scenes, %d reports linked", path, len(scenes), linked)
     return path
