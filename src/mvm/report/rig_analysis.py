@@ -57,7 +57,8 @@ def keypoint_errors(X: np.ndarray, flags: np.ndarray, detection: np.ndarray, key
     return np.where(ok, error, np.nan).reshape(Q, V, J)
 
 
-def grouped_quantile(values: np.ndarray, group: np.ndarray, groups: int, q: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+def grouped_quantile(values: np.ndarray, group: np.ndarray, groups: int,
+                     q: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """The ``q`` quantile (linear interpolation, as :func:`numpy.quantile`) of the finite
     ``values: (n,)`` of each group ``group: (n,)`` in ``[0, groups)``: ``(groups,)`` (NaN for an
     empty group) and the count of each ``(groups,)``. One sort, no loop over groups."""
@@ -133,8 +134,8 @@ def dense_track(values: np.ndarray, instant: np.ndarray, track: np.ndarray, trac
     ``(instants (L,), (L, ...))`` with ``fill`` where the track was not seen."""
     rows = np.flatnonzero(np.asarray(track) == track_id)
     t0, t1 = int(instant[rows].min()), int(instant[rows].max())
-    out = np.full((t1 - t0 + 1,) + np.shape(values)[1:], fill, dtype=np.asarray(values).dtype
-                  if fill is not np.nan else float)
+    values = np.asarray(values)
+    out = np.full((t1 - t0 + 1,) + values.shape[1:], fill, dtype=np.result_type(values.dtype, np.asarray(fill)))
     out[instant[rows] - t0] = values[rows]
     return np.arange(t0, t1 + 1), out
 

@@ -22,7 +22,7 @@ from mvm.errors import InputError
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
 from mvm.report.analysis import person_colors
 from mvm.report.overlay import _cv2, _write_video, draw_overlay
-from mvm.report.rig_load import POSES3D, RECAP, RigReportData, VIDEOS, load_rig_result, rig_videos
+from mvm.report.rig_load import POSES3D, RECAP, VIDEOS, RigReportData, load_rig_result, rig_videos
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
 

@@ -102,9 +102,9 @@ def rig_view_payload(fig: RigFigures) -> dict:
     xyz = np.where(np.isfinite(flat), flat, None).tolist()
     flags = ["".join(map(str, row)) for row in np.asarray(p.flags, dtype=int).tolist()]
     bounds = np.searchsorted(p.instant, np.arange(len(p.frames) + 1))
-    instants = [{"frame": int(f), "persons": [{"id": int(p.track[q]), "color": fig.colors[fig.rank[q]],
-                                               "xyz": xyz[q], "flags": flags[q]} for q in range(bounds[t], bounds[t + 1])]}
-                for t, f in enumerate(p.frames.tolist())]
+    persons = [{"id": int(p.track[q]), "color": fig.colors[fig.rank[q]], "xyz": xyz[q], "flags": flags[q]}
+               for q in range(len(p))]
+    instants = [{"frame": int(f), "persons": persons[bounds[t]:bounds[t + 1]]} for t, f in enumerate(p.frames.tolist())]
     step = _nice_step(2 * radius)
     return {"persons": [], "instants": instants, "truth": None, "skeleton": [list(e) for e in COCO_SKELETON],
             "path": [], "frustums": _rounded(to_display(frustums), 4), "points": [],
@@ -176,7 +176,7 @@ def tracks_section(fig: RigFigures) -> str:
         palette = {OBSERVED: color, INTERPOLATED: color + "66", INFERRED: "#9a9a9a"}
         lines.append(flag_timeline(runs, t0, t1, [palette.get(c) for c in range(len(FLAG_NAMES))],
                                    f"track {int(track)}", COCO_KEYPOINTS))
-        share = np.bincount(p.flags[rows_k].ravel().astype(int), minlength=len(FLAG_NAMES)) / max(p.flags[rows_k].size, 1)
+        share = np.bincount(p.flags[rows_k].ravel().astype(int), minlength=len(FLAG_NAMES)) / p.flags[rows_k].size
         rows.append(f'<tr><td><span class="swatch" style="background:{color}"></span>{int(track)}</td>'
                     f"<td>{int(frames[0])}–{int(frames[-1])}</td><td>{len(rows_k)}</td>"
                     + "".join(f"<td>{100 * share[c]:.1f}</td>" for c in (OBSERVED, INTERPOLATED, INFERRED)) + "</tr>")

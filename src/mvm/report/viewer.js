@@ -152,7 +152,9 @@
     return drawn;
   }
 
-  function redraw() { window.requestAnimationFrame(draw); }
+  function redraw() {
+    window.requestAnimationFrame(function () { status.setAttribute("data-segments", String(draw())); });
+  }
 
   var drag = null;
   canvas.addEventListener("contextmenu", function (e) { e.preventDefault(); });
