@@ -414,3 +414,35 @@ def test_report_inside_an_input_is_refused(rig, tmp_path):
     scene_calib = _invoke("report", root, "--calib", root / "Calib.toml", "-o", tmp_path / "page.html")
     assert scene_calib.exit_code == 0 and (tmp_path / "page.html").is_file()
     assert read_calib_toml(root / "Calib.toml").cameras.names[0] == "cam_01"
+
+
+def test_reconstruction_without_persons_gives_a_page(rig, tmp_path):
+    root = _copy(rig, tmp_path)
+    path = root / "mvm" / "poses3d.jsonl"
+    lines = [{**json.loads(line), "persons": []} for line in path.read_text().splitlines()]
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    result = _invoke("report", root)
+    assert result.exit_code == 0, result.output
+    data = _page_data(root / "mvm" / "report.html")
+    assert len(data["view"]["instants"]) == len(lines) and data["figures"]["tracks"] == []
+    assert all(v is None for v in data["figures"]["camera_error"]["overall_median_px"])
+
+
+def test_a_page_added_to_the_set_goes_with_it(tmp_path):
+    """What is added to an output set is listed in its marker: the set can still be replaced, also
+    with the temporaries a killed writer of a listed entry left; anything else in it is refused."""
+    from mvm.io.files import OutputError, atomic_write_text
+    from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_replaceable
+
+    folder = tmp_path / "out"
+    atomic_replace_dir(lambda f: (f / "a.json").write_text("{}"), folder)
+    add_to_output_set(folder, "page.html", lambda p: atomic_write_text(p, "<html>"))
+    assert json.loads((folder / ".mvm-output").read_text()) == ["a.json", "page.html"]
+    (folder / ".page.html.mvm-tmp-x1y2.tmp").write_text("partial")      # a killed writer's
+    check_replaceable(folder)
+    (folder / ".notes.mvm-tmp-x1y2.tmp").write_text("someone else's")
+    with pytest.raises(OutputError, match="notes"):
+        check_replaceable(folder)
+    (folder / ".notes.mvm-tmp-x1y2.tmp").unlink()
+    atomic_replace_dir(lambda f: (f / "a.json").write_text("[]"), folder)
+    assert sorted(p.name for p in folder.iterdir()) == [".mvm-output", "a.json"]

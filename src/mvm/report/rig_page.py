@@ -98,7 +98,7 @@ def rig_view_payload(fig: RigFigures) -> dict:
     person_scale = float(np.nanmedian(heights)) if np.isfinite(heights).any() else radius / 3
     floor = float(np.percentile(people[:, 2], 1)) if len(people) else float(Cd[:, 2].min() - person_scale)
     frustums = analysis.frustums(cams.K, cams.R, cams.t, cams.size, 0.1 * radius)
-    flat = np.round(Xd.reshape(len(Xd), -1), 3)
+    flat = np.round(Xd.reshape(len(Xd), 3 * Xd.shape[1]), 3)
     xyz = np.where(np.isfinite(flat), flat, None).tolist()
     flags = ["".join(map(str, row)) for row in np.asarray(p.flags, dtype=int).tolist()]
     bounds = np.searchsorted(p.instant, np.arange(len(p.frames) + 1))
