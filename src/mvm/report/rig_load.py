@@ -33,17 +33,17 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpe
 
 def is_rig_dir(path: str | Path, output: str = DEFAULT_OUTPUT) -> bool:
     """Whether ``path`` is a rig folder rather than a scene directory: it holds a rig's output
-    set (``<output>/poses3d.jsonl`` or ``recap.json``), or it has no ``poses2d.json`` and
-    ``sparse/`` but a ``pose/`` folder or a ``*.toml`` calibration."""
+    set (``<output>/poses3d.jsonl`` or ``recap.json``), or it has no ``poses2d.json`` but a
+    ``pose/`` folder, a ``calibration/`` folder or a ``*.toml`` calibration."""
     path = Path(path)
     if not path.is_dir():
         return False
     if (path / output / POSES3D).exists() or (path / output / RECAP).exists():
         return True
-    if (path / "poses2d.json").exists() or (path / "sparse").is_dir():
+    if (path / "poses2d.json").exists():
         return False
-    return (path / "pose").is_dir() or any(p.name.lower() != "sync.toml" for p in path.glob("*.toml")) \
-        or (path / "calibration").is_dir()
+    return (path / "pose").is_dir() or (path / "calibration").is_dir() \
+        or any(p.name.lower() != "sync.toml" for p in path.glob("*.toml"))
 
 
 @dataclass

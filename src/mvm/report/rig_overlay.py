@@ -97,15 +97,25 @@ class CameraDrawer:
         return draw_overlay(image, self.keypoints[rows], self.labels[rows], self.colors, reprojected, ok, scale)
 
 
-def _open(path: Path):
-    """An opened ``cv2.VideoCapture`` of ``path`` that has decoded its first frame, rewound; a
-    video that does not decode is one :class:`InputError` line."""
+#: A video's frames may differ from the calibration's image in shape by this much. [1]
+MAX_ASPECT_CHANGE = 0.01
+
+
+def _open(path: Path, size: np.ndarray):
+    """An opened ``cv2.VideoCapture`` of ``path`` that has decoded its first frame, rewound. A
+    video that does not decode, or whose frames are not the shape of the calibration's image
+    ``size: (2,)`` (width, height), is one :class:`InputError` line."""
     cv2 = _cv2()
     capture = cv2.VideoCapture(str(path))
-    ok = capture.isOpened() and capture.read()[0]
+    ok, image = capture.read() if capture.isOpened() else (False, None)
     if not ok:
         capture.release()
         raise InputError(path, None, "cannot be decoded: OpenCV read no frame from it (not a video, or cut short)")
+    H, W = image.shape[:2]
+    if abs((W / H) / (size[0] / size[1]) - 1) > MAX_ASPECT_CHANGE:
+        capture.release()
+        raise InputError(path, None, f"frames of {W}×{H} px, but the calibration's images of this camera are "
+                                     f"{size[0]:g}×{size[1]:g}: another camera's video, or cropped?")
     capture.set(cv2.CAP_PROP_POS_FRAMES, 0)
     return capture
 
@@ -151,7 +161,7 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
     captures = {}
     try:
         for name, path in videos.items():
-            captures[name] = _open(path)
+            captures[name] = _open(path, data.calibration.cameras.size[data.names.index(name)])
     except InputError:
         for c in captures.values():
             c.release()
