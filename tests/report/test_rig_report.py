@@ -68,6 +68,7 @@ def rig(tmp_path_factory):
 def _copy(rig, tmp_path) -> Path:
     copy = tmp_path / "rig1"
     shutil.copytree(rig[0], copy)
+    shutil.copy(rig[0].with_name("rig1.groundtruth.json"), tmp_path)
     return copy
 
 
@@ -451,3 +452,54 @@ def test_a_page_added_to_the_set_goes_with_it(tmp_path):
     (folder / ".notes.mvm-tmp-x1y2.tmp").unlink()
     atomic_replace_dir(lambda f: (f / "a.json").write_text("[]"), folder)
     assert sorted(p.name for p in folder.iterdir()) == [".mvm-output", "a.json"]
+
+
+# --- ground truth --------------------------------------------------------------------------------
+
+def test_truth_section_of_a_simulated_rig(rig, page):
+    root, sim = rig
+    _, data = page
+    truth = data["figures"]["truth"]
+    assert truth["scale"] == 1.0 and max(truth["camera_residual_m"]) == 0.0           # the true calibration
+    poses = read_rig_poses3d(root / "mvm" / "poses3d.jsonl")
+    true = sim.poses3d[np.searchsorted(sim.instants, poses.frames + sim.offsets[0])]  # (T, G, 17, 3)
+    assert len(data["view"]["instants"][20]["truth"]) == sim.poses3d.shape[1]
+    for track, found in truth["tracks"].items():
+        rows = poses.track == int(track)
+        d = np.linalg.norm(poses.X[rows][:, None] - true[poses.instant[rows]], axis=-1)   # (L, G, 17)
+        person = int(np.argmin(np.nanmean(d, axis=(0, 2))))
+        assert found["true_person"] == person
+        observed = d[:, person][poses.flags[rows] == OBSERVED]
+        assert found["mpjpe_m"] == pytest.approx(observed.mean(), abs=1e-5)
+    assert sorted(t["true_person"] for t in truth["tracks"].values()) == [0, 1, 2]
+    assert truth["mpjpe_m"]["observed"] < 0.03                                        # metres
+
+
+def _moved(calibration, scale: float, R0: np.ndarray, t0: np.ndarray):
+    """The calibration of the same cameras in a world moved by ``x' = scale R0 x + t0``."""
+    from mvm.core.scene import Cameras
+    from mvm.io.calib_toml import RigCalibration
+
+    c = calibration.cameras
+    R = c.R @ R0.T
+    t = scale * c.t - np.einsum("vij,j->vi", R, t0)
+    return RigCalibration(Cameras(c.K, R, t, c.size, c.names), calibration.distortions, calibration.fisheye, {})
+
+
+def test_truth_through_a_calibration_in_another_frame(rig, page, tmp_path):
+    """A calibration in its own frame and units (as from the people): the similarity of the camera
+    centres brings the estimate back, and it scores as with the true calibration."""
+    from mvm.io.calib_toml import write_calib_toml
+
+    root = _copy(rig, tmp_path)
+    R0 = cv2.Rodrigues(np.array([0.3, -0.2, 1.1]))[0]
+    moved = tmp_path / "moved.toml"
+    write_calib_toml(moved, _moved(rig[1].calibration, 1.7, R0, np.array([2.0, -1.0, 0.5])))
+    result = _invoke("rig", "reconstruct", root, "--calib", moved, "--no-refine", "--workers", 1)
+    assert result.exit_code == 0, result.output
+    result = _invoke("report", root)
+    assert result.exit_code == 0, result.output
+    truth = _page_data(root / "mvm" / "report.html")["figures"]["truth"]
+    assert truth["scale"] == pytest.approx(1 / 1.7, rel=1e-6) and max(truth["camera_residual_m"]) < 1e-6
+    before = page[1]["figures"]["truth"]["mpjpe_m"]["observed"]
+    assert truth["mpjpe_m"]["observed"] == pytest.approx(before, rel=0.2, abs=0.002)

@@ -145,3 +145,90 @@ def track_angles(X: np.ndarray, flags: np.ndarray) -> tuple[np.ndarray, np.ndarr
     with ``flags: (Q, J)``: degrees ``(Q, A)`` and the least-observed flag of each ``(Q, A)``
     (:func:`mvm.core.joint_angles.angle_sources`)."""
     return flexion_angles(X), angle_sources(flags)
+
+
+def truth_at_frames(frames: np.ndarray, instants: np.ndarray, poses3d: np.ndarray, offset: int) -> np.ndarray:
+    """The true joints at each reconstructed instant: ``frames: (T,)`` (the reference camera's
+    numbers), whose frame ``f`` shows the scene's instant ``f + offset``; ``instants: (S,)`` and
+    ``poses3d: (S, G, J, 3)`` the truth -> ``(T, G, J, 3)``, NaN where the scene has no instant."""
+    instants = np.asarray(instants, dtype=np.int64)
+    wanted = np.asarray(frames, dtype=np.int64) + int(offset)
+    at = np.minimum(np.searchsorted(instants, wanted), len(instants) - 1)
+    found = instants[at] == wanted
+    out = np.full((len(wanted),) + poses3d.shape[1:], np.nan)
+    out[found] = poses3d[at[found]]
+    return out
+
+
+def match_tracks(X: np.ndarray, instant: np.ndarray, rank: np.ndarray, K: int,
+                 truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each track's true person: the one closest on average over the track's joints and instants.
+
+    ``X: (Q, J, 3)`` in the truth's frame, ``instant: (Q,)``, ``rank: (Q,)`` the track of each
+    person in ``[0, K)``, ``truth: (T, G, J, 3)`` (:func:`truth_at_frames`) -> ``truth_of: (K,)``
+    (-1: no true person near) and ``errors: (Q, J)`` each joint's distance to its track's true
+    person (NaN where either is missing)."""
+    Q, J = X.shape[:2]
+    G = truth.shape[1]
+    d = np.linalg.norm(X[:, None] - truth[instant], axis=-1)                               # (Q, G, J)
+    ok = np.isfinite(d)
+    sums = np.zeros((K, G))
+    counts = np.zeros((K, G))
+    np.add.at(sums, rank, np.where(ok, d, 0.0).sum(-1))
+    np.add.at(counts, rank, ok.sum(-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts > 0, sums / counts, np.inf)
+    truth_of = np.where(np.isfinite(mean).any(1), np.argmin(mean, axis=1), -1) if G else np.full(K, -1)
+    errors = np.full((Q, J), np.nan)
+    has = truth_of[rank] >= 0 if Q else np.zeros(0, bool)
+    errors[has] = d[np.flatnonzero(has), truth_of[rank[has]]]
+    return truth_of, errors
+
+
+def compare_with_truth(X: np.ndarray, flags: np.ndarray, instant: np.ndarray, rank: np.ndarray, K: int,
+                       centers: np.ndarray, true_centers: np.ndarray, truth: np.ndarray) -> dict | None:
+    """The reconstruction against a simulated rig's truth, in the truth's frame.
+
+    The estimate is moved by the similarity that maps the estimated camera centres onto the true
+    ones (the identity when they agree within a millimetre, as with the true calibration; a
+    calibration from the people has its own frame). ``X: (Q, J, 3)``, ``flags: (Q, J)``,
+    ``instant, rank: (Q,)`` (tracks in ``[0, K)``), ``centers, true_centers: (V, 3)``,
+    ``truth: (T, G, J, 3)`` (:func:`truth_at_frames`). Returns None with fewer than 3 cameras
+    that do not already agree (no similarity), else ``scale``, ``R``, ``t`` (truth = s R x + t),
+    ``camera_residual (V,)`` m, ``truth_of (K,)``, ``errors (Q, J)`` m, ``track_mpjpe (K,)``
+    (observed joints), ``mpjpe`` {flag name: m} over observed / interpolated / inferred joints,
+    ``angle_error (Q, A)`` degrees and ``track_angle_error (K,)`` (median over observed angles).
+    """
+    from mvm.core.completion import FLAG_NAMES, INFERRED, INTERPOLATED
+    from mvm.metrics.poses import similarity_transform
+
+    centers, true_centers = np.asarray(centers, dtype=float), np.asarray(true_centers, dtype=float)
+    if np.abs(centers - true_centers).max() < 1e-3:
+        s, R, t = 1.0, np.eye(3), np.zeros(3)
+    elif len(centers) >= 3:
+        s, R, t = similarity_transform(centers, true_centers)
+    else:
+        return None
+    aligned = s * np.asarray(X, dtype=float) @ R.T + t
+    truth_of, errors = match_tracks(aligned, instant, rank, K, truth)
+    observed = np.asarray(flags) == OBSERVED
+    mpjpe = {FLAG_NAMES[f]: _mean(errors[np.asarray(flags) == f]) for f in (OBSERVED, INTERPOLATED, INFERRED)}
+    sums = np.bincount(rank, np.where(observed & np.isfinite(errors), errors, 0.0).sum(1), minlength=K)
+    counts = np.bincount(rank, (observed & np.isfinite(errors)).sum(1), minlength=K)
+    has = truth_of[rank] >= 0
+    true_pose = np.full(np.shape(X), np.nan)
+    true_pose[has] = truth[instant[has], truth_of[rank[has]]]
+    angles, sources = track_angles(X, flags)
+    angle_error = np.abs(angles - flexion_angles(true_pose))
+    track_angle, _ = grouped_quantile(np.where(sources == OBSERVED, angle_error, np.nan),
+                                      np.broadcast_to(rank[:, None], angle_error.shape), K)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        track_mpjpe = np.where(counts > 0, sums / counts, np.nan)
+    return {"scale": float(s), "R": R, "t": t, "truth_of": truth_of, "errors": errors, "mpjpe": mpjpe,
+            "camera_residual": np.linalg.norm(s * centers @ R.T + t - true_centers, axis=1),
+            "track_mpjpe": track_mpjpe, "angle_error": angle_error, "track_angle_error": track_angle}
+
+
+def _mean(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    return float(values.mean()) if len(values) else float("nan")

@@ -17,6 +17,7 @@ from mvm.io.calib_toml import RigCalibration
 from mvm.io.checks import load_json_object
 from mvm.io.provenance import check_fresh, read_record
 from mvm.io.rig_poses3d import RigPoses3D, read_rig_poses3d
+from mvm.io.rig_truth import RigTruth, read_rig_truth, rig_truth_path
 from mvm.report.rig_analysis import member_detections
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
@@ -58,6 +59,7 @@ class RigReportData:
         detections: the 2D poses (undistorted; ``instant`` indexes ``poses.frames``, -1 for a
             frame without persons); detection: ``(Q, V)`` the pose behind every member (-1: none).
         recap: ``recap.json``; offsets: camera -> frames added (``sync.toml``), or None.
+        truth: the truth of a simulated rig (``RIG_DIR.groundtruth.json`` beside it), or None.
     """
 
     rig_dir: Path
@@ -69,6 +71,7 @@ class RigReportData:
     detection: np.ndarray
     recap: dict
     offsets: dict | None
+    truth: RigTruth | None = None
 
     @property
     def names(self) -> list[str]:
@@ -145,8 +148,14 @@ def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: st
         raise InputError(poses3d, "members", f"{lost} members name 2D poses the pose files do not hold: "
                                              f"out of date? run `{command}`")
     log.info("%s: %d instants, %d persons, %d cameras", poses3d, len(poses.frames), len(poses), len(names))
+    truth_file = rig_truth_path(rig_dir)
+    truth = read_rig_truth(truth_file) if truth_file.is_file() else None
+    if truth is not None and set(names) - set(truth.cameras):
+        log.warning("%s: not the truth of this rig (no camera %s); not compared", truth_file,
+                    sorted(set(names) - set(truth.cameras))[0])
+        truth = None
     return RigReportData(rig_dir, out_dir, poses, rig.calibration, calib_path, detections, detection, recap,
-                         rig.offsets)
+                         rig.offsets, truth)
 
 
 def rig_videos(rig_dir: str | Path, names: list[str]) -> dict[str, Path]:

@@ -51,6 +51,14 @@ class RigFigures:
         self.error_series, self.error_counts = rig_analysis.camera_error_series(self.errors, p.instant, self.bounds)
         self.error_summary = rig_analysis.camera_error_summary(self.errors)
         self.angles, self.angle_flags = rig_analysis.track_angles(p.X, p.flags)           # (Q, A)
+        self.truth = self.comparison = None
+        if data.truth is not None:
+            t = data.truth
+            self.truth = rig_analysis.truth_at_frames(p.frames, t.instants, t.poses3d, t.offsets[data.names[0]])
+            true_centers = t.centers[[t.cameras.index(n) for n in data.names]]
+            self.comparison = rig_analysis.compare_with_truth(p.X, p.flags, p.instant, self.rank, len(self.tracks),
+                                                              data.calibration.cameras.centers, true_centers,
+                                                              self.truth)
 
     def track_rows(self, k: int) -> np.ndarray:
         return np.flatnonzero(self.rank == k)
@@ -64,7 +72,7 @@ class RigFigures:
             angles[str(int(track))] = {"frames": p.frames[p.instant[rows]].tolist(),
                                        "degrees": _rounded(self.angles[rows], 2),
                                        "flags": self.angle_flags[rows].tolist()}
-        return {"cameras": self.data.names, "angle_names": list(JOINT_ANGLES),
+        return {"cameras": self.data.names, "angle_names": list(JOINT_ANGLES), "truth": self.truth_payload(),
                 "camera_error": {"frames": p.frames[self.bounds[:-1]].tolist(),
                                  "median_px": _rounded(self.error_series, 3),
                                  "keypoints": self.error_counts.tolist(),
@@ -72,6 +80,27 @@ class RigFigures:
                                  "overall_p90_px": _rounded(self.error_summary["p90"], 3),
                                  "overall_keypoints": self.error_summary["count"].tolist()},
                 "angles": angles, "tracks": [int(t) for t in self.tracks]}
+
+
+    def truth_payload(self) -> dict | None:
+        c = self.comparison
+        if c is None:
+            return None
+        return {"scale": round(c["scale"], 6), "camera_residual_m": _rounded(c["camera_residual"], 5),
+                "mpjpe_m": {k: None if not math.isfinite(v) else round(v, 5) for k, v in c["mpjpe"].items()},
+                "tracks": {str(int(k)): {"true_person": int(c["truth_of"][i]),
+                                         "mpjpe_m": _rounded(c["track_mpjpe"][i], 5),
+                                         "angle_error_deg": _rounded(c["track_angle_error"][i], 3)}
+                           for i, k in enumerate(self.tracks)}}
+
+    def truth_in_view(self, to_display) -> list | None:
+        """The true persons of every instant in the display frame: ``T`` lists of flat joints."""
+        if self.comparison is None:
+            return None
+        c = self.comparison
+        world = np.einsum("ji,...j->...i", c["R"], self.truth - c["t"]) / c["scale"]   # into the estimate's frame
+        flat = np.round(to_display(world).reshape(world.shape[0], world.shape[1], -1), 3)
+        return np.where(np.isfinite(flat), flat, None).tolist()
 
 
 def _rounded(a: np.ndarray, digits: int):
@@ -105,9 +134,15 @@ def rig_view_payload(fig: RigFigures) -> dict:
     persons = [{"id": int(p.track[q]), "color": fig.colors[fig.rank[q]], "xyz": xyz[q], "flags": flags[q]}
                for q in range(len(p))]
     instants = [{"frame": int(f), "persons": persons[bounds[t]:bounds[t + 1]]} for t, f in enumerate(p.frames.tolist())]
+    truth = fig.truth_in_view(to_display)
+    if truth is not None:
+        for t, instant in enumerate(instants):
+            instant["truth"] = [{"id": g, "color": "#222222", "xyz": xyz} for g, xyz in enumerate(truth[t])
+                                if any(v is not None for v in xyz)]
     step = _nice_step(2 * radius)
-    return {"persons": [], "instants": instants, "truth": None, "skeleton": [list(e) for e in COCO_SKELETON],
-            "path": [], "frustums": _rounded(to_display(frustums), 4), "points": [],
+    return {"persons": [], "instants": instants, "truth": None if truth is None else [],
+            "skeleton": [list(e) for e in COCO_SKELETON], "path": [], "points": [],
+            "frustums": _rounded(to_display(frustums), 4),
             "camera_labels": [{"name": n, "at": _rounded(c + [0, 0, 0.05 * radius], 4)}
                               for n, c in zip(cams.names, Cd)],
             "radius": round(radius, 4), "person_scale": round(person_scale, 4), "center_z": 0.0,
@@ -233,6 +268,29 @@ def angles_section(fig: RigFigures) -> str:
             f"three joints was interpolated or inferred.</p>{more}{''.join(blocks)}</section>")
 
 
+def truth_section(fig: RigFigures) -> str:
+    """The reconstruction against a simulated rig's truth: errors per flag, per track, and the
+    similarity that brought the estimate into the truth's frame."""
+    c = fig.comparison
+    if c is None:
+        return ""
+    mm = lambda v: _fmt(1000 * float(v), 1)  # noqa: E731
+    cards = [*[(f"MPJPE, {k} joints (mm)", mm(v)) for k, v in c["mpjpe"].items()],
+             ("tracks on a true person", f"{int((c['truth_of'] >= 0).sum())} / {len(fig.tracks)}"),
+             ("true persons", str(fig.data.truth.poses3d.shape[1])),
+             ("camera centres after the similarity (mean, cm)", _fmt(100 * float(c["camera_residual"].mean()))),
+             ("scale of the similarity", _fmt(c["scale"], 4))]
+    rows = "".join(f'<tr><td><span class="swatch" style="background:{fig.colors[k]}"></span>{int(track)}</td>'
+                   f"<td>{c['truth_of'][k] if c['truth_of'][k] >= 0 else '–'}</td><td>{mm(c['track_mpjpe'][k])}</td>"
+                   f"<td>{_fmt(float(c['track_angle_error'][k]), 1)}</td></tr>" for k, track in enumerate(fig.tracks))
+    return (f'<section id="truth"><h2>Ground truth (simulated rig)</h2>{_cards(cards)}<p class="note">The estimate '
+            "is moved by the similarity that maps its camera centres onto the true ones (the identity with the true "
+            "calibration); each track is compared with the true person closest to it. The 3D view draws the true "
+            'bodies as dashed dark skeletons (toggle <em>ground truth</em>).</p><table class="small" id="truth-tracks">'
+            "<thead><tr><th>track</th><th>true person</th><th>MPJPE, observed joints (mm)</th><th>joint angle error, "
+            f"median (°)</th></tr></thead><tbody>{rows}</tbody></table></section>")
+
+
 def rig_report_html(data: RigReportData) -> str:
     """The whole page as a string."""
     fig = RigFigures(data)
@@ -241,6 +299,8 @@ def rig_report_html(data: RigReportData) -> str:
     legend = "".join(f'<div><span class="swatch" style="background:{c}"></span>track {int(t)}</div>'
                      for t, c in zip(fig.tracks, fig.colors))
     title = escape(data.rig_dir.name or str(data.rig_dir))
+    truth_box = ('<label><input type="checkbox" data-show="truth"> ground truth (dashed)</label>'
+                 if fig.comparison is not None else "")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
 <title>mvm rig report: {title}</title><style>{_CSS}.timelines svg{{display:block;margin:4px 0}}</style>
@@ -256,11 +316,12 @@ style="width:70%"> <span id="mvm-time-label"></span></div>
 reset; the slider picks the instant. Dots: observed joints filled, interpolated white, inferred grey.</p>
 <label><input type="checkbox" data-show="cameras"> cameras</label>
 <label><input type="checkbox" data-show="floor"> floor grid</label>
-<label><input type="checkbox" data-show="labels"> track and camera names</label><h3>Tracks</h3>{legend}
+<label><input type="checkbox" data-show="labels"> track and camera names</label>{truth_box}<h3>Tracks</h3>{legend}
 </div></div></section>
 {tracks_section(fig)}
 {cameras_section(fig)}
 {angles_section(fig)}
+{truth_section(fig)}
 </main><script type="application/json" id="mvm-data">{text}</script><script>{viewer_script()}</script></body></html>
 """
 

@@ -213,6 +213,7 @@
     var pick = function (i) {
       var instant = view.instants[i];
       view.persons = instant.persons.map(unpack);
+      if (instant.truth) { view.truth = instant.truth.map(unpack); }
       if (label) { label.textContent = "frame " + instant.frame + " (" + (i + 1) + " / " + view.instants.length + ")"; }
       status.setAttribute("data-instant", String(i));
       redraw();
@@ -229,7 +230,6 @@
         }, 1000 / (view.rate || 10));
       });
     }
-    view.persons = view.instants[0].persons.map(unpack);
     pick(0);
   }
 
