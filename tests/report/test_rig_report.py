@@ -503,3 +503,12 @@ def test_truth_through_a_calibration_in_another_frame(rig, page, tmp_path):
     assert truth["scale"] == pytest.approx(1 / 1.7, rel=1e-6) and max(truth["camera_residual_m"]) < 1e-6
     before = page[1]["figures"]["truth"]["mpjpe_m"]["observed"]
     assert truth["mpjpe_m"]["observed"] == pytest.approx(before, rel=0.2, abs=0.002)
+
+
+def test_pages_written_into_the_set_by_name_go_with_it(rig, tmp_path):
+    root = _copy(rig, tmp_path)
+    assert _invoke("report", root, "-o", root / "mvm" / "second.html").exit_code == 0
+    assert "second.html" in json.loads((root / "mvm" / ".mvm-output").read_text())
+    result = _invoke("rig", "reconstruct", root, "--no-refine", "--workers", 1, "--force")
+    assert result.exit_code == 0, result.output
+    assert not (root / "mvm" / "second.html").exists()

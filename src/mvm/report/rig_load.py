@@ -6,6 +6,7 @@ changed since it was made is refused in one line naming the command to run.
 from __future__ import annotations
 
 import logging
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -156,6 +157,12 @@ def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: st
         truth = None
     return RigReportData(rig_dir, out_dir, poses, rig.calibration, calib_path, detections, detection, recap,
                          rig.offsets, truth)
+
+
+def in_output_set(path: Path, out_dir: Path) -> bool:
+    """Whether ``path`` is an entry at the top of the rig's output set ``out_dir`` (then it is
+    listed in the set's marker, :func:`mvm.io.outputs.add_to_output_set`)."""
+    return Path(os.path.abspath(path)).parent == Path(os.path.abspath(out_dir))
 
 
 def rig_videos(rig_dir: str | Path, names: list[str]) -> dict[str, Path]:

@@ -22,7 +22,15 @@ from mvm.errors import InputError
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
 from mvm.report.analysis import person_colors
 from mvm.report.overlay import _cv2, _write_video, draw_overlay
-from mvm.report.rig_load import POSES3D, RECAP, VIDEOS, RigReportData, load_rig_result, rig_videos
+from mvm.report.rig_load import (
+    POSES3D,
+    RECAP,
+    VIDEOS,
+    RigReportData,
+    in_output_set,
+    load_rig_result,
+    rig_videos,
+)
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
 
@@ -178,8 +186,8 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
             summary.videos[name] = (target / path.name, counter[0])
 
     try:
-        if out is None:
-            add_to_output_set(out_dir, OVERLAY_NAME, lambda p: atomic_replace_dir(build, p))
+        if in_output_set(target, out_dir):
+            add_to_output_set(out_dir, target.name, lambda p: atomic_replace_dir(build, p))
         else:
             atomic_replace_dir(build, target)
     finally:

@@ -23,7 +23,7 @@ from mvm.io.outputs import add_to_output_set, check_output_location
 from mvm.report import analysis, rig_analysis
 from mvm.report.page import _CSS, _ERROR_HOOK, _fmt, _nice_step, viewer_script
 from mvm.report.plots import flag_timeline, line_chart
-from mvm.report.rig_load import POSES3D, RECAP, RigReportData, load_rig_result
+from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
 
@@ -339,8 +339,8 @@ def write_rig_report(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, path: st
     check_output_location(target, inputs, replaced=False)
     data = load_rig_result(rig_dir, output, calib, workers)
     html = rig_report_html(data)
-    if path is None:
-        add_to_output_set(out_dir, REPORT_NAME, lambda p: atomic_write_text(p, html))
+    if in_output_set(target, out_dir):
+        add_to_output_set(out_dir, target.name, lambda p: atomic_write_text(p, html))
     else:
         atomic_write_text(target, html)
     log.info("%s: rig report written (%.1f kB)", target, len(html.encode()) / 1e3)
