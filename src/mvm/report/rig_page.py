@@ -81,8 +81,8 @@ class RigFigures:
                                  "overall_keypoints": self.error_summary["count"].tolist()},
                 "angles": angles, "tracks": [int(t) for t in self.tracks]}
 
-
     def truth_payload(self) -> dict | None:
+        """The comparison with a simulated rig's truth (``figures.truth``), or None."""
         c = self.comparison
         if c is None:
             return None
