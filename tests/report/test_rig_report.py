@@ -280,6 +280,24 @@ def test_viewer_slides_over_the_instants(page):
     assert state["label"] == f"frame {instants[busiest]['frame']} ({busiest + 1} / {len(instants)})"
 
 
+def test_viewer_still_draws_a_scene_page(tmp_path):
+    """The viewer the scene report shares: a scene's page (no instants, no slider) renders as before."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("needs Node.js to run the page's script")
+    from test_report import make_scene
+
+    from mvm.report import write_report
+
+    make_scene(tmp_path / "scene", people=3, frames=20)
+    page = write_report(tmp_path / "scene", frames=0)
+    done = subprocess.run([node, str(Path(__file__).with_name("viewer_harness.js")), str(page)], capture_output=True,
+                          text=True, timeout=60)
+    state = json.loads(done.stdout)
+    assert state["errors"] == [] and state["status"]["data-state"] == "rendered"
+    assert "data-instant" not in state["status"] and int(state["status"]["data-segments"]) >= 3 * 16
+
+
 # --- the overlays ------------------------------------------------------------------------------
 
 def _render_videos(root: Path, sim, cameras: list[int]) -> tuple[int, int]:
