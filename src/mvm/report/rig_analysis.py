@@ -37,24 +37,30 @@ def member_detections(members: np.ndarray, instant: np.ndarray, det_instant: np.
 
 
 def keypoint_errors(X: np.ndarray, flags: np.ndarray, detection: np.ndarray, keypoints: np.ndarray,
-                    P: np.ndarray) -> np.ndarray:
+                    P: np.ndarray, block: int = 4096) -> np.ndarray:
     """Reprojection error of every matched 2D keypoint: ``(Q, V, J)`` px.
 
     ``X: (Q, J, 3)`` the persons' joints; ``flags: (Q, J)`` (:mod:`mvm.core.completion`): only
     observed joints count; ``detection: (Q, V)`` the 2D pose of each member
     (:func:`member_detections`); ``keypoints: (N, J, 3)`` undistorted pixels and confidence;
     ``P: (V, 3, 4)``. NaN where there is no member, the keypoint is missing (confidence 0), the
-    joint is not observed or lies behind the camera."""
+    joint is not observed or lies behind the camera. Computed ``block`` persons at a time (the
+    memory of a long capture stays bounded)."""
     X = np.asarray(X, dtype=float)
     Q, J = X.shape[:2]
-    V = len(P)
-    uv, depth = project(X[:, None], np.asarray(P, dtype=float)[None, :, None])              # (Q, V, J, 2)
-    has = detection >= 0
-    kp = np.asarray(keypoints, dtype=float)[np.maximum(detection, 0)] if len(keypoints) else np.zeros((Q, V, J, 3))
-    error = np.linalg.norm(uv - kp[..., :2], axis=-1)
-    ok = has[..., None] & (kp[..., 2] > 0) & (np.asarray(flags)[:, None, :] == OBSERVED) & (depth > 0) \
-        & np.isfinite(error)
-    return np.where(ok, error, np.nan).reshape(Q, V, J)
+    P = np.asarray(P, dtype=float)[None, :, None]
+    keypoints = np.asarray(keypoints, dtype=float)
+    out = np.full((Q, len(P[0]), J), np.nan)
+    for start in range(0, Q, block):
+        rows = slice(start, start + block)
+        uv, depth = project(X[rows, None], P)                                                # (b, V, J, 2)
+        has = detection[rows] >= 0
+        kp = keypoints[np.maximum(detection[rows], 0)] if len(keypoints) else np.zeros(uv.shape[:-1] + (3,))
+        error = np.linalg.norm(uv - kp[..., :2], axis=-1)
+        ok = has[..., None] & (kp[..., 2] > 0) & (np.asarray(flags[rows])[:, None, :] == OBSERVED) & (depth > 0) \
+            & np.isfinite(error)
+        out[rows] = np.where(ok, error, np.nan)
+    return out
 
 
 def grouped_quantile(values: np.ndarray, group: np.ndarray, groups: int,
