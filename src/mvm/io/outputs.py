@@ -26,7 +26,15 @@ import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from mvm.io.files import TEMPORARY_INFIX, OutputError, fsync_dir, make_dir, new_dir_mode, output_error
+from mvm.io.files import (
+    TEMPORARY_INFIX,
+    OutputError,
+    atomic_write_text,
+    fsync_dir,
+    make_dir,
+    new_dir_mode,
+    output_error,
+)
 
 try:
     import fcntl
@@ -92,10 +100,35 @@ def check_replaceable(path: str | Path) -> None:
     if written is None:
         raise OutputError(path, None, f"is a folder mvm did not make (no {OUTPUT_MARKER} inside) and not empty: "
                                       "it would be replaced; choose a new or empty folder")
-    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER)]
+    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER)
+             and not _own_temporary(n, written)]
     if other:
         raise OutputError(path, None, f"holds {other[0]!r}, which mvm did not write there: it would be "
                                       "replaced; move it or choose a new or empty folder")
+
+
+def _own_temporary(name: str, written: set[str]) -> bool:
+    """Whether ``name`` is the lock or a temporary of an entry the marker lists (what a killed
+    writer of an entry added to the set, :func:`add_to_output_set`, may leave)."""
+    if not name.startswith("."):
+        return False
+    return any(name == f".{w}.lock" or name.startswith(f".{w}{TEMPORARY_INFIX}") for w in written)
+
+
+def add_to_output_set(folder: str | Path, name: str, write: Callable[[Path], None],
+                      lock_timeout_s: float = LOCK_WAIT_S) -> Path:
+    """Write ``folder/name`` with ``write(path)`` (an atomic writer: a file by
+    :func:`mvm.io.files.atomic_write_bytes`, a folder by :func:`atomic_replace_dir`) into the
+    output set ``folder``, holding the set's lock, and list ``name`` in the set's marker first: the
+    next run that replaces the set replaces it too (a report drawn from the set goes with it). A
+    ``folder`` without the marker is written into as any folder. Returns the path written."""
+    folder = Path(folder)
+    with output_lock(folder, lock_timeout_s):
+        written = _marked_names(folder)
+        if written is not None and name not in written:
+            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted(written | {name})))
+        write(folder / name)
+    return folder / name
 
 
 def is_mvm_output(path: str | Path) -> bool:

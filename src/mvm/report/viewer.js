@@ -78,7 +78,7 @@
         if (q) { ctx.fillRect(q[0] - r / 2, q[1] - r / 2, r, r); drawn++; }
       }
     }
-    if (show.cameras && view.path.length) {
+    if (show.cameras && (view.path.length || view.frustums.length)) {
       ctx.strokeStyle = "#3a3a3a"; ctx.lineWidth = 1.5 * ratio;
       ctx.beginPath();
       var started = false;
@@ -99,6 +99,13 @@
         });
       });
       ctx.stroke();
+      if (show.labels && view.camera_labels) {
+        ctx.font = (11 * ratio) + "px sans-serif"; ctx.fillStyle = "#28508f"; ctx.textAlign = "center";
+        view.camera_labels.forEach(function (c) {
+          var t = proj(c.at);
+          if (t) { ctx.fillText(c.name, t[0], t[1] - 6 * ratio); }
+        });
+      }
     }
     var segments = [];
     function collect(skeletons, style) {
@@ -125,9 +132,14 @@
     ctx.setLineDash([]);
     view.persons.forEach(function (person) {
       ctx.fillStyle = person.color;
-      person.joints.forEach(function (p) {
-        var q = proj(p);
-        if (q) { ctx.beginPath(); ctx.arc(q[0], q[1], 2.5 * ratio, 0, 2 * Math.PI); ctx.fill(); }
+      person.joints.forEach(function (p, j) {
+        var q = proj(p), flag = person.flags ? person.flags.charAt(j) : "1";
+        if (!q) { return; }
+        ctx.beginPath(); ctx.arc(q[0], q[1], (flag === "1" ? 2.5 : 3) * ratio, 0, 2 * Math.PI);
+        if (flag === "1") { ctx.fill(); } else {
+          ctx.fillStyle = flag === "3" ? "#9a9a9a" : "#ffffff"; ctx.fill();
+          ctx.strokeStyle = person.color; ctx.lineWidth = ratio; ctx.stroke(); ctx.fillStyle = person.color;
+        }
       });
       if (show.labels && person.head) {
         var t = proj(person.head);
@@ -140,7 +152,9 @@
     return drawn;
   }
 
-  function redraw() { window.requestAnimationFrame(draw); }
+  function redraw() {
+    window.requestAnimationFrame(function () { status.setAttribute("data-segments", String(draw())); });
+  }
 
   var drag = null;
   canvas.addEventListener("contextmenu", function (e) { e.preventDefault(); });
@@ -177,6 +191,47 @@
     box.addEventListener("change", function () { show[key] = box.checked; redraw(); });
   });
   window.addEventListener("resize", redraw);
+
+  /* Rigs: view.instants holds the persons of every instant (joints flat, flags as digits:
+     1 observed, 2 interpolated, 3 inferred); a slider picks the instant drawn. */
+  function unpack(person) {
+    if (!person.joints) {
+      var joints = [], head = [0, 0, 0], n = 0;
+      for (var j = 0; j < person.xyz.length / 3; j++) {
+        var x = person.xyz[3 * j];
+        joints.push(x === null ? null : [x, person.xyz[3 * j + 1], person.xyz[3 * j + 2]]);
+        if (j < 5 && x !== null) { head[0] += x; head[1] += person.xyz[3 * j + 1]; head[2] += person.xyz[3 * j + 2]; n++; }
+      }
+      person.joints = joints;
+      person.head = n ? [head[0] / n, head[1] / n, head[2] / n + 0.08 * view.person_scale] : null;
+    }
+    return person;
+  }
+  var slider = document.getElementById("mvm-time");
+  if (view.instants && slider) {
+    var label = document.getElementById("mvm-time-label"), play = document.getElementById("mvm-play"), timer = null;
+    var pick = function (i) {
+      var instant = view.instants[i];
+      view.persons = instant.persons.map(unpack);
+      if (instant.truth) { view.truth = instant.truth.map(unpack); }
+      if (label) { label.textContent = "frame " + instant.frame + " (" + (i + 1) + " / " + view.instants.length + ")"; }
+      status.setAttribute("data-instant", String(i));
+      redraw();
+    };
+    slider.max = String(view.instants.length - 1);
+    slider.addEventListener("input", function () { pick(Number(slider.value)); });
+    if (play) {
+      play.addEventListener("click", function () {
+        if (timer) { window.clearInterval(timer); timer = null; play.textContent = "play"; return; }
+        play.textContent = "pause";
+        timer = window.setInterval(function () {
+          slider.value = String((Number(slider.value) + 1) % view.instants.length);
+          pick(Number(slider.value));
+        }, 1000 / (view.rate || 10));
+      });
+    }
+    pick(0);
+  }
 
   var count = draw();
   var rect = canvas.getBoundingClientRect();

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from mvm.io.outputs import LOCK_WAIT_S, atomic_replace_dir, check_output_location, is_mvm_output
+from mvm.io.sync_toml import SYNC_FILE
 from mvm.rig.rigdir import find_calibration, pose_sources
 
 #: The output folder of a rig when none is given: ``RIG_DIR/mvm``.
@@ -20,14 +21,17 @@ DEFAULT_OUTPUT = "mvm"
 
 
 def rig_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> list[Path]:
-    """What :func:`mvm.rig.rigdir.read_rig` reads from ``rig_dir``: the calibration, the pose
-    folder (``pose/``, when there is one) and every candidate camera source in it but mvm's own
-    output folders (with their marker; ``-o RIG/results`` holds a ``recap.json``). Empty when
-    ``rig_dir`` is not a folder (reading it then fails with its own message)."""
+    """What :func:`mvm.rig.rigdir.read_rig` reads from ``rig_dir``: the calibration, ``sync.toml``
+    (when there is one: adding, changing or removing it makes the set again), the pose folder
+    (``pose/``, when there is one) and every candidate camera source in it but mvm's own output
+    folders (with their marker; ``-o RIG/results`` holds a ``recap.json``). Empty when ``rig_dir``
+    is not a folder (reading it then fails with its own message)."""
     rig_dir = Path(rig_dir)
     if not rig_dir.is_dir():
         return []
     inputs = [Path(calib) if calib else find_calibration(rig_dir)]
+    if (rig_dir / SYNC_FILE).is_file():
+        inputs.append(rig_dir / SYNC_FILE)
     if (rig_dir / "pose").is_dir():
         inputs.append(rig_dir / "pose")
     return inputs + [p for p in pose_sources(rig_dir).values() if not is_mvm_output(p)]
