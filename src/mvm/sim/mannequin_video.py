@@ -130,14 +130,39 @@ def draw_people(image: np.ndarray, P: np.ndarray, poses3d: np.ndarray, shirts: n
     x = np.concatenate([poses3d, np.ones((G, NUM_JOINTS, 1))], axis=2) @ P.T
     depth = x[..., 2]
     uv = x[..., :2] / np.maximum(depth[..., None], 1e-6)
+    return draw_figures(image, uv, depth, shirts, trousers, focal, brightness)
+
+
+#: A joint's marker (:func:`draw_figures`): its radius, and how far in front of the joint it is
+#: sorted, so that it shows over its own limbs. [m]
+MARKER_RADIUS = 0.03
+MARKER_LEAD = 0.1
+
+
+def draw_figures(image: np.ndarray, uv: np.ndarray, depth: np.ndarray, shirts: np.ndarray, trousers: np.ndarray,
+                 focal: float, brightness: float = 1.0, markers: np.ndarray | None = None) -> np.ndarray:
+    """Draw projected people as capsules, far to near, on ``image: (H, W, 3)`` (in place).
+
+    ``uv: (G, 17, 2)`` pixels, ``depth: (G, 17)`` metres along the optical axis, ``shirts,
+    trousers: (G, 3)`` BGR. ``markers: (G, 17, 3)`` BGR: a disc of :data:`MARKER_RADIUS` on each
+    joint in exactly that colour (no anti-aliasing), hidden by what is nearer.
+    """
+    G = len(uv)
     items = []  # (depth, kind, person, part index)
     for g in range(G):
         for k, (a, b, _, _) in enumerate(_PARTS):
             items.append((0.5 * (depth[g, a] + depth[g, b]), 0, g, k))
         items.append((depth[g, 0], 1, g, -1))
+        if markers is not None:
+            items += [(depth[g, j] - MARKER_LEAD, 2, g, j) for j in range(NUM_JOINTS)]
     items.sort(key=lambda item: -item[0])
     for d, kind, g, k in items:
         if d <= 0.1:
+            continue
+        if kind == 2:
+            radius = max(int(round(focal * MARKER_RADIUS / (d + MARKER_LEAD))), 2)
+            centre = tuple(int(round(c)) for c in uv[g, k])
+            cv2.circle(image, centre, radius, [int(c) for c in markers[g, k]], -1, cv2.LINE_8)
             continue
         if kind == 1:
             head = 0.5 * (uv[g, 3] + uv[g, 4])
