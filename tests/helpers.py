@@ -195,7 +195,8 @@ def marker_rtmo(path: Path, people: int) -> Path:
         bounds.append(op("ReduceMax", [op("Where", [on, t, const(f"neg{t}", -1e6)], f"hi{t}")], f"max{t}", axes=[-1],
                          keepdims=1))
     joints = op("ReduceSum", [seen, unsq], "joints", keepdims=1)
-    person = op("Cast", [op("GreaterOrEqual", [joints, const("three2", 3.0)], "enough")], "person", to=TensorProto.FLOAT)
+    enough = op("GreaterOrEqual", [joints, const("three2", 3.0)], "enough")
+    person = op("Cast", [enough], "person", to=TensorProto.FLOAT)
     box = op("Mul", [op("Concat", bounds, "box0", axis=-1), person], "box")
     op("Concat", [box, op("Mul", [person, const("s90", 0.9)], "score")], "dets", axis=-1)
     graph = h.make_graph(nodes, "marker_rtmo", [h.make_tensor_value_info("input", TensorProto.FLOAT, ["B", 3, S, S])],

@@ -11,7 +11,6 @@ import shutil
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from helpers import marker_rtmo
 
 from mvm.cli.rig import rig
 from mvm.core.camera import distort
@@ -20,6 +19,8 @@ from mvm.io.rig_simulation import write_rig_simulation
 from mvm.rig.rigdir import read_rig
 from mvm.sim.rig_render import render_rig_videos
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig
+
+from helpers import marker_rtmo
 
 pytest.importorskip("onnxruntime", reason="onnxruntime is the optional 'detect' extra")
 pytest.importorskip("onnx", reason="the test detector is built with the onnx package")

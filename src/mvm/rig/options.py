@@ -7,7 +7,6 @@ from dataclasses import dataclass
 
 from mvm.core.config import check_settings, setting
 
-
 #: The frame rate of a rig when neither the settings nor its pose files give one. [Hz]
 DEFAULT_FRAME_RATE_HZ = 30.0
 
