@@ -129,3 +129,28 @@ def test_rig_help_lists_the_users_path():
     path = ["detect", "synchronize", "calibrate", "reconstruct", "report"]
     assert [c for c in path if c in listed] == listed[:len([c for c in path if c in listed])]
     assert listed[:4] == path[:4]
+
+
+def test_simulate_rig_videos_writes_what_a_user_brings(tmp_path):
+    import cv2
+
+    from mvm.cli.sim import simulate_cmd
+
+    root = tmp_path / "rig"
+    result = CliRunner().invoke(simulate_cmd, [str(root), "--rig", "--cameras", "2", "--frames", "20", "--offsets",
+                                               "0,3", "--intrinsics-only", "--videos"])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in root.iterdir() if not p.name.startswith(".")) == ["Calib.toml", "videos"]
+    assert "rotation" not in (root / "Calib.toml").read_text()
+    for name in ("cam_01", "cam_02"):
+        capture = cv2.VideoCapture(str(root / "videos" / f"{name}.mp4"))
+        frames = 0
+        while capture.read()[0]:
+            frames += 1
+        assert frames == 20 and capture.get(cv2.CAP_PROP_FPS) == 30.0
+        assert (capture.get(cv2.CAP_PROP_FRAME_WIDTH), capture.get(cv2.CAP_PROP_FRAME_HEIGHT)) == (1920, 1080)
+        capture.release()
+    truth = json.loads((tmp_path / "rig.groundtruth.json").read_text())
+    assert truth["sync_offsets"] == {"cam_01": 0, "cam_02": 3}
+    result = CliRunner().invoke(simulate_cmd, [str(tmp_path / "scene"), "--videos"])
+    assert result.exit_code == 2 and "--rig" in result.output

@@ -62,7 +62,7 @@ def rig() -> None:
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
-      mvm rig report RIG_DIR                           -> the rig's report page
+      mvm report RIG_DIR                               -> the rig's report page
     """
 
 

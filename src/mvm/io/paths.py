@@ -15,6 +15,8 @@ from pathlib import Path
 from mvm.errors import InputError
 
 _DRIVE = re.compile(r"^[A-Za-z]:")
+#: File types taken as videos (any case): a data set's clips, a rig's cameras.
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 
 
 def name_problem(name: str, allow_parent: bool = False) -> str | None:

@@ -4,7 +4,7 @@ Every camera films the mannequins of :mod:`mvm.sim.mannequin_video` (capsules an
 drawn far to near) moving with the capture's real motion, in a room of muted noise textures,
 through its own lens (the radial distortion of the calibration) and with its frame offset:
 camera ``c``'s frame ``f`` shows the instant ``f + offsets[c]``, as the simulated detections
-do. The room is rendered once per camera (the cameras do not move).
+do. The room is rendered once per camera (the cameras do not move), at most 640 pixels wide.
 
 The people wear a marker on every joint, as in marker-based motion capture: a small disc whose
 colour codes the person and the joint (:func:`marker_colours`: blue 255, green for the joint,
@@ -56,6 +56,26 @@ def _lens_maps(K: np.ndarray, distortion: np.ndarray, size: tuple[int, int]) -> 
     return xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32)
 
 
+#: The room is rendered at most this wide, then enlarged (its textures are smooth). [px]
+ROOM_WIDTH = 640
+
+
+def _room(K: np.ndarray, R: np.ndarray, center: np.ndarray, distortion: np.ndarray, size: tuple[int, int],
+          textures: list[np.ndarray]) -> np.ndarray:
+    """The room seen by one camera through its lens: ``(H, W, 3)`` uint8 BGR, ray-cast at most
+    :data:`ROOM_WIDTH` wide (the intrinsics scaled), distorted, then enlarged to ``size``."""
+    scale = max(1, int(np.ceil(size[0] / ROOM_WIDTH)))
+    small = (int(np.ceil(size[0] / scale)), int(np.ceil(size[1] / scale)))
+    Ks = K.copy()
+    Ks[:2, :2] /= scale
+    Ks[:2, 2] = (K[:2, 2] + 0.5) / scale - 0.5
+    room = render_room(Ks, R, center, small, textures, RenderConfig())
+    maps = _lens_maps(Ks, distortion, small)
+    if maps is not None:
+        room = cv2.remap(room, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return room if small == size else cv2.resize(room, size, interpolation=cv2.INTER_LINEAR)
+
+
 def _writer(path: Path, fps: float, size: tuple[int, int]):
     codec = CODECS.get(path.suffix.lower())
     if codec is None:
@@ -86,10 +106,7 @@ def render_rig_videos(folder: str | Path, sim, suffix: str = ".mp4", seed: int =
     for v, name in enumerate(cams.names):
         size = (int(cams.size[v, 0]), int(cams.size[v, 1]))
         K, distortion = cams.K[v], calibration.distortions[v]
-        room = render_room(K, cams.R[v], cams.centers[v], size, textures, RenderConfig())
-        maps = _lens_maps(K, distortion, size)
-        if maps is not None:
-            room = cv2.remap(room, *maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        room = _room(K, cams.R[v], cams.centers[v], distortion, size, textures)
         path = folder / f"{name}{suffix}"
         writer = _writer(path, sim.frame_rate, size)
         try:
@@ -98,7 +115,7 @@ def render_rig_videos(folder: str | Path, sim, suffix: str = ".mp4", seed: int =
                 cam = X @ cams.R[v].T + cams.t[v]
                 depth = cam[..., 2]
                 uv = cam[..., :2] / np.maximum(depth[..., None], 1e-6) * K[[0, 1], [0, 1]] + K[:2, 2]
-                uv = distort(uv, K, distortion) if maps is not None else uv
+                uv = distort(uv, K, distortion) if np.any(distortion) else uv
                 image = draw_figures(room.copy(), uv, depth, shirts, trousers, float(K[0, 0]), markers=markers)
                 writer.write(image)
                 done += 1

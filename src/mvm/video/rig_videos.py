@@ -29,6 +29,7 @@ import cv2
 from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_json
+from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
 from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
 from mvm.video.detectors import FrameDetector, check_models, make_detector
@@ -38,8 +39,6 @@ log = logging.getLogger(__name__)
 #: The rig folder's videos and pose files.
 VIDEOS_DIR = "videos"
 POSE_DIR = "pose"
-#: File types taken as videos (any case).
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RIG_DETECT_STAGE = "the rig detection"
 #: Decoded frames fewer than the header announces by more than this share are reported. [1]
