@@ -120,7 +120,7 @@ def marker_rtmo(path: Path, people: int) -> Path:
     5)``, ``keypoints (B, G, 17, 3)``) that finds people by reading the pixels: the joint
     markers of :mod:`mvm.sim.rig_render` (blue 255, green and red coding the joint and the
     person). Each keypoint is the centroid of the pixels of exactly its marker's colour, present
-    where at least 3 such pixels are seen (a marker hidden by a nearer body is missed); a person
+    where at least 3 such pixels are seen (a marker hidden by another person is missed); a person
     seen with at least 3 joints scores 0.9, their box spanning those joints. Nothing but the
     image goes in, so occlusion, the lens and the frame offsets all come through the pixels.
     Built with ``onnx.helper`` (no torch): the pixels of blue 255 are gathered first, so a batch

@@ -8,7 +8,9 @@ do. The room is rendered once per camera (the cameras do not move), at most 640 
 
 The people wear a marker on every joint, as in marker-based motion capture: a small disc whose
 colour codes the person and the joint (:func:`marker_colours`: blue 255, green for the joint,
-red for the person), drawn without anti-aliasing and hidden by whatever is nearer. No other
+red for the person), drawn without anti-aliasing over the person's own body (as a detector
+infers the joints a body hides of itself; the nose and eyes of a person facing away are left
+out) and hidden by other people nearer. No other
 pixel of the videos has a blue of 255 (room and clothes are muted, the skin's blue is 220), so
 a lossless video (``.mkv``, FFV1) lets a detector find each visible joint exactly from the
 pixels; an ``.mp4`` (MPEG-4 part 2) blurs the codes, as any lossy video would.
