@@ -126,9 +126,8 @@ def test_no_videos_is_one_line(tmp_path):
 def test_rig_help_lists_the_users_path():
     result = CliRunner().invoke(rig, ["--help"])
     listed = [line.split()[0] for line in result.output.split("Commands:")[1].splitlines() if line.strip()]
-    path = ["detect", "synchronize", "calibrate", "reconstruct", "report"]
-    assert [c for c in path if c in listed] == listed[:len([c for c in path if c in listed])]
-    assert listed[:4] == path[:4]
+    assert listed[:4] == ["detect", "synchronize", "calibrate", "reconstruct"]
+    assert "report" not in listed or listed.index("report") == 4
 
 
 def test_simulate_rig_videos_writes_what_a_user_brings(tmp_path):

@@ -6,6 +6,7 @@ import sys
 import click
 
 from mvm.cli.common import (
+    DETECTOR_OPTIONS,
     Group,
     Number,
     OutputPath,
@@ -67,14 +68,9 @@ def rig() -> None:
 
 
 def _detector_options(f):
-    """The detector options of ``mvm detect`` (:data:`mvm.cli.video.detect_options`) but those
-    of imported detections and the appearance: a rig's own detections go in its pose folder."""
-    from mvm.cli.video import detect_options
-
-    def name(option):
-        return option(lambda: None).__click_params__[-1].name
-
-    for option in reversed([o for o in detect_options if name(o) not in ("source", "fmt", "appearance")]):
+    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
+    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
+    for option in reversed(DETECTOR_OPTIONS):
         f = option(f)
     return f
 
