@@ -153,3 +153,20 @@ def test_simulate_rig_videos_writes_what_a_user_brings(tmp_path):
     assert truth["sync_offsets"] == {"cam_01": 0, "cam_02": 3}
     result = CliRunner().invoke(simulate_cmd, [str(tmp_path / "scene"), "--videos"])
     assert result.exit_code == 2 and "--rig" in result.output
+
+
+def test_frames_past_what_the_header_announces_are_detected_too():
+    """A video whose header counts 3 frames but holds 10: every frame is detected, in order."""
+    from mvm.video.detect import DetectOptions, detect_batches
+    from mvm.video.detectors import FrameDetector
+
+    def run(frames):
+        return [(np.full((1, 17, 3), frame[0, 0, 0], float), np.array([0.9]), None) for frame in frames]
+
+    batches = (([i, i + 1], [np.full((4, 6, 3), i, np.uint8), np.full((4, 6, 3), i + 1, np.uint8)])
+               for i in range(0, 10, 2))
+    found = detect_batches(batches, 3, FrameDetector(run, {}), DetectOptions(detector="rtmo", appearance="none"))
+    found.resize(10)
+    keypoints, image, _, _ = found.arrays()
+    assert image.tolist() == list(range(10)) and keypoints[:, 0, 0].tolist() == list(range(10))
+    assert found.sizes.tolist() == [[6, 4]] * 10 and found.readable.all()

@@ -211,7 +211,8 @@ def detect_batches(batches, total: int, detector: FrameDetector | None, options:
     an image ``(H, W, 3)`` BGR or None where unreadable), ``total`` frames in all: ``detector``
     on each batch (or ``imported`` poses with their appearance), each pose's appearance as
     ``options`` say. Only the batch in hand is in memory; frames past ``total`` (a video's
-    header that counts wrong) are taken too. ``progress(done, total)`` before the first batch
+    header that counts wrong) are taken too, the result then holding more rows than frames
+    (:meth:`_Found.resize` to the frames read). ``progress(done, total)`` before the first batch
     and after each."""
     found = _Found([], [], [], [], np.zeros((total, 2)), np.ones(total, dtype=bool))
     need_images = detector is not None or options.appearance != "none"
@@ -219,8 +220,8 @@ def detect_batches(batches, total: int, detector: FrameDetector | None, options:
     if progress:
         progress(0, total)                           # the bar shows before the first batch is done
     for indices, images in batches:
-        if indices and indices[-1] >= len(found.sizes):
-            found.resize(indices[-1] + 1)
+        if indices and indices[-1] >= len(found.sizes):              # doubled: a long video costs linear time
+            found.resize(max(indices[-1] + 1, 2 * len(found.sizes)))
         ok = [k for k, image in enumerate(images) if image is not None or not need_images]
         for k, image in enumerate(images):
             if image is not None:
