@@ -41,7 +41,7 @@ def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
 
 
 #: The ``rig`` commands in the order of the user's path from videos to results.
-PATH = ("detect", "synchronize", "calibrate", "reconstruct", "report")
+PATH = ("detect", "synchronize", "calibrate", "reconstruct")
 
 
 class RigGroup(Group):
@@ -55,53 +55,16 @@ class RigGroup(Group):
 
 @click.group(cls=RigGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def rig() -> None:
-    """Camera rigs: videos (or 2D poses) per camera + Calib.toml -> tracked 3D poses and .trc.
+    """Camera rigs: Calib.toml + 2D poses per camera -> tracked 3D poses and .trc.
 
     \b
     The path of a rig folder, each step's output the next one's input:
-      mvm rig detect RIG_DIR                           -> RIG_DIR/pose/<camera>.json
+      mvm rig detect RIG_DIR                           -> RIG_DIR/pose/ (from RIG_DIR/videos/)
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
-      mvm report RIG_DIR                               -> the rig's report page
+      mvm report RIG_DIR, mvm overlay RIG_DIR          -> RIG_DIR/mvm/report.html, overlay/
     """
-
-
-def _detector_options(f):
-    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
-    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
-    for option in reversed(DETECTOR_OPTIONS):
-        f = option(f)
-    return f
-
-
-@rig.command("detect")
-@click.argument("rig_dir", type=click.Path(file_okay=False))
-@_detector_options
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-              help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
-@click.option("--force", is_flag=True,
-              help="Detect every video again, even where its pose file is up to date; replace pose files mvm did "
-                   "not make.")
-def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, config_path,
-               force):
-    """Detect the 2D poses of every video of RIG_DIR/videos (<camera>.mp4, ...) into
-    RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
-    frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
-    from mvm.cli.video import _detect_options
-    from mvm.video.rig_videos import detect_rig_videos
-
-    with refused(ValueError):
-        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  None, None, input_size)
-    with refused(ValueError), stage_progress(rate_column()) as update:
-        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
-    print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
-                ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
-                [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",
-                  fmt(c.video.frame_rate, 3) if c.video else "–", str(c.poses),
-                  "kept (up to date)" if c.why is None else f"made: {c.why}") for c in found])
-    say(f"pose files: {', '.join(str(c.path) for c in found)}")
 
 
 @rig.command("synchronize")
@@ -156,6 +119,43 @@ def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
                 [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]), fmt(r.residual_px[v]), str(r.observations[v]))
                  for v, n in enumerate(cams.names)])
     say(f"wrote {found.path}")
+
+
+def _detector_options(f):
+    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
+    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
+    for option in reversed(DETECTOR_OPTIONS):
+        f = option(f)
+    return f
+
+
+@rig.command("detect")
+@click.argument("rig_dir", type=click.Path(file_okay=False))
+@_detector_options
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
+@click.option("--force", is_flag=True,
+              help="Detect every video again, even where its pose file is up to date; replace pose files mvm did "
+                   "not make.")
+def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, config_path,
+               force):
+    """Detect the 2D poses of every video of RIG_DIR/videos (<camera>.mp4, ...) into
+    RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
+    frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
+    from mvm.cli.video import _detect_options
+    from mvm.video.rig_videos import detect_rig_videos
+
+    with refused(ValueError):
+        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                  None, None, input_size)
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
+    print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
+                ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
+                [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",
+                  fmt(c.video.frame_rate, 3) if c.video else "–", str(c.poses),
+                  "kept (up to date)" if c.why is None else f"made: {c.why}") for c in found])
+    say(f"pose files: {', '.join(str(c.path) for c in found)}")
 
 
 @rig.command("reconstruct")
