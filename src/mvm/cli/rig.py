@@ -6,7 +6,6 @@ import sys
 import click
 
 from mvm.cli.common import (
-    DETECTOR_OPTIONS,
     Group,
     Number,
     OutputPath,
@@ -16,12 +15,9 @@ from mvm.cli.common import (
     print_line,
     print_table,
     progress,
-    rate_column,
     read_config,
     refuse_unused,
-    refused,
     say,
-    stage_progress,
 )
 
 
@@ -119,43 +115,6 @@ def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
                 [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]), fmt(r.residual_px[v]), str(r.observations[v]))
                  for v, n in enumerate(cams.names)])
     say(f"wrote {found.path}")
-
-
-def _detector_options(f):
-    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
-    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
-    for option in reversed(DETECTOR_OPTIONS):
-        f = option(f)
-    return f
-
-
-@rig.command("detect")
-@click.argument("rig_dir", type=click.Path(file_okay=False))
-@_detector_options
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
-              help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
-@click.option("--force", is_flag=True,
-              help="Detect every video again, even where its pose file is up to date; replace pose files mvm did "
-                   "not make.")
-def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, config_path,
-               force):
-    """Detect the 2D poses of every video of RIG_DIR/videos (<camera>.mp4, ...) into
-    RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
-    frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
-    from mvm.cli.video import _detect_options
-    from mvm.video.rig_videos import detect_rig_videos
-
-    with refused(ValueError):
-        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  None, None, input_size)
-    with refused(ValueError), stage_progress(rate_column()) as update:
-        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
-    print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
-                ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
-                [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",
-                  fmt(c.video.frame_rate, 3) if c.video else "–", str(c.poses),
-                  "kept (up to date)" if c.why is None else f"made: {c.why}") for c in found])
-    say(f"pose files: {', '.join(str(c.path) for c in found)}")
 
 
 @rig.command("reconstruct")
@@ -263,3 +222,43 @@ def print_rig_recap(title: str, r: dict) -> None:
         camera_rows.append((n, fmt(r["excluded_overall_per_camera"][n]),
                             "–" if per_camera[n][j] is None else f"{r['keypoints'][j]} {fmt(per_camera[n][j])}"))
     print_table(None, ("camera", "excl. overall", "excl. most (keypoint)"), camera_rows, caption=EXCLUDED_NOTE)
+
+
+def _detector_options(f):
+    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
+    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
+    from mvm.cli.common import DETECTOR_OPTIONS
+
+    for option in reversed(DETECTOR_OPTIONS):
+        f = option(f)
+    return f
+
+
+@rig.command("detect")
+@click.argument("rig_dir", type=click.Path(file_okay=False))
+@_detector_options
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
+@click.option("--force", is_flag=True,
+              help="Detect every video again, even where its pose file is up to date; replace pose files mvm did "
+                   "not make.")
+def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, config_path,
+               force):
+    """Detect the 2D poses of every video of RIG_DIR/videos (<camera>.mp4, ...) into
+    RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
+    frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
+    from mvm.cli.common import rate_column, refused, stage_progress
+    from mvm.cli.video import _detect_options
+    from mvm.video.rig_videos import detect_rig_videos
+
+    with refused(ValueError):
+        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                  None, None, input_size)
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
+    print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
+                ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
+                [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",
+                  fmt(c.video.frame_rate, 3) if c.video else "–", str(c.poses),
+                  "kept (up to date)" if c.why is None else f"made: {c.why}") for c in found])
+    say(f"pose files: {', '.join(str(c.path) for c in found)}")
