@@ -90,7 +90,9 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         return simulate_rig_cmd(scene_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only,
                                 video_type if videos else None)
     if videos:
-        raise click.UsageError("--videos goes with --rig (a scene's frames: --render)")
+        from mvm.errors import InputError
+
+        raise InputError(None, "--videos", "goes with --rig (a scene's frames: --render)")
 
     with refused(ValueError):
         sim = read_sim(config_path, preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
