@@ -112,3 +112,97 @@ def coco_results(truth, rng, noise_px: float = 0.5, scale: float = 1.0, skip: in
             results.append({"image_id": name, "category_id": 1, "keypoints": kp.reshape(-1).round(3).tolist(),
                             "score": 0.9})
     return results
+
+
+
+def marker_rtmo(path: Path, people: int) -> Path:
+    """An ONNX model with RTMO's signature (``input (B, 3, 640, 640)`` raw BGR -> ``dets (B, G,
+    5)``, ``keypoints (B, G, 17, 3)``) that finds people by reading the pixels: the joint
+    markers of :mod:`mvm.sim.rig_render` (blue 255, green and red coding the joint and the
+    person). Each keypoint is the centroid of the pixels of exactly its marker's colour, present
+    where at least 3 such pixels are seen (a marker hidden by another person is missed); a person
+    seen with at least 3 joints scores 0.9, their box spanning those joints. Nothing but the
+    image goes in, so occlusion, the lens and the frame offsets all come through the pixels.
+    Built with ``onnx.helper`` (no torch): the pixels of blue 255 are gathered first, so a batch
+    costs a few passes over the frames."""
+    import onnx
+    from onnx import TensorProto
+    from onnx import helper as h
+
+    from mvm.sim.rig_render import MARKER_BASE, MARKER_BLUE, MARKER_JOINT_STEP, MARKER_PERSON_STEP
+
+    S, J, codes = 640, 17, people * 17
+    nodes, inits = [], []
+
+    def const(name, value, dtype=np.float32):
+        inits.append(onnx.numpy_helper.from_array(np.asarray(value, dtype=dtype), name))
+        return name
+
+    def op(kind, inputs, output, **attrs):
+        nodes.append(h.make_node(kind, inputs, [output], **attrs))
+        return output
+
+    channel = [op("Reshape", [op("Gather", ["input", const(f"c{c}", c, np.int64)], f"plane{c}", axis=1),
+                              const(f"n{c}", [-1], np.int64)], f"ch{c}") for c in range(3)]
+    hit = op("Greater", [channel[0], const("blue", MARKER_BLUE - 0.5)], "hit")
+    sel = op("Squeeze", [op("NonZero", [hit], "nz"), const("ax0", [0], np.int64)], "sel")     # (P,) pixels
+    green = op("Gather", [channel[1], sel], "green", axis=0)
+    red = op("Gather", [channel[2], sel], "red", axis=0)
+
+    def code(value, step, name):
+        k = op("Round", [op("Div", [op("Sub", [value, const(f"{name}b", MARKER_BASE)], f"{name}s"),
+                                    const(f"{name}d", step)], f"{name}q")], f"{name}k")
+        exact = op("Sub", [value, op("Add", [op("Mul", [k, const(f"{name}m", step)], f"{name}km"),
+                                             const(f"{name}a", MARKER_BASE)], f"{name}want")], f"{name}off")
+        return k, op("Less", [op("Abs", [exact], f"{name}abs"), const(f"{name}t", 0.5)], f"{name}ok")
+
+    j, j_ok = code(green, MARKER_JOINT_STEP, "j")
+    g, g_ok = code(red, MARKER_PERSON_STEP, "g")
+    valid = j_ok
+    for k, (value, low, high) in enumerate([(j, 0, J), (g, 0, people)]):
+        valid = op("And", [valid, op("GreaterOrEqual", [value, const(f"lo{k}", low)], f"ge{k}")], f"v{k}a")
+        valid = op("And", [valid, op("Less", [value, const(f"hi{k}", high)], f"lt{k}")], f"v{k}b")
+    valid = op("And", [valid, g_ok], "valid")
+    w = op("Cast", [valid], "w", to=TensorProto.FLOAT)
+    frame = op("Div", [sel, const("hw", S * S, np.int64)], "frame")
+    rest = op("Mod", [sel, const("hw2", S * S, np.int64)], "rest")
+    ys = op("Cast", [op("Div", [rest, const("wd", S, np.int64)], "yi")], "ys", to=TensorProto.FLOAT)
+    xs = op("Cast", [op("Mod", [rest, const("wm", S, np.int64)], "xi")], "xs", to=TensorProto.FLOAT)
+    slot = op("Add", [op("Mul", [g, const("j17", J)], "g17"), j], "slot")
+    slot = op("Add", [op("Mul", [op("Cast", [frame], "ff", to=TensorProto.FLOAT), const("cd", codes)], "fc"), slot],
+              "slot2")
+    index = op("Cast", [op("Mul", [slot, w], "slotw")], "index", to=TensorProto.INT64)
+    batch = op("Slice", [op("Shape", ["input"], "shape"), const("s0", [0], np.int64), const("s1", [1], np.int64)],
+               "batch")
+    size = op("Mul", [batch, const("codes", [codes], np.int64)], "size")
+    zero = op("ConstantOfShape", [size], "zero", value=h.make_tensor("z", TensorProto.FLOAT, [1], [0.0]))
+    sums = [op("ScatterElements", [zero, index, u], f"sum{k}", axis=0, reduction="add")
+            for k, u in enumerate([w, op("Mul", [w, xs], "wx"), op("Mul", [w, ys], "wy")])]
+    shape = op("Concat", [batch, const("gj", [people, J], np.int64)], "bgj", axis=0)
+    count, sx, sy = (op("Reshape", [s, shape], f"r{k}") for k, s in enumerate(sums))
+    n = op("Max", [count, const("one", 1.0)], "n")
+    kx, ky = op("Div", [sx, n], "kx"), op("Div", [sy, n], "ky")
+    seen = op("Cast", [op("GreaterOrEqual", [count, const("three", 3.0)], "seen3")], "seen", to=TensorProto.FLOAT)
+    conf = op("Mul", [seen, const("c95", 0.95)], "conf")
+    unsq = const("last", [-1], np.int64)
+    op("Concat", [op("Unsqueeze", [t, unsq], f"u{t}") for t in (kx, ky, conf)], "keypoints", axis=-1)
+    on = op("Cast", [seen], "on", to=TensorProto.BOOL)
+    bounds = []
+    for t in (kx, ky):
+        bounds.append(op("ReduceMin", [op("Where", [on, t, const(f"big{t}", 1e6)], f"lo{t}")], f"min{t}", axes=[-1],
+                         keepdims=1))
+    for t in (kx, ky):
+        bounds.append(op("ReduceMax", [op("Where", [on, t, const(f"neg{t}", -1e6)], f"hi{t}")], f"max{t}", axes=[-1],
+                         keepdims=1))
+    joints = op("ReduceSum", [seen, unsq], "joints", keepdims=1)
+    enough = op("GreaterOrEqual", [joints, const("three2", 3.0)], "enough")
+    person = op("Cast", [enough], "person", to=TensorProto.FLOAT)
+    box = op("Mul", [op("Concat", bounds, "box0", axis=-1), person], "box")
+    op("Concat", [box, op("Mul", [person, const("s90", 0.9)], "score")], "dets", axis=-1)
+    graph = h.make_graph(nodes, "marker_rtmo", [h.make_tensor_value_info("input", TensorProto.FLOAT, ["B", 3, S, S])],
+                         [h.make_tensor_value_info("dets", TensorProto.FLOAT, ["B", people, 5]),
+                          h.make_tensor_value_info("keypoints", TensorProto.FLOAT, ["B", people, J, 3])], inits)
+    model = h.make_model(graph, opset_imports=[h.make_opsetid("", 17)], ir_version=8)
+    onnx.checker.check_model(model)
+    onnx.save(model, path)
+    return path

@@ -15,7 +15,7 @@ from mvm.cli.main import main
 #: Every subcommand of ``mvm``; removing one must be a decision, not an import that broke.
 COMMANDS = ("batch", "bench", "config", "demo", "detect", "evaluate", "export", "frames", "overlay", "predict",
             "reconstruct", "report", "rig", "run", "sfm", "simulate", "status", "train")
-SUBCOMMANDS = {"rig": ("synchronize", "calibrate", "reconstruct"), "evaluate": ("3dpw", "coco", "cvar")}
+SUBCOMMANDS = {"rig": ("detect", "synchronize", "calibrate", "reconstruct"), "evaluate": ("3dpw", "coco", "cvar")}
 
 
 def _listed(help_text: str) -> set[str]:

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mvm.errors import InputError
+from mvm.io.paths import VIDEO_SUFFIXES
 
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 #: Entries whose presence makes a directory a scene directory (not a sequence).
 SCENE_MARKERS = ("sparse", "poses2d.json", "frames", "frames.json")
 

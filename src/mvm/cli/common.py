@@ -458,3 +458,27 @@ def read_config(config_path: str | None, sets: tuple[str, ...], driver: str = "s
     config = load_config(config_path, pairs)
     changes = {k: v for k, v in flags.items() if v is not None}
     return config.replace(**changes) if changes else config
+
+
+#: The options that choose and run a 2D pose detector, the same in ``mvm detect``, ``mvm run``
+#: and ``mvm rig detect`` (:class:`mvm.video.detect.DetectOptions`).
+DETECTOR_OPTIONS = [
+    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "mvm"]), default=None,
+                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), mvm (the "
+                      "project's network, --checkpoint). Default: rtmo when ONNX Runtime is installed."),
+    click.option("--model", type=click.Path(dir_okay=False), default=None,
+                 help="The detector's ONNX model (.onnx or the published .zip; default: the published model, "
+                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
+    click.option("--person-model", type=click.Path(dir_okay=False), default=None,
+                 help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
+    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default=None,
+                 help="Size of the published models (default balanced)."),
+    click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
+                 help="Where the detector runs (default cpu; cuda: onnxruntime-gpu or a CUDA torch)."),
+    click.option("--batch-size", type=click.IntRange(min=1), default=None,
+                 help="Frames given to the detector at once (default 4)."),
+    click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
+                 help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
+    click.option("--input-size", type=Number(int, ge=16, le=4096), default=None,     # as mvm predict
+                 help="Long edge of mvm's network input, 16 to 4096 px (default: as trained)."),
+]

@@ -36,11 +36,17 @@ def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
                          {**{k: "--rig-set" for k in values}, **{k: "--" + k.replace("_", "-") for k in flags}})
 
 
+#: The ``rig`` commands in the order of the user's path from videos to results.
+PATH = ("detect", "synchronize", "calibrate", "reconstruct")
+
+
 class RigGroup(Group):
-    """The ``rig`` group lists its commands in the order of the user's path, not alphabetically."""
+    """The ``rig`` group lists its commands in the order of the user's path (:data:`PATH`), not
+    alphabetically; commands off the path come after, in the order they were added."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return list(self.commands)
+        rank = {name: i for i, name in enumerate(PATH)}
+        return sorted(self.commands, key=lambda name: rank.get(name, len(PATH)))
 
 
 @click.group(cls=RigGroup, context_settings={"help_option_names": ["-h", "--help"]})
@@ -49,6 +55,7 @@ def rig() -> None:
 
     \b
     The path of a rig folder, each step's output the next one's input:
+      mvm rig detect RIG_DIR                           -> RIG_DIR/pose/ (from RIG_DIR/videos/)
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
@@ -127,7 +134,8 @@ def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
                    "them along the track and inferring the rest from the pose prior.")
 @click.option("--trc-inferred", is_flag=True,
               help="Write inferred joints into the .trc files too (default: observed and interpolated only).")
-@click.option("--frame-rate", type=float, default=None, help="Rig frame rate in Hz (default 30).")
+@click.option("--frame-rate", type=float, default=None,
+              help="Rig frame rate in Hz (default: the videos' rate that mvm rig detect recorded, else 30).")
 @click.option("--workers", type=int, default=None,
               help="Processes to read, reconstruct and refine with (default: $MVM_WORKERS, else one per core; "
                    "1: this process only).")
@@ -164,6 +172,10 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     if worst is not None and (r["excluded_overall_per_camera"][worst] or 0) > 0.3:
         say(f"hint: camera {worst} is excluded {r['excluded_overall_per_camera'][worst]:.0%} of the time: "
             "check its calibration, or raise ransac_threshold (--set ransac_threshold=...)")
+    if r.get("frame_rate"):
+        say(f"frame rate: {r['frame_rate']['hz']:g} Hz ("
+            + {"videos": "the videos', recorded by mvm rig detect", "setting": "given",
+               "default": "the default; no video recorded one"}.get(r["frame_rate"]["source"], "") + ")")
     if r.get("sync_offsets"):
         say("synchronized by sync.toml (frame numbers are the reference camera's): "
             + ", ".join(f"{n} {o:+d}" for n, o in r["sync_offsets"].items()))
@@ -210,3 +222,43 @@ def print_rig_recap(title: str, r: dict) -> None:
         camera_rows.append((n, fmt(r["excluded_overall_per_camera"][n]),
                             "–" if per_camera[n][j] is None else f"{r['keypoints'][j]} {fmt(per_camera[n][j])}"))
     print_table(None, ("camera", "excl. overall", "excl. most (keypoint)"), camera_rows, caption=EXCLUDED_NOTE)
+
+
+def _detector_options(f):
+    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
+    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
+    from mvm.cli.common import DETECTOR_OPTIONS
+
+    for option in reversed(DETECTOR_OPTIONS):
+        f = option(f)
+    return f
+
+
+@rig.command("detect")
+@click.argument("rig_dir", type=click.Path(file_okay=False))
+@_detector_options
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
+              help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
+@click.option("--force", is_flag=True,
+              help="Detect every video again, even where its pose file is up to date; replace pose files mvm did "
+                   "not make.")
+def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, config_path,
+               force):
+    """Detect the 2D poses of every video of RIG_DIR/videos (<camera>.mp4, ...) into
+    RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
+    frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
+    from mvm.cli.common import rate_column, refused, stage_progress
+    from mvm.cli.video import _detect_options
+    from mvm.video.rig_videos import detect_rig_videos
+
+    with refused(ValueError):
+        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                  None, None, input_size)
+    with refused(ValueError), stage_progress(rate_column()) as update:
+        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
+    print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
+                ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
+                [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",
+                  fmt(c.video.frame_rate, 3) if c.video else "–", str(c.poses),
+                  "kept (up to date)" if c.why is None else f"made: {c.why}") for c in found])
+    say(f"pose files: {', '.join(str(c.path) for c in found)}")

@@ -74,15 +74,25 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
 @click.option("--intrinsics-only", is_flag=True,
               help="With --rig: write Calib.toml without rotations and translations (for mvm rig calibrate "
                    "--from-people); the full one goes beside the folder.")
+@click.option("--videos", is_flag=True,
+              help="With --rig: render each camera's video into SCENE_DIR/videos instead of writing its 2D poses "
+                   "(for mvm rig detect).")
+@click.option("--video-type", type=click.Choice(["mp4", "mkv"]), default="mp4", show_default=True,
+              help="With --videos: the videos' file type (mkv: lossless FFV1).")
 def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, render, config_path, rig, cameras,
-                 offsets, intrinsics_only):
+                 offsets, intrinsics_only, videos, video_type):
     """Simulate a mannequin scene into SCENE_DIR; the ground truth goes beside it
     (SCENE_DIR.groundtruth.json). With --rig, a rig of cameras around moving people."""
     from mvm.io.ground_truth import write_simulation
     from mvm.sim.simulate import simulate
 
     if rig:
-        return simulate_rig_cmd(scene_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only)
+        return simulate_rig_cmd(scene_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only,
+                                video_type if videos else None)
+    if videos:
+        from mvm.errors import InputError
+
+        raise InputError(None, "--videos", "goes with --rig (a scene's frames: --render)")
 
     with refused(ValueError):
         sim = read_sim(config_path, preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
@@ -119,12 +129,16 @@ def parse_offsets(text: str | None, cameras: int) -> tuple[int, ...]:
     return values
 
 
-def simulate_rig_cmd(rig_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only):
+def simulate_rig_cmd(rig_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only, videos=None):
     """``mvm simulate --rig``: a simulated rig folder and its truth (:mod:`mvm.io.rig_simulation`),
-    with the preset's detector errors (no merged poses: a rig's detector sees each camera alone)."""
+    with the preset's detector errors (no merged poses: a rig's detector sees each camera alone),
+    or, with ``videos`` (``mp4`` or ``mkv``), each camera's rendered video instead of its poses
+    (:mod:`mvm.sim.rig_render`)."""
     import dataclasses
+    import functools
 
     from mvm.io.rig_simulation import write_rig_simulation
+    from mvm.sim.rig_render import render_rig_videos
     from mvm.sim.rig_scene import RigSimConfig, simulate_rig
     from mvm.sim.simulate import SimConfig
 
@@ -133,12 +147,18 @@ def simulate_rig_cmd(rig_dir, preset, people, frames, seed, cameras, offsets, in
         config = RigSimConfig(cameras=cameras, offsets=parse_offsets(offsets, cameras), **given,
                               errors=dataclasses.replace(SimConfig.preset(preset).detector, merge_prob=0.0))
         sim = simulate_rig(config)
-        paths = write_rig_simulation(rig_dir, sim, intrinsics_only)
+        with stage_progress() as update:
+            render = None if not videos else functools.partial(
+                render_rig_videos, sim=sim, suffix=f".{videos}", seed=config.seed,
+                progress=lambda done, total: update("rendering", done, total))
+            paths = write_rig_simulation(rig_dir, sim, intrinsics_only, render)
     names = sim.calibration.cameras.names
     measure_table(f"mvm simulate --rig ({preset})", [
         ("cameras", f"{len(names)} ({', '.join(names)})"), ("people", str(config.people)),
-        ("frames per camera", str(config.frames)), ("2D poses", str(len(sim.keypoints))),
-        ("false positives", str(int((sim.person < 0).sum()))),
+        ("frames per camera", str(config.frames))]
+        + ([("videos", f"{paths['videos']} ({videos}, {config.frame_rate:g} Hz, {config.image_width}×"
+                       f"{config.image_height}; detect them with mvm rig detect)")] if videos else
+           [("2D poses", str(len(sim.keypoints))), ("false positives", str(int((sim.person < 0).sum())))]) + [
         ("offsets to add (sync)", ", ".join(f"{n} {o:+d}" for n, o in zip(names, sim.sync_offsets))),
         ("calibration", f"{paths['calibration']}" + (" (intrinsics only)" if intrinsics_only else "")),
         ("ground truth", f"{paths['truth']}, {paths['true_calibration']}")])

@@ -44,7 +44,8 @@ class CocoKeypoints:
         image_ids: ``(I,)``; file_names: ``I`` names; sizes: ``(I, 2)`` width, height (0 if absent).
         ann_ids: ``(N,)``; ann_image: ``(N,)`` index into the images (not the id);
         keypoints: ``(N, 17, 3)`` x, y, v with v in [0, 1] (COCO visibility flags 1 and 2 read as 1);
-        score: ``(N,)``; appearance: ``(N, D)`` or None.
+        score: ``(N,)``; appearance: ``(N, D)`` or None; info: the file's ``info`` object, or
+        None (what made the poses: the detector, the video of a rig camera).
     """
 
     image_ids: np.ndarray
@@ -55,6 +56,7 @@ class CocoKeypoints:
     keypoints: np.ndarray
     score: np.ndarray
     appearance: np.ndarray | None
+    info: dict | None = None
 
 
 def parse_keypoints(values, path, field) -> np.ndarray:
@@ -110,6 +112,7 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
         keypoints=keypoints,
         score=np.array(scores, dtype=float),
         appearance=_stack_appearance(apps, path),
+        info=data["info"] if isinstance(data.get("info"), dict) else None,
     )
 
 

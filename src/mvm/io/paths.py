@@ -15,6 +15,26 @@ from pathlib import Path
 from mvm.errors import InputError
 
 _DRIVE = re.compile(r"^[A-Za-z]:")
+#: File types taken as videos (any case): a data set's clips, a rig's cameras.
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+
+
+def videos_by_name(folder: str | Path) -> dict[str, Path]:
+    """``{name: video}`` of the videos in ``folder`` (a rig's ``videos/``), each named by its file
+    name without its type (``cam_01.mp4`` -> ``cam_01``), in name order; hidden files and other
+    types are left out. An absent folder holds none; two videos of one name raise
+    :class:`InputError`."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return {}
+    found: dict[str, Path] = {}
+    for path in sorted(folder.iterdir()):
+        if path.name.startswith(".") or path.suffix.lower() not in VIDEO_SUFFIXES or not path.is_file():
+            continue
+        if path.stem in found:
+            raise InputError(folder, None, f"two videos of camera {path.stem}: {found[path.stem].name} and {path.name}")
+        found[path.stem] = path
+    return found
 
 
 def name_problem(name: str, allow_parent: bool = False) -> str | None:

@@ -3,6 +3,8 @@
     OUT/
       Calib.toml            the cameras (with ``intrinsics_only``: no rotation / translation)
       pose/<camera>.json    one COCO keypoints file per camera, file_name "<camera>/<frame>.jpg"
+      videos/<camera>.mp4   or, when rendered, each camera's video instead (no pose/: what a
+                            user brings, for ``mvm rig detect``)
     OUT.groundtruth.json    format ``mvm.rig.groundtruth/1``: cameras, true offsets, true
                             extrinsics, the scene's instants and 3D poses (metres)
     OUT.groundtruth.toml    the true, full calibration
@@ -11,6 +13,7 @@ The folder is written whole (a temporary folder renamed into place), the truth f
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -44,16 +47,22 @@ def truth_document(sim) -> dict:
             "poses3d": np.round(sim.poses3d, 5).tolist()}
 
 
-def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False) -> dict[str, Path]:
+def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False,
+                         render: Callable[[Path], object] | None = None) -> dict[str, Path]:
     """Write ``sim`` (a :class:`mvm.sim.rig_scene.RigSimulation`) into the rig folder ``out`` and
-    its truth beside it. Returns the paths written (``rig``, ``calibration``, ``truth``,
-    ``true_calibration``)."""
+    its truth beside it. ``render(folder)`` writes the cameras' videos into ``folder``
+    (``OUT/videos``, :func:`mvm.sim.rig_render.render_rig_videos`); the simulated detections
+    (``pose/``) are then left out. Returns the paths written (``rig``, ``calibration``,
+    ``truth``, ``true_calibration``, and ``videos`` when rendered)."""
     out = Path(out)
     cams = sim.calibration.cameras
 
     def build(folder: Path) -> None:
         text = calib_toml_text(sim.calibration)
         atomic_write_text(folder / "Calib.toml", intrinsics_only_text(text) if intrinsics_only else text)
+        if render is not None:
+            render(folder / "videos")
+            return
         for v, name in enumerate(cams.names):
             rows = sim.camera == v
             frames, ann_image = np.unique(sim.frame[rows], return_inverse=True)
@@ -67,4 +76,5 @@ def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False) ->
     atomic_replace_dir(build, out)
     atomic_write_json(truth, truth_document(sim))
     write_calib_toml(true_calibration, sim.calibration)
-    return {"rig": out, "calibration": out / "Calib.toml", "truth": truth, "true_calibration": true_calibration}
+    paths = {"rig": out, "calibration": out / "Calib.toml", "truth": truth, "true_calibration": true_calibration}
+    return {**paths, "videos": out / "videos"} if render is not None else paths

@@ -16,6 +16,7 @@ from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.checks import load_json_object
+from mvm.io.paths import videos_by_name
 from mvm.io.provenance import check_fresh, read_record
 from mvm.io.rig_poses3d import RigPoses3D, read_rig_poses3d
 from mvm.io.rig_truth import RigTruth, read_rig_truth, rig_truth_path
@@ -30,7 +31,6 @@ POSES3D = "poses3d.jsonl"
 RECAP = "recap.json"
 #: Where a rig's videos are: ``RIG_DIR/videos/<camera>.<ext>``.
 VIDEOS = "videos"
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 
 
 def is_rig_dir(path: str | Path, output: str = DEFAULT_OUTPUT) -> bool:
@@ -169,9 +169,7 @@ def rig_videos(rig_dir: str | Path, names: list[str]) -> dict[str, Path]:
     """The video of each camera that has one: ``RIG_DIR/videos/<camera>.<ext>``, matched to the
     camera names as pose folders are (:func:`mvm.rig.rigdir.match_cameras`)."""
     folder = Path(rig_dir) / VIDEOS
-    if not folder.is_dir():
-        return {}
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES and not p.name.startswith("."))
+    files = list(videos_by_name(folder).values())
     try:
         matched = match_cameras(names, [p.stem for p in files])
     except ValueError as e:

@@ -7,6 +7,9 @@ from dataclasses import dataclass
 
 from mvm.core.config import check_settings, setting
 
+#: The frame rate of a rig when neither the settings nor its pose files give one. [Hz]
+DEFAULT_FRAME_RATE_HZ = 30.0
+
 
 @dataclass(frozen=True)
 class RigOptions:
@@ -37,8 +40,9 @@ class RigOptions:
     filter_order: int = setting(4, ge=1, le=16)
     #: Window of the Savitzky-Golay filter (odd); longer smooths more. [instants]
     savgol_window: int = setting(9, ge=3, odd=True)
-    #: Frame rate of the rig, for times in .trc files and the filter. [Hz]
-    frame_rate: float = setting(30.0, gt=0)
+    #: Frame rate of the rig, for times in .trc files and the filter. None: the rate of the videos
+    #: that ``mvm rig detect`` recorded in the pose files, else 30 Hz. [Hz]
+    frame_rate: float | None = setting(None, gt=0)
     #: Size of one world unit in metres (Pose2Sim calibrations: 1; anipose in mm: 0.001;
     #: Panoptic: 0.01). [m / unit]
     metres_per_unit: float = setting(1.0, gt=0)
@@ -60,15 +64,20 @@ class RigOptions:
         check_settings(self)
 
     @property
+    def rate(self) -> float:
+        """The frame rate in use: ``frame_rate``, else :data:`DEFAULT_FRAME_RATE_HZ`. [Hz]"""
+        return self.frame_rate if self.frame_rate is not None else DEFAULT_FRAME_RATE_HZ
+
+    @property
     def cutoff(self) -> float:
         """The Butterworth cut-off in use: ``cutoff_hz``, else 6 Hz capped at a fifth of the frame rate. [Hz]"""
-        return self.cutoff_hz if self.cutoff_hz is not None else min(6.0, self.frame_rate / 5)
+        return self.cutoff_hz if self.cutoff_hz is not None else min(6.0, self.rate / 5)
 
     def implied_problems(self) -> list[tuple[str, str]]:
         """The Butterworth cut-off must lie below the Nyquist frequency of the frame rate."""
-        if self.smoothing == "butterworth" and not self.cutoff < self.frame_rate / 2:
-            return [("cutoff_hz", f"must be below half the frame rate ({self.frame_rate / 2:g} Hz at "
-                                  f"frame_rate {self.frame_rate:g}), got {self.cutoff:g}")]
+        if self.smoothing == "butterworth" and not self.cutoff < self.rate / 2:
+            return [("cutoff_hz", f"must be below half the frame rate ({self.rate / 2:g} Hz at "
+                                  f"frame_rate {self.rate:g}), got {self.cutoff:g}")]
         return []
 
     def replace(self, **changes) -> RigOptions:

@@ -21,10 +21,10 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.options import RigOptions
+from mvm.rig.options import DEFAULT_FRAME_RATE_HZ, RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
-from mvm.rig.rigdir import RigData, read_rig
+from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
 from mvm.rig.skeleton import refine_tracks
 from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
 
@@ -155,7 +155,7 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
             series = interpolate_series(series, options.max_interpolation_gap)[0]
         path = directory / f"track_{int(k)}.trc"
         write_trc(path, to_opensim(series, options.up, options.metres_per_unit), COCO_KEYPOINTS,
-                  options.frame_rate, frames=frames[times], comment=comment)
+                  options.rate, frames=frames[times], comment=comment)
         paths.append(path)
     return paths
 
@@ -222,7 +222,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     if config is not None and config.refine and detections is not None and len(persons):
         persons = refine_by_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight,
                                    options.workers)
-    X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.frame_rate,
+    X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if complete:
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
@@ -237,16 +237,41 @@ def check_smoothing(options: RigOptions) -> None:
     (:func:`mvm.rig.filters.min_cutoff`): a frame rate of 1e12 Hz, a cut-off of 1e-9 Hz."""
     if options.smoothing != "butterworth":
         return
-    nyquist = options.frame_rate / 2
+    nyquist = options.rate / 2
     order = butterworth_order(options.filter_order)
     lowest = min_cutoff(order) * nyquist
     if not options.cutoff >= lowest:
         field = "cutoff_hz" if options.cutoff_hz is not None else "frame_rate"
         raise InputError(None, field, f"a cut-off of {options.cutoff:.3g} Hz at a frame rate of "
-                                      f"{options.frame_rate:.3g} Hz is below the {lowest:.3g} Hz the Butterworth "
+                                      f"{options.rate:.3g} Hz is below the {lowest:.3g} Hz the Butterworth "
                                       f"filter of filter_order {options.filter_order} can be computed at "
                                       f"({min_cutoff(order):.2g} of the Nyquist frequency): raise cutoff_hz, lower "
                                       "frame_rate or filter_order, or use smoothing = savgol")
+
+
+def with_frame_rate(options: RigOptions, rig: RigData) -> tuple[RigOptions, str]:
+    """``options`` with the rig's frame rate, and where it comes from: ``"setting"`` (given; a
+    warning when the videos recorded another), ``"videos"`` (the rate ``mvm rig detect``
+    recorded in the pose files: :func:`mvm.rig.rigdir.recorded_frame_rate`) or ``"default"``
+    (:data:`mvm.rig.options.DEFAULT_FRAME_RATE_HZ`)."""
+    if options.frame_rate is not None:
+        try:
+            recorded = recorded_frame_rate(rig)
+        except InputError as e:
+            log.warning("%s (using the %g Hz given)", e, options.frame_rate)
+            recorded = None
+        if recorded is not None and abs(recorded - options.frame_rate) > 1e-3 * recorded:
+            log.warning("frame rate %g Hz given; the videos were recorded at %g Hz", options.frame_rate, recorded)
+        return options, "setting"
+    recorded = recorded_frame_rate(rig)
+    if recorded is None:
+        return options.replace(frame_rate=DEFAULT_FRAME_RATE_HZ), "default"
+    try:
+        resolved = options.replace(frame_rate=recorded)
+    except ValueError as e:
+        raise InputError(None, "frame_rate", f"the videos' {recorded:g} Hz: {e}") from None
+    check_smoothing(resolved)
+    return resolved, "videos"
 
 
 def rig_reason(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
@@ -298,6 +323,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     hashed = fingerprints(inputs)                                    # before reading: never newer than the set
     t0 = time.perf_counter()
     rig = read_rig(rig_dir, calib, frames, options.workers)
+    given, (options, rate_source) = options, with_frame_rate(options, rig)
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     prior = completion_prior(config, prior)
@@ -315,6 +341,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     summary["tracks_resumed"] = tracking.resumed
     summary["persons_not_linked_few_joints"] = tracking.unlinked
     summary["sync_offsets"] = rig.offsets
+    summary["frame_rate"] = {"hz": options.rate, "source": rate_source}
     counts = np.bincount(np.asarray(flags, dtype=int).ravel(), minlength=len(FLAG_NAMES))
     summary["joint_flags"] = {n: round(float(c / max(counts.sum(), 1)), 4) for n, c in zip(FLAG_NAMES, counts)}
     summary["instants_per_s"] = round(len(rig.frames) / max(timings["reconstruct_s"]
@@ -333,7 +360,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
                                                  "config": asdict(config), "options": asdict(options),
                                                  "calibration": rig.calibration.metadata.get("source"),
                                                  "pose_format": rig.pose_format}, pretty=True)
-        write_record(folder / "poses3d.jsonl", RIG_STAGE, inputs, rig_settings(config, options, calib, frames), hashed)
+        write_record(folder / "poses3d.jsonl", RIG_STAGE, inputs, rig_settings(config, given, calib, frames), hashed)
 
     replace_output_set(build, out_dir, config.lock_timeout_s)
     outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})

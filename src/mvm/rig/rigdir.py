@@ -7,7 +7,9 @@
       sync.toml                                           frame offsets (optional, mvm.io.sync_toml)
       pose/ (or RIG_DIR itself)
         <camera>/          OpenPose or OpenPifPaf JSON, one file per frame (frame number in the name)
-        <camera>.json      or one COCO keypoints file per camera (frame number in file_name)
+        <camera>.json      or one COCO keypoints file per camera (frame number in file_name; its
+                           info.video, written by mvm rig detect, gives the video's frame rate)
+        <camera>.inputs.json  the record of a pose file mvm made (mvm.io.provenance), not a camera
 
 Cameras are matched to folders by *name*, never by sort order: an exact name, then the name
 without case and known suffixes (``_json``, ``_keypoints``, ``_img``, ``.json``), then the same
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +32,7 @@ from mvm.io.coco import read_coco_keypoints
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_number, read_openpose_frames
 from mvm.io.pose_format import pose_format
+from mvm.io.provenance import RECORD_SUFFIX
 from mvm.parallel import fork_map_ranges
 from mvm.rig.instants import rig_poses
 
@@ -51,6 +54,8 @@ class RigData:
         pose_format: "openpose", "openpifpaf" or "coco".
         offsets: camera name -> frames added to its frame numbers (from ``sync.toml``), or None
             when the frame numbers were used as they are.
+        videos: camera name -> the ``info.video`` of its COCO pose file (``frame_rate``,
+            ``frames``, ...: :mod:`mvm.video.rig_videos`), for the cameras whose file has one.
     """
 
     calibration: RigCalibration
@@ -59,6 +64,7 @@ class RigData:
     sources: dict
     pose_format: str
     offsets: dict | None = None
+    videos: dict = field(default_factory=dict)
 
 
 def _normalize(name: str) -> str:
@@ -144,7 +150,8 @@ def _pose_root(rig_dir: Path) -> Path:
 
 
 def pose_sources(rig_dir: Path) -> dict[str, Path]:
-    """Candidate pose sources: sub-folders holding ``*.json`` files and ``*.json`` COCO files."""
+    """Candidate pose sources: sub-folders holding ``*.json`` files and ``*.json`` COCO files
+    (not the records of mvm's pose files, ``*.inputs.json``)."""
     root = _pose_root(rig_dir)
     sources = {}
     for p in sorted(root.iterdir()):
@@ -152,7 +159,8 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
             continue
         if p.is_dir() and any(p.glob("*.json")):
             sources[p.name] = p
-        elif p.is_file() and p.suffix.lower() == ".json" and not p.name.startswith("calibration"):
+        elif (p.is_file() and p.suffix.lower() == ".json" and not p.name.startswith("calibration")
+              and not p.name.endswith(RECORD_SUFFIX)):
             sources[p.name] = p
     return sources
 
@@ -167,15 +175,16 @@ def _source_format(path: Path, root: Path) -> tuple[str, list[tuple[int, Path]]]
     return fmt, files
 
 
-def _read_coco_source(path: Path, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _read_coco_source(path: Path, root: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict | None]:
     """The 2D poses of one camera's COCO keypoints file, by frame number: ``(frames (N,),
-    keypoints (N, 17, 3), scores (N,))``."""
+    keypoints (N, 17, 3), scores (N,), its info.video or None)``."""
     coco = read_coco_keypoints(path, root=root)
     frame_of_image = np.array([frame_number(Path(n), path, f"images[{i}].file_name")
                                for i, n in enumerate(coco.file_names)], dtype=np.int64)
     frames = frame_of_image[coco.ann_image]
     order = np.argsort(frames, kind="stable")
-    return frames[order], coco.keypoints[order], coco.score[order]
+    video = (coco.info or {}).get("video")
+    return frames[order], coco.keypoints[order], coco.score[order], video if isinstance(video, dict) else None
 
 
 def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.ndarray, np.ndarray | None]]:
@@ -188,19 +197,23 @@ def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.
 
 def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: str, root: Path,
                   start: int | None, stop: int | None, workers: int | None = None,
-                  shifts: list[int] | None = None) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                  shifts: list[int] | None = None, videos: list | None = None
+                  ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The 2D poses of each camera's source of ``paths`` (its per-frame ``files``,
     :func:`_source_format`) with a frame number in ``[start, stop)`` (None: open):
     ``[(frames (N,), keypoints (N, 17, 3), scores (N,))]``. ``shifts``: per camera, frames
     added to its frame numbers first (the range applies to the shifted numbers, which are
     returned). Per-frame files outside the range are not read; the files of all cameras are
-    read on ``workers`` processes (:func:`mvm.parallel.fork_map`)."""
+    read on ``workers`` processes (:func:`mvm.parallel.fork_map`). ``videos``: a list that gets
+    each COCO file's ``info.video`` (or None)."""
     low, high = -np.inf if start is None else start, np.inf if stop is None else stop
     shifts = shifts or [0] * len(paths)
     if fmt == "coco":
         out = []
         for path, shift in zip(paths, shifts):
-            f, kp, score = _read_coco_source(path, root)
+            f, kp, score, video = _read_coco_source(path, root)
+            if videos is not None:
+                videos.append(video)
             f = f + shift
             keep = (f >= low) & (f < high)
             out.append((f[keep], kp[keep], score[keep]))
@@ -314,7 +327,8 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     fmt = formats[0]
     used_names = [names[c] for c in used]
     shifts = sync_shifts(offsets, used_names, sync_path) if offsets is not None else None
-    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers, shifts)
+    videos: list = []
+    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers, shifts, videos)
     if offsets is not None:
         check_overlap([f for f, _, _ in read], used_names, sync_path)
     kps = [kp for _, kp, _ in read]
@@ -342,7 +356,30 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
              len(detections), fmt)
     return RigData(calibration, all_frames, detections,
                    {names[c]: sources[entries[matched[c]]] for c in used}, fmt,
-                   None if shifts is None else dict(zip(used_names, shifts)))
+                   None if shifts is None else dict(zip(used_names, shifts)),
+                   {n: v for n, v in zip(used_names, videos) if v is not None})
+
+
+#: Cameras whose videos' frame rates differ by less than this share agree (29.97 and 30 do not). [1]
+FRAME_RATE_TOLERANCE = 1e-3
+
+
+def recorded_frame_rate(rig: RigData) -> float | None:
+    """The frame rate of the rig's videos recorded in its pose files (``info.video.frame_rate``,
+    written by ``mvm rig detect``), or None when none records one. Cameras that disagree raise
+    :class:`InputError` naming each camera's rate."""
+    rates = {n: v.get("frame_rate") for n, v in rig.videos.items()}
+    rates = {n: float(r) for n, r in rates.items()
+             if isinstance(r, (int, float)) and not isinstance(r, bool) and np.isfinite(r) and r > 0}
+    if not rates:
+        return None
+    low, high = min(rates.values()), max(rates.values())
+    if high > low * (1 + FRAME_RATE_TOLERANCE):
+        where = next(iter(rig.sources.values())).parent
+        raise InputError(where, "info.video.frame_rate", "the cameras' videos have different frame rates ("
+                         + ", ".join(f"{n} {r:g} Hz" for n, r in rates.items())
+                         + "): resample them to one rate and detect again, or give --frame-rate")
+    return float(np.mean(list(rates.values())))
 
 
 def subset_calibration(calibration: RigCalibration, index: np.ndarray) -> RigCalibration:

@@ -130,14 +130,39 @@ def draw_people(image: np.ndarray, P: np.ndarray, poses3d: np.ndarray, shirts: n
     x = np.concatenate([poses3d, np.ones((G, NUM_JOINTS, 1))], axis=2) @ P.T
     depth = x[..., 2]
     uv = x[..., :2] / np.maximum(depth[..., None], 1e-6)
+    return draw_figures(image, uv, depth, shirts, trousers, focal, brightness)
+
+
+#: The radius of a joint's marker (:func:`draw_figures`). [m]
+MARKER_RADIUS = 0.03
+
+
+def draw_figures(image: np.ndarray, uv: np.ndarray, depth: np.ndarray, shirts: np.ndarray, trousers: np.ndarray,
+                 focal: float, brightness: float = 1.0, markers: np.ndarray | None = None) -> np.ndarray:
+    """Draw projected people as capsules, far to near, on ``image: (H, W, 3)`` (in place).
+
+    ``uv: (G, 17, 2)`` pixels, ``depth: (G, 17)`` metres along the optical axis, ``shirts,
+    trousers: (G, 3)`` BGR. ``markers: (G, 17, 3)`` BGR: a disc of :data:`MARKER_RADIUS` on each
+    joint in exactly that colour (no anti-aliasing), drawn over its own person's body and hidden
+    by other people nearer; the nose's and the eyes' markers are not drawn when they are behind
+    the head's centre (the person faces away).
+    """
+    G = len(uv)
     items = []  # (depth, kind, person, part index)
     for g in range(G):
-        for k, (a, b, _, _) in enumerate(_PARTS):
-            items.append((0.5 * (depth[g, a] + depth[g, b]), 0, g, k))
+        parts = [0.5 * (depth[g, a] + depth[g, b]) for a, b, _, _ in _PARTS]
+        items += [(d, 0, g, k) for k, d in enumerate(parts)]
         items.append((depth[g, 0], 1, g, -1))
+        if markers is not None:
+            items += _marker_items(depth[g], parts, g)
     items.sort(key=lambda item: -item[0])
     for d, kind, g, k in items:
         if d <= 0.1:
+            continue
+        if kind == 2:
+            radius = max(int(round(focal * MARKER_RADIUS / depth[g, k])), 2)
+            centre = tuple(int(round(c)) for c in uv[g, k])
+            cv2.circle(image, centre, radius, [int(c) for c in markers[g, k]], -1, cv2.LINE_8)
             continue
         if kind == 1:
             head = 0.5 * (uv[g, 3] + uv[g, 4])
@@ -152,6 +177,17 @@ def draw_people(image: np.ndarray, P: np.ndarray, poses3d: np.ndarray, shirts: n
         pb = tuple(int(round(c)) for c in uv[g, b])
         cv2.line(image, pa, pb, np.clip(colour, 0, 255).tolist(), thickness, cv2.LINE_AA)
     return image
+
+
+def _marker_items(depth: np.ndarray, parts: list[float], g: int) -> list[tuple]:
+    """The marker items of person ``g`` (``depth: (17,)``, ``parts``: the sort depth of each of
+    its capsules): sorted just in front of the person's nearest part, so that a marker shows
+    through its own body (a detector infers the joints a body hides of itself) and is hidden by
+    other people nearer; the nose's and the eyes' markers are left out when they are behind the
+    head's centre (the person faces away)."""
+    behind_head = 0.5 * (depth[3] + depth[4])
+    front = min(min(parts), depth[0]) - 1e-6
+    return [(front, 2, g, j) for j in range(NUM_JOINTS) if not (j < 3 and depth[j] > behind_head)]
 
 
 def tour_cameras(config: RenderConfig, rng: np.random.Generator) -> Cameras:

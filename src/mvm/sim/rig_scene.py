@@ -54,6 +54,11 @@ class RigSimConfig:
     area: float = setting(1.5, gt=0)
     #: Largest walking speed; each person draws one in [0, speed]. [m/s]
     speed: float = setting(0.8, ge=0)
+    #: Size of the cameras' images. [px]
+    image_width: int = setting(1920, ge=16, le=16384)
+    image_height: int = setting(1080, ge=16, le=16384)
+    #: Focal length of the cameras. [px]
+    focal_px: float = setting(1200.0, gt=0)
     #: Radial lens distortion k1 of the cameras (each camera a different fraction of it). [1]
     distortion: float = setting(-0.05, ge=-1, le=1)
     #: The detector's errors (:class:`mvm.sim.detector.DetectorErrors`). [-]
@@ -196,7 +201,8 @@ def simulate_rig(config: RigSimConfig = RigSimConfig()) -> RigSimulation:
     """Simulate a rig capture with ``config`` (reproducible from ``config.seed``)."""
     rng = np.random.default_rng(config.seed)
     V = config.cameras
-    cameras = ring_cameras(V, config.radius, config.height, names=tuple(f"cam_{i + 1:02d}" for i in range(V)))
+    cameras = ring_cameras(V, config.radius, config.height, config.focal_px, (config.image_width, config.image_height),
+                           names=tuple(f"cam_{i + 1:02d}" for i in range(V)))
     distortions = tuple(np.array([config.distortion * (0.5 + 0.5 * i / max(V - 1, 1)), 0.0, 0.0, 0.0])
                         for i in range(V))
     calibration = RigCalibration(cameras, distortions, np.zeros(V, bool), {"units": "m"})

@@ -170,6 +170,13 @@ class _Found:
         self.image.append(np.full(len(self.keypoints[-1]), i, dtype=np.int64))
         self.appearance.append(app)
 
+    def resize(self, frames: int) -> None:
+        """Hold ``frames`` frames (a video's header may count wrong): new ones readable, size 0."""
+        n = min(frames, len(self.sizes))
+        sizes, readable = np.zeros((frames, 2)), np.ones(frames, dtype=bool)
+        sizes[:n], readable[:n] = self.sizes[:n], self.readable[:n]
+        self.sizes, self.readable = sizes, readable
+
     def arrays(self):
         """``keypoints (N, 17, 3)``, ``image (N,)``, ``score (N,)``, ``appearance (N, D)`` or None."""
         kp = np.concatenate(self.keypoints) if self.keypoints else np.zeros((0, NUM_JOINTS, 3))
@@ -193,12 +200,28 @@ def _appearance_of(frame: np.ndarray, kp: np.ndarray, app, options: DetectOption
 def _detect_frames(scene: Path, names: list[str], detector: FrameDetector | None, imported, options: DetectOptions,
                    progress) -> _Found:
     """Run ``detector`` on every frame (or attach the appearance to ``imported`` poses)."""
-    found = _Found([], [], [], [], np.zeros((len(names), 2)), np.ones(len(names), dtype=bool))
+    need_images = detector is not None or options.appearance != "none"
+    batches = read_frames(scene, names, options.batch_size if detector else 1, warn=need_images)
+    return detect_batches(batches, len(names), detector, options, progress, imported)
+
+
+def detect_batches(batches, total: int, detector: FrameDetector | None, options: DetectOptions, progress=None,
+                   imported=None) -> _Found:
+    """The 2D poses of frames given in ``batches`` (``(indices (frame positions), images)``,
+    an image ``(H, W, 3)`` BGR or None where unreadable), ``total`` frames in all: ``detector``
+    on each batch (or ``imported`` poses with their appearance), each pose's appearance as
+    ``options`` say. Only the batch in hand is in memory; frames past ``total`` (a video's
+    header that counts wrong) are taken too, the result then holding more rows than frames
+    (:meth:`_Found.resize` to the frames read). ``progress(done, total)`` before the first batch
+    and after each."""
+    found = _Found([], [], [], [], np.zeros((total, 2)), np.ones(total, dtype=bool))
     need_images = detector is not None or options.appearance != "none"
     done = 0
     if progress:
-        progress(0, len(names))                      # the bar shows before the first batch is done
-    for indices, images in read_frames(scene, names, options.batch_size if detector else 1, warn=need_images):
+        progress(0, total)                           # the bar shows before the first batch is done
+    for indices, images in batches:
+        if indices and indices[-1] >= len(found.sizes):              # doubled: a long video costs linear time
+            found.resize(max(indices[-1] + 1, 2 * len(found.sizes)))
         ok = [k for k, image in enumerate(images) if image is not None or not need_images]
         for k, image in enumerate(images):
             if image is not None:
@@ -214,7 +237,7 @@ def _detect_frames(scene: Path, names: list[str], detector: FrameDetector | None
             found.add(indices[k], kp, sc, _appearance_of(images[k], kp, app, options) if need_images else None)
         done += len(indices)
         if progress:
-            progress(done, len(names))
+            progress(done, max(total, done))
     return found
 
 
@@ -332,16 +355,26 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     skipped = tuple(n for n, ok in zip(names, found.readable) if not ok)
     if skipped:
         log.warning("%s: %d frames could not be read and were skipped (e.g. %s)", scene, len(skipped), skipped[0])
-    names, sizes, keypoints, image, score, appearance = _keep(found, names, registered, options, scene)
+    poses, document = poses_document(found, names, registered, options, kind, info, skipped, scene)
+    forget(out)
+    atomic_write_json(out, document)
+    write_record(out, DETECT_STAGE, inputs, settings, hashed)
+    return replace(poses, why=why)
+
+
+def poses_document(found: _Found, names: list[str], registered: set[str] | None, options: DetectOptions, kind: str,
+                   info: dict, skipped: tuple[str, ...], where: Path) -> tuple[FramePoses, dict]:
+    """The poses :func:`detect_batches` ``found`` in the frames ``names``, weak ones and
+    unreadable or unregistered frames left out, as :class:`FramePoses` and as the COCO keypoints
+    document to write, whose ``info`` records the detector (``info``), the appearance and the
+    ``skipped`` frames."""
+    names, sizes, keypoints, image, score, appearance = _keep(found, names, registered, options, where)
     label = _label(info)
     info = {"source": label, **info, "appearance": _appearance_kind(appearance, kind, options),
             "skipped_frames": list(skipped)}
     document = coco_keypoints_document(names, sizes, image, keypoints, score, None, appearance)
     document["info"] = info
-    forget(out)
-    atomic_write_json(out, document)
-    write_record(out, DETECT_STAGE, inputs, settings, hashed)
-    return FramePoses(tuple(names), sizes, keypoints, image, score, appearance, label, skipped, why)
+    return FramePoses(tuple(names), sizes, keypoints, image, score, appearance, label, skipped), document
 
 
 def detector_kind(options: DetectOptions, source, checkpoint) -> str:

@@ -1,0 +1,246 @@
+"""2D poses of a rig's videos: ``RIG_DIR/videos/<camera>.<ext>`` -> ``RIG_DIR/pose/<camera>.json``
+(``mvm rig detect``).
+
+Each camera's video is decoded frame after frame, a batch of frames in memory at a time, and
+given to the detectors of ``mvm detect`` (:mod:`mvm.video.detectors`: the same
+:class:`~mvm.video.detect.DetectOptions`, models and model cache). The pose file is the COCO
+keypoints file the rig reader reads (:mod:`mvm.rig.rigdir`): one image per decoded frame,
+``file_name`` ``<camera>/<frame>.jpg`` (frame numbers from 0, six digits), and an ``info`` that
+records the detector and, under ``video``, the video's file, frame rate, frame count and size
+(``mvm rig reconstruct`` takes its frame rate from there). The rig reader does not use an
+appearance descriptor, so none is computed.
+
+Reruns: beside each pose file its record (``<camera>.inputs.json``, :mod:`mvm.io.provenance`)
+holds the video's hash and the settings; only the cameras whose video or settings changed are
+detected again. Every video to detect is opened and its first frame decoded before any
+detection: one that does not decode is refused in one line naming the camera and the file, and
+nothing is written. Each pose file is written whole (atomically) when its video is done.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+
+from mvm.errors import InputError
+from mvm.io.checks import load_json
+from mvm.io.files import atomic_write_json
+from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
+from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
+from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
+from mvm.video.detectors import FrameDetector, check_models, make_detector
+
+log = logging.getLogger(__name__)
+
+#: The rig folder's videos and pose files.
+VIDEOS_DIR = "videos"
+POSE_DIR = "pose"
+#: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+RIG_DETECT_STAGE = "the rig detection"
+#: Decoded frames fewer than the header announces by more than this share are reported. [1]
+SHORT_VIDEO_SHARE = 0.01
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What a camera's video holds: ``file`` (relative to the rig folder), ``frame_rate`` in Hz
+    (None: the container does not say), ``frames`` decoded (the header's count before
+    decoding), ``width`` and ``height`` in pixels."""
+
+    file: str
+    frame_rate: float | None
+    frames: int
+    width: int
+    height: int
+
+    def to_json(self) -> dict:
+        return {"file": self.file, "frame_rate": self.frame_rate, "frames": self.frames, "width": self.width,
+                "height": self.height}
+
+
+@dataclass
+class CameraPoses:
+    """One camera's 2D poses: its ``camera`` name, the pose file ``path``, the ``video``
+    (:class:`VideoInfo`), the number of ``poses``, and ``why`` they were detected by this call
+    (None: kept, up to date)."""
+
+    camera: str
+    path: Path
+    video: VideoInfo | None
+    poses: int
+    why: str | None
+
+
+def rig_videos(rig_dir: str | Path) -> dict[str, Path]:
+    """``{camera: video}`` of ``RIG_DIR/videos``, the camera named by the video's file name
+    without its type (``cam_01.mp4`` -> ``cam_01``), in name order. No folder, no video or two
+    videos of one camera raise :class:`InputError`."""
+    folder = Path(rig_dir) / VIDEOS_DIR
+    if not folder.is_dir():
+        raise InputError(folder, None, "no videos folder: put one video per camera in it, named after the camera "
+                                       "(cam_01.mp4, ...)")
+    found = videos_by_name(folder)
+    if not found:
+        raise InputError(folder, None, f"no video in it (file types {', '.join(VIDEO_SUFFIXES)})")
+    return found
+
+
+def _open(video: Path, camera: str):
+    capture = cv2.VideoCapture(str(video))
+    if not capture.isOpened():
+        capture.release()
+        raise InputError(video, None, f"camera {camera}: cannot open this video (not a video, or a codec OpenCV "
+                                      "lacks)")
+    return capture
+
+
+def probe_video(video: Path, camera: str, rig_dir: Path) -> VideoInfo:
+    """Open ``video`` and decode its first frame: its header's frame rate and frame count and
+    the frame size. A video that does not open or decode raises :class:`InputError` naming
+    ``camera`` and the file."""
+    capture = _open(video, camera)
+    try:
+        ok, image = capture.read()
+        if not ok or image is None:
+            raise InputError(video, None, f"camera {camera}: no frame of this video decodes")
+        fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    finally:
+        capture.release()
+    rate = fps if math.isfinite(fps) and 0 < fps < 10_000 else None
+    try:
+        name = video.relative_to(rig_dir).as_posix()
+    except ValueError:
+        name = str(video)
+    return VideoInfo(name, rate, max(count, 0), image.shape[1], image.shape[0])
+
+
+def video_batches(capture, batch_size: int, decoded: list[int]):
+    """The frames of an opened ``cv2.VideoCapture`` in decode order, ``batch_size`` at a time:
+    yields ``(frame numbers, images (H, W, 3) BGR)``; ``decoded[0]`` counts the frames read.
+    Memory holds one batch whatever the video's length."""
+    indices, images = [], []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            break
+        indices.append(decoded[0])
+        images.append(image)
+        decoded[0] += 1
+        if len(images) == batch_size:
+            yield indices, images
+            indices, images = [], []
+    if images:
+        yield indices, images
+
+
+def frame_file_name(camera: str, frame: int) -> str:
+    """The ``file_name`` of ``camera``'s frame ``frame`` in its pose file (the rig reader reads
+    the frame number from it)."""
+    return f"{camera}/{frame:06d}.jpg"
+
+
+def _inputs(video: Path, checkpoint) -> dict:
+    inputs = {"video": video}
+    if checkpoint is not None:
+        inputs["checkpoint"] = Path(checkpoint)
+    return inputs
+
+
+def _detect_camera(camera: str, video: Path, info: VideoInfo, detector: FrameDetector, options: DetectOptions,
+                   kind: str, progress) -> tuple[FramePoses, dict, VideoInfo]:
+    """Detect every frame of ``camera``'s ``video`` -> the poses, the pose file's document and
+    the video's :class:`VideoInfo` with the frames decoded."""
+    capture = _open(video, camera)
+    decoded = [0]
+    try:
+        batches = video_batches(capture, options.batch_size, decoded)
+        report = (lambda done, total: progress(camera, done, total)) if progress else None
+        found = detect_batches(batches, info.frames, detector, options, report)
+    finally:
+        capture.release()
+    frames = decoded[0]
+    if frames == 0:
+        raise InputError(video, None, f"camera {camera}: no frame of this video decodes")
+    if info.frames and frames < info.frames * (1 - SHORT_VIDEO_SHARE):
+        log.warning("camera %s: %d of the %d frames %s announces were decoded (a damaged or cut video?); the "
+                    "poses cover those", camera, frames, info.frames, video.name)
+    found.resize(frames)
+    info = replace(info, frames=frames)
+    names = [frame_file_name(camera, f) for f in range(frames)]
+    poses, document = poses_document(found, names, None, options, kind, detector.info, (), video)
+    document["info"]["video"] = info.to_json()
+    return poses, document, info
+
+
+def _kept(camera: str, path: Path, rig_dir: Path) -> CameraPoses:
+    """A pose file kept as it is: its video record and pose count, read back."""
+    data = load_json(path, root=rig_dir)
+    info = data.get("info", {}).get("video") if isinstance(data, dict) and isinstance(data.get("info"), dict) else None
+    video = None
+    if isinstance(info, dict):
+        video = VideoInfo(str(info.get("file", "")), info.get("frame_rate"), int(info.get("frames", 0)),
+                          int(info.get("width", 0)), int(info.get("height", 0)))
+    poses = len(data.get("annotations", [])) if isinstance(data, dict) else 0
+    return CameraPoses(camera, path, video, poses, None)
+
+
+def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
+                      options: DetectOptions = DetectOptions(detector="rtmo"), force: bool = False,
+                      progress: Callable[[str, int, int], None] | None = None) -> list[CameraPoses]:
+    """Detect the 2D poses of every video of ``RIG_DIR/videos`` into ``RIG_DIR/pose/<camera>.json``.
+
+    ``options.detector``: ``rtmo``, ``rtmpose`` or ``mvm`` (with ``checkpoint``). A camera is
+    kept when the record of its pose file says it was made from this video with these settings,
+    unless ``force``; a pose file mvm did not make (no record) is never replaced without
+    ``force``. Checked before any detection: the detector's model files, every video to detect
+    (it opens and its first frame decodes), pose files to replace. ``progress(camera, done,
+    total)`` after each batch of frames.
+    """
+    rig_dir = Path(rig_dir)
+    if not rig_dir.is_dir():
+        raise InputError(rig_dir, None, "not a directory")
+    kind = options.detector
+    if kind not in ("rtmo", "rtmpose", "mvm"):
+        raise ValueError(f"detector {kind!r}: expected rtmo, rtmpose or mvm (a rig's own detections go in "
+                         f"{POSE_DIR}/)")
+    options = replace(options, appearance="none")
+    check_models(options, checkpoint)
+    videos = rig_videos(rig_dir)
+    settings = detect_settings(kind, None, options)
+    plan = []
+    for camera, video in videos.items():
+        out = rig_dir / POSE_DIR / f"{camera}.json"
+        if (rig_dir / POSE_DIR / camera).is_dir():
+            raise InputError(rig_dir / POSE_DIR / camera, None, f"camera {camera} already has a pose folder here; "
+                                                              f"move it away to detect {video.name}")
+        if out.is_file() and not force and read_record(out) is None:
+            raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to "
+                                        "replace them")
+        inputs = _inputs(video, checkpoint)
+        hashed = fingerprints(inputs)
+        why = "forced" if force else why_redo(out, inputs, settings, RIG_DETECT_STAGE)
+        plan.append((camera, video, out, inputs, hashed, why))
+    probed = {camera: probe_video(video, camera, rig_dir) for camera, video, _, _, _, why in plan if why is not None}
+    rates = {c: i.frame_rate for c, i in probed.items() if i.frame_rate is not None}
+    if rates and max(rates.values()) > min(rates.values()) * (1 + 1e-3):
+        log.warning("the videos' frame rates differ: %s; mvm rig reconstruct needs one rate (resample the videos, "
+                    "or give it --frame-rate)", ", ".join(f"{c} {r:g} Hz" for c, r in rates.items()))
+    detector = make_detector(options, checkpoint) if probed else None
+    done = []
+    for camera, video, out, inputs, hashed, why in plan:
+        if why is None:
+            log.info("%s is up to date (made from %s with these settings)", out, video.name)
+            done.append(_kept(camera, out, rig_dir))
+            continue
+        log.info("camera %s: detecting 2D poses in %s: %s", camera, video.name, why)
+        poses, document, info = _detect_camera(camera, video, probed[camera], detector, options, kind, progress)
+        forget(out)
+        atomic_write_json(out, document)
+        write_record(out, RIG_DETECT_STAGE, inputs, settings, hashed)
+        done.append(CameraPoses(camera, out, info, len(poses.keypoints), why))
+    return done
