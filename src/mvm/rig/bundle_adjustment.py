@@ -1,5 +1,6 @@
-"""Bundle adjustment of a rig's cameras and the people's joints (no I/O): every camera but the
-reference (rotation vector, translation) and every person's joints, reprojection errors in
+"""Bundle adjustment of a rig's cameras and the points they see (no I/O): every camera but the
+reference (rotation vector, translation) and every point (the people's joints, or a calibration
+board's corners: an object of ``J`` points seen at once), reprojection errors in
 pixels, ``scipy.optimize.least_squares`` with an explicit Jacobian sparsity, ``x_scale='jac'``
 and a soft-L1 loss (as aniposelib's ``bundle_adjust``)."""
 from __future__ import annotations
@@ -8,8 +9,6 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
-
-from mvm.core.keypoints import NUM_JOINTS
 
 #: Scale of the soft-L1 loss on the reprojection errors. [px]
 LOSS_SCALE_PX = 3.0
@@ -39,15 +38,17 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
     """Sparse bundle adjustment (module docstring, step 3). Camera 0 stays fixed.
 
     Args:
-        x: ``(N, 17, 2)`` normalized joints; present: ``(N, 17)``; camera, person: ``(N,)``;
-        focal: ``(V,)`` px; R, t: ``(V, 3, 3)``, ``(V, 3)`` initial cameras; X: ``(Q, 17, 3)``.
+        x: ``(N, J, 2)`` normalized points (a person's ``J = 17`` joints, a board's corners) of
+            ``N`` views of objects; present: ``(N, J)``; camera, person: ``(N,)`` (person: the
+            object, -1: none); focal: ``(V,)`` px; R, t: ``(V, 3, 3)``, ``(V, 3)`` initial
+            cameras; X: ``(Q, J, 3)`` the objects' points.
     Returns:
         ``(R, t, X, converged)``.
     """
-    V = len(R)
+    V, J = len(R), x.shape[1]
     use = present & (person >= 0)[:, None] & np.isfinite(X[np.maximum(person, 0)]).all(-1)
     pose, joint = np.nonzero(use)
-    cam, point = camera[pose], person[pose] * NUM_JOINTS + joint
+    cam, point = camera[pose], person[pose] * J + joint
     points_used, point_index = np.unique(point, return_inverse=True)
     obs = x[pose, joint]
     P = len(points_used)
@@ -71,15 +72,16 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
     cams = result.x[:6 * (V - 1)].reshape(V - 1, 6)
     R = np.concatenate([R[:1], _rotation_matrices(cams[:, :3])])
     t = np.concatenate([t[:1], cams[:, 3:]])
-    Xout = np.full((len(X) * NUM_JOINTS, 3), np.nan)
+    Xout = np.full((len(X) * J, 3), np.nan)
     Xout[points_used] = result.x[6 * (V - 1):].reshape(P, 3)
     return R, t, Xout.reshape(X.shape), bool(result.status > 0)
 
 
 def reprojection_px(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,
                     R: np.ndarray, t: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """``(N, 17)`` reprojection error (px) of every joint of a person (NaN otherwise)."""
-    Xp = X[np.maximum(person, 0)]                                                 # (N, 17, 3)
+    """``(N, J)`` reprojection error (px) of every point of an object (NaN otherwise); the
+    arguments of :func:`bundle_adjust`."""
+    Xp = X[np.maximum(person, 0)]                                                 # (N, J, 3)
     pc = np.einsum("nij,nkj->nki", R[camera], Xp) + t[camera][:, None]
     err = np.linalg.norm(pc[..., :2] / pc[..., 2:] - x, axis=-1) * focal[camera][:, None]
     return np.where(present & (person >= 0)[:, None] & np.isfinite(err), err, np.nan)
