@@ -92,7 +92,7 @@ def frontal_board_poses(n: int, board: Board, camera: TrueCamera, seed: int = 0)
     R, t = [], []
     for _ in range(n):
         depth = rng.uniform(0.8, 1.5)
-        u = np.array([rng.uniform(0.25, 0.75) * SIZE[0], rng.uniform(0.25, 0.75) * SIZE[1], 1.0])
+        u = np.array([rng.uniform(0.3, 0.7) * SIZE[0], rng.uniform(0.3, 0.7) * SIZE[1], 1.0])
         target_cam = depth * np.linalg.inv(camera.K) @ u
         tilt = _rotation(rng.normal(size=3) * [1, 1, 0.3], np.radians(rng.uniform(0, 40)))
         R_cam = tilt                                                          # board -> camera, facing it
@@ -149,3 +149,32 @@ def seen_corners(board: Board, camera: TrueCamera, R_board, t_board) -> np.ndarr
     rvec = cv2.Rodrigues(camera.R)[0]
     px, _ = cv2.projectPoints(X.reshape(-1, 3), rvec, camera.t, camera.K, camera.distortion)
     return px.reshape(len(R_board), -1, 2)
+
+
+@dataclass
+class BoardRig:
+    """A rendered calibration: the true ``cameras`` and the world's offset (the board of frame 0
+    has its first corner at ``FIRST_CORNER``, its face up)."""
+
+    cameras: list
+    names: list
+
+
+def write_board_rig(root: Path, board: Board, n_cameras: int = 3, intrinsic_frames: int = 20,
+                    extrinsic_frames: int = 24, layout: str = "split", blank: dict | None = None,
+                    seed: int = 0) -> BoardRig:
+    """Calibration videos of ``n_cameras`` ring cameras in ``root/calibration``: ``layout``
+    "split" (``intrinsics/`` and ``extrinsics/``) or "flat" (the extrinsics videos right in
+    ``calibration/``, no intrinsics videos). ``blank``: ``{camera: frames}`` of the extrinsics
+    videos drawn without the board."""
+    cams = ring_cameras(n_cameras, seed)
+    names = [f"cam_{v + 1:02d}" for v in range(n_cameras)]
+    R_floor, t_floor = floor_board_poses(extrinsic_frames, board, seed)
+    folder = root / "calibration"
+    for v, (cam, name) in enumerate(zip(cams, names)):
+        if layout == "split":
+            R, t = frontal_board_poses(intrinsic_frames, board, cam, seed=seed + v)
+            write_board_video(folder / "intrinsics" / f"{name}.mp4", board, cam, R, t)
+        where = folder / "extrinsics" if layout == "split" else folder
+        write_board_video(where / f"{name}.mp4", board, cam, R_floor, t_floor, blank=(blank or {}).get(v, ()))
+    return BoardRig(cams, names)

@@ -237,9 +237,9 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     for _ in range(2):                                    # once more without the views it does not explain
         R, t, X, converged = bundle_adjust(x, present, camera, instant, focal, R, t, X)
         error = reprojection_px(x, present, camera, instant, focal, R, t, X)
-        with np.errstate(invalid="ignore"):
-            view_rms = np.sqrt(np.nanmean(error ** 2, axis=1))                    # (N,)
-        bad = view_rms > max(OUTLIER_VIEW_PX, 3 * np.nanmedian(view_rms))
+        counted = np.isfinite(error)
+        view_rms = np.sqrt((np.where(counted, error, 0) ** 2).sum(1) / np.maximum(counted.sum(1), 1))    # (N,)
+        bad = view_rms > max(OUTLIER_VIEW_PX, 3 * np.median(view_rms[counted.any(1)]))
         if not bad.any():
             break
         present[bad] = False
