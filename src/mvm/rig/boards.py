@@ -2,7 +2,8 @@
 their detection in an image with OpenCV.
 
 A checkerboard is named by its *inner corners* (``cols x rows``, OpenCV's ``patternSize``,
-Pose2Sim's ``corners_nb``) and is found by ``cv2.findChessboardCornersSB``; its corners are
+Pose2Sim's ``corners_nb``) and is found by ``cv2.findChessboardCorners`` and refined by
+``cv2.cornerSubPix`` (as Pose2Sim and anipose do); its corners are
 ordered consistently between views only when one count is even and the other odd (otherwise the
 board looks the same turned by 180°). A ChArUco board is named by its *squares* (``cols x
 rows``, as OpenCV's ``CharucoBoard`` and anipose) and is found by ``cv2.aruco.CharucoDetector``;
@@ -21,6 +22,11 @@ import numpy as np
 
 #: Fewest corners of a usable view (a ChArUco board may be seen in part).
 MIN_CORNERS = 6
+#: Largest half-side of the window a checkerboard corner is refined in (smaller where the squares
+#: are: 0.4 of the shortest side between corners). [px]
+SUBPIXEL_HALF_WINDOW = 11
+#: Stopping rule of the corners' sub-pixel refinement (iterations, move in pixels).
+SUBPIXEL_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.01)
 #: The ArUco dictionaries a ChArUco board may use (OpenCV's predefined names).
 DICTIONARIES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_") and "ARUCO_MIP" not in n
                             and n != "DICT_ARUCO_ORIGINAL")) + ("DICT_ARUCO_ORIGINAL",)
@@ -96,8 +102,8 @@ class Board:
         if self.kind == "charuco":
             board = self._charuco.generateImage((self.cols * s, self.rows * s), marginSize=0)
             first = 0.0                                   # the squares' corner is the board's origin
-        else:                                             # the top-left square white: the detector's first
-            squares = np.add.outer(np.arange(self.rows + 1), np.arange(self.cols + 1)) % 2 == 0   # corner
+        else:                                             # the top-left square black: the detector's first
+            squares = np.add.outer(np.arange(self.rows + 1), np.arange(self.cols + 1)) % 2 == 1   # corner
             board = np.where(np.kron(squares, np.ones((s, s))), 255, 0).astype(np.uint8)
             first = 1.0                                   # the first inner corner is the origin
         image = cv2.copyMakeBorder(board, s, s, s, s, cv2.BORDER_CONSTANT, value=255)
@@ -117,11 +123,17 @@ class Board:
                 return ids.reshape(-1).astype(int), corners.reshape(-1, 2).astype(float)
             return detect
         size = (self.cols, self.rows)
+        flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 
         def detect(gray):
-            ok, corners = cv2.findChessboardCornersSB(gray, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+            ok, corners = cv2.findChessboardCorners(gray, size, flags=flags)
             if not ok:
                 return None
+            grid = corners.reshape(self.rows, self.cols, 2)
+            side = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+                       np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
+            half = int(np.clip(round(0.4 * side), 2, SUBPIXEL_HALF_WINDOW))
+            corners = cv2.cornerSubPix(gray, corners, (half, half), (-1, -1), SUBPIXEL_CRITERIA)
             return np.arange(self.cols * self.rows), corners.reshape(-1, 2).astype(float)
         return detect
 
