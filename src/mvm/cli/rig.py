@@ -18,6 +18,7 @@ from mvm.cli.common import (
     read_config,
     refuse_unused,
     say,
+    stage_progress,
 )
 from mvm.errors import InputError
 
@@ -164,7 +165,8 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
     except ValueError as e:
         what, _, problem = str(e).partition(": ")
         raise InputError(None, "--" + what.replace(" ", "-"), problem) from None
-    found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world)
+    with stage_progress() as update:
+        found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update)
     cams = found.calibration.cameras
     r = found.rig
     print_table(f"{rig_dir}: calibrated with a {board.describe()}; world: {found.calibration.metadata['world']}",

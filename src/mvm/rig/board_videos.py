@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import re
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,7 +31,7 @@ from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
-from mvm.parallel import fork_map
+from mvm.parallel import available_workers
 from mvm.rig.board_calibration import (
     BoardRig,
     calibrate_extrinsics,
@@ -137,9 +138,11 @@ class BoardScan:
     size: tuple[int, int]
 
 
-def scan(source: Path, board: Board, stride: int) -> BoardScan:
-    """Find ``board`` in every ``stride``-th frame of ``source``."""
+def scan(source: Path, board: Board, stride: int, progress=None) -> BoardScan:
+    """Find ``board`` in every ``stride``-th frame of ``source``; ``progress(done, total)``
+    after each (total None where the video's header does not say)."""
     detect = board.detector()
+    total = math.ceil(frame_count(source) / stride) or None
     C = len(board.object_points)
     frames, corners, size = [], [], None
     for number, gray in gray_frames(source, stride):
@@ -154,12 +157,29 @@ def scan(source: Path, board: Board, stride: int) -> BoardScan:
             view[found[0]] = found[1]
         frames.append(number)
         corners.append(view)
+        if progress is not None:
+            progress(len(frames), max(total or 0, len(frames)) or None)
     return BoardScan(np.array(frames, dtype=int), np.array(corners).reshape(-1, C, 2), size)
 
 
-def _scan_all(sources: list[Path], board: Board, strides: list[int], workers: int | None) -> list[BoardScan]:
-    """:func:`scan` of every source, one process each as the machine allows."""
-    return fork_map(lambda job: scan(job[0], board, job[1]), list(zip(sources, strides)), workers)
+def _scan_all(jobs: list[tuple[str, Path, int]], board: Board, workers: int | None, progress=None
+              ) -> list[BoardScan]:
+    """:func:`scan` of every ``(label, source, stride)`` in threads (OpenCV's decoding and
+    detection release the GIL); ``progress(label, done, total)``."""
+    if not jobs:
+        return []
+    def one(job):
+        label, source, stride = job
+        return scan(source, board, stride, None if progress is None else lambda d, t: progress(label, d, t))
+
+    with ThreadPoolExecutor(min(len(jobs), available_workers(workers))) as pool:
+        futures = [pool.submit(one, job) for job in jobs]
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
 
 
 def _stride(sources) -> int:
@@ -168,8 +188,10 @@ def _stride(sources) -> int:
 
 def _check_found(scan_: BoardScan, source: Path, name: str, board: Board) -> None:
     if not np.isfinite(scan_.corners).all(-1).any():
+        hint = "--board-size counts inner corners" if board.kind == "checkerboard" else \
+            "--board-size counts squares; check --dictionary"
         raise InputError(source, None, f"camera {name}: no {board.describe()} found in the {len(scan_.frames)} "
-                                       "frames searched (check --board-size and the board's kind)")
+                                       f"frames searched ({hint})")
 
 
 @dataclass
@@ -201,11 +223,11 @@ def _given_intrinsics(path: Path, names: list[str], sources: dict[str, Path]) ->
                           calibration.metadata)
 
 
-def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, stride_workers):
+def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress):
     """Each camera's :class:`Intrinsics`: on its intrinsics video, else on its extrinsics video."""
     own = [n for n in names if n in intrinsic_sources]
-    scans = dict(zip(own, _scan_all([intrinsic_sources[n] for n in own], board,
-                                    [_stride([intrinsic_sources[n]]) for n in own], stride_workers)))
+    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", intrinsic_sources[n], _stride([intrinsic_sources[n]]))
+                                     for n in own], board, workers, progress)))
     found = []
     for v, name in enumerate(names):
         s, source = (scans[name], intrinsic_sources[name]) if name in scans else (ext_scans[v], ext_sources[name])
@@ -221,11 +243,12 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, s
 
 
 def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board, intrinsics: str | Path | None = None,
-                             world: str = "board", workers: int | None = None) -> RigBoardCalibration:
+                             world: str = "board", workers: int | None = None, progress=None) -> RigBoardCalibration:
     """Every camera's intrinsics (or those of ``intrinsics``) and pose from the board videos of
     ``rig_dir`` (module docstring); a full Calib.toml is written at ``out`` with each camera's
     residuals in ``[metadata]``. ``world``: ``"board"`` or ``"camera"``
-    (:mod:`mvm.rig.board_calibration`)."""
+    (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
+    ``progress(video, frames done, total)``."""
     rig_dir = Path(rig_dir)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     names = list(ext_sources)
@@ -239,11 +262,11 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     if given is not None:
         names = list(given.cameras.names)
     stride = _stride([ext_sources[n] for n in names])
-    ext_scans = _scan_all([ext_sources[n] for n in names], board, [stride] * len(names), workers)
+    ext_scans = _scan_all([(f"{n} extrinsics", ext_sources[n], stride) for n in names], board, workers, progress)
     for name, s in zip(names, ext_scans):
         _check_found(s, ext_sources[name], name, board)
     if given is None:
-        lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers)
+        lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress)
         K = np.array([lens.K for lens in lenses])
         distortions, fisheye = tuple(lens.distortion for lens in lenses), np.zeros(len(names), bool)
         sizes = np.array([s.size for s in ext_scans], dtype=float)
