@@ -174,6 +174,7 @@ def test_bad_board_input_one_line(tmp_path):
                      "--from-people and --charuco")
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--from-people", "--board-size", "7x6",
                                               "-o", str(out)]), "--board-size", "not --from-people")
+    _one_line_exit_2(_calibrate(root, CHARUCO, out, "--refine-focal"), "--refine-focal", "--from-people only")
     _one_line_exit_2(_calibrate(root, Board("checkerboard", 7, 6, 0.07), out, "--marker-size", 0.05),
                      "--marker-size", "--charuco only")
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "6x5",

@@ -99,6 +99,9 @@ def synchronize_cmd(rig_dir, calib, max_offset):
                    "board: used instead of calibrating them). Rotations and translations may be absent.")
 @click.option("--seed", default=None, type=Number(int, ge=0), help="Random seed of the robust estimation "
               "(--from-people; default 0).")
+@click.option("--refine-focal", is_flag=True,
+              help="Adjust every camera's focal length in the bundle adjustment too (--from-people; for "
+                   "intrinsics that are only approximate).")
 @click.option("--board-size", default=None, metavar="COLSxROWS",
               help="Checkerboard: inner corners (e.g. 7x6, one count even and one odd); ChArUco: squares (e.g. 5x7).")
 @click.option("--square-size", type=Number(float, gt=0), default=None, help="Side of the board's squares, in metres.")
@@ -108,8 +111,8 @@ def synchronize_cmd(rig_dir, calib, max_offset):
 @click.option("--world", type=click.Choice(["board", "camera"]), default=None,
               help="World frame of a board calibration: the board (default; where most cameras first see it "
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
-def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, board_size, square_size,
-                  marker_size, dictionary, world):
+def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, refine_focal, board_size,
+                  square_size, marker_size, dictionary, world):
     """Calibrate the rig. --from-people: its extrinsics from the people it sees (metres from their
     bone lengths, z up along their bodies, the origin on the floor under them; synchronize first,
     sync.toml is used). --checkerboard / --charuco: intrinsics and extrinsics from videos of a board."""
@@ -124,24 +127,27 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsic
         given = [k for k, v in board_options.items() if v is not None]
         if given:
             raise InputError(None, given[0], "applies to --checkerboard and --charuco, not --from-people")
-        return _calibrate_from_people(rig_dir, output, intrinsics, seed or 0)
-    if seed is not None:
-        raise InputError(None, "--seed", "applies to --from-people only")
+        return _calibrate_from_people(rig_dir, output, intrinsics, seed or 0, refine_focal)
+    for option, given in (("--seed", seed is not None), ("--refine-focal", refine_focal)):
+        if given:
+            raise InputError(None, option, "applies to --from-people only")
     _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
                           square_size, marker_size, dictionary, world or "board")
 
 
-def _calibrate_from_people(rig_dir, output, intrinsics, seed):
+def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
     from mvm.rig.prepare import calibrate_rig_from_people
 
-    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed)
+    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed, refine_focal)
     cams = found.calibration.cameras
     r = found.result
     frames = "synchronized by sync.toml" if found.sync else "frame numbers as they are"
+    focal = ("focal px (change)",) if refine_focal else ()
     print_table(f"{rig_dir}: calibrated from people ({frames})",
-                ("camera", "position x, y, z (m)", "residual px", "joints"),
-                [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]), fmt(r.residual_px[v]), str(r.observations[v]))
-                 for v, n in enumerate(cams.names)])
+                ("camera", "position x, y, z (m)", *focal, "residual px", "joints"),
+                [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]),
+                  *((f"{cams.K[v, 0, 0]:.1f} ({100 * (r.focal_scale[v] - 1):+.1f} %)",) if refine_focal else ()),
+                  fmt(r.residual_px[v]), str(r.observations[v])) for v, n in enumerate(cams.names)])
     say(f"wrote {found.path}")
 
 

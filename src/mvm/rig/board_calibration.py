@@ -235,7 +235,7 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     x = np.nan_to_num(x)
     focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
     for _ in range(2):                                    # once more without the views it does not explain
-        R, t, X, converged = bundle_adjust(x, present, camera, instant, focal, R, t, X)
+        R, t, X, _, converged = bundle_adjust(x, present, camera, instant, focal, R, t, X)
         error = reprojection_px(x, present, camera, instant, focal, R, t, X)
         counted = np.isfinite(error)
         view_rms = np.sqrt((np.where(counted, error, 0) ** 2).sum(1) / np.maximum(counted.sum(1), 1))    # (N,)
