@@ -22,7 +22,7 @@ from mvm.cli.rig import rig
 from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml
-from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics
+from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, usable_views
 from mvm.rig.boards import Board, spread_views, view_features
 
 CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
@@ -218,3 +218,11 @@ def test_undecodable_video_and_one_camera_one_line(tmp_path):
     write_board_video(root / "calibration" / "extrinsics" / "cam_01.mp4", CHARUCO, cam, R, t)
     _one_line_exit_2(_calibrate(root, CHARUCO, out), "one camera (cam_01)", "at least two")
     assert not out.exists()
+
+
+def test_views_along_one_line_are_not_used():
+    corners = np.full((3, len(CHARUCO.object_points), 2), np.nan)
+    corners[0, :8] = 1.0                                   # two rows of corners: a plane
+    corners[1, :5] = 1.0                                   # one row: a line
+    corners[2, :4] = 1.0                                   # too few
+    assert usable_views(corners, CHARUCO.object_points).tolist() == [True, False, False]

@@ -34,6 +34,9 @@ from mvm.rig.calibrate import CalibrationError, PairPose, spanning_tree
 MAX_INTRINSIC_VIEWS = 40
 #: Fewest views of the board for a camera's intrinsics.
 MIN_INTRINSIC_VIEWS = 5
+#: A view spans the board's plane when its corners' spread across their main direction is at
+#: least this fraction of the spread along it. [1]
+MIN_SPAN = 0.1
 #: Instants seen by two cameras or more that the bundle adjustment uses, at most (spread apart).
 MAX_SHARED_VIEWS = 60
 #: A pair's view is an outlier when its relative rotation is this far from the pair's median. [deg]
@@ -79,6 +82,18 @@ class BoardRig:
     converged: bool
 
 
+def usable_views(corners: np.ndarray, object_points: np.ndarray) -> np.ndarray:
+    """``(F,)`` the views of ``corners: (F, C, 2)`` with at least ``MIN_CORNERS`` corners that
+    span the board's plane (not all along one line of a ChArUco board seen in part)."""
+    seen = np.isfinite(corners).all(-1)                                           # (F, C)
+    n = seen.sum(1)
+    xy = np.where(seen[..., None], object_points[None, :, :2], 0.0)
+    mean = xy.sum(1) / np.maximum(n, 1)[:, None]
+    d = np.where(seen[..., None], xy - mean[:, None], 0.0)
+    spread = np.linalg.eigvalsh(np.einsum("fci,fcj->fij", d, d))                  # (F, 2), ascending
+    return (n >= MIN_CORNERS) & (spread[:, 0] > MIN_SPAN ** 2 * np.maximum(spread[:, 1], 1e-12))
+
+
 def _views(corners: np.ndarray, object_points: np.ndarray, index: np.ndarray) -> tuple[list, list]:
     """OpenCV's lists of object and image points of the views ``index`` of ``corners: (F, C, 2)``."""
     seen = np.isfinite(corners[index]).all(-1)
@@ -97,7 +112,7 @@ def calibrate_intrinsics(corners: np.ndarray, object_points: np.ndarray, size: t
     Raises:
         CalibrationError (camera None) with too few views or a RMS above ``MAX_RMS_PX``.
     """
-    usable = np.flatnonzero(np.isfinite(corners).all(-1).sum(1) >= MIN_CORNERS)
+    usable = np.flatnonzero(usable_views(corners, object_points))
     if len(usable) < MIN_INTRINSIC_VIEWS:
         raise CalibrationError(None, f"the board is seen in {len(usable)} frame(s), at least "
                                      f"{MIN_INTRINSIC_VIEWS} are needed for the intrinsics")
@@ -125,7 +140,7 @@ def board_poses(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray) -
     F = len(corners)
     R, t = np.full((F, 3, 3), np.nan), np.full((F, 3), np.nan)
     seen = np.isfinite(corners).all(-1)
-    for f in np.flatnonzero(seen.sum(1) >= MIN_CORNERS):
+    for f in np.flatnonzero(usable_views(corners, object_points)):
         ok, rvec, tvec = cv2.solvePnP(object_points[seen[f]], corners[f][seen[f]], K, None,
                                       flags=cv2.SOLVEPNP_IPPE)
         if ok and tvec[2, 0] > 0:
