@@ -22,7 +22,7 @@ from mvm.cli.rig import rig
 from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml
-from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, usable_views
+from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, image_coverage, usable_views
 from mvm.rig.boards import Board, spread_views, view_features
 
 CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
@@ -75,6 +75,8 @@ def test_spread_views_keeps_different_views():
     chosen = spread_views(clusters, 4)
     assert sorted(set(chosen // 10)) == [0, 1, 2, 3]
     assert view_features(np.array([[0.0, 0], [640, 0], [640, 480], [0, 480]]), SIZE)[:2] == pytest.approx([0.5, 0.5])
+    corners = np.array([[[10.0, 10], [630, 470], [np.nan, np.nan]], [[12, 14], [320, 240], [330, 250]]])
+    assert image_coverage(corners, SIZE) == 3 / 48                                 # 3 of the 8x6 cells
 
 
 def _calibrate(root, board, out, *extra):
@@ -150,6 +152,9 @@ def test_given_intrinsics_and_flat_layout(tmp_path):
         relative = cams[v].R @ cams[0].R.T
         assert _rotation_deg(found.cameras.R[v], relative) < 0.3
         assert np.linalg.norm(found.cameras.t[v] - (cams[v].t - relative @ cams[0].t)) < 0.02
+    result = _calibrate(tmp_path / "rig", CHARUCO, tmp_path / "own.toml")        # lenses from the floor views:
+    assert result.exit_code == 0, result.output                                   # said to be uncertain
+    assert "warning: camera cam_01: the board covered" in result.output
 
 
 def _one_line_exit_2(result, *words):

@@ -152,6 +152,7 @@ def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
 
 
 def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_size, marker_size, dictionary, world):
+    from mvm.rig.board_calibration import MIN_COVERAGE
     from mvm.rig.board_videos import calibrate_rig_from_board
     from mvm.rig.boards import Board, parse_board_size
 
@@ -175,11 +176,18 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
         found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update)
     cams = found.calibration.cameras
     r = found.rig
+    lenses = found.intrinsics
     print_table(f"{rig_dir}: calibrated with a {board.describe()}; world: {found.calibration.metadata['world']}",
-                ("camera", "focal px", "position x, y, z (m)", "intrinsics RMS px", "residual px", "views"),
+                ("camera", "focal px", "position x, y, z (m)", "intrinsics RMS px", "image covered", "residual px",
+                 "views"),
                 [(n, f"{cams.K[v, 0, 0]:.1f}", ", ".join(f"{c:.3f}" for c in cams.centers[v]),
-                  fmt(found.intrinsics[v].rms_px) if found.intrinsics[v] else "(given)", fmt(r.rms_px[v]),
-                  str(r.views[v])) for v, n in enumerate(cams.names)])
+                  fmt(lenses[v].rms_px) if lenses[v] else "(given)",
+                  f"{lenses[v].coverage:.0%}" if lenses[v] else "–", fmt(r.rms_px[v]), str(r.views[v]))
+                 for v, n in enumerate(cams.names)])
+    for n, lens in zip(cams.names, lenses):
+        if lens is not None and lens.coverage < MIN_COVERAGE:
+            say(f"warning: camera {n}: the board covered {lens.coverage:.0%} of the image, so its lens and focal "
+                "length are uncertain: film the board close up over the whole image (calibration/intrinsics/)")
     say(f"wrote {found.path}")
 
 

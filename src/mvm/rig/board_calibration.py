@@ -30,6 +30,10 @@ from mvm.rig.boards import MIN_CORNERS, spread_views, view_features
 from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
 from mvm.rig.calibrate import CalibrationError, PairPose, spanning_tree
 
+#: The cells an image is cut into to measure how much of it the board's views cover. [cols, rows]
+COVERAGE_GRID = (8, 6)
+#: Below this share of the image covered, the lens is poorly told (said as a warning). [1]
+MIN_COVERAGE = 0.5
 #: Views of the board each camera's intrinsics are calibrated on, at most (spread apart).
 MAX_INTRINSIC_VIEWS = 40
 #: Fewest views of the board for a camera's intrinsics.
@@ -51,12 +55,24 @@ MAX_RMS_PX = 3.0
 @dataclass
 class Intrinsics:
     """One camera's intrinsics: ``K (3, 3)``, ``distortion (4,)`` (OpenCV ``k1, k2, p1, p2``),
-    ``rms_px`` (reprojection RMS over the views used), ``views`` (indices of those views)."""
+    ``rms_px`` (reprojection RMS over the views used), ``views`` (indices of those views),
+    ``coverage`` (:func:`image_coverage` of those views)."""
 
     K: np.ndarray
     distortion: np.ndarray
     rms_px: float
     views: np.ndarray
+    coverage: float
+
+
+def image_coverage(corners: np.ndarray, size: tuple[int, int]) -> float:
+    """The share of the image's cells (``COVERAGE_GRID``) holding a corner of ``corners: (F, C, 2)``
+    (pixels, NaN: not seen): a lens is told by views that reach the image's edges."""
+    cols, rows = COVERAGE_GRID
+    px = corners[np.isfinite(corners).all(-1)]
+    cell = np.floor(px / np.asarray(size, float) * [cols, rows]).astype(int)
+    inside = (cell >= 0).all(1) & (cell < [cols, rows]).all(1)
+    return len(np.unique(cell[inside, 1] * cols + cell[inside, 0])) / (cols * rows)
 
 
 @dataclass
@@ -130,7 +146,7 @@ def calibrate_intrinsics(corners: np.ndarray, object_points: np.ndarray, size: t
     if not np.isfinite(rms) or rms > MAX_RMS_PX:
         raise CalibrationError(None, f"the intrinsics do not converge (reprojection RMS {rms:.2f} px over "
                                      f"{len(chosen)} views)")
-    return Intrinsics(K, dist.reshape(-1)[:4].copy(), float(rms), chosen)
+    return Intrinsics(K, dist.reshape(-1)[:4].copy(), float(rms), chosen, image_coverage(corners[chosen], size))
 
 
 def board_poses(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray) -> tuple[np.ndarray, np.ndarray,

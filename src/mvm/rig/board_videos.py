@@ -295,6 +295,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
                           "its face)") if rig.world_view >= 0 else f"camera {names[0]}",
                 "intrinsics": str(intrinsics) if intrinsics else "calibrated on the board",
                 "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
+                "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
                 "residual_px": [round(float(r), 4) for r in rig.rms_px]}
     calibration = RigCalibration(Cameras(K, rig.R, rig.t, sizes, tuple(names)), distortions, fisheye, metadata)
     out = Path(out)
