@@ -170,15 +170,17 @@ def _chordal_mean(R: np.ndarray) -> np.ndarray:
     return U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
 
 
-def pair_pose(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def pair_pose(Ra: np.ndarray, ta: np.ndarray, Rb: np.ndarray, tb: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                                      np.ndarray]:
     """The relative pose ``x_b = R x_a + t`` of two cameras from the board's poses at the instants
-    both see it (step 3): ``Ra, Rb: (n, 3, 3)``, ``ta, tb: (n, 3)`` -> ``(R, t, views kept)``."""
+    both see it (step 3): ``Ra, Rb: (n, 3, 3)``, ``ta, tb: (n, 3)`` -> ``(R, t, kept (n,))``, the
+    instants whose rotation agrees with the others'."""
     R = Rb @ np.swapaxes(Ra, 1, 2)                                               # (n, 3, 3)
     t = tb - np.einsum("nij,nj->ni", R, ta)
     mean = _chordal_mean(R)
     angle = np.degrees(np.arccos(np.clip((np.einsum("nij,ij->n", R, mean) - 1) / 2, -1, 1)))
     keep = angle <= max(OUTLIER_ROTATION_DEG, np.median(angle) * 3)
-    return _chordal_mean(R[keep]), np.median(t[keep], axis=0), int(keep.sum())
+    return _chordal_mean(R[keep]), np.median(t[keep], axis=0), keep
 
 
 def _place_cameras(R_board: np.ndarray, t_board: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, list]:
@@ -191,7 +193,7 @@ def _place_cameras(R_board: np.ndarray, t_board: np.ndarray, ok: np.ndarray) -> 
             both = np.flatnonzero(ok[a] & ok[b])
             if len(both):
                 R, t, kept = pair_pose(R_board[a, both], t_board[a, both], R_board[b, both], t_board[b, both])
-                pairs[a, b] = PairPose(a, b, R, t, both[:kept], both[:kept], 0.0)
+                pairs[a, b] = PairPose(a, b, R, t, both[kept], both[kept], 0.0)   # weighted by shared views
     try:
         tree = spanning_tree(pairs, V)
     except CalibrationError as e:
