@@ -102,7 +102,7 @@ def frontal_board_poses(n: int, board: Board, camera: TrueCamera, seed: int = 0)
     return np.array(R), np.array(t)
 
 
-def _lens_grid(camera: TrueCamera) -> np.ndarray:
+def lens_grid(camera: TrueCamera) -> np.ndarray:
     """The pinhole pixel of every (supersampled) pixel of the distorted image: ``(h, w, 2)``."""
     s = SUPERSAMPLE
     w, h = SIZE[0] * s, SIZE[1] * s
@@ -132,7 +132,7 @@ def write_board_video(path: Path, board: Board, camera: TrueCamera, R_board: np.
                       fps: float = 10.0, blank: tuple[int, ...] = ()) -> None:
     """A video of the board at each pose (``blank``: frames drawn without the board)."""
     texture, A = board.texture(24 * SUPERSAMPLE)
-    grid = _lens_grid(camera)
+    grid = lens_grid(camera)
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, SIZE)
     for k, (R, t) in enumerate(zip(R_board, t_board)):

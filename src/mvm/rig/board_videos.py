@@ -13,8 +13,9 @@ written then.
 
 A camera without an intrinsics video is calibrated on its extrinsics video. A camera's video
 may also be a folder of images (``<camera>/`` holding ``*.png``, ``*.jpg``, ... in name order,
-as Pose2Sim's image folders). The cameras are named after the files and ordered by name (the
-first is the reference), or as in ``--intrinsics FILE``.
+as Pose2Sim's image folders) or, for the extrinsics of a board lying still, one image. The
+cameras are named after the files and ordered by name (the first is the reference), or as in
+``--intrinsics FILE``.
 """
 from __future__ import annotations
 
@@ -65,7 +66,7 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
     for p in folder.iterdir():
         if p.name.startswith("."):
             continue
-        if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS or p.is_dir() and _images(p):
+        if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS | IMAGE_EXTENSIONS or p.is_dir() and _images(p):
             name = p.stem if p.is_file() else p.name
             if name in found:
                 raise InputError(p, None, f"camera {name}: two calibration sources ({found[name].name} and {p.name})")
@@ -88,6 +89,8 @@ def frame_count(source: Path) -> int:
     """Frames of a video (its header; 0 when it does not say) or images of a folder."""
     if source.is_dir():
         return len(_images(source))
+    if source.suffix.lower() in IMAGE_EXTENSIONS:
+        return 1
     capture = cv2.VideoCapture(str(source))
     try:
         return max(int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if capture.isOpened() else 0
@@ -99,8 +102,8 @@ def gray_frames(source: Path, stride: int):
     """Every ``stride``-th frame of a video or image folder, one at a time: yields ``(number,
     gray (H, W) uint8)``; the frames in between are skipped undecoded. A video that does not open
     or decode raises :class:`InputError`."""
-    if source.is_dir():
-        for number, path in enumerate(_images(source)):
+    if source.is_dir() or source.suffix.lower() in IMAGE_EXTENSIONS:
+        for number, path in enumerate(_images(source) if source.is_dir() else [source]):
             if number % stride == 0:
                 image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
                 if image is None:
