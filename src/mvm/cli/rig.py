@@ -101,7 +101,7 @@ def synchronize_cmd(rig_dir, calib, max_offset):
               "(--from-people; default 0).")
 @click.option("--refine-focal", is_flag=True,
               help="Adjust every camera's focal length in the bundle adjustment too (--from-people; for "
-                   "intrinsics that are only approximate).")
+                   "focal lengths that may be more than about 1 % off).")
 @click.option("--board-size", default=None, metavar="COLSxROWS",
               help="Checkerboard: inner corners (e.g. 7x6, one count even and one odd); ChArUco: squares (e.g. 5x7).")
 @click.option("--square-size", type=Number(float, gt=0), default=None, help="Side of the board's squares, in metres.")
