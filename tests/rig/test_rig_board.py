@@ -26,6 +26,7 @@ from mvm.core.scene import Cameras
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml
 from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, image_coverage, usable_views
 from mvm.rig.boards import Board, spread_views, view_features
+from mvm.rig.calibrate import CalibrationError
 
 CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
 CHARUCO = Board("charuco", 6, 5, 0.1, 0.075)
@@ -258,3 +259,14 @@ def test_still_board_in_images(tmp_path):
     for v, cam in enumerate(cams):                          # one view of a small board 3 m away: 2.2 cm, 0.45°
         assert np.linalg.norm(found.cameras.centers[v] - (cam.centre - FIRST_CORNER)) < 0.04
         assert _rotation_deg(found.cameras.R[v], cam.R) < 0.8
+
+
+def test_unsynchronized_views_refused():
+    """One camera's extrinsics shifted by 3 frames: its views do not agree with the others'."""
+    cams = ring_cameras(3, seed=1)
+    R, t = floor_board_poses(20, CHECKERBOARD)
+    corners = np.array([undistort(seen_corners(CHECKERBOARD, cam, R, t), cam.K, cam.distortion) for cam in cams])
+    corners[2] = np.roll(corners[2], 3, axis=0)
+    with pytest.raises(CalibrationError, match="recorded together") as caught:
+        calibrate_extrinsics(corners, np.array([cam.K for cam in cams]), CHECKERBOARD.object_points)
+    assert caught.value.camera == 2

@@ -51,6 +51,9 @@ OUTLIER_VIEW_PX = 1.0
 #: The intrinsics or the rig have not converged when a camera's reprojection RMS exceeds this. [px]
 MAX_RMS_PX = 3.0
 
+#: What to check when the cameras' views of the board do not agree.
+SYNC_HINT = "are the extrinsics videos recorded together, and the intrinsics right?"
+
 
 @dataclass
 class Intrinsics:
@@ -277,9 +280,14 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
             break
         present[bad] = False
         ok[camera[bad], instant[bad]] = False
+    error = np.where(present, error, np.nan)
+    for v in range(V):
+        if not np.isfinite(error[camera == v]).any():
+            raise CalibrationError(v, f"its views of the board disagree with the other cameras' ({SYNC_HINT})")
     rms = np.array([np.sqrt(np.nanmean(error[camera == v] ** 2)) for v in range(V)])
     worst = int(np.argmax(rms))
     if not rms[worst] <= MAX_RMS_PX:
-        raise CalibrationError(worst, f"the calibration does not converge (reprojection RMS {rms[worst]:.2f} px)")
+        raise CalibrationError(worst, f"the calibration does not converge (reprojection RMS {rms[worst]:.2f} px; "
+                                      f"{SYNC_HINT})")
     R, t, f = _world_frame(X, ok, object_points, R, t, world)
     return BoardRig(R, t, rms, ok.sum(1), tree, int(shared[f]) if f >= 0 else -1, converged)
