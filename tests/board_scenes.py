@@ -23,6 +23,7 @@ class TrueCamera:
     distortion: np.ndarray
     R: np.ndarray          # world -> camera
     t: np.ndarray
+    fisheye: bool = False
 
     @property
     def centre(self) -> np.ndarray:
@@ -41,10 +42,13 @@ def look_at(centre, target, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]
     return R, -R @ centre
 
 
-def ring_cameras(n: int, seed: int = 0, radius: float = 2.2, height: float = 1.8) -> list[TrueCamera]:
+def ring_cameras(n: int, seed: int = 0, radius: float = 2.2, height: float = 1.8,
+                 fisheye: bool = False) -> list[TrueCamera]:
     """``n`` cameras on a ring around the origin, looking down at it, each its own focal length,
-    principal point and lens."""
+    principal point and lens (``fisheye``: OpenCV's fisheye lens, wider, and closer)."""
     rng = np.random.default_rng(seed)
+    if fisheye:
+        radius, height = 0.6 * radius, 0.6 * height
     cams = []
     for v in range(n):
         a = 2 * np.pi * v / n + 0.3
@@ -53,7 +57,10 @@ def ring_cameras(n: int, seed: int = 0, radius: float = 2.2, height: float = 1.8
         K = np.array([[f, 0, 320 + rng.uniform(-12, 12)], [0, f * (1 + rng.uniform(-0.01, 0.01)),
                                                            240 + rng.uniform(-10, 10)], [0, 0, 1]])
         distortion = np.array([-0.12 + 0.03 * v, 0.04, rng.uniform(-1e-3, 1e-3), rng.uniform(-1e-3, 1e-3)])
-        cams.append(TrueCamera(K, distortion, R, t))
+        if fisheye:
+            K[:2, :2] *= 0.6
+            distortion = np.array([0.05 - 0.02 * v, -0.02, 0.01, -0.005])
+        cams.append(TrueCamera(K, distortion, R, t, fisheye))
     return cams
 
 
@@ -108,7 +115,10 @@ def lens_grid(camera: TrueCamera) -> np.ndarray:
     w, h = SIZE[0] * s, SIZE[1] * s
     jj, ii = np.meshgrid(np.arange(w), np.arange(h))
     pixels = np.stack([(jj + 0.5) / s - 0.5, (ii + 0.5) / s - 0.5], -1).reshape(-1, 1, 2).astype(np.float64)
-    pinhole = cv2.undistortPoints(pixels, camera.K, camera.distortion, P=camera.K)
+    if camera.fisheye:
+        pinhole = cv2.fisheye.undistortPoints(pixels, camera.K, camera.distortion, P=camera.K)
+    else:
+        pinhole = cv2.undistortPoints(pixels, camera.K, camera.distortion, P=camera.K)
     return pinhole.reshape(h, w, 2).astype(np.float32)
 
 
@@ -147,7 +157,10 @@ def seen_corners(board: Board, camera: TrueCamera, R_board, t_board) -> np.ndarr
     """``(n, C, 2)`` the true (distorted) pixels of the board's corners at each pose."""
     X = np.einsum("nij,cj->nci", R_board, board.object_points) + t_board[:, None]
     rvec = cv2.Rodrigues(camera.R)[0]
-    px, _ = cv2.projectPoints(X.reshape(-1, 3), rvec, camera.t, camera.K, camera.distortion)
+    if camera.fisheye:
+        px, _ = cv2.fisheye.projectPoints(X.reshape(-1, 1, 3), rvec, camera.t, camera.K, camera.distortion)
+    else:
+        px, _ = cv2.projectPoints(X.reshape(-1, 3), rvec, camera.t, camera.K, camera.distortion)
     return px.reshape(len(R_board), -1, 2)
 
 
@@ -162,12 +175,12 @@ class BoardRig:
 
 def write_board_rig(root: Path, board: Board, n_cameras: int = 3, intrinsic_frames: int = 20,
                     extrinsic_frames: int = 24, layout: str = "split", blank: dict | None = None,
-                    seed: int = 0) -> BoardRig:
+                    seed: int = 0, fisheye: bool = False) -> BoardRig:
     """Calibration videos of ``n_cameras`` ring cameras in ``root/calibration``: ``layout``
     "split" (``intrinsics/`` and ``extrinsics/``) or "flat" (the extrinsics videos right in
     ``calibration/``, no intrinsics videos). ``blank``: ``{camera: frames}`` of the extrinsics
     videos drawn without the board."""
-    cams = ring_cameras(n_cameras, seed)
+    cams = ring_cameras(n_cameras, seed, fisheye=fisheye)
     names = [f"cam_{v + 1:02d}" for v in range(n_cameras)]
     R_floor, t_floor = floor_board_poses(extrinsic_frames, board, seed)
     folder = root / "calibration"

@@ -135,6 +135,26 @@ def test_charuco_videos(tmp_path):
 
 
 @pytest.mark.slow
+def test_fisheye_lenses(tmp_path):
+    """Wide-angle cameras with OpenCV's fisheye lens, calibrated with --fisheye."""
+    truth = write_board_rig(tmp_path / "rig", CHECKERBOARD, intrinsic_frames=16, extrinsic_frames=16, fisheye=True)
+    out = tmp_path / "fisheye.toml"
+    result = _calibrate(tmp_path / "rig", CHECKERBOARD, out, "--fisheye")
+    assert result.exit_code == 0, result.output
+    found = read_calib_toml(out)
+    assert found.fisheye.all() and all(len(d) == 4 for d in found.distortions)
+    _assert_matches(found, truth, focal=0.005, centre_m=0.01, rotation_deg=0.2, lens=False)
+    for v, cam in enumerate(truth.cameras):                  # the lens maps pixels as the true one does
+        K = found.cameras.K[v]
+        assert abs(K[0, 0] / cam.K[0, 0] - 1) < 0.005 and np.abs(K[:2, 2] - cam.K[:2, 2]).max() < 2.0
+        rays = np.array([[0.3, 0.2, 1.0], [-0.5, 0.4, 1.0], [0.6, -0.45, 1.0]]).reshape(1, -1, 3)
+        zero = np.zeros(3)
+        true_px = cv2.fisheye.projectPoints(rays, zero, zero, cam.K, cam.distortion)[0]
+        found_px = cv2.fisheye.projectPoints(rays, zero, zero, K, found.distortions[v])[0]
+        assert np.abs(found_px - true_px).max() < 2.0
+
+
+@pytest.mark.slow
 def test_given_intrinsics_and_flat_layout(tmp_path):
     """Videos right in calibration/ (anipose's layout), intrinsics from --intrinsics."""
     truth = write_board_rig(tmp_path / "rig", CHARUCO, extrinsic_frames=10, layout="flat")
@@ -183,6 +203,9 @@ def test_bad_board_input_one_line(tmp_path):
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--from-people", "--board-size", "7x6",
                                               "-o", str(out)]), "--board-size", "not --from-people")
     _one_line_exit_2(_calibrate(root, CHARUCO, out, "--refine-focal"), "--refine-focal", "--from-people only")
+    _one_line_exit_2(_calibrate(root, CHARUCO, out, "--fisheye", "--intrinsics", out), "--fisheye", "--intrinsics")
+    _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--from-people", "--fisheye", "-o", str(out)]),
+                     "--fisheye", "not --from-people")
     _one_line_exit_2(_calibrate(root, Board("checkerboard", 7, 6, 0.07), out, "--marker-size", 0.05),
                      "--marker-size", "--charuco only")
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "6x5",

@@ -3,7 +3,7 @@ Pose2Sim and anipose do with OpenCV.
 
 1. **Intrinsics**, each camera alone: ``cv2.calibrateCamera`` on views of the board spread over
    the image, its distance and its tilts (:func:`mvm.rig.boards.spread_views`), OpenCV's
-   ``k1, k2, p1, p2`` lens.
+   ``k1, k2, p1, p2`` lens (or ``cv2.fisheye.calibrate``, its ``k1 .. k4``).
 2. **Board poses**: ``cv2.solvePnP`` (IPPE, for a plane) of every view, on the corners
    undistorted by the camera's lens.
 3. **Chaining.** Two cameras that see the board at the same instant give their relative pose
@@ -57,7 +57,8 @@ SYNC_HINT = "are the extrinsics videos recorded together, and the intrinsics rig
 
 @dataclass
 class Intrinsics:
-    """One camera's intrinsics: ``K (3, 3)``, ``distortion (4,)`` (OpenCV ``k1, k2, p1, p2``),
+    """One camera's intrinsics: ``K (3, 3)``, ``distortion (4,)`` (OpenCV ``k1, k2, p1, p2``, or
+    the fisheye model's ``k1 .. k4``),
     ``rms_px`` (reprojection RMS over the views used), ``views`` (indices of those views),
     ``coverage`` (:func:`image_coverage` of those views)."""
 
@@ -121,13 +122,35 @@ def _views(corners: np.ndarray, object_points: np.ndarray, index: np.ndarray) ->
     return obj, img
 
 
+#: Where OpenCV keeps the fisheye calibration's flags (``cv2.fisheye`` up to 4.x, ``cv2`` from 5).
+_FISHEYE = cv2.fisheye if hasattr(cv2.fisheye, "CALIB_RECOMPUTE_EXTRINSIC") else cv2
+
+
+def _calibrate_lens(obj: list, img: list, size: tuple[int, int], fisheye: bool
+                    ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """One OpenCV calibration: ``(rms, K, distortion, per-view RMS)``."""
+    if not fisheye:
+        rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(obj, img, size, None, None,
+                                                                         flags=cv2.CALIB_FIX_K3)
+        return rms, K, dist.reshape(-1)[:4].copy(), per_view.ravel()
+    obj = [o.reshape(1, -1, 3).astype(np.float64) for o in obj]                  # the shapes it accepts
+    img = [i.reshape(1, -1, 2).astype(np.float64) for i in img]
+    rms, K, dist, rvecs, tvecs = cv2.fisheye.calibrate(
+        obj, img, size, None, None, flags=_FISHEYE.CALIB_RECOMPUTE_EXTRINSIC | _FISHEYE.CALIB_FIX_SKEW,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-9))
+    per_view = np.array([np.sqrt(np.mean(np.sum((cv2.fisheye.projectPoints(o, r, t, K, dist)[0] - i) ** 2, -1)))
+                         for o, i, r, t in zip(obj, img, rvecs, tvecs)])
+    return rms, K, dist.reshape(-1).copy(), per_view
+
+
 def calibrate_intrinsics(corners: np.ndarray, object_points: np.ndarray, size: tuple[int, int],
-                         max_views: int = MAX_INTRINSIC_VIEWS) -> Intrinsics:
+                         max_views: int = MAX_INTRINSIC_VIEWS, fisheye: bool = False) -> Intrinsics:
     """One camera's intrinsics from its views of the board (module docstring, step 1).
 
     Args:
         corners: ``(F, C, 2)`` the board's corners in ``F`` views (pixels, NaN: not seen).
         object_points: ``(C, 3)`` the corners on the board (metres); size: ``(width, height)``.
+        fisheye: OpenCV's fisheye lens (``cv2.fisheye.calibrate``, ``k1 .. k4``).
     Raises:
         CalibrationError (camera None) with too few views or a RMS above ``MAX_RMS_PX``.
     """
@@ -138,10 +161,12 @@ def calibrate_intrinsics(corners: np.ndarray, object_points: np.ndarray, size: t
     features = np.array([view_features(corners[f][np.isfinite(corners[f]).all(-1)], size) for f in usable])
     chosen = usable[spread_views(features, max_views)]
     for _ in range(2):                                    # once more without the views it does not explain
-        obj, img = _views(corners, object_points, chosen)
-        rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
-            obj, img, tuple(int(v) for v in size), None, None, flags=cv2.CALIB_FIX_K3)
-        per_view = per_view.ravel()
+        try:
+            rms, K, dist, per_view = _calibrate_lens(*_views(corners, object_points, chosen),
+                                                     tuple(int(v) for v in size), fisheye)
+        except cv2.error:
+            rms = np.inf
+            break
         good = per_view <= max(OUTLIER_VIEW_PX, 3 * np.median(per_view))
         if good.all() or good.sum() < MIN_INTRINSIC_VIEWS:
             break
@@ -149,7 +174,7 @@ def calibrate_intrinsics(corners: np.ndarray, object_points: np.ndarray, size: t
     if not np.isfinite(rms) or rms > MAX_RMS_PX:
         raise CalibrationError(None, f"the intrinsics do not converge (reprojection RMS {rms:.2f} px over "
                                      f"{len(chosen)} views)")
-    return Intrinsics(K, dist.reshape(-1)[:4].copy(), float(rms), chosen, image_coverage(corners[chosen], size))
+    return Intrinsics(K, dist, float(rms), chosen, image_coverage(corners[chosen], size))
 
 
 def board_poses(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray) -> tuple[np.ndarray, np.ndarray,

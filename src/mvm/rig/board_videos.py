@@ -226,7 +226,7 @@ def _given_intrinsics(path: Path, names: list[str], sources: dict[str, Path]) ->
                           calibration.metadata)
 
 
-def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress):
+def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress, fisheye):
     """Each camera's :class:`Intrinsics`: on its intrinsics video, else on its extrinsics video."""
     own = [n for n in names if n in intrinsic_sources]
     scans = dict(zip(own, _scan_all([(f"{n} intrinsics", intrinsic_sources[n], _stride([intrinsic_sources[n]]))
@@ -239,19 +239,20 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, w
             raise InputError(source, None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, its extrinsics video "
                                            f"{ext_scans[v].size[0]}x{ext_scans[v].size[1]}: calibrate at one size")
         try:
-            found.append(calibrate_intrinsics(s.corners, board.object_points, s.size))
+            found.append(calibrate_intrinsics(s.corners, board.object_points, s.size, fisheye=fisheye))
         except CalibrationError as e:
             raise InputError(source, None, f"camera {name}: {e.problem}") from None
     return found
 
 
 def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board, intrinsics: str | Path | None = None,
-                             world: str = "board", workers: int | None = None, progress=None) -> RigBoardCalibration:
+                             world: str = "board", workers: int | None = None, progress=None,
+                             fisheye: bool = False) -> RigBoardCalibration:
     """Every camera's intrinsics (or those of ``intrinsics``) and pose from the board videos of
     ``rig_dir`` (module docstring); a full Calib.toml is written at ``out`` with each camera's
     residuals in ``[metadata]``. ``world``: ``"board"`` or ``"camera"``
     (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
-    ``progress(video, frames done, total)``."""
+    ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens."""
     rig_dir = Path(rig_dir)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     names = list(ext_sources)
@@ -269,9 +270,10 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     for name, s in zip(names, ext_scans):
         _check_found(s, ext_sources[name], name, board)
     if given is None:
-        lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress)
+        lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress,
+                                   fisheye)
         K = np.array([lens.K for lens in lenses])
-        distortions, fisheye = tuple(lens.distortion for lens in lenses), np.zeros(len(names), bool)
+        distortions, fisheye = tuple(lens.distortion for lens in lenses), np.full(len(names), fisheye)
         sizes = np.array([s.size for s in ext_scans], dtype=float)
     else:
         lenses = [None] * len(names)
