@@ -293,3 +293,18 @@ def test_unsynchronized_views_refused():
     with pytest.raises(CalibrationError, match="recorded together") as caught:
         calibrate_extrinsics(corners, np.array([cam.K for cam in cams]), CHECKERBOARD.object_points)
     assert caught.value.camera == 2
+
+
+def test_checkerboard_found_in_large_frames():
+    """A 1920-pixel-wide frame is searched reduced, its corners refined at full size."""
+    cam = ring_cameras(1)[0]
+    R, t = frontal_board_poses(3, CHECKERBOARD, cam, seed=0)
+    texture, A = CHECKERBOARD.texture(48)
+    grid = lens_grid(cam)
+    truth = seen_corners(CHECKERBOARD, cam, R, t)
+    detect = CHECKERBOARD.detector()
+    for k in range(3):
+        gray = cv2.cvtColor(render(CHECKERBOARD, texture, A, cam, grid, R[k], t[k]), cv2.COLOR_BGR2GRAY)
+        large = cv2.resize(gray, (SIZE[0] * 3, SIZE[1] * 3), interpolation=cv2.INTER_CUBIC)
+        ids, pixels = detect(large)
+        assert np.abs((pixels + 0.5) / 3 - 0.5 - truth[k][ids]).max() < 0.4

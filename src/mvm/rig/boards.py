@@ -22,6 +22,9 @@ import numpy as np
 
 #: Fewest corners of a usable view (a ChArUco board may be seen in part).
 MIN_CORNERS = 6
+#: Checkerboards are found in frames reduced to at most this width (an integer factor), then
+#: their corners refined in the full frame: 4K frames cost what HD ones do. [px]
+DETECTION_WIDTH = 1280
 #: Largest half-side of the window a checkerboard corner is refined in (smaller where the squares
 #: are: 0.4 of the shortest side between corners). [px]
 SUBPIXEL_HALF_WINDOW = 11
@@ -126,9 +129,13 @@ class Board:
         flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 
         def detect(gray):
-            ok, corners = cv2.findChessboardCorners(gray, size, flags=flags)
+            shrink = max(1, int(np.ceil(gray.shape[1] / DETECTION_WIDTH)))
+            small = gray if shrink == 1 else cv2.resize(gray, (gray.shape[1] // shrink, gray.shape[0] // shrink),
+                                                        interpolation=cv2.INTER_AREA)
+            ok, corners = cv2.findChessboardCorners(small, size, flags=flags)
             if not ok:
                 return None
+            corners = ((corners + 0.5) * shrink - 0.5).astype(np.float32)          # pixel centres, full size
             grid = corners.reshape(self.rows, self.cols, 2)
             side = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
                        np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
