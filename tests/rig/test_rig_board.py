@@ -23,8 +23,10 @@ from board_scenes import (
 from mvm.cli.rig import rig
 from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
+from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml
 from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, image_coverage, usable_views
+from mvm.rig.board_videos import intrinsic_videos
 from mvm.rig.boards import Board, spread_views, view_features
 from mvm.rig.calibrate import CalibrationError
 
@@ -308,3 +310,13 @@ def test_checkerboard_found_in_large_frames():
         large = cv2.resize(gray, (SIZE[0] * 3, SIZE[1] * 3), interpolation=cv2.INTER_CUBIC)
         ids, pixels = detect(large)
         assert np.abs((pixels + 0.5) / 3 - 0.5 - truth[k][ids]).max() < 0.4
+
+
+def test_intrinsics_videos_matched_by_name(tmp_path):
+    """Pose2Sim's folder names (int_cam01_img, ext_cam01_img) go together; a stray video is named."""
+    names = ["ext_cam01_img", "ext_cam02_img"]
+    sources = {"int_cam02_img": tmp_path / "b", "int_cam01_img": tmp_path / "a"}
+    assert intrinsic_videos(names, sources) == {"ext_cam01_img": tmp_path / "a", "ext_cam02_img": tmp_path / "b"}
+    assert intrinsic_videos(names, {"cam_02": tmp_path / "c"}) == {"ext_cam02_img": tmp_path / "c"}
+    with pytest.raises(InputError, match="no extrinsics video of the same camera"):
+        intrinsic_videos(names, {"cam_07": tmp_path / "d"})

@@ -211,7 +211,7 @@ class RigBoardCalibration:
     path: Path
 
 
-def _given_intrinsics(path: Path, names: list[str], sources: dict[str, Path]) -> RigCalibration:
+def _given_intrinsics(path: Path, names: list[str]) -> RigCalibration:
     """The intrinsics of ``path`` for the cameras with videos, in that file's order."""
     calibration, _ = read_calibration(path, extrinsics=False)
     file_names = calibration.cameras.names
@@ -226,14 +226,28 @@ def _given_intrinsics(path: Path, names: list[str], sources: dict[str, Path]) ->
                           calibration.metadata)
 
 
+def intrinsic_videos(names: list[str], sources: dict[str, Path]) -> dict[str, Path]:
+    """``{camera: intrinsics video}``, matched to the cameras by name as pose folders are
+    (:func:`~mvm.rig.rigdir.match_cameras`: ``int_cam01_img`` goes with ``ext_cam01_img``); a
+    video no camera matches raises :class:`InputError`."""
+    entries = list(sources)
+    matched = match_cameras(names, entries)
+    unmatched = sorted(set(range(len(entries))) - set(matched.values()))
+    if unmatched:
+        source = sources[entries[unmatched[0]]]
+        raise InputError(source, None, f"no extrinsics video of the same camera (cameras: {', '.join(names)})")
+    return {names[c]: sources[entries[e]] for c, e in matched.items()}
+
+
 def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress, fisheye):
     """Each camera's :class:`Intrinsics`: on its intrinsics video, else on its extrinsics video."""
-    own = [n for n in names if n in intrinsic_sources]
-    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", intrinsic_sources[n], _stride([intrinsic_sources[n]]))
-                                     for n in own], board, workers, progress)))
+    videos = intrinsic_videos(names, intrinsic_sources)
+    own = [n for n in names if n in videos]
+    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", videos[n], _stride([videos[n]])) for n in own],
+                                    board, workers, progress)))
     found = []
     for v, name in enumerate(names):
-        s, source = (scans[name], intrinsic_sources[name]) if name in scans else (ext_scans[v], ext_sources[name])
+        s, source = (scans[name], videos[name]) if name in scans else (ext_scans[v], ext_sources[name])
         _check_found(s, source, name, board)
         if s.size != ext_scans[v].size:
             raise InputError(source, None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, its extrinsics video "
@@ -262,7 +276,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
         raise InputError("--board-size", f"{board.cols}x{board.rows}",
                          "a checkerboard with both counts even or both odd looks the same turned by 180°, so the "
                          "cameras cannot agree on its corners: use one even and one odd count (e.g. 7x6)")
-    given = _given_intrinsics(Path(intrinsics), names, ext_sources) if intrinsics else None
+    given = _given_intrinsics(Path(intrinsics), names) if intrinsics else None
     if given is not None:
         names = list(given.cameras.names)
     stride = _stride([ext_sources[n] for n in names])
