@@ -123,6 +123,17 @@ def test_checkerboard_videos(checkerboard_rig, tmp_path):
     assert max(found.metadata["residual_px"]) < 0.4 and max(found.metadata["intrinsics_rms_px"]) < 0.4
     assert "frame 0" in found.metadata["world"]
 
+    out = tmp_path / "frame5.toml"                              # the world on the board of frame 5, tilted
+    result = _calibrate(root, CHECKERBOARD, out, "--world-frame", 5, "--intrinsics", tmp_path / "board.toml")
+    assert result.exit_code == 0, result.output
+    found = read_calib_toml(out)
+    assert "frame 5" in found.metadata["world"]
+    R, t = floor_board_poses(24, CHECKERBOARD)
+    flip = np.diag([1.0, -1.0, -1.0])                            # the board's z out of its face, up
+    for v, cam in enumerate(truth.cameras):
+        assert np.linalg.norm(found.cameras.centers[v] - flip @ R[5].T @ (cam.centre - t[5])) < 0.015
+        assert _rotation_deg(found.cameras.R[v], cam.R @ R[5] @ flip) < 0.3
+
 
 @pytest.mark.slow
 def test_charuco_videos(tmp_path):
@@ -236,6 +247,16 @@ def test_camera_without_a_shared_view_one_line(tmp_path):
     out = tmp_path / "c.toml"
     _one_line_exit_2(_calibrate(root, CHARUCO, out), "camera cam_03",
                      "never sees the board at the same instant as the other cameras")
+    assert not out.exists()
+
+
+def test_world_frame_without_the_board_one_line(tmp_path):
+    root = _small_rig(tmp_path, blank={0: (2,), 1: (2,)})
+    out = tmp_path / "c.toml"
+    _one_line_exit_2(_calibrate(root, CHARUCO, out, "--world-frame", 2), "--world-frame: 2", "by cam_03",
+                     "at least two cameras")
+    _one_line_exit_2(_calibrate(root, CHARUCO, out, "--world-frame", 2, "--world", "camera"), "--world-frame",
+                     "--world board")
     assert not out.exists()
 
 

@@ -109,11 +109,14 @@ def synchronize_cmd(rig_dir, calib, max_offset):
               help="Side of the ChArUco markers, in metres.")
 @click.option("--dictionary", default=None, help="ArUco dictionary of the ChArUco board (default DICT_4X4_50).")
 @click.option("--fisheye", is_flag=True, help="Calibrate OpenCV's fisheye lens model (wide-angle lenses).")
+@click.option("--world-frame", type=Number(int, ge=0), default=None,
+              help="The frame of the extrinsics videos whose board is the world (--world board; default: the "
+                   "first frame the most cameras see it in).")
 @click.option("--world", type=click.Choice(["board", "camera"]), default=None,
               help="World frame of a board calibration: the board (default; where most cameras first see it "
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
 def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, refine_focal, board_size,
-                  square_size, marker_size, dictionary, fisheye, world):
+                  square_size, marker_size, dictionary, fisheye, world_frame, world):
     """Calibrate the rig. --from-people: its extrinsics from the people it sees (metres from their
     bone lengths, z up along their bodies, the origin on the floor under them; synchronize first,
     sync.toml is used). --checkerboard / --charuco: intrinsics and extrinsics from videos of a board."""
@@ -123,7 +126,8 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsic
         raise InputError(None, "calibrate", "choose one of --from-people, --checkerboard, --charuco"
                          + (f" (got {' and '.join(modes)})" if modes else ""))
     board_options = {"--board-size": board_size, "--square-size": square_size, "--marker-size": marker_size,
-                     "--dictionary": dictionary, "--fisheye": fisheye or None, "--world": world}
+                     "--dictionary": dictionary, "--fisheye": fisheye or None, "--world-frame": world_frame,
+                     "--world": world}
     if from_people:
         given = [k for k, v in board_options.items() if v is not None]
         if given:
@@ -134,8 +138,10 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsic
             raise InputError(None, option, "applies to --from-people only")
     if fisheye and intrinsics:
         raise InputError(None, "--fisheye", "the lens model comes from --intrinsics")
+    if world_frame is not None and world == "camera":
+        raise InputError(None, "--world-frame", "applies to --world board")
     _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
-                          square_size, marker_size, dictionary, world or "board", fisheye)
+                          square_size, marker_size, dictionary, world or "board", fisheye, world_frame)
 
 
 def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
@@ -155,7 +161,7 @@ def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
 
 
 def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_size, marker_size, dictionary, world,
-                          fisheye):
+                          fisheye, world_frame):
     from mvm.rig.board_calibration import MIN_COVERAGE
     from mvm.rig.board_videos import calibrate_rig_from_board
     from mvm.rig.boards import Board, parse_board_size
@@ -177,7 +183,8 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
         what, _, problem = str(e).partition(": ")
         raise InputError(None, "--" + what.replace(" ", "-"), problem) from None
     with stage_progress() as update:
-        found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update, fisheye=fisheye)
+        found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update, fisheye=fisheye,
+                                         world_frame=world_frame)
     cams = found.calibration.cameras
     r = found.rig
     lenses = found.intrinsics

@@ -245,16 +245,20 @@ def _corners_in_world(R_board, t_board, ok, R, t, object_points) -> np.ndarray:
 
 
 def _world_frame(X: np.ndarray, seen: np.ndarray, object_points: np.ndarray, R: np.ndarray, t: np.ndarray,
-                 world: str) -> tuple[np.ndarray, np.ndarray, int]:
+                 world: str, view: int | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Cameras ``R (V, 3, 3)``, ``t (V, 3)`` of the adjustment moved to the world frame (step 5).
-    ``X: (T, C, 3)`` the adjusted corners; ``seen: (V, T)`` -> ``(R, t, world view)``."""
+    ``X: (T, C, 3)`` the adjusted corners; ``seen: (V, T)``; ``view``: the instant whose board is
+    the world (default: the first seen by the most cameras) -> ``(R, t, world view)``."""
     obj = np.broadcast_to(object_points, X.shape)
     s, Rb, tb = similarity_transform(obj, X)                                      # X ≈ s Rb P + tb
     counted = np.isfinite(X).all(-1).sum(1) >= MIN_CORNERS
     scale = float(np.median(s[counted]))
     if world == "camera":
         return R, t / scale, -1
-    f = int(np.flatnonzero(counted)[np.argmax(seen[:, counted].sum(0))])
+    f = int(np.flatnonzero(counted)[np.argmax(seen[:, counted].sum(0))]) if view is None else view
+    if not counted[f] or seen[:, f].sum() < 2:
+        raise CalibrationError(None, f"the board of the world frame is seen well by {seen[:, f].sum()} camera(s), "
+                                     "at least two are needed")
     for flip in (np.eye(3), np.diag([1.0, -1.0, -1.0])):                         # z towards the cameras
         R_w = R @ Rb[f] @ flip                                                   # x = s R (Rb flip W) + R tb + t
         t_w = (np.einsum("vij,j->vi", R, tb[f]) + t) / scale
@@ -264,15 +268,16 @@ def _world_frame(X: np.ndarray, seen: np.ndarray, object_points: np.ndarray, R: 
     return R_w, t_w, f
 
 
-def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray, world: str = "board"
-                         ) -> BoardRig:
+def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray, world: str = "board",
+                         world_instant: int | None = None) -> BoardRig:
     """Every camera's rotation and position from views of the board at common instants
     (module docstring, steps 2-5).
 
     Args:
         corners: ``(V, T, C, 2)`` the board's corners (undistorted pixels, NaN: not seen) in
             every camera at ``T`` common instants (synchronized videos).
-        K: ``(V, 3, 3)``; object_points: ``(C, 3)`` (metres); world: ``"board"`` or ``"camera"``.
+        K: ``(V, 3, 3)``; object_points: ``(C, 3)`` (metres); world: ``"board"`` or ``"camera"``;
+        world_instant: the instant whose board is the world (default: the first seen by the most cameras).
     Raises:
         CalibrationError naming a camera that shares no view with the others, or does not converge.
     """
@@ -285,6 +290,11 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     shared = np.flatnonzero(ok.sum(0) >= 2)
     if len(shared) > MAX_SHARED_VIEWS:
         shared = shared[np.linspace(0, len(shared) - 1, MAX_SHARED_VIEWS).round().astype(int)]
+    if world_instant is not None:
+        if ok[:, world_instant].sum() < 2:
+            raise CalibrationError(None, f"the board of the world frame is found in {ok[:, world_instant].sum()} "
+                                         "camera(s), at least two are needed")
+        shared = np.union1d(shared, [world_instant])
     R_board, t_board, ok, corners = R_board[:, shared], t_board[:, shared], ok[:, shared], corners[:, shared]
     R, t, tree = _place_cameras(R_board, t_board, ok)
     X = _corners_in_world(R_board, t_board, ok, R, t, object_points)
@@ -314,5 +324,6 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     if not rms[worst] <= MAX_RMS_PX:
         raise CalibrationError(worst, f"the calibration does not converge (reprojection RMS {rms[worst]:.2f} px; "
                                       f"{SYNC_HINT})")
-    R, t, f = _world_frame(X, ok, object_points, R, t, world)
+    view = None if world_instant is None else int(np.searchsorted(shared, world_instant))
+    R, t, f = _world_frame(X, ok, object_points, R, t, world, view)
     return BoardRig(R, t, rms, ok.sum(1), tree, int(shared[f]) if f >= 0 else -1, converged)

@@ -38,7 +38,7 @@ from mvm.rig.board_calibration import (
     calibrate_extrinsics,
     calibrate_intrinsics,
 )
-from mvm.rig.boards import Board
+from mvm.rig.boards import MIN_CORNERS, Board
 from mvm.rig.calibrate import CalibrationError
 from mvm.rig.rigdir import match_cameras, read_calibration
 
@@ -261,12 +261,14 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, w
 
 def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board, intrinsics: str | Path | None = None,
                              world: str = "board", workers: int | None = None, progress=None,
-                             fisheye: bool = False) -> RigBoardCalibration:
+                             fisheye: bool = False, world_frame: int | None = None) -> RigBoardCalibration:
     """Every camera's intrinsics (or those of ``intrinsics``) and pose from the board videos of
     ``rig_dir`` (module docstring); a full Calib.toml is written at ``out`` with each camera's
     residuals in ``[metadata]``. ``world``: ``"board"`` or ``"camera"``
     (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
-    ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens."""
+    ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens;
+    ``world_frame``: the frame of the extrinsics videos whose board is the world (the nearest
+    frame searched; default: the first in which the most cameras see it)."""
     rig_dir = Path(rig_dir)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     names = list(ext_sources)
@@ -301,8 +303,16 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     corners = np.full((len(names), len(frames)) + ext_scans[0].corners.shape[1:], np.nan)
     for v, s in enumerate(ext_scans):
         corners[v, np.searchsorted(frames, s.frames)] = undistort(s.corners, K[v], distortions[v], bool(fisheye[v]))
+    instant = None
+    if world_frame is not None:
+        instant = int(np.argmin(np.abs(frames - world_frame)))
+        seen = [n for n, c in zip(names, corners[:, instant]) if np.isfinite(c).all(-1).sum() >= MIN_CORNERS]
+        if len(seen) < 2:
+            raise InputError("--world-frame", str(world_frame),
+                             f"the board is found in frame {frames[instant]} (the nearest searched) by "
+                             f"{', '.join(seen) or 'no camera'}: at least two cameras must see it")
     try:
-        rig = calibrate_extrinsics(corners, K, board.object_points, world)
+        rig = calibrate_extrinsics(corners, K, board.object_points, world, instant)
     except CalibrationError as e:
         name = names[e.camera] if e.camera is not None else None
         raise InputError(ext_sources[name] if name else rig_dir / "calibration", None,
