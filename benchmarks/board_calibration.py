@@ -30,16 +30,13 @@ from click.testing import CliRunner  # noqa: E402
 
 from board_scenes import (  # noqa: E402
     FIRST_CORNER,
-    SIZE,
-    floor_board_poses,
-    lens_grid,
-    render,
     ring_cameras,
     write_board_rig,
+    write_still_board,
+    write_true_calibration,
 )
 from mvm.cli.rig import rig  # noqa: E402
-from mvm.core.scene import Cameras  # noqa: E402
-from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml  # noqa: E402
+from mvm.io.calib_toml import read_calib_toml  # noqa: E402
 from mvm.rig.boards import Board  # noqa: E402
 
 CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
@@ -51,29 +48,14 @@ def _cpu() -> float:
                for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
 
 
-def _still_rig(root: Path, cams, names) -> Path:
-    """One image of the checkerboard on the floor per camera; the true intrinsics beside."""
-    R, t = floor_board_poses(1, CHECKERBOARD)
-    texture, A = CHECKERBOARD.texture(24)
-    folder = root / "calibration" / "extrinsics"
-    folder.mkdir(parents=True)
-    for cam, name in zip(cams, names):
-        cv2.imwrite(str(folder / f"{name}.png"), render(CHECKERBOARD, texture, A, cam, lens_grid(cam), R[0], t[0]))
-    lens = root / "intrinsics.toml"
-    write_calib_toml(lens, RigCalibration(
-        Cameras(np.array([c.K for c in cams]), np.array([c.R for c in cams]), np.array([c.t for c in cams]),
-                np.array([SIZE] * len(cams), float), tuple(names)),
-        tuple(c.distortion for c in cams), np.zeros(len(cams), bool)))
-    return lens
-
-
 def run_case(root: Path, case: str, n: int, seed: int) -> dict:
     board = CHARUCO if case == "charuco" else CHECKERBOARD
     extra = []
     if case == "still":
         cams = ring_cameras(n, seed)
         names = [f"cam_{v + 1:02d}" for v in range(n)]
-        extra = ["--intrinsics", str(_still_rig(root, cams, names))]
+        write_still_board([root / "calibration" / "extrinsics" / f"{n}.png" for n in names], CHECKERBOARD, cams)
+        extra = ["--intrinsics", str(write_true_calibration(root.parent / "intrinsics.toml", cams, names))]
     else:
         truth = write_board_rig(root, board, n, seed=seed, fisheye=case == "fisheye")
         cams = truth.cameras

@@ -191,3 +191,25 @@ def write_board_rig(root: Path, board: Board, n_cameras: int = 3, intrinsic_fram
         where = folder / "extrinsics" if layout == "split" else folder
         write_board_video(where / f"{name}.mp4", board, cam, R_floor, t_floor, blank=(blank or {}).get(v, ()))
     return BoardRig(cams, names)
+
+
+def write_true_calibration(path: Path, cameras: list, names: list) -> Path:
+    """The true cameras as a Calib.toml (for ``--intrinsics``)."""
+    from mvm.core.scene import Cameras
+    from mvm.io.calib_toml import RigCalibration, write_calib_toml
+
+    write_calib_toml(path, RigCalibration(
+        Cameras(np.array([c.K for c in cameras]), np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+                np.array([SIZE] * len(cameras), float), tuple(names)),
+        tuple(c.distortion for c in cameras), np.array([c.fisheye for c in cameras])))
+    return path
+
+
+def write_still_board(paths: list, board: Board, cameras: list) -> None:
+    """One image per camera of the board lying on the floor (the first pose of
+    :func:`floor_board_poses`), at ``paths``."""
+    R, t = floor_board_poses(1, board)
+    texture, A = board.texture(24)
+    for cam, path in zip(cameras, paths):
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(path), render(board, texture, A, cam, lens_grid(cam), R[0], t[0]))

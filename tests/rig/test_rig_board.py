@@ -19,12 +19,13 @@ from board_scenes import (
     seen_corners,
     write_board_rig,
     write_board_video,
+    write_still_board,
+    write_true_calibration,
 )
 from mvm.cli.rig import rig
 from mvm.core.camera import undistort
-from mvm.core.scene import Cameras
 from mvm.errors import InputError
-from mvm.io.calib_toml import RigCalibration, read_calib_toml, write_calib_toml
+from mvm.io.calib_toml import RigCalibration, read_calib_toml
 from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, image_coverage, usable_views
 from mvm.rig.board_videos import intrinsic_videos
 from mvm.rig.boards import Board, spread_views, view_features
@@ -172,11 +173,7 @@ def test_given_intrinsics_and_flat_layout(tmp_path):
     """Videos right in calibration/ (anipose's layout), intrinsics from --intrinsics."""
     truth = write_board_rig(tmp_path / "rig", CHARUCO, extrinsic_frames=10, layout="flat")
     cams = truth.cameras
-    lens = tmp_path / "intrinsics.toml"
-    write_calib_toml(lens, RigCalibration(
-        Cameras(np.array([c.K for c in cams]), np.array([c.R for c in cams]), np.array([c.t for c in cams]),
-                np.array([SIZE] * 3, float), tuple(truth.names)),
-        tuple(c.distortion for c in cams), np.zeros(3, bool)))
+    lens = write_true_calibration(tmp_path / "intrinsics.toml", cams, truth.names)
     out = tmp_path / "given.toml"
     result = _calibrate(tmp_path / "rig", CHARUCO, out, "--intrinsics", lens, "--world", "camera")
     assert result.exit_code == 0, result.output
@@ -287,17 +284,10 @@ def test_still_board_in_images(tmp_path):
     folder of images), the intrinsics given. A still board tells the cameras less than a moving
     one (2.2 cm here, against 1 mm)."""
     cams = ring_cameras(3)
-    names = ["cam_01", "cam_02", "cam_03"]
-    R, t = floor_board_poses(1, CHECKERBOARD)
-    texture, A = CHECKERBOARD.texture(24)
     folder = tmp_path / "rig" / "calibration" / "extrinsics"
-    (folder / "cam_02").mkdir(parents=True)
-    for cam, path in zip(cams, (folder / "cam_01.png", folder / "cam_02" / "0001.png", folder / "cam_03.jpg")):
-        cv2.imwrite(str(path), render(CHECKERBOARD, texture, A, cam, lens_grid(cam), R[0], t[0]))
-    lens = tmp_path / "intrinsics.toml"
-    write_calib_toml(lens, RigCalibration(
-        Cameras(np.array([c.K for c in cams]), np.array([c.R for c in cams]), np.array([c.t for c in cams]),
-                np.array([SIZE] * 3, float), tuple(names)), tuple(c.distortion for c in cams), np.zeros(3, bool)))
+    write_still_board([folder / "cam_01.png", folder / "cam_02" / "0001.png", folder / "cam_03.jpg"], CHECKERBOARD,
+                      cams)
+    lens = write_true_calibration(tmp_path / "intrinsics.toml", cams, ["cam_01", "cam_02", "cam_03"])
     out = tmp_path / "still.toml"
     result = _calibrate(tmp_path / "rig", CHECKERBOARD, out, "--intrinsics", lens)
     assert result.exit_code == 0, result.output
