@@ -117,9 +117,15 @@ def synchronize_cmd(rig_dir, calib, max_offset):
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
 def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, refine_focal, board_size,
                   square_size, marker_size, dictionary, fisheye, world_frame, world):
-    """Calibrate the rig. --from-people: its extrinsics from the people it sees (metres from their
-    bone lengths, z up along their bodies, the origin on the floor under them; synchronize first,
-    sync.toml is used). --checkerboard / --charuco: intrinsics and extrinsics from videos of a board."""
+    """Calibrate the cameras from the people or from videos of a board; write a full Calib.toml.
+
+    \b
+    --from-people: the extrinsics from the people the rig sees (metres from
+      their bone lengths, z up along their bodies, the origin on the floor
+      under them; synchronize first, sync.toml is used).
+    --checkerboard / --charuco: intrinsics, lenses and extrinsics from videos
+      of a board in RIG_DIR/calibration/ (intrinsics/ and extrinsics/, or the
+      videos right there)."""
     modes = [m for m, on in (("--from-people", from_people), ("--checkerboard", checkerboard),
                              ("--charuco", charuco)) if on]
     if len(modes) != 1:
