@@ -18,7 +18,9 @@ from mvm.cli.common import (
     read_config,
     refuse_unused,
     say,
+    stage_progress,
 )
+from mvm.errors import InputError
 
 
 def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
@@ -58,6 +60,7 @@ def rig() -> None:
       mvm rig detect RIG_DIR                           -> RIG_DIR/pose/ (from RIG_DIR/videos/)
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
+        (or --checkerboard / --charuco: from videos of a board in RIG_DIR/calibration/)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
       mvm report RIG_DIR, mvm overlay RIG_DIR          -> RIG_DIR/mvm/report.html, overlay/
     """
@@ -92,28 +95,124 @@ def synchronize_cmd(rig_dir, calib, max_offset):
 
 @rig.command("calibrate")
 @click.argument("rig_dir", type=click.Path(file_okay=False))
-@click.option("--from-people", "from_people", is_flag=True, required=True,
+@click.option("--from-people", "from_people", is_flag=True,
               help="Find every camera's rotation and position from the people's 2D poses (no calibration object).")
+@click.option("--checkerboard", is_flag=True,
+              help="Intrinsics and poses from videos of a checkerboard in RIG_DIR/calibration/ (docs/rigs.md).")
+@click.option("--charuco", is_flag=True, help="The same with a ChArUco board.")
 @click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
               help="The Calib.toml to write (use it with mvm rig reconstruct --calib).")
 @click.option("--intrinsics", type=click.Path(dir_okay=False), default=None,
-              help="Calib.toml with the cameras' intrinsics (default: RIG_DIR's calibration; rotations and "
-                   "translations may be absent and are not used).")
-@click.option("--seed", default=0, show_default=True, type=Number(int, ge=0),
-              help="Random seed of the robust estimation.")
-def calibrate_cmd(rig_dir, from_people, output, intrinsics, seed):
-    """Calibrate the rig's extrinsics from the people it sees: metres from their bone lengths, z up
-    along their bodies, the origin on the floor under them. Synchronize first (sync.toml is used)."""
+              help="Calib.toml with the cameras' intrinsics (from people: default RIG_DIR's calibration; with a "
+                   "board: used instead of calibrating them). Rotations and translations may be absent.")
+@click.option("--seed", default=None, type=Number(int, ge=0), help="Random seed of the robust estimation "
+              "(--from-people; default 0).")
+@click.option("--refine-focal", is_flag=True,
+              help="Adjust every camera's focal length in the bundle adjustment too (--from-people; for "
+                   "focal lengths that may be more than about 1 % off).")
+@click.option("--board-size", default=None, metavar="COLSxROWS",
+              help="Checkerboard: inner corners (e.g. 7x6, one count even and one odd); ChArUco: squares (e.g. 5x7).")
+@click.option("--square-size", type=Number(float, gt=0), default=None, help="Side of the board's squares, in metres.")
+@click.option("--marker-size", type=Number(float, gt=0), default=None,
+              help="Side of the ChArUco markers, in metres.")
+@click.option("--dictionary", default=None, help="ArUco dictionary of the ChArUco board (default DICT_4X4_50).")
+@click.option("--fisheye", is_flag=True, help="Calibrate OpenCV's fisheye lens model (wide-angle lenses).")
+@click.option("--world-frame", type=Number(int, ge=0), default=None,
+              help="The frame of the extrinsics videos whose board is the world (--world board; default: the "
+                   "first frame the most cameras see it in).")
+@click.option("--world", type=click.Choice(["board", "camera"]), default=None,
+              help="World frame of a board calibration: the board (default; where most cameras first see it "
+                   "together: origin on its first corner, z out of its face) or the first camera's frame.")
+def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, refine_focal, board_size,
+                  square_size, marker_size, dictionary, fisheye, world_frame, world):
+    """Calibrate the cameras from the people or from videos of a board; write a full Calib.toml.
+
+    \b
+    --from-people: the extrinsics from the people the rig sees (metres from
+      their bone lengths, z up along their bodies, the origin on the floor
+      under them; synchronize first, sync.toml is used).
+    --checkerboard / --charuco: intrinsics, lenses and extrinsics from videos
+      of a board in RIG_DIR/calibration/ (intrinsics/ and extrinsics/, or the
+      videos right there)."""
+    modes = [m for m, on in (("--from-people", from_people), ("--checkerboard", checkerboard),
+                             ("--charuco", charuco)) if on]
+    if len(modes) != 1:
+        raise InputError(None, "calibrate", "choose one of --from-people, --checkerboard, --charuco"
+                         + (f" (got {' and '.join(modes)})" if modes else ""))
+    board_options = {"--board-size": board_size, "--square-size": square_size, "--marker-size": marker_size,
+                     "--dictionary": dictionary, "--fisheye": fisheye or None, "--world-frame": world_frame,
+                     "--world": world}
+    if from_people:
+        given = [k for k, v in board_options.items() if v is not None]
+        if given:
+            raise InputError(None, given[0], "applies to --checkerboard and --charuco, not --from-people")
+        return _calibrate_from_people(rig_dir, output, intrinsics, seed or 0, refine_focal)
+    for option, given in (("--seed", seed is not None), ("--refine-focal", refine_focal)):
+        if given:
+            raise InputError(None, option, "applies to --from-people only")
+    if fisheye and intrinsics:
+        raise InputError(None, "--fisheye", "the lens model comes from --intrinsics")
+    if world_frame is not None and world == "camera":
+        raise InputError(None, "--world-frame", "applies to --world board")
+    _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
+                          square_size, marker_size, dictionary, world or "board", fisheye, world_frame)
+
+
+def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
     from mvm.rig.prepare import calibrate_rig_from_people
 
-    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed)
+    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed, refine_focal)
     cams = found.calibration.cameras
     r = found.result
     frames = "synchronized by sync.toml" if found.sync else "frame numbers as they are"
+    focal = ("focal px (change)",) if refine_focal else ()
     print_table(f"{rig_dir}: calibrated from people ({frames})",
-                ("camera", "position x, y, z (m)", "residual px", "joints"),
-                [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]), fmt(r.residual_px[v]), str(r.observations[v]))
+                ("camera", "position x, y, z (m)", *focal, "residual px", "joints"),
+                [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]),
+                  *((f"{cams.K[v, 0, 0]:.1f} ({100 * (r.focal_scale[v] - 1):+.1f} %)",) if refine_focal else ()),
+                  fmt(r.residual_px[v]), str(r.observations[v])) for v, n in enumerate(cams.names)])
+    say(f"wrote {found.path}")
+
+
+def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_size, marker_size, dictionary, world,
+                          fisheye, world_frame):
+    from mvm.rig.board_calibration import MIN_COVERAGE
+    from mvm.rig.board_videos import calibrate_rig_from_board
+    from mvm.rig.boards import Board, parse_board_size
+
+    for option, value in (("--board-size", board_size), ("--square-size", square_size)) + (
+            (("--marker-size", marker_size),) if kind == "charuco" else ()):
+        if value is None:
+            raise InputError(None, option, f"required with --{kind}")
+    if kind == "checkerboard" and (marker_size is not None or dictionary is not None):
+        raise InputError(None, "--marker-size" if marker_size is not None else "--dictionary",
+                         "applies to --charuco only")
+    try:
+        cols, rows = parse_board_size(board_size)
+    except ValueError as e:
+        raise InputError(None, "--board-size", str(e)) from None
+    try:
+        board = Board(kind, cols, rows, square_size, marker_size, dictionary or "DICT_4X4_50")
+    except ValueError as e:
+        what, _, problem = str(e).partition(": ")
+        raise InputError(None, "--" + what.replace(" ", "-"), problem) from None
+    with stage_progress() as update:
+        found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update, fisheye=fisheye,
+                                         world_frame=world_frame)
+    cams = found.calibration.cameras
+    r = found.rig
+    lenses = found.intrinsics
+    print_table(f"{rig_dir}: calibrated with a {board.describe()}; world: {found.calibration.metadata['world']}",
+                ("camera", "focal px", "position x, y, z (m)", "intrinsics RMS px", "image covered", "residual px",
+                 "views"),
+                [(n, f"{cams.K[v, 0, 0]:.1f}", ", ".join(f"{c:.3f}" for c in cams.centers[v]),
+                  fmt(lenses[v].rms_px) if lenses[v] else "(given)",
+                  f"{lenses[v].coverage:.0%}" if lenses[v] else "–", fmt(r.rms_px[v]), str(r.views[v]))
                  for v, n in enumerate(cams.names)])
+    for n, lens in zip(cams.names, lenses):
+        if lens is not None and lens.coverage < MIN_COVERAGE:
+            say(f"warning: camera {n}: the board covered {lens.coverage:.0%} of the image, so its lens and focal "
+                "length are uncertain: film the board close up over the whole image (calibration/intrinsics/)")
     say(f"wrote {found.path}")
 
 

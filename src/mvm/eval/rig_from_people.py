@@ -88,25 +88,35 @@ def align_cameras(estimated: Cameras, true: Cameras) -> tuple[Cameras, np.ndarra
 
 
 def calibration_check(sample: PanopticSample, n_cameras: int, seed: int = 0, errors: DetectorErrors = DetectorErrors(),
-                      config: Config = Config(refine=False)) -> dict:
+                      config: Config = Config(refine=False), focal_error: float = 0.0,
+                      refine_focal: bool = False) -> dict:
     """Calibrate ``n_cameras`` spread cameras from the people's simulated detections; compare
-    with the true calibration (module docstring)."""
+    with the true calibration (module docstring). ``focal_error``: the focal lengths given are
+    off by this fraction, alternately up and down (camera 0 up; the lens is undone with the true
+    calibration); ``refine_focal``: the bundle adjustment adjusts them."""
     index = spread_cameras(sample.calibration.cameras, n_cameras)
     true = sample.calibration.cameras.subset(index)
     det = simulate_detections(sample, index, seed, errors)
+    off = 1 + focal_error * np.where(np.arange(n_cameras) % 2 == 0, 1.0, -1.0)
+    given = true.K.copy()
+    given[:, :2, :2] *= off[:, None, None]
     t0 = time.perf_counter()
-    found = calibrate_from_people(det.keypoints, det.view, det.instant, true.K, seed)
+    found = calibrate_from_people(det.keypoints, det.view, det.instant, given, seed, refine_focal)
     seconds = time.perf_counter() - t0
-    estimated = Cameras(true.K, found.R, found.t, true.size, true.names)
+    K = given.copy()
+    K[:, :2, :2] *= found.focal_scale[:, None, None]
+    estimated = Cameras(K, found.R, found.t, true.size, true.names)
     aligned, centre_error = align_cameras(estimated, true)
     instants = np.arange(len(sample.poses))
     args = (det.keypoints, det.view, det.instant, [sample.poses[t] for t in instants],
             [sample.ids[t] for t in instants], config)
+    pairs = np.triu_indices(n_cameras, 1)
     return {"cameras": list(true.names), "centre_error_m": centre_error.round(4).tolist(),
             "mean_centre_error_m": float(centre_error.mean()),
             "scale_error": float(np.median(np.linalg.norm(estimated.centers[:, None] - estimated.centers[None], axis=-1)
-                                           [np.triu_indices(n_cameras, 1)]
-                                           / np.linalg.norm(true.centers[:, None] - true.centers[None], axis=-1)
-                                           [np.triu_indices(n_cameras, 1)]) - 1),
+                                           [pairs] / np.linalg.norm(true.centers[:, None] - true.centers[None],
+                                                                    axis=-1)[pairs]) - 1),
+            "focal_error_given": (off - 1).round(4).tolist(),
+            "focal_error_found": (K[:, 0, 0] / true.K[:, 0, 0] - 1).round(4).tolist(),
             "residual_px": found.residual_px.round(3).tolist(), "seconds": seconds,
             "pcp_true_calibration": _pcp(true, *args), "pcp_estimated_calibration": _pcp(aligned, *args)}

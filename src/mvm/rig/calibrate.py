@@ -14,8 +14,9 @@
    composed with the pair's, its position the parent's plus the pair's translation direction
    scaled to agree with the joints already triangulated.
 3. **Bundle adjustment** over every camera but the reference (rotation vector, translation)
-   and every person's joints: reprojection errors in pixels, ``scipy.optimize.least_squares``
-   with a Jacobian sparsity, ``x_scale='jac'`` and a soft-L1 loss.
+   and every person's joints, optionally every camera's focal length: reprojection errors in
+   pixels, ``scipy.optimize.least_squares`` with a Jacobian sparsity, ``x_scale='jac'`` and a
+   soft-L1 loss.
 4. **World frame from the people:** metres from the bone lengths (the mean adult bones of
    :data:`mvm.core.keypoints.MEAN_BONE_LENGTHS_M`), z up along the standing bodies (mid-ankles
    to mid-shoulders of straight-legged poses; the normal of the floor through their feet when
@@ -107,6 +108,7 @@ class PeopleCalibration:
         point_instant: ``(Q,)`` their instants.
         scale_m: metres per unit of the adjustment; converged: the solver met its tolerance (not
             its evaluation limit).
+        focal_scale: ``(V,)`` each camera's focal length over the one given (1 unless refined).
     """
 
     R: np.ndarray
@@ -118,6 +120,7 @@ class PeopleCalibration:
     point_instant: np.ndarray
     scale_m: float
     converged: bool
+    focal_scale: np.ndarray
 
 
 def normalized_points(keypoints: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -392,13 +395,15 @@ def world_from_people(X: np.ndarray, R0_right: np.ndarray) -> tuple[float, np.nd
 
 
 def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np.ndarray, K: np.ndarray,
-                          seed: int = 0) -> PeopleCalibration:
+                          seed: int = 0, refine_focal: bool = False) -> PeopleCalibration:
     """Every camera's rotation and position from the people's 2D poses (module docstring).
 
     Args:
         keypoints: ``(N, 17, 3)`` undistorted 2D poses (pixels, confidence; 0: missing) of
             synchronized cameras; camera: ``(N,)`` in ``0 .. V-1``; instant: ``(N,)``.
         K: ``(V, 3, 3)`` intrinsics.
+        refine_focal: adjust every camera's focal length in the bundle adjustment too (its
+            principal point and aspect ratio stay).
     Returns:
         :class:`PeopleCalibration` in the people's world (metres). Raises
         :class:`CalibrationError` naming the camera that cannot be placed or does not converge.
@@ -437,8 +442,8 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             _place(parent, child, pair, R, t, X, x, present, camera, person)
         placed[child] = True
     X = triangulate_people(x, present, camera, person, R, t, placed)
-    R, t, X, converged = bundle_adjust(x, present, camera, person, focal, R, t, X)
-    error = reprojection_px(x, present, camera, person, focal, R, t, X)
+    R, t, X, refined, converged = bundle_adjust(x, present, camera, person, focal, R, t, X, refine_focal)
+    error = reprojection_px(x, present, camera, person, focal, R, t, X, refined if refine_focal else None)
     residual = np.array([np.nanmedian(error[camera == c]) if np.isfinite(error[camera == c]).any() else np.inf
                          for c in range(V)])
     observations = np.array([int(np.isfinite(error[camera == c]).sum()) for c in range(V)])
@@ -452,4 +457,5 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     X_world = s * X @ W.T + b
     instant_of = np.full(len(X), -1)
     instant_of[person[person >= 0]] = instant[person >= 0]
-    return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s, converged)
+    return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s, converged,
+                             refined / focal)

@@ -106,11 +106,12 @@ class RigPeopleCalibration:
 
 
 def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: str | Path | None = None,
-                              seed: int = 0) -> RigPeopleCalibration:
+                              seed: int = 0, refine_focal: bool = False) -> RigPeopleCalibration:
     """Every camera's rotation and position from the 2D poses of ``rig_dir`` (synchronized by
     its ``sync.toml`` when there is one), with the intrinsics of ``intrinsics`` or of the rig's
-    calibration (rotations and translations, if any, are ignored); a full Calib.toml is written
-    at ``out`` with each camera's residual in ``[metadata]``."""
+    calibration (rotations and translations, if any, are ignored; ``refine_focal``: the focal
+    lengths are adjusted too); a full Calib.toml is written at ``out`` with each camera's
+    residual in ``[metadata]``."""
     rig_dir = Path(rig_dir)
     source = Path(intrinsics) if intrinsics else find_calibration(rig_dir)
     rig = read_rig(rig_dir, source, extrinsics=False)
@@ -118,7 +119,7 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
     cams = rig.calibration.cameras
     det = rig.detections
     try:
-        found = calibrate_from_people(det.keypoints, det.view, det.instant, cams.K, seed)
+        found = calibrate_from_people(det.keypoints, det.view, det.instant, cams.K, seed, refine_focal)
     except CalibrationError as e:
         where = rig.sources[cams.names[e.camera]] if e.camera is not None else rig_dir
         name = f"camera {cams.names[e.camera]}: " if e.camera is not None else ""
@@ -127,7 +128,11 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
                 "method": "from people (mvm rig calibrate --from-people)", "units": "m",
                 "intrinsics": str(source), "cameras": list(cams.names),
                 "residual_px": [round(float(r), 4) for r in found.residual_px]}
-    calibration = RigCalibration(Cameras(cams.K, found.R, found.t, cams.size, cams.names),
+    K = cams.K.copy()
+    if refine_focal:
+        K[:, :2, :2] *= found.focal_scale[:, None, None]
+        metadata["focal_refined"] = [round(float(k), 5) for k in found.focal_scale]
+    calibration = RigCalibration(Cameras(K, found.R, found.t, cams.size, cams.names),
                                  rig.calibration.distortions, rig.calibration.fisheye, metadata)
     out = Path(out)
     write_calib_toml(out, calibration)

@@ -1,0 +1,332 @@
+"""Calibrating a rig from videos of a board (:mod:`mvm.rig.board_calibration`): find the
+videos, stream their frames and find the board in them, calibrate, write a Calib.toml. Every
+problem is one :class:`~mvm.errors.InputError` naming the camera or the file, and nothing is
+written then.
+
+::
+
+    RIG_DIR/calibration/
+      intrinsics/<camera>.<ext>   optional: the board moved in front of each camera alone
+      extrinsics/<camera>.<ext>   the board seen by several cameras at once (videos recorded
+                                  together: frame n of each is the same instant)
+      <camera>.<ext>              or the videos right in calibration/ (anipose): both from them
+
+A camera without an intrinsics video is calibrated on its extrinsics video. A camera's video
+may also be a folder of images (``<camera>/`` holding ``*.png``, ``*.jpg``, ... in name order,
+as Pose2Sim's image folders) or, for the extrinsics of a board lying still, one image. The
+cameras are named after the files and ordered by name (the first is the reference), or as in
+``--intrinsics FILE``.
+"""
+from __future__ import annotations
+
+import math
+import re
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from mvm.core.camera import undistort
+from mvm.core.scene import Cameras
+from mvm.errors import InputError
+from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.parallel import available_workers
+from mvm.rig.board_calibration import (
+    BoardRig,
+    calibrate_extrinsics,
+    calibrate_intrinsics,
+)
+from mvm.rig.boards import MIN_CORNERS, Board
+from mvm.rig.calibrate import CalibrationError
+from mvm.rig.rigdir import match_cameras, read_calibration
+
+VIDEO_EXTENSIONS = frozenset((".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mts"))
+IMAGE_EXTENSIONS = frozenset((".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"))
+#: Frames of a video searched for the board, at most (evenly spaced; the same frame numbers in
+#: every camera, so that the extrinsics videos' views stay simultaneous). [frames]
+MAX_SCANNED_FRAMES = 300
+
+
+def _natural(name: str) -> list:
+    return [int(p) if p.isdigit() else p.lower() for p in re.split(r"(\d+)", name)]
+
+
+def _images(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()),
+                  key=lambda p: _natural(p.name))
+
+
+def calibration_sources(folder: Path) -> dict[str, Path]:
+    """``{camera: video or image folder}`` of ``folder``, ordered by name."""
+    if not folder.is_dir():
+        return {}
+    found = {}
+    for p in folder.iterdir():
+        if p.name.startswith("."):
+            continue
+        if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS | IMAGE_EXTENSIONS or p.is_dir() and _images(p):
+            name = p.stem if p.is_file() else p.name
+            if name in found:
+                raise InputError(p, None, f"camera {name}: two calibration sources ({found[name].name} and {p.name})")
+            found[name] = p
+    return dict(sorted(found.items(), key=lambda item: _natural(item[0])))
+
+
+def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
+    """The intrinsics and extrinsics sources of ``rig_dir`` (module docstring)."""
+    root = rig_dir / "calibration"
+    extrinsics = calibration_sources(root / "extrinsics") or calibration_sources(root)
+    if not extrinsics:
+        raise InputError(root, None, "no calibration videos: expected calibration/extrinsics/<camera>.<ext> "
+                                     "(and optionally calibration/intrinsics/<camera>.<ext>), or "
+                                     "calibration/<camera>.<ext>")
+    return calibration_sources(root / "intrinsics"), extrinsics
+
+
+def frame_count(source: Path) -> int:
+    """Frames of a video (its header; 0 when it does not say) or images of a folder."""
+    if source.is_dir():
+        return len(_images(source))
+    if source.suffix.lower() in IMAGE_EXTENSIONS:
+        return 1
+    capture = cv2.VideoCapture(str(source))
+    try:
+        return max(int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if capture.isOpened() else 0
+    finally:
+        capture.release()
+
+
+def gray_frames(source: Path, stride: int):
+    """Every ``stride``-th frame of a video or image folder, one at a time: yields ``(number,
+    gray (H, W) uint8)``; the frames in between are skipped undecoded. A video that does not open
+    or decode raises :class:`InputError`."""
+    if source.is_dir() or source.suffix.lower() in IMAGE_EXTENSIONS:
+        for number, path in enumerate(_images(source) if source.is_dir() else [source]):
+            if number % stride == 0:
+                image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+                if image is None:
+                    raise InputError(path, None, "OpenCV cannot read this image")
+                yield number, image
+        return
+    capture = cv2.VideoCapture(str(source))
+    try:
+        if not capture.isOpened():
+            raise InputError(source, None, "OpenCV cannot open this video")
+        number = 0
+        while True:
+            if number % stride == 0:
+                ok, image = capture.read()
+                if ok:
+                    yield number, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+            else:
+                ok = capture.grab()
+            if not ok:
+                if number == 0:
+                    raise InputError(source, None, "OpenCV cannot decode this video")
+                return
+            number += 1
+    finally:
+        capture.release()
+
+
+@dataclass
+class BoardScan:
+    """The board found in one camera's video: ``frames (F,)`` the frame numbers searched,
+    ``corners (F, C, 2)`` (pixels, NaN: not found), ``size`` (width, height)."""
+
+    frames: np.ndarray
+    corners: np.ndarray
+    size: tuple[int, int]
+
+
+def scan(source: Path, board: Board, stride: int, progress=None) -> BoardScan:
+    """Find ``board`` in every ``stride``-th frame of ``source``; ``progress(done, total)``
+    after each (total None where the video's header does not say)."""
+    detect = board.detector()
+    total = math.ceil(frame_count(source) / stride) or None
+    C = len(board.object_points)
+    frames, corners, size = [], [], None
+    for number, gray in gray_frames(source, stride):
+        if size is None:
+            size = (gray.shape[1], gray.shape[0])
+        elif (gray.shape[1], gray.shape[0]) != size:
+            raise InputError(source, f"frame {number}", f"{gray.shape[1]}x{gray.shape[0]} pixels, the first "
+                                                        f"frame has {size[0]}x{size[1]}")
+        found = detect(gray)
+        view = np.full((C, 2), np.nan)
+        if found is not None:
+            view[found[0]] = found[1]
+        frames.append(number)
+        corners.append(view)
+        if progress is not None:
+            progress(len(frames), max(total or 0, len(frames)) or None)
+    return BoardScan(np.array(frames, dtype=int), np.array(corners).reshape(-1, C, 2), size)
+
+
+def _scan_all(jobs: list[tuple[str, Path, int]], board: Board, workers: int | None, progress=None
+              ) -> list[BoardScan]:
+    """:func:`scan` of every ``(label, source, stride)`` in threads (OpenCV's decoding and
+    detection release the GIL); ``progress(label, done, total)``."""
+    if not jobs:
+        return []
+    def one(job):
+        label, source, stride = job
+        return scan(source, board, stride, None if progress is None else lambda d, t: progress(label, d, t))
+
+    with ThreadPoolExecutor(min(len(jobs), available_workers(workers))) as pool:
+        futures = [pool.submit(one, job) for job in jobs]
+        try:
+            return [f.result() for f in futures]
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+
+
+def _stride(sources) -> int:
+    return max(1, math.ceil(max(frame_count(s) for s in sources) / MAX_SCANNED_FRAMES))
+
+
+def _check_found(scan_: BoardScan, source: Path, name: str, board: Board) -> None:
+    if not np.isfinite(scan_.corners).all(-1).any():
+        hint = "--board-size counts inner corners" if board.kind == "checkerboard" else \
+            "--board-size counts squares; check --dictionary"
+        raise InputError(source, None, f"camera {name}: no {board.describe()} found in the {len(scan_.frames)} "
+                                       f"frames searched ({hint})")
+
+
+@dataclass
+class RigBoardCalibration:
+    """A calibration from a board: ``calibration`` (written at ``path``), each camera's
+    ``intrinsics`` (:class:`~mvm.rig.board_calibration.Intrinsics`; None: from a file), the
+    ``rig`` (:class:`~mvm.rig.board_calibration.BoardRig`) and the extrinsics ``frames`` (the
+    common frame numbers; ``rig.world_view`` indexes them)."""
+
+    calibration: RigCalibration
+    intrinsics: list
+    rig: BoardRig
+    frames: np.ndarray
+    path: Path
+
+
+def _given_intrinsics(path: Path, names: list[str]) -> RigCalibration:
+    """The intrinsics of ``path`` for the cameras with videos, in that file's order."""
+    calibration, _ = read_calibration(path, extrinsics=False)
+    file_names = calibration.cameras.names
+    matched = match_cameras(file_names, names)
+    missing = [n for i, n in enumerate(names) if i not in matched.values()]
+    if missing:
+        raise InputError(path, None, f"no camera matches the calibration video of {', '.join(missing)}")
+    index = np.array(sorted(matched))
+    cams = calibration.cameras.subset(index)
+    return RigCalibration(Cameras(cams.K, cams.R, cams.t, cams.size, tuple(names[matched[i]] for i in index)),
+                          tuple(calibration.distortions[i] for i in index), calibration.fisheye[index],
+                          calibration.metadata)
+
+
+def intrinsic_videos(names: list[str], sources: dict[str, Path]) -> dict[str, Path]:
+    """``{camera: intrinsics video}``, matched to the cameras by name as pose folders are
+    (:func:`~mvm.rig.rigdir.match_cameras`: ``int_cam01_img`` goes with ``ext_cam01_img``); a
+    video no camera matches raises :class:`InputError`."""
+    entries = list(sources)
+    matched = match_cameras(names, entries)
+    unmatched = sorted(set(range(len(entries))) - set(matched.values()))
+    if unmatched:
+        source = sources[entries[unmatched[0]]]
+        raise InputError(source, None, f"no extrinsics video of the same camera (cameras: {', '.join(names)})")
+    return {names[c]: sources[entries[e]] for c, e in matched.items()}
+
+
+def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress, fisheye):
+    """Each camera's :class:`Intrinsics`: on its intrinsics video, else on its extrinsics video."""
+    videos = intrinsic_videos(names, intrinsic_sources)
+    own = [n for n in names if n in videos]
+    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", videos[n], _stride([videos[n]])) for n in own],
+                                    board, workers, progress)))
+    found = []
+    for v, name in enumerate(names):
+        s, source = (scans[name], videos[name]) if name in scans else (ext_scans[v], ext_sources[name])
+        _check_found(s, source, name, board)
+        if s.size != ext_scans[v].size:
+            raise InputError(source, None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, its extrinsics video "
+                                           f"{ext_scans[v].size[0]}x{ext_scans[v].size[1]}: calibrate at one size")
+        try:
+            found.append(calibrate_intrinsics(s.corners, board.object_points, s.size, fisheye=fisheye))
+        except CalibrationError as e:
+            raise InputError(source, None, f"camera {name}: {e.problem}") from None
+    return found
+
+
+def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board, intrinsics: str | Path | None = None,
+                             world: str = "board", workers: int | None = None, progress=None,
+                             fisheye: bool = False, world_frame: int | None = None) -> RigBoardCalibration:
+    """Every camera's intrinsics (or those of ``intrinsics``) and pose from the board videos of
+    ``rig_dir`` (module docstring); a full Calib.toml is written at ``out`` with each camera's
+    residuals in ``[metadata]``. ``world``: ``"board"`` or ``"camera"``
+    (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
+    ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens;
+    ``world_frame``: the frame of the extrinsics videos whose board is the world (the nearest
+    frame searched; default: the first in which the most cameras see it)."""
+    rig_dir = Path(rig_dir)
+    intrinsic_sources, ext_sources = rig_videos(rig_dir)
+    names = list(ext_sources)
+    if len(names) < 2:
+        raise InputError(rig_dir / "calibration", None, f"one camera ({names[0]}): a rig needs at least two")
+    if board.symmetric:
+        raise InputError("--board-size", f"{board.cols}x{board.rows}",
+                         "a checkerboard with both counts even or both odd looks the same turned by 180°, so the "
+                         "cameras cannot agree on its corners: use one even and one odd count (e.g. 7x6)")
+    given = _given_intrinsics(Path(intrinsics), names) if intrinsics else None
+    if given is not None:
+        names = list(given.cameras.names)
+    stride = _stride([ext_sources[n] for n in names])
+    ext_scans = _scan_all([(f"{n} extrinsics", ext_sources[n], stride) for n in names], board, workers, progress)
+    for name, s in zip(names, ext_scans):
+        _check_found(s, ext_sources[name], name, board)
+    if given is None:
+        lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress,
+                                   fisheye)
+        K = np.array([lens.K for lens in lenses])
+        distortions, fisheye = tuple(lens.distortion for lens in lenses), np.full(len(names), fisheye)
+        sizes = np.array([s.size for s in ext_scans], dtype=float)
+    else:
+        lenses = [None] * len(names)
+        K, distortions, fisheye = given.cameras.K, given.distortions, given.fisheye
+        sizes = given.cameras.size
+        for v, (name, s) in enumerate(zip(names, ext_scans)):
+            if not np.allclose(sizes[v], s.size):
+                raise InputError(ext_sources[name], None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, "
+                                                          f"{intrinsics} says {sizes[v][0]:g}x{sizes[v][1]:g}")
+    frames = np.unique(np.concatenate([s.frames for s in ext_scans]))
+    corners = np.full((len(names), len(frames)) + ext_scans[0].corners.shape[1:], np.nan)
+    for v, s in enumerate(ext_scans):
+        corners[v, np.searchsorted(frames, s.frames)] = undistort(s.corners, K[v], distortions[v], bool(fisheye[v]))
+    instant = None
+    if world_frame is not None:
+        instant = int(np.argmin(np.abs(frames - world_frame)))
+        seen = [n for n, c in zip(names, corners[:, instant]) if np.isfinite(c).all(-1).sum() >= MIN_CORNERS]
+        if len(seen) < 2:
+            raise InputError("--world-frame", str(world_frame),
+                             f"the board is found in frame {frames[instant]} (the nearest searched) by "
+                             f"{', '.join(seen) or 'no camera'}: at least two cameras must see it")
+    try:
+        rig = calibrate_extrinsics(corners, K, board.object_points, world, instant)
+    except CalibrationError as e:
+        name = names[e.camera] if e.camera is not None else None
+        raise InputError(ext_sources[name] if name else rig_dir / "calibration", None,
+                         (f"camera {name}: " if name else "") + e.problem) from None
+    metadata = {"adjusted": True, "error": round(float(np.mean(rig.rms_px)), 4),
+                "method": f"{board.kind} (mvm rig calibrate --{board.kind})", "units": "m",
+                "board": board.describe(), "cameras": names,
+                "world": (f"the board at frame {int(frames[rig.world_view])} (origin on its first corner, z out of "
+                          "its face)") if rig.world_view >= 0 else f"camera {names[0]}",
+                "intrinsics": str(intrinsics) if intrinsics else "calibrated on the board",
+                "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
+                "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
+                "residual_px": [round(float(r), 4) for r in rig.rms_px]}
+    calibration = RigCalibration(Cameras(K, rig.R, rig.t, sizes, tuple(names)), distortions, fisheye, metadata)
+    out = Path(out)
+    write_calib_toml(out, calibration)
+    return RigBoardCalibration(calibration, lenses, rig, frames, out)
