@@ -53,7 +53,7 @@ class RigGroup(Group):
 
 @click.group(cls=RigGroup, context_settings={"help_option_names": ["-h", "--help"]})
 def rig() -> None:
-    """Camera rigs: Calib.toml + 2D poses per camera -> tracked 3D poses and .trc.
+    """Camera rigs: a video (or 2D poses) per camera -> synchronized, calibrated, tracked 3D poses.
 
     \b
     The path of a rig folder, each step's output the next one's input:
