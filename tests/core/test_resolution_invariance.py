@@ -88,3 +88,24 @@ def test_a_pixel_threshold_would_not_be_invariant(scene):
     small = Scene(scene.name, scaled_cameras(scene.cameras, 0.25), scaled_poses(scene.poses, 0.25), scene.points3d)
     held = reconstruct(small, config.replace(ransac_threshold=4 * config.ransac_threshold))
     assert held.persons.views_per_joint.sum() != base.persons.views_per_joint.sum()
+
+
+def test_the_refinement_follows_the_noise_the_scene_measures():
+    """A detector twice as noisy (in person sizes) gives a RANSAC threshold, a robust scale and a
+    prior weight that grow with the measured noise (the weight as its square), and the recorded
+    values are those the settings imply."""
+    config = Config()
+    metrics = {}
+    for noise in (0.01, 0.02):
+        scene, _ = simulate(SimConfig.preset("realistic", people=3, frames=16, seed=5, noise=noise))
+        metrics[noise] = reconstruct(scene, config).metrics
+    low, high = metrics[0.01], metrics[0.02]
+    factor = high["ransac_threshold"] / low["ransac_threshold"]
+    assert 1.4 < factor <= 4.0
+    for m in (low, high):
+        r = m["ransac_threshold"] / config.ransac_threshold
+        assert m["prior_weight"] == pytest.approx(config.prior_weight * r * r, rel=1e-6)
+        assert m["robust_scale_px"] == pytest.approx(config.robust_scale * r * m["person_size_px"], rel=0.05)
+    held = reconstruct(scene, config.replace(ransac_threshold_sigmas=0.0)).metrics
+    assert held["prior_weight"] == pytest.approx(config.prior_weight)
+    assert held["ransac_threshold"] == pytest.approx(config.ransac_threshold)

@@ -244,8 +244,10 @@ class Config:
     #: deviations of its detector noise, measured from the inliers of a first triangulation (their
     #: median reprojection error over 1.18, the median of a 2D Gaussian error of deviation 1):
     #: raise it to keep more keypoints, lower it to reject more; 0 holds ``ransac_threshold``.
+    #: The refinement's ``robust_scale`` and ``prior_weight`` follow the same measure of the
+    #: noise (scaled by the scene's threshold over ``ransac_threshold``, the weight by its square).
     #: [standard deviations]
-    ransac_threshold_sigmas: float = setting(3.5, ge=0)
+    ransac_threshold_sigmas: float = setting(4.5, ge=0)
     #: Number of RANSAC hypotheses (two-view triangulations) per joint; a joint with no more
     #: pairs of views than this tries each pair once. [1]
     ransac_hypotheses: int = setting(48, ge=1, le=10_000)
@@ -281,8 +283,9 @@ class Config:
     #: photos; never used for the cameras of a rig. [bool]
     video_order: bool = True
     #: A person must explain at least this fraction of the views it projects into, else it is
-    #: refused (false positives that happen to agree in a few views). [0-1]
-    association_min_support: float = setting(0.2, ge=0, le=1)
+    #: refused (false positives that happen to agree in a few views, or a second person of a
+    #: few views beside a true one). [0-1]
+    association_min_support: float = setting(0.3, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
     #: arcs) is refused unless it explains half the views it projects into: false positives
@@ -298,11 +301,16 @@ class Config:
     refine: bool = True
     #: λ, the weight of the pose prior's negative log-likelihood against the robust
     #: reprojection error, whose residuals are in person sizes (as ``ransac_threshold``):
-    #: raise it to trust the prior more than the keypoints. [person sizes² per nat]
-    prior_weight: float = setting(1.6e-4, ge=0)
+    #: raise it to trust the prior more than the keypoints. Each scene (rig instant) weighs it
+    #: by the square of its noise relative to ``ransac_threshold`` (its RANSAC threshold over
+    #: ``ransac_threshold``, see ``ransac_threshold_sigmas``), as the variance of a Gaussian
+    #: likelihood would. [person sizes² per nat]
+    prior_weight: float = setting(3e-4, ge=0)
     #: Scale of the robust (soft-L1) loss on reprojection residuals: residuals beyond it count
-    #: linearly, not quadratically; lower it to discount large residuals more. [person sizes]
-    robust_scale: float = setting(0.02, gt=0)
+    #: linearly, not quadratically; lower it to discount large residuals more. Each scene (rig
+    #: instant) scales it by its RANSAC threshold over ``ransac_threshold``, so that it stays the
+    #: same number of standard deviations of the measured noise. [person sizes]
+    robust_scale: float = setting(0.07, gt=0)
     #: Levenberg-Marquardt steps of the refinement per person and outer iteration (one
     #: evaluation of the objective each). [1]
     refine_max_iterations: int = setting(30, ge=1, le=10_000)

@@ -11,7 +11,7 @@ import numpy as np
 from mvm.core.affinity import affinity_bytes
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, refine_all, triangulate_poses
+from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, noise_factor, refine_all, triangulate_poses
 from mvm.core.quality import scene_quality
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
@@ -219,15 +219,19 @@ def _outcome_warnings(scene: Scene, config: Config, rec: Reconstruction, persons
 def effective_thresholds(config: Config, threshold: np.ndarray, size: np.ndarray, slots: np.ndarray) -> dict:
     """The thresholds the persons of a scene got: the RANSAC threshold (``threshold: (P,)``,
     person sizes; the median), the median person size (``size: (P, M)`` px of the view slots
-    ``slots: (P, M)`` bool) and what the RANSAC threshold and the robust scale came to in
-    pixels (the medians over the slots). NaN without any person."""
+    ``slots: (P, M)`` bool), what the RANSAC threshold and the refinement's robust scale came to
+    in pixels (the medians over the slots; the robust scale follows the scene's noise,
+    :func:`mvm.core.pipeline.noise_factor`) and the prior weight the refinement used (person
+    sizes² per nat, the median). NaN without any person."""
     if not slots.any():
-        return dict.fromkeys(("ransac_threshold", "person_size_px", "ransac_threshold_px", "robust_scale_px"),
-                             float("nan"))
+        return dict.fromkeys(("ransac_threshold", "person_size_px", "ransac_threshold_px", "robust_scale_px",
+                              "prior_weight"), float("nan"))
     per_slot = np.broadcast_to(threshold[:, None], slots.shape)[slots]
+    factor = noise_factor(per_slot, config)
     return {"ransac_threshold": float(np.median(threshold)), "person_size_px": float(np.median(size[slots])),
             "ransac_threshold_px": float(np.median(per_slot * size[slots])),
-            "robust_scale_px": config.robust_scale * float(np.median(size[slots]))}
+            "robust_scale_px": config.robust_scale * float(np.median(factor * size[slots])),
+            "prior_weight": config.prior_weight * float(np.median(noise_factor(threshold, config) ** 2))}
 
 
 def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
