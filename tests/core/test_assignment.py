@@ -27,7 +27,7 @@ def test_same_matching_as_scipy(shape):
 def test_large_matrices_by_augmenting_paths_match_scipy(shape):
     assert math.perm(max(shape), min(shape)) > MAX_ENUMERATED
     rng = np.random.default_rng(sum(shape))
-    for k in range(10):
+    for _ in range(10):
         cost = rng.random(shape)
         cost[rng.random(shape) < 0.4] = 1e6
         rows, cols = min_cost_assignment(cost)

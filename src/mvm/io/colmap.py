@@ -157,7 +157,8 @@ def _check_poses(model_dir: Path, ids: list[int], R: np.ndarray, t: np.ndarray) 
         bad = ~(np.isfinite(R).all((1, 2)) & np.isfinite(t).all(1)
                 & (np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max((1, 2), initial=0.0) <= 1e-6))
     if bad.any():
-        raise InputError(model_dir, f"image {ids[int(np.argmax(bad))]}", "pose is not a finite rotation and translation")
+        raise InputError(model_dir, f"image {ids[int(np.argmax(bad))]}",
+                         "pose is not a finite rotation and translation")
 
 
 def rotation_matrices(q: np.ndarray) -> np.ndarray:
