@@ -194,24 +194,31 @@ def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
                        config: Config, initial: np.ndarray | None = None,
-                       threshold: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+                       threshold: np.ndarray | None = None,
+                       again: tuple[GroupObservations, Triangulation] | None = None,
+                       keep_hypotheses: bool = False) -> tuple[GroupObservations, Triangulation]:
     """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
     ``association_hypotheses`` of the random hypotheses. ``threshold: (N,)`` the RANSAC
     threshold of each pose's block (:func:`block_thresholds`; None: ``ransac_threshold``).
+    ``again``: this function's result for the same ``groups`` and ``initial``, made with
+    ``keep_hypotheses``: its hypotheses are selected from at ``threshold``, not drawn and scored
+    again (the same result, a third of the time).
     Memory: :func:`triangulation_bytes`, refused beyond ``max_affinity_bytes`` before it is taken."""
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
     check_triangulation_memory(groups, poses.keypoints.shape[1],
                                hypotheses + (initial is not None) if config.ransac else 0, config)
-    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
+    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold) if again is None else again[0]
     if threshold is not None:
         threshold = threshold[np.array([g[0] for g in groups], dtype=np.int64)]
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold if threshold is None else threshold,
                                        hypotheses, config.min_views, config.min_parallax_deg, config.seed,
                                        use_ransac=config.ransac, initial=initial,
-                                       max_views=config.max_triangulation_views)
+                                       max_views=config.max_triangulation_views,
+                                       hypotheses_scored=None if again is None else again[1].hypotheses,
+                                       keep_hypotheses=keep_hypotheses)
 
 
 def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObservations, tri: Triangulation,
@@ -376,10 +383,11 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         groups = match_keyframes(cameras, poses, config)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    obs, tri = triangulate_groups(cameras, poses, groups, config)
+    obs, tri = triangulate_groups(cameras, poses, groups, config, keep_hypotheses=True)
     threshold = block_thresholds(poses, groups, obs, tri, config) if groups else None
     if threshold is not None:
-        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold, again=(obs, tri))
+    tri.hypotheses = None                                                # their memory, no longer needed
     associate_3d = config.association == "3d" and not given              # merges duplicates itself
     merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
     if merged is not None:
