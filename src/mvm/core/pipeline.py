@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import associate, frame_sequence, visible_frames
+from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
@@ -91,10 +91,10 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
 def keyframe_rows(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
     """The poses the grouping of a scene compares: those of ``config.keyframes`` well-spread
     frames (:func:`mvm.core.keyframes.spread_views`) of a longer video, the association in 3D
-    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer,
-    the instants of a rig, or ``association = "paper"``, which has no other way to take them).
-    ``config``: resolved for the scene driver."""
-    if poses.instant is not None or config.association != "3d":
+    (or with ``association = "paper"``, one round of its assignment, :func:`extend_groups`)
+    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer, or
+    the instants of a rig). ``config``: resolved for the scene driver."""
+    if poses.instant is not None:
         return None
     used = np.unique(poses.view)
     if len(used) <= config.keyframes:
@@ -110,6 +110,25 @@ def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config) -> list[np
     if rows is None:
         return match(cameras, poses, config)
     return [rows[g] for g in match(cameras, poses.subset(rows), config)]
+
+
+def extend_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], config: Config,
+                  triangulated: tuple[GroupObservations, Triangulation], threshold: np.ndarray | None,
+                  rows: np.ndarray) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+    """The paper's groups of a long video's keyframes (``rows``: their poses,
+    :func:`keyframe_rows`) extended to its other frames: each other pose to the person
+    ``triangulated`` whose reprojection explains it (:func:`mvm.core.association.assign_poses`),
+    then every person triangulated again from all its views (``threshold`` as
+    :func:`triangulate_groups` takes it). Linear in the frames; the keyframes' groups stay."""
+    others = np.setdiff1d(np.flatnonzero(poses.score >= config.min_pose_score), rows)
+    if not groups or not len(others):
+        return groups, triangulated
+    groups = assign_poses(poses.keypoints, poses.view, cameras.P, triangulated[1].X, groups, others,
+                          gate=config.association_gate, min_person_joints=config.min_person_joints,
+                          keypoint_threshold=config.keypoint_threshold,
+                          min_common_keypoints=config.min_common_keypoints,
+                          sequence=_sequence(cameras, poses, config))
+    return groups, triangulate_groups(cameras, poses, groups, config, threshold=threshold)
 
 
 def match_windows(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
@@ -394,6 +413,9 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
         obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
+    keyframes = None if associate_3d or given else keyframe_rows(cameras, poses, config)
+    if keyframes is not None:                                           # the paper's grouping of a long video
+        groups, (obs, tri) = extend_groups(cameras, poses, groups, config, (obs, tri), threshold, keyframes)
     timings["triangulation_s"] = time.perf_counter() - t
     if associate_3d:
         t = time.perf_counter()
