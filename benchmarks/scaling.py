@@ -7,11 +7,12 @@ Scenes: ``simulate(SimConfig.preset(preset, people=p, frames=f, arc_deg=arc, see
 frames 150, 300, 600, 1,200, 2,400, 3,600 (doubling, then the two-minute video) and 5, 10, 20
 people. Each size is written as a scene directory and reconstructed in a process of its own, as
 ``mvm reconstruct`` does (:func:`mvm.scenes.reconstruct_dir`, default settings): the table gives
-that process's wall time (start-up included), its peak resident memory, the time of every stage,
+that process's wall time (start-up included) and CPU time (user + system: what a loaded machine
+inflates least), its peak resident memory, the time of every stage,
 and pairwise precision / recall, persons estimated / found / true and MPJPE, beside the oracle on
 the same scene (the true grouping, RANSAC/DLT triangulation, no refinement, as
 :mod:`mvm.eval.crowd` scores it; also in a process of its own). Below the table: the growth of
-time and memory per doubling of the frames, for every crowd size.
+time (wall and CPU) and memory per doubling of the frames, for every crowd size.
 
 ``--quick``: 10 people, 150 to 600 frames. ``--max-frames`` drops the longer videos.
 """
@@ -36,8 +37,8 @@ STAGES = ("matching_s", "triangulation_s", "association_s", "refinement_s")
 
 def run_child(scene_dir: Path, mode: str) -> dict:
     """Reconstruct ``scene_dir`` in a child process (``mode``: ``method`` or ``oracle``): its
-    JSON row, with ``process_s`` (wall time of the whole process) and ``peak_mib`` (its peak
-    resident memory, from ``wait4``)."""
+    JSON row, with ``process_s`` (wall time of the whole process), ``cpu_s`` (its user + system
+    time) and ``peak_mib`` (its peak resident memory), from ``wait4``."""
     with tempfile.TemporaryFile("w+") as out:
         t = time.perf_counter()
         proc = subprocess.Popen([sys.executable, __file__, "--child", mode, str(scene_dir)], stdout=out,
@@ -47,10 +48,10 @@ def run_child(scene_dir: Path, mode: str) -> dict:
         wall = time.perf_counter() - t
         out.seek(0)
         text = out.read()
+    measured = {"process_s": wall, "cpu_s": usage.ru_utime + usage.ru_stime, "peak_mib": usage.ru_maxrss / 1024}
     if proc.returncode != 0:
-        return {"error": f"exit {proc.returncode}", "process_s": wall, "peak_mib": usage.ru_maxrss / 1024}
-    row = json.loads(text.strip().splitlines()[-1])
-    return {**row, "process_s": wall, "peak_mib": usage.ru_maxrss / 1024}
+        return {"error": f"exit {proc.returncode}", **measured}
+    return {**json.loads(text.strip().splitlines()[-1]), **measured}
 
 
 def child(mode: str, scene_dir: str) -> None:
@@ -100,40 +101,40 @@ def _fmt(value, digits: int) -> str:
     return "—" if value is None or value != value else f"{value:,.{digits}f}"
 
 
+def _growth(a: dict, b: dict) -> str:
+    """Wall time, CPU time and memory of row ``b`` over row ``a``, per doubling of the frames."""
+    doublings = math.log2(b["frames"] / a["frames"])
+    ratio = {k: (b["method"][k] / a["method"][k]) ** (1 / doublings) if a["method"].get(k) else math.nan
+             for k in ("process_s", "cpu_s", "peak_mib")}
+    return f"×{ratio['process_s']:.2f} time, ×{ratio['cpu_s']:.2f} CPU, ×{ratio['peak_mib']:.2f} memory"
+
+
 def table(rows: list[dict]) -> str:
     """The scaling table (markdown) and the growth per doubling of the frames."""
-    lines = ["| people | frames | 2D poses | process s | peak MiB | matching / triangulation / association / "
+    lines = ["| people | frames | 2D poses | process s | CPU s | peak MiB | matching / triangulation / association / "
              "refinement s | precision | recall | persons est. / found / true | MPJPE mm | oracle precision / "
              "recall | oracle MPJPE mm |",
-             "|---:|---:|---:|---:|---:|---|---:|---:|---|---:|---|---:|"]
+             "|---:|---:|---:|---:|---:|---:|---|---:|---:|---|---:|---|---:|"]
     for r in rows:
         m, o = r["method"], r["oracle"]
         if "error" in m:
-            lines.append(f"| {r['people']} | {r['frames']:,} | {r['poses']:,} | {m['error']} | "
+            lines.append(f"| {r['people']} | {r['frames']:,} | {r['poses']:,} | {m['error']} | | "
                          f"{_fmt(m['peak_mib'], 0)} | | | | | | | |")
             continue
         stages = " / ".join(_fmt(m.get(k, 0.0), 2) for k in STAGES)
         lines.append(f"| {r['people']} | {r['frames']:,} | {r['poses']:,} | {_fmt(m['process_s'], 1)} | "
-                     f"{_fmt(m['peak_mib'], 0)} | {stages} | {m['precision']:.4f} | {m['recall']:.4f} | "
+                     f"{_fmt(m.get('cpu_s'), 1)} | {_fmt(m['peak_mib'], 0)} | {stages} | "
+                     f"{m['precision']:.4f} | {m['recall']:.4f} | "
                      f"{m['persons_estimated']} / {m['persons_found']} / {m['persons_true']} | "
                      f"{_fmt(m['mpjpe_mm'], 1)} | "
                      + (f"{o['precision']:.4f} / {o['recall']:.4f} | {_fmt(o['mpjpe_mm'], 1)} |"
                         if o and "error" not in o else "— | — |"))
-    lines += ["", "Growth per doubling of the frames (time, memory; from the row before):", ""]
+    lines += ["", "Growth per doubling of the frames (wall time, CPU time, memory; from the row before):", ""]
     for people in dict.fromkeys(r["people"] for r in rows):
         sel = [r for r in rows if r["people"] == people and "error" not in r["method"]]
-        steps = []
-        for a, b in zip(sel, sel[1:]):
-            doublings = math.log2(b["frames"] / a["frames"])
-            t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
-            m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
-            steps.append(f"{a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory")
+        steps = [f"{a['frames']}→{b['frames']}: {_growth(a, b)}" for a, b in zip(sel, sel[1:])]
         if len(sel) > 1:
-            a, b = sel[0], sel[-1]
-            doublings = math.log2(b["frames"] / a["frames"])
-            t = (b["method"]["process_s"] / a["method"]["process_s"]) ** (1 / doublings)
-            m = (b["method"]["peak_mib"] / a["method"]["peak_mib"]) ** (1 / doublings)
-            steps.append(f"on average {a['frames']}→{b['frames']}: ×{t:.2f} time, ×{m:.2f} memory per doubling")
+            steps.append(f"on average {sel[0]['frames']}→{sel[-1]['frames']}: {_growth(sel[0], sel[-1])} per doubling")
         lines.append(f"- {people} people: " + ("; ".join(steps) or "—"))
     return "\n".join(lines)
 
