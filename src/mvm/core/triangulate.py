@@ -161,10 +161,18 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
     homogeneous = np.concatenate([X, np.ones((Pn, J, H, 1))], axis=-1).reshape(Pn, J * H, 4)
     x = np.matmul(obs.P.reshape(Pn, M * 3, 4), homogeneous.transpose(0, 2, 1)).reshape(Pn, M, 3, J, H)
     depth = x[:, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        du = x[:, :, 0] / depth - obs.xy[..., 0, None]
-        dv = x[:, :, 1] / depth - obs.xy[..., 1, None]
-    return np.sqrt(du * du + dv * dv) / obs.size[:, :, None, None], depth
+    with np.errstate(divide="ignore", invalid="ignore"):       # in place: two arrays of (P, M, J, H), not eight
+        du = np.divide(x[:, :, 0], depth)
+        du -= obs.xy[..., 0, None]
+        du *= du
+        dv = np.divide(x[:, :, 1], depth)
+        dv -= obs.xy[..., 1, None]
+        dv *= dv
+        du += dv
+        del dv
+        np.sqrt(du, out=du)
+        du /= obs.size[:, :, None, None]
+    return du, depth
 
 
 def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hypotheses: int,
@@ -272,12 +280,13 @@ def _best_inliers(scored: Hypotheses, valid: np.ndarray, threshold: np.ndarray) 
     groups' ``threshold: (P,)`` (person sizes); ``valid: (P, M, J)`` the slots scored."""
     err, ok = scored.err, scored.ok
     threshold = threshold[:, None, None, None]
-    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold) ** 2,
-                                               threshold**2), 0.0).sum(axis=1)   # (P, J, H)
+    cost = np.minimum(err, threshold)                                         # (P, M, J, H)
+    cost *= cost
+    np.copyto(cost, np.where(valid, threshold[..., 0] ** 2, 0.0)[..., None], where=~ok)   # an outlier, or no keypoint
+    cost = cost.sum(axis=1)                                                   # (P, J, H)
     cost[~scored.point] = np.inf
-    best = np.argmin(cost, axis=-1)                                           # (P, J)
-    p, m, j = np.ogrid[:ok.shape[0], :ok.shape[1], :ok.shape[2]]
-    return (ok & (err < threshold))[p, m, j, best[:, None]]
+    best = np.argmin(cost, axis=-1)[:, None, :, None]                         # (P, 1, J, 1)
+    return (np.take_along_axis(ok, best, -1) & (np.take_along_axis(err, best, -1) < threshold))[..., 0]
 
 
 #: The median of the length of a two-dimensional standard normal error: ``sqrt(2 ln 2)``.
