@@ -47,13 +47,11 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     (tried where the distance as detected is at least ``swap_above``).
 
     Args:
-        keypoints: ``(N, J, 3)`` pixels and confidence.
-        frame: ``(N,)`` view of each pose, indexing ``P``.
-        P: ``(F, 3, 4)`` projection matrices.
-        X: ``(Q, J, 3)`` persons, NaN where a joint is not reconstructed.
+        keypoints, frame: ``(N, J, 3)`` pixels and confidence, ``(N,)`` view of each pose.
+        P, X: ``(F, 3, 4)`` projection matrices, ``(Q, J, 3)`` persons (NaN: not reconstructed).
         pose, person: ``(K,)`` candidate pairs (indices into ``keypoints`` and ``X``).
-        keypoint_threshold: confidence below which a keypoint is missing.
-        min_common_keypoints: with fewer joints both observed and reconstructed, the cost is inf.
+        keypoint_threshold, min_common_keypoints: a keypoint of lower confidence is missing;
+            with fewer joints both observed and reconstructed, the cost is inf.
         max_cost: costs at least this large are inf (a caller that reads no larger cost is
             spared sorting the distances of the pairs that cannot match).
     Returns:
@@ -93,8 +91,8 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     cost = np.full(K, np.inf)
     for start in range(0, len(near), PAIRS_CHUNK):
         rows = near[start:start + PAIRS_CHUNK]
-        q, f = person_of_pair[rows], frame_of_pair[rows]
-        cost[rows] = _median_distance(keypoints[pose[rows]], uv_all[q, f], seen_all[q, f], size[rows],
+        cost[rows] = _median_distance(keypoints[pose[rows]], uv_all[person_of_pair[rows], frame_of_pair[rows]],
+                                      seen_all[person_of_pair[rows], frame_of_pair[rows]], size[rows],
                                       keypoint_threshold, min_common_keypoints, swap_above, max_cost)
     return cost, np.where(np.isfinite(cost), size, np.nan)
 

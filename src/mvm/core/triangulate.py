@@ -194,15 +194,12 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
     triangulation of nearly the same groups: few random hypotheses then suffice. ``rng``: a
     ``numpy.random.Generator`` or the seed of one (None: 0), made only if pairs are drawn.
-
     ``max_views``: groups of more views (a person seen in thousands of frames of a long video)
     draw and score their hypotheses on that many well-spread views of each person
     (:func:`spread_slots`); the inliers are then those of the best hypothesis's weighted DLT in
     every view, and the refits use them all. Cost: ``P · (M + max_views · H) · J``, never
-    ``P · M · J · H``. None: every view.
-
-    ``hypotheses_scored``: the :class:`Hypotheses` of an earlier call on the same observations
-    and settings (its ``keep_hypotheses=True`` result), whatever its threshold: the hypotheses are
+    ``P · M · J · H``. None: every view. ``hypotheses_scored``: the :class:`Hypotheses` of a call
+    on the same observations and settings (with ``keep_hypotheses``), at any threshold: they are
     not drawn and scored again, and the result is the one a call of its own gives.
     """
     rng = 0 if rng is None else rng
@@ -214,15 +211,8 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
     terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
-    scored = None
-    if not use_ransac:
-        inliers = valid.copy()
-    elif max_views is not None and M > max_views:
-        inliers, scored = _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views,
-                                                 hypotheses_scored)
-    else:
-        scored = hypotheses_scored or _score_hypotheses(obs, valid, terms, hypotheses, rng, initial)
-        inliers = _best_inliers(scored, valid, threshold)
+    inliers, scored = (valid.copy(), None) if not use_ransac else \
+        _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial, max_views, hypotheses_scored)
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
     solved = None
@@ -255,6 +245,17 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
     if previous is not None and np.array_equal(previous[0], weights):
         return previous
     return weights, weighted_dlt(terms, weights)
+
+
+def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold: np.ndarray,
+                    hypotheses: int, rng, initial: np.ndarray | None, max_views: int | None,
+                    scored: Hypotheses | None) -> tuple[np.ndarray, Hypotheses]:
+    """The RANSAC inliers ``(P, M, J)`` of :func:`ransac_triangulate` and the hypotheses scored
+    (``scored``, where given): on every view, or on ``max_views`` spread views of wider groups."""
+    if max_views is not None and valid.shape[1] > max_views:
+        return _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views, scored)
+    scored = scored or _score_hypotheses(obs, valid, terms, hypotheses, rng, initial)
+    return _best_inliers(scored, valid, threshold), scored
 
 
 def _score_hypotheses(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, hypotheses: int, rng,
