@@ -162,7 +162,8 @@ def test_a_model_read_again_is_the_same_and_its_own(tmp_path, binary, monkeypatc
 
     monkeypatch.setattr(colmap, "_last", None)
     parsed, real = [], colmap._parse
-    monkeypatch.setattr(colmap, "_parse", lambda model_dir: parsed.append(model_dir.name) or real(model_dir))
+    monkeypatch.setattr(colmap, "_parse",
+                        lambda model_dir, *rest: parsed.append(model_dir.name) or real(model_dir, *rest))
     rng = np.random.default_rng(3)
     cams = random_cameras(rng, 4)
     for name in ("a", "b"):

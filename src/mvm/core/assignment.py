@@ -5,8 +5,9 @@ the smaller side, the sum of its costs least) for the matrices a scene's associa
 few 2D poses of one view that claim the same few persons, the persons of one rig instant and
 the tracks they may continue. Where every row's cheapest column is a different column, that is
 the matching; otherwise the matchings are enumerated at once in numpy (at most
-:data:`MAX_ENUMERATED` of them); only larger ones import scipy, whose ``scipy.optimize`` costs
-0.4–0.9 s to import: more than a hundred small scenes.
+:data:`MAX_ENUMERATED` of them); larger ones are solved by shortest augmenting paths
+(:func:`_augmenting_paths`, the algorithm of scipy's own solver, one numpy pass per step). scipy
+is not imported: ``scipy.optimize`` costs 0.4–0.9 s to import, more than a whole small scene.
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import math
 
 import numpy as np
 
-#: Largest number of matchings enumerated; a larger matrix goes to scipy.
+#: Largest number of matchings enumerated; a larger matrix is solved by augmenting paths.
 MAX_ENUMERATED = 5040
 
 
@@ -41,9 +42,11 @@ def min_cost_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         if len(np.unique(best)) == n:
             return np.arange(n), best
     if math.perm(max(n, m), min(n, m)) > MAX_ENUMERATED:
-        from scipy.optimize import linear_sum_assignment
-
-        return linear_sum_assignment(cost)
+        if n <= m:
+            return np.arange(n), _augmenting_paths(cost)
+        rows = _augmenting_paths(cost.T)
+        order = np.argsort(rows)
+        return rows[order], order
     if n <= m:
         cols = _matchings(m, n)[np.argmin(cost[np.arange(n), _matchings(m, n)].sum(1))]
         return np.arange(n), cols
@@ -58,3 +61,46 @@ def _matchings(m: int, n: int) -> np.ndarray:
     table = np.array(list(itertools.permutations(range(m), n)), dtype=np.intp).reshape(-1, n)
     table.flags.writeable = False
     return table
+
+
+def _augmenting_paths(cost: np.ndarray) -> np.ndarray:
+    """Column of each row of a minimum-cost matching of every row of ``cost: (n, m)``, ``n <= m``:
+    ``(n,)``. Shortest augmenting paths with dual potentials (Jonker-Volgenant, as Crouse's
+    rectangular form that scipy implements): one row is added at a time, along the cheapest
+    path in reduced costs to a free column; each step of a path is one numpy pass over the columns."""
+    n, m = cost.shape
+    u, v = np.zeros(n), np.zeros(m)
+    col4row, row4col = np.full(n, -1), np.full(m, -1)
+    for start in range(n):
+        shortest, path = np.full(m, np.inf), np.full(m, -1)
+        in_rows, in_cols = np.zeros(n, dtype=bool), np.zeros(m, dtype=bool)
+        i, low, sink = start, 0.0, -1
+        while sink < 0:
+            in_rows[i] = True
+            reduced = low + cost[i] - u[i] - v
+            better = ~in_cols & (reduced < shortest)
+            path[better] = i
+            shortest[better] = reduced[better]
+            open_cost = np.where(in_cols, np.inf, shortest)
+            low = open_cost.min()
+            ties = np.flatnonzero(open_cost == low)
+            free = ties[row4col[ties] < 0]
+            j = free[0] if len(free) else ties[0]                    # a free column first among ties
+            in_cols[j] = True
+            if row4col[j] < 0:
+                sink = j
+            else:
+                i = row4col[j]
+        u[start] += low
+        others = in_rows.copy()
+        others[start] = False
+        u[others] += low - shortest[col4row[others]]
+        v[in_cols] -= low - shortest[in_cols]
+        j = sink
+        while True:                                                  # flip the path's pairs
+            i = path[j]
+            row4col[j] = i
+            col4row[i], j = j, col4row[i]
+            if i == start:
+                break
+    return col4row

@@ -47,13 +47,11 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     (tried where the distance as detected is at least ``swap_above``).
 
     Args:
-        keypoints: ``(N, J, 3)`` pixels and confidence.
-        frame: ``(N,)`` view of each pose, indexing ``P``.
-        P: ``(F, 3, 4)`` projection matrices.
-        X: ``(Q, J, 3)`` persons, NaN where a joint is not reconstructed.
+        keypoints, frame: ``(N, J, 3)`` pixels and confidence, ``(N,)`` view of each pose.
+        P, X: ``(F, 3, 4)`` projection matrices, ``(Q, J, 3)`` persons (NaN: not reconstructed).
         pose, person: ``(K,)`` candidate pairs (indices into ``keypoints`` and ``X``).
-        keypoint_threshold: confidence below which a keypoint is missing.
-        min_common_keypoints: with fewer joints both observed and reconstructed, the cost is inf.
+        keypoint_threshold, min_common_keypoints: a keypoint of lower confidence is missing;
+            with fewer joints both observed and reconstructed, the cost is inf.
         max_cost: costs at least this large are inf (a caller that reads no larger cost is
             spared sorting the distances of the pairs that cannot match).
     Returns:
@@ -88,12 +86,21 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     observed = keypoints[..., 2] >= keypoint_threshold                                   # (N, J)
     centre = np.where(observed[..., None], keypoints[..., :2], 0).sum(1) / np.maximum(observed.sum(1), 1)[:, None]
     size = size_all[person_of_pair, frame_of_pair]
-    near = np.linalg.norm(centre[pose] - centre_all[person_of_pair, frame_of_pair], axis=-1) < 1.5 * size
+    near = np.flatnonzero(np.linalg.norm(centre[pose] - centre_all[person_of_pair, frame_of_pair], axis=-1)
+                          < 1.5 * size)
     cost = np.full(K, np.inf)
-    cost[near] = _median_distance(keypoints[pose[near]], uv_all[person_of_pair[near], frame_of_pair[near]],
-                                  seen_all[person_of_pair[near], frame_of_pair[near]], size[near],
-                                  keypoint_threshold, min_common_keypoints, swap_above, max_cost)
+    for start in range(0, len(near), PAIRS_CHUNK):
+        rows = near[start:start + PAIRS_CHUNK]
+        cost[rows] = _median_distance(keypoints[pose[rows]], uv_all[person_of_pair[rows], frame_of_pair[rows]],
+                                      seen_all[person_of_pair[rows], frame_of_pair[rows]], size[rows],
+                                      keypoint_threshold, min_common_keypoints, swap_above, max_cost)
     return cost, np.where(np.isfinite(cost), size, np.nan)
+
+
+#: Pairs whose keypoint distances are measured at once: a few MB per array, whatever the length of
+#: the video (arrays beyond the allocator's reuse threshold, 32 MB, cost their page faults anew
+#: at every call, more than the arithmetic on them).
+PAIRS_CHUNK = 2**14
 
 
 def _used(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -361,6 +368,25 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         groups = new
         result = triangulate(groups, initial)
     return groups, result
+
+
+def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.ndarray, groups: list[np.ndarray],
+                 candidates: np.ndarray, *, gate: float = 0.15, min_person_joints: int = 5,
+                 keypoint_threshold: float = 0.2, min_common_keypoints: int = 3, sequence: np.ndarray | None = None,
+                 temporal_weight: float = 0.5, max_gap: int = 3) -> list[np.ndarray]:
+    """``groups`` with each of the ``candidates`` (pose indices, in views none of the groups
+    has a pose in) added to the person ``X: (Q, J, 3)`` whose reprojection explains it, as one
+    round of :func:`associate` assigns (the same costs, gate and assignment per view); the
+    groups' own poses stay. Cost linear in the candidates: the frames of a long video beyond
+    the keyframes the grouping saw. Arguments as :func:`associate`'s."""
+    eligible = np.zeros(len(keypoints), dtype=bool)
+    eligible[candidates] = True
+    usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
+    pose, person, cost = _costs(keypoints, frame, P, X, groups, np.zeros(len(keypoints), dtype=np.int64), eligible,
+                                usable, gate, keypoint_threshold, min_common_keypoints, sequence, temporal_weight,
+                                max_gap)
+    taken = _groups_of(assign_per_frame(cost, pose, person, frame[pose], len(keypoints), gate), len(groups))
+    return [np.sort(np.concatenate([g, t])) for g, t in zip(groups, taken)]
 
 
 def _merge_persons(merge: Callable, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from mvm.core.geometry import project as project_with_matrices
@@ -29,8 +28,10 @@ from mvm.core.keypoints import NUM_JOINTS
 if TYPE_CHECKING:                                   # scene.py builds its P matrices here
     from mvm.core.scene import Cameras
 
-#: Stopping rule of OpenCV's iterative undistortion (iterations, change in normalized coordinates).
-UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-8)
+#: Stopping rule of OpenCV's iterative undistortion (``cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS``,
+#: iterations, change in normalized coordinates). OpenCV is imported only for a lens: 60 ms that
+#: a pinhole scene does not pay.
+UNDISTORT_CRITERIA = (1 | 2, 40, 1e-8)
 
 
 def projection_matrix(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -85,6 +86,8 @@ def undistort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fish
     pinhole camera ``K: (3, 3)`` (NaN stays NaN). OpenCV's iterative inversion
     (:data:`UNDISTORT_CRITERIA`)."""
     def move(points: np.ndarray, d: np.ndarray) -> np.ndarray:
+        import cv2
+
         flat = points.reshape(-1, 1, 2)
         if fisheye:
             return cv2.fisheye.undistortPoints(flat, K, d, P=K)
@@ -97,6 +100,8 @@ def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fishey
     """Apply the lens of one camera (the inverse of :func:`undistort`): pixels of the pinhole
     camera ``K: (3, 3)``, ``xy: (..., 2)`` -> distorted pixels ``(..., 2)`` (NaN stays NaN)."""
     def move(points: np.ndarray, d: np.ndarray) -> np.ndarray:
+        import cv2
+
         rays = (np.concatenate([points, np.ones((len(points), 1))], axis=1) @ np.linalg.inv(K).T).reshape(-1, 1, 3)
         zero = np.zeros(3)
         project_points = cv2.fisheye.projectPoints if fisheye else cv2.projectPoints

@@ -226,8 +226,9 @@ class Config:
     #: runs on this many frames only, evenly spread along the video (by camera position for
     #: unordered photos); the association in 3D then brings every other frame's poses in by
     #: reprojection, at a cost linear in the frames, and groups what no person explains in
-    #: windows of this many consecutive frames. A scene of this many frames or fewer is grouped
-    #: whole. Used with ``association = "3d"``. [frames]
+    #: windows of this many consecutive frames (with ``association = "paper"``: one round of the
+    #: assignment brings the other frames in). A scene of this many frames or fewer is grouped
+    #: whole. [frames]
     keyframes: int = setting(150, ge=3)
     #: Persons with fewer reconstructed joints than this are discarded. [joints]
     min_person_joints: int = setting(5, ge=1, le=17)

@@ -62,9 +62,14 @@ def dlt_terms(points: np.ndarray, P: np.ndarray) -> np.ndarray:
     points = np.asarray(points, dtype=float)
     P = np.asarray(P, dtype=float)
     rows = points[..., :, None] * P[..., 2:3, :] - P[..., :2, :]                # (..., M, 2, 4)
-    rows = rows / np.maximum(np.sqrt((rows * rows).sum(-1, keepdims=True)), 1e-12)
-    rows = np.ascontiguousarray(np.moveaxis(rows, (-2, -1), (0, 1)))           # (2, 4, ..., M)
-    return np.stack([(rows[:, i] * rows[:, j]).sum(0) for i, j in PACKED_4X4])
+    rows /= np.maximum(np.sqrt((rows * rows).sum(-1, keepdims=True)), 1e-12)
+    a, b = rows[..., 0, :], rows[..., 1, :]                                     # (..., M, 4) each
+    terms = np.empty((10,) + rows.shape[:-2])
+    other = np.empty(rows.shape[:-2])
+    for k, (i, j) in enumerate(PACKED_4X4):                                     # written in place, term by term
+        np.multiply(a[..., i], a[..., j], out=terms[k])
+        terms[k] += np.multiply(b[..., i], b[..., j], out=other)
+    return terms
 
 
 #: The 2 × 2 minors of rows 0, 1 (``s``) and rows 2, 3 (``c``) of a 4 × 4 matrix, by column

@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import associate, frame_sequence, visible_frames
+from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
@@ -91,10 +91,10 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
 def keyframe_rows(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarray | None:
     """The poses the grouping of a scene compares: those of ``config.keyframes`` well-spread
     frames (:func:`mvm.core.keyframes.spread_views`) of a longer video, the association in 3D
-    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer,
-    the instants of a rig, or ``association = "paper"``, which has no other way to take them).
-    ``config``: resolved for the scene driver."""
-    if poses.instant is not None or config.association != "3d":
+    (or with ``association = "paper"``, one round of its assignment, :func:`extend_groups`)
+    bringing the others in; None for all of them (a video of ``keyframes`` frames or fewer, or
+    the instants of a rig). ``config``: resolved for the scene driver."""
+    if poses.instant is not None:
         return None
     used = np.unique(poses.view)
     if len(used) <= config.keyframes:
@@ -110,6 +110,25 @@ def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config) -> list[np
     if rows is None:
         return match(cameras, poses, config)
     return [rows[g] for g in match(cameras, poses.subset(rows), config)]
+
+
+def extend_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], config: Config,
+                  triangulated: tuple[GroupObservations, Triangulation], threshold: np.ndarray | None,
+                  rows: np.ndarray) -> tuple[list[np.ndarray], tuple[GroupObservations, Triangulation]]:
+    """The paper's groups of a long video's keyframes (``rows``: their poses,
+    :func:`keyframe_rows`) extended to its other frames: each other pose to the person
+    ``triangulated`` whose reprojection explains it (:func:`mvm.core.association.assign_poses`),
+    then every person triangulated again from all its views (``threshold`` as
+    :func:`triangulate_groups` takes it). Linear in the frames; the keyframes' groups stay."""
+    others = np.setdiff1d(np.flatnonzero(poses.score >= config.min_pose_score), rows)
+    if not groups or not len(others):
+        return groups, triangulated
+    groups = assign_poses(poses.keypoints, poses.view, cameras.P, triangulated[1].X, groups, others,
+                          gate=config.association_gate, min_person_joints=config.min_person_joints,
+                          keypoint_threshold=config.keypoint_threshold,
+                          min_common_keypoints=config.min_common_keypoints,
+                          sequence=_sequence(cameras, poses, config))
+    return groups, triangulate_groups(cameras, poses, groups, config, threshold=threshold)
 
 
 def match_windows(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
@@ -194,24 +213,31 @@ def check_triangulation_memory(groups: list[np.ndarray], joints: int, hypotheses
 
 def triangulate_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
                        config: Config, initial: np.ndarray | None = None,
-                       threshold: np.ndarray | None = None) -> tuple[GroupObservations, Triangulation]:
+                       threshold: np.ndarray | None = None,
+                       again: tuple[GroupObservations, Triangulation] | None = None,
+                       keep_hypotheses: bool = False) -> tuple[GroupObservations, Triangulation]:
     """Per-joint RANSAC triangulation of ``P`` groups; degenerate rays give NaN joints.
     ``initial: (P, J, 3)``, the groups' previous 3D poses, replaces all but
     ``association_hypotheses`` of the random hypotheses. ``threshold: (N,)`` the RANSAC
     threshold of each pose's block (:func:`block_thresholds`; None: ``ransac_threshold``).
+    ``again``: this function's result for the same ``groups`` and ``initial``, made with
+    ``keep_hypotheses``: its hypotheses are selected from at ``threshold``, not drawn and scored
+    again (the same result, a third of the time).
     Memory: :func:`triangulation_bytes`, refused beyond ``max_affinity_bytes`` before it is taken."""
     hypotheses = config.ransac_hypotheses if initial is None else min(config.ransac_hypotheses,
                                                                        config.association_hypotheses)
     check_triangulation_memory(groups, poses.keypoints.shape[1],
                                hypotheses + (initial is not None) if config.ransac else 0, config)
-    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold)
+    obs = gather_groups(cameras, poses, groups, config.keypoint_threshold) if again is None else again[0]
     if threshold is not None:
         threshold = threshold[np.array([g[0] for g in groups], dtype=np.int64)]
     with np.errstate(all="ignore"):
         return obs, ransac_triangulate(obs, config.ransac_threshold if threshold is None else threshold,
                                        hypotheses, config.min_views, config.min_parallax_deg, config.seed,
                                        use_ransac=config.ransac, initial=initial,
-                                       max_views=config.max_triangulation_views)
+                                       max_views=config.max_triangulation_views,
+                                       hypotheses_scored=None if again is None else again[1].hypotheses,
+                                       keep_hypotheses=keep_hypotheses)
 
 
 def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObservations, tri: Triangulation,
@@ -390,16 +416,20 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         groups = match_keyframes(cameras, poses, config)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    obs, tri = triangulate_groups(cameras, poses, groups, config)
+    obs, tri = triangulate_groups(cameras, poses, groups, config, keep_hypotheses=True)
     threshold = block_thresholds(poses, groups, obs, tri, config) if groups else None
     if threshold is not None:
-        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
+        obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold, again=(obs, tri))
+    tri.hypotheses = None                                                # their memory, no longer needed
     associate_3d = config.association == "3d" and not given              # merges duplicates itself
     merged = None if associate_3d else merge_groups(tri.X, groups, poses, config)
     if merged is not None:
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
         obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
+    keyframes = None if associate_3d or given else keyframe_rows(cameras, poses, config)
+    if keyframes is not None:                                           # the paper's grouping of a long video
+        groups, (obs, tri) = extend_groups(cameras, poses, groups, config, (obs, tri), threshold, keyframes)
     timings["triangulation_s"] = time.perf_counter() - t
     if associate_3d:
         t = time.perf_counter()

@@ -79,6 +79,8 @@ class Triangulation:
         valid: ``(P, M, J)`` bool, the 2D keypoints available (inliers + outliers).
         parallax_deg: ``(P, J)`` largest angle between inlier rays.
         threshold: ``(P,)`` the RANSAC inlier threshold each group got, person sizes.
+        hypotheses: the scored RANSAC hypotheses, where asked for (``keep_hypotheses``): the
+            same groups triangulated again at another threshold select from them.
     """
 
     X: np.ndarray
@@ -86,6 +88,24 @@ class Triangulation:
     valid: np.ndarray
     parallax_deg: np.ndarray
     threshold: np.ndarray
+    hypotheses: Hypotheses | None = None
+
+
+@dataclass
+class Hypotheses:
+    """The RANSAC hypotheses of every joint of ``P`` groups, scored in ``S`` view slots.
+
+    Attributes:
+        err: ``(P, S, J, H)`` reprojection errors, person sizes.
+        ok: ``(P, S, J, H)`` bool, the keypoint is available and the point in front of its camera.
+        point: ``(P, J, H)`` bool, the hypothesis is a point (finite).
+        slots: ``(P, S)`` the view slots scored (:func:`spread_slots`), or None: every slot.
+    """
+
+    err: np.ndarray
+    ok: np.ndarray
+    point: np.ndarray
+    slots: np.ndarray | None
 
 
 @functools.lru_cache(maxsize=64)
@@ -141,16 +161,25 @@ def _reprojection_errors(X: np.ndarray, obs: GroupObservations) -> tuple[np.ndar
     homogeneous = np.concatenate([X, np.ones((Pn, J, H, 1))], axis=-1).reshape(Pn, J * H, 4)
     x = np.matmul(obs.P.reshape(Pn, M * 3, 4), homogeneous.transpose(0, 2, 1)).reshape(Pn, M, 3, J, H)
     depth = x[:, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        du = x[:, :, 0] / depth - obs.xy[..., 0, None]
-        dv = x[:, :, 1] / depth - obs.xy[..., 1, None]
-    return np.sqrt(du * du + dv * dv) / obs.size[:, :, None, None], depth
+    with np.errstate(divide="ignore", invalid="ignore"):       # in place: two arrays of (P, M, J, H), not eight
+        du = np.divide(x[:, :, 0], depth)
+        du -= obs.xy[..., 0, None]
+        du *= du
+        dv = np.divide(x[:, :, 1], depth)
+        dv -= obs.xy[..., 1, None]
+        dv *= dv
+        du += dv
+        del dv
+        np.sqrt(du, out=du)
+        du /= obs.size[:, :, None, None]
+    return du, depth
 
 
 def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hypotheses: int,
                        min_views: int, min_parallax_deg: float,
                        rng: np.random.Generator | int | None = None, use_ransac: bool = True,
-                       initial: np.ndarray | None = None, max_views: int | None = None) -> Triangulation:
+                       initial: np.ndarray | None = None, max_views: int | None = None,
+                       hypotheses_scored: Hypotheses | None = None, keep_hypotheses: bool = False) -> Triangulation:
     """Triangulate every joint of every group with RANSAC over two-view DLT hypotheses.
 
     A joint with at most ``hypotheses`` pairs of views tries each pair once; others draw
@@ -165,12 +194,13 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     ``initial: (P, J, 3)`` world points (NaN: none) join the two-view hypotheses, e.g. a previous
     triangulation of nearly the same groups: few random hypotheses then suffice. ``rng``: a
     ``numpy.random.Generator`` or the seed of one (None: 0), made only if pairs are drawn.
-
     ``max_views``: groups of more views (a person seen in thousands of frames of a long video)
     draw and score their hypotheses on that many well-spread views of each person
     (:func:`spread_slots`); the inliers are then those of the best hypothesis's weighted DLT in
     every view, and the refits use them all. Cost: ``P · (M + max_views · H) · J``, never
-    ``P · M · J · H``. None: every view.
+    ``P · M · J · H``. None: every view. ``hypotheses_scored``: the :class:`Hypotheses` of a call
+    on the same observations and settings (with ``keep_hypotheses``), at any threshold: they are
+    not drawn and scored again, and the result is the one a call of its own gives.
     """
     rng = 0 if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
@@ -181,10 +211,8 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
     terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
 
-    inliers = (valid.copy() if not use_ransac
-               else _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views)
-               if max_views is not None and M > max_views
-               else _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial))
+    inliers, scored = (valid.copy(), None) if not use_ransac else \
+        _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial, max_views, hypotheses_scored)
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
     solved = None
@@ -206,7 +234,7 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     good = (inliers.sum(axis=1) >= min_views) & (parallax >= min_parallax_deg) & np.isfinite(X).all(-1)
     X[~good] = np.nan
     inliers &= good[:, None, :]
-    return Triangulation(X, inliers, valid, parallax, threshold)
+    return Triangulation(X, inliers, valid, parallax, threshold, scored if keep_hypotheses else None)
 
 
 
@@ -220,10 +248,22 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
 
 
 def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold: np.ndarray,
-                    hypotheses: int, rng, initial: np.ndarray | None) -> np.ndarray:
-    """The inliers ``(P, M, J)`` of the best two-view DLT hypothesis of every joint (MSAC score).
-    ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`; ``initial: (P, J, 3)``
-    world points join the two-view hypotheses; ``threshold: (P,)`` person sizes."""
+                    hypotheses: int, rng, initial: np.ndarray | None, max_views: int | None,
+                    scored: Hypotheses | None) -> tuple[np.ndarray, Hypotheses]:
+    """The RANSAC inliers ``(P, M, J)`` of :func:`ransac_triangulate` and the hypotheses scored
+    (``scored``, where given): on every view, or on ``max_views`` spread views of wider groups."""
+    if max_views is not None and valid.shape[1] > max_views:
+        return _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views, scored)
+    scored = scored or _score_hypotheses(obs, valid, terms, hypotheses, rng, initial)
+    return _best_inliers(scored, valid, threshold), scored
+
+
+def _score_hypotheses(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, hypotheses: int, rng,
+                      initial: np.ndarray | None, slots: np.ndarray | None = None) -> Hypotheses:
+    """Two-view DLT hypotheses of every joint and their reprojection errors in every view slot
+    of ``obs`` (:class:`Hypotheses`). ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`;
+    ``initial: (P, J, 3)`` world points join the two-view hypotheses; ``slots``: recorded as the
+    scored slots."""
     a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
     # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
     p, j = np.ogrid[:a.shape[0], :a.shape[1]]
@@ -233,13 +273,21 @@ def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray
         X_h = np.concatenate([X_h, (initial[:, :, None] - obs.world_offset) / obs.world_scale], axis=2)
     err, depth = _reprojection_errors(X_h * obs.world_scale + obs.world_offset, obs)  # (P, M, J, H)
     ok = valid[..., None] & (depth > 0) & np.isfinite(err)
+    return Hypotheses(err, ok, np.isfinite(X_h).all(-1), slots)
+
+
+def _best_inliers(scored: Hypotheses, valid: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+    """The inliers ``(P, M, J)`` of the best hypothesis of every joint (MSAC score) at the
+    groups' ``threshold: (P,)`` (person sizes); ``valid: (P, M, J)`` the slots scored."""
+    err, ok = scored.err, scored.ok
     threshold = threshold[:, None, None, None]
-    cost = np.where(valid[..., None], np.where(ok, np.minimum(err, threshold) ** 2,
-                                               threshold**2), 0.0).sum(axis=1)   # (P, J, H)
-    cost[~np.isfinite(X_h).all(-1)] = np.inf
-    best = np.argmin(cost, axis=-1)                                           # (P, J)
-    p, m, j = np.ogrid[:ok.shape[0], :ok.shape[1], :ok.shape[2]]
-    return (ok & (err < threshold))[p, m, j, best[:, None]]
+    cost = np.minimum(err, threshold)                                         # (P, M, J, H)
+    cost *= cost
+    np.copyto(cost, np.where(valid, threshold[..., 0] ** 2, 0.0)[..., None], where=~ok)   # an outlier, or no keypoint
+    cost = cost.sum(axis=1)                                                   # (P, J, H)
+    cost[~scored.point] = np.inf
+    best = np.argmin(cost, axis=-1)[:, None, :, None]                         # (P, 1, J, 1)
+    return (np.take_along_axis(ok, best, -1) & (np.take_along_axis(err, best, -1) < threshold))[..., 0]
 
 
 #: The median of the length of a two-dimensional standard normal error: ``sqrt(2 ln 2)``.
@@ -314,14 +362,18 @@ def take_slots(obs: GroupObservations, slots: np.ndarray) -> GroupObservations:
 
 
 def _spread_ransac_inliers(obs: GroupObservations, valid: np.ndarray, threshold: np.ndarray, hypotheses: int, rng,
-                           initial: np.ndarray | None, max_views: int) -> np.ndarray:
-    """:func:`_ransac_inliers` of ``max_views`` well-spread views of each group
+                           initial: np.ndarray | None, max_views: int, scored: Hypotheses | None = None
+                           ) -> tuple[np.ndarray, Hypotheses]:
+    """The RANSAC of :func:`ransac_triangulate` on ``max_views`` well-spread views of each group
     (:func:`spread_slots`), whose inliers' weighted DLT then gives the inliers ``(P, M, J)``
     among all the views (reprojection error below each group's ``threshold: (P,)``, in person
-    sizes, in front of the camera)."""
-    sub = take_slots(obs, spread_slots(obs.conf, max_views))
+    sizes, in front of the camera); and the hypotheses scored (``scored``, where given)."""
+    slots = spread_slots(obs.conf, max_views) if scored is None else scored.slots
+    sub = take_slots(obs, slots)
     terms = dlt_terms(sub.normalized_xy.transpose(0, 2, 1, 3), sub.Rt[:, None])     # (10, P, J, S)
-    chosen = _ransac_inliers(sub, sub.conf > 0, terms, threshold, hypotheses, rng, initial)
+    if scored is None:
+        scored = _score_hypotheses(sub, sub.conf > 0, terms, hypotheses, rng, initial, slots)
+    chosen = _best_inliers(scored, sub.conf > 0, threshold)
     X = weighted_dlt(terms, np.where(chosen, sub.conf, 0.0).transpose(0, 2, 1))       # (P, J, 3) normalized
     err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
-    return valid & (err[..., 0] < threshold[:, None, None]) & (depth[..., 0] > 0)
+    return valid & (err[..., 0] < threshold[:, None, None]) & (depth[..., 0] > 0), scored

@@ -1,4 +1,6 @@
-"""COLMAP models (text or binary) through pycolmap: cameras of every registered image."""
+"""COLMAP models (text or binary): cameras of every registered image. A model of pinhole cameras
+is built from what the checks of its files read (:mod:`mvm.io.colmap_check`); one with lenses, or
+with rigs of several cameras, through pycolmap."""
 from __future__ import annotations
 
 import logging
@@ -10,6 +12,7 @@ import numpy as np
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.colmap_check import check_model, model_files
+from mvm.io.colmap_records import CAMERA_MODELS, PINHOLE_MODEL_IDS, ModelRecords
 
 log = logging.getLogger(__name__)
 
@@ -22,15 +25,22 @@ class ColmapModel:
 
     Attributes:
         cameras: the registered images' pinhole cameras (distortion is undone on keypoints).
-        colmap_cameras: the pycolmap camera of each registered image, for undistortion.
+        models: the COLMAP camera model of each registered image (``"PINHOLE"``, ``"OPENCV"``…).
+        colmap_cameras: the pycolmap camera of each registered image, for undistortion; empty
+            when every camera is a pinhole (read without pycolmap).
         points3d: ``(M, 3)`` sparse points.
         unregistered: names of images in the model that have no pose.
     """
 
     cameras: Cameras
+    models: tuple[str, ...]
     colmap_cameras: tuple
     points3d: np.ndarray
     unregistered: tuple[str, ...]
+
+    def lens(self, view: int):
+        """The pycolmap camera of ``view`` where it has a lens, else None (a pinhole)."""
+        return None if self.models[view] in _PINHOLE_MODELS else self.colmap_cameras[view]
 
     def index(self) -> dict[str, int]:
         return {name: i for i, name in enumerate(self.cameras.names)}
@@ -51,7 +61,9 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
     """Read a COLMAP model (text or binary) from ``sparse`` (or ``sparse/0``).
 
     The files are checked first (:func:`mvm.io.colmap_check.check_model`): a malformed model
-    raises one :class:`InputError` instead of reaching pycolmap. A model whose files are
+    raises one :class:`InputError` instead of reaching pycolmap. A model of pinhole cameras is
+    then built from what the checks read, without pycolmap (whose import costs 0.1–0.15 s, more
+    than reading a two-minute video's model), others through pycolmap. A model whose files are
     byte for byte those of the model read last (the scenes of one rig, exported instant by
     instant, share their calibration) is not checked and parsed again: its cameras are copied.
     """
@@ -61,22 +73,25 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
     if _last is not None and _last[0] == files:
         model = _last[1]
     else:
-        check_model(model_dir, files)
-        model = _parse(model_dir)
+        model = _parse(model_dir, check_model(model_dir, files))
         _last = files, model
     if model.unregistered:
         log.warning("%s: %d images have no pose and are ignored", model_dir, len(model.unregistered))
     cameras = model.cameras
     copied = Cameras(cameras.K.copy(), cameras.R.copy(), cameras.t.copy(), cameras.size.copy(), cameras.names)
-    return ColmapModel(copied, model.colmap_cameras, model.points3d.copy(), model.unregistered)
+    return ColmapModel(copied, model.models, model.colmap_cameras, model.points3d.copy(), model.unregistered)
 
 
 #: ``(files, model)``: the content of the model read last (:func:`model_files`) and what it gave.
 _last: tuple[tuple[str, dict[str, bytes]], ColmapModel] | None = None
 
 
-def _parse(model_dir: Path) -> ColmapModel:
-    """The model in ``model_dir`` through pycolmap (its files already checked)."""
+def _parse(model_dir: Path, records: ModelRecords | None = None) -> ColmapModel:
+    """The model in ``model_dir``, its files already checked: from ``records`` (what the checks
+    collected, :func:`_pinhole_model`) where that can be, else through pycolmap."""
+    model = None if records is None else _pinhole_model(records, model_dir)
+    if model is not None:
+        return model
     import pycolmap
 
     try:
@@ -93,8 +108,7 @@ def _parse(model_dir: Path) -> ColmapModel:
             continue
         camera = rec.cameras[image.camera_id]
         pose = image.cam_from_world().matrix()
-        if not np.all(np.isfinite(pose)) or np.abs(pose[:, :3] @ pose[:, :3].T - np.eye(3)).max() > 1e-6:
-            raise InputError(model_dir, f"image {image_id}", "pose is not a finite rotation and translation")
+        _check_poses(model_dir, [image_id], pose[None, :, :3], pose[None, :, 3])
         K.append(camera.calibration_matrix())
         R.append(pose[:, :3])
         t.append(pose[:, 3])
@@ -108,7 +122,58 @@ def _parse(model_dir: Path) -> ColmapModel:
     cameras = Cameras(np.array(K).reshape(V, 3, 3), np.array(R).reshape(V, 3, 3),
                       np.array(t).reshape(V, 3), np.array(size, dtype=float).reshape(V, 2),
                       tuple(names))
-    return ColmapModel(cameras, tuple(cams), points, tuple(unregistered))
+    return ColmapModel(cameras, tuple(c.model.name for c in cams), tuple(cams), points, tuple(unregistered))
+
+
+def _pinhole_model(records: ModelRecords, model_dir: Path) -> ColmapModel | None:
+    """The model whose files gave ``records``, as pycolmap reads it, where every camera is a
+    pinhole (:data:`~mvm.io.colmap_records.PINHOLE_MODEL_IDS`) and every rig one camera (an
+    image's pose is then its frame's, or in a model without frames its own); else None. Images
+    in the order of their ids; a quaternion far from unit length is refused, as pycolmap's
+    matrix of it is no rotation (:func:`_check_poses`)."""
+    if not records.one_camera_rigs or any(c[0] not in PINHOLE_MODEL_IDS for c in records.cameras.values()):
+        return None
+    ids = sorted(records.images)
+    poses = records.frame_poses if records.frames is not None else {i: records.images[i][0] for i in ids}
+    pose = np.array([poses[i] for i in ids], dtype=float).reshape(-1, 7)
+    cams = [records.cameras[records.images[i][1]] for i in ids]
+    params = [c[3] if c[0] == 1 else (c[3][0], c[3][0], c[3][1], c[3][2]) for c in cams]   # fx, fy, cx, cy
+    f = np.array(params, dtype=float).reshape(-1, 4)
+    K = np.zeros((len(ids), 3, 3))
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = f[:, 0], f[:, 1], f[:, 2], f[:, 3], 1.0
+    R = rotation_matrices(pose[:, :4])
+    _check_poses(model_dir, ids, R, pose[:, 4:])
+    cameras = Cameras(K, R, pose[:, 4:].copy(),
+                      np.array([c[1:3] for c in cams], dtype=float).reshape(-1, 2),
+                      tuple(records.images[i][2] for i in ids))
+    return ColmapModel(cameras, tuple(CAMERA_MODELS[c[0]][0] for c in cams), (),
+                       np.array(records.points, dtype=float).reshape(-1, 3), ())
+
+
+def _check_poses(model_dir: Path, ids: list[int], R: np.ndarray, t: np.ndarray) -> None:
+    """Refuse the first image of ``ids`` whose ``R: (n, 3, 3)``, ``t: (n, 3)`` is not a finite
+    rotation and translation (one :class:`InputError` naming it)."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~(np.isfinite(R).all((1, 2)) & np.isfinite(t).all(1)
+                & (np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max((1, 2), initial=0.0) <= 1e-6))
+    if bad.any():
+        raise InputError(model_dir, f"image {ids[int(np.argmax(bad))]}",
+                         "pose is not a finite rotation and translation")
+
+
+def rotation_matrices(q: np.ndarray) -> np.ndarray:
+    """The matrices ``(n, 3, 3)`` of quaternions ``q: (n, 4)`` (w, x, y, z), as Eigen computes
+    them (a rotation for a unit quaternion).
+
+    >>> rotation_matrices(np.array([[0.0, 0, 0, 1]]))[0].tolist()
+    [[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]
+    """
+    w, x, y, z = np.asarray(q, dtype=float).T
+    tx, ty, tz = 2 * x, 2 * y, 2 * z
+    twx, twy, twz, txx, txy, txz, tyy, tyz, tzz = tx * w, ty * w, tz * w, tx * x, ty * x, tz * x, ty * y, tz * y, tz * z
+    return np.stack([1 - (tyy + tzz), txy - twz, txz + twy,
+                     txy + twz, 1 - (txx + tzz), tyz - twx,
+                     txz - twy, tyz + twx, 1 - (txx + tyy)], -1).reshape(-1, 3, 3)
 
 
 def undistort_keypoints(model: ColmapModel, view: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -116,8 +181,8 @@ def undistort_keypoints(model: ColmapModel, view: np.ndarray, xy: np.ndarray) ->
     each view's pinhole camera ``K``."""
     out = np.array(xy, dtype=float)
     for v in np.unique(view):
-        camera = model.colmap_cameras[v]
-        if camera.model.name in _PINHOLE_MODELS:
+        camera = model.lens(v)
+        if camera is None:
             continue
         rows = view == v
         pts = out[rows].reshape(-1, 2)

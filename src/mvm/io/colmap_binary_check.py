@@ -76,6 +76,7 @@ def _rigs_bin(data, path, model: ModelRecords) -> None:
             raise InputError(path, r.record, f"duplicate rig id {rig_id}")
         model.rig_ids.add(rig_id)
         sensors = model.rig_sensors[rig_id] = set()
+        model.one_camera_rigs &= n_sensors <= 1
         if n_sensors > 0:
             ref = r.take("iI")
             check_sensor_type(path, r.record, ref[0])
@@ -98,6 +99,8 @@ def _cameras_bin(data, path, model: ModelRecords) -> None:
         r.record = f"cameras[{i}]"
         camera_id, model_id, width, height = r.take("IiQQ")
         if model_id not in models:
+            models = camera_models(model_id)
+        if model_id not in models:
             raise InputError(path, r.record, f"unknown camera model {model_id}")
         params = r.take(f"{models[model_id][1]}d")
         r.record = f"camera {camera_id}"
@@ -111,7 +114,8 @@ def _frames_bin(data, path, model: ModelRecords) -> None:
     for i in range(r.count(64, "frames")):
         r.record = f"frames[{i}]"
         _, rig_id = r.take("II")
-        check_pose(path, r.record, r.take("7d"))
+        pose = r.take("7d")
+        check_pose(path, r.record, pose)
         if model.rig_ids and rig_id not in model.rig_ids:
             raise InputError(path, r.record, f"rig {rig_id} is not in rigs")
         (n_data,) = r.take("I")
@@ -120,7 +124,7 @@ def _frames_bin(data, path, model: ModelRecords) -> None:
         data_ids = [r.take("iIQ") for _ in range(n_data)]
         for sensor_type, _, _ in data_ids:
             check_sensor_type(path, r.record, sensor_type)
-        check_frame(model, path, r.record, rig_id, data_ids)
+        check_frame(model, path, r.record, rig_id, data_ids, pose)
     r.done()
 
 
@@ -146,6 +150,7 @@ def _points_bin(data, path, model: ModelRecords) -> None:
         r.record = f"points3D[{i}]"
         values = r.take("Q3d3BdQ")
         check_position(path, f"point {values[0]}", values[1:4])
+        model.points.append(values[1:4])
         start = r.offset
         r.skip(values[-1], 8, "track elements")
         track = np.frombuffer(data, dtype="<u4", count=2 * values[-1], offset=start).reshape(-1, 2)

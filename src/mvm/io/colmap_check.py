@@ -51,9 +51,10 @@ def model_files(model_dir: str | Path) -> tuple[str, dict[str, bytes]]:
     return ext, files
 
 
-def check_model(model_dir: str | Path, files: tuple[str, dict[str, bytes]] | None = None) -> str:
-    """Check every file of the COLMAP model in ``model_dir``; return its format (``bin``/``txt``).
-    ``files``: what :func:`model_files` read of it, else it is read here."""
+def check_model(model_dir: str | Path, files: tuple[str, dict[str, bytes]] | None = None) -> ModelRecords:
+    """Check every file of the COLMAP model in ``model_dir``; return what the checks collected
+    (:class:`~mvm.io.colmap_records.ModelRecords`). ``files``: what :func:`model_files` read of
+    it, else it is read here."""
     model_dir = Path(model_dir)
     ext, content = files or model_files(model_dir)
     model = ModelRecords()
@@ -68,4 +69,4 @@ def check_model(model_dir: str | Path, files: tuple[str, dict[str, bytes]] | Non
     for image_id, (where, _) in model.frame_images.items():
         if image_id not in model.image_ids:
             raise InputError(model.frames, where, f"image {image_id} is not in images.{ext}")
-    return ext
+    return model

@@ -1,7 +1,9 @@
 """What the checks of a COLMAP model's files collect and check on the way: the known camera
 models, the values mvm relies on (camera parameters, poses, image names, sensors, frames, point
 tracks) and the references between files. Each problem raises one
-:class:`~mvm.errors.InputError` naming the file and the record."""
+:class:`~mvm.errors.InputError` naming the file and the record. What they collect (cameras,
+poses, names, points) is enough to build a model of pinhole cameras without pycolmap
+(:func:`mvm.io.colmap.read_colmap`)."""
 from __future__ import annotations
 
 import math
@@ -20,9 +22,35 @@ OPTIONAL_FILES = ("rigs", "frames")
 SENSOR_TYPES = {"INVALID": -1, "CAMERA": 0, "IMU": 1}
 
 
+#: COLMAP's camera models (``src/colmap/sensor/models.h``; pycolmap 4.2): ``{model id: (name,
+#: number of parameters, focal indices)}``. Models of a newer COLMAP are looked up in the installed
+#: pycolmap (:func:`camera_models`).
+CAMERA_MODELS = {
+    0: ("SIMPLE_PINHOLE", 3, (0,)), 1: ("PINHOLE", 4, (0, 1)), 2: ("SIMPLE_RADIAL", 4, (0,)),
+    3: ("RADIAL", 5, (0,)), 4: ("OPENCV", 8, (0, 1)), 5: ("OPENCV_FISHEYE", 8, (0, 1)),
+    6: ("FULL_OPENCV", 12, (0, 1)), 7: ("FOV", 5, (0, 1)), 8: ("SIMPLE_RADIAL_FISHEYE", 4, (0,)),
+    9: ("RADIAL_FISHEYE", 5, (0,)), 10: ("THIN_PRISM_FISHEYE", 12, (0, 1)),
+    11: ("RAD_TAN_THIN_PRISM_FISHEYE", 16, (0, 1)), 12: ("SIMPLE_DIVISION", 4, (0,)),
+    13: ("DIVISION", 5, (0, 1)), 14: ("SIMPLE_FISHEYE", 3, (0,)), 15: ("FISHEYE", 4, (0, 1)),
+    16: ("EUCM", 6, (0, 1)), 17: ("EQUIRECTANGULAR", 2, ()),
+}
+
+#: The pinhole models, whose cameras are their ``K``: read without pycolmap.
+PINHOLE_MODEL_IDS = frozenset({0, 1})
+
+
+def camera_models(wanted: int | str | None = None) -> dict[int, tuple[str, int, tuple[int, ...]]]:
+    """COLMAP camera models: ``{model id: (name, number of parameters, focal indices)}``,
+    :data:`CAMERA_MODELS`, or where ``wanted`` (a model id or name) is not among them, the
+    installed pycolmap's models (imported only then)."""
+    if wanted is None or wanted in CAMERA_MODELS or any(m[0] == wanted for m in CAMERA_MODELS.values()):
+        return CAMERA_MODELS
+    return {**CAMERA_MODELS, **pycolmap_camera_models()}
+
+
 @lru_cache(maxsize=1)
-def camera_models() -> dict[int, tuple[str, int, tuple[int, ...]]]:
-    """COLMAP camera models: ``{model id: (name, number of parameters, focal indices)}``."""
+def pycolmap_camera_models() -> dict[int, tuple[str, int, tuple[int, ...]]]:
+    """The camera models of the installed pycolmap, as :data:`CAMERA_MODELS` lists them."""
     import pycolmap
 
     models = {}
@@ -47,10 +75,15 @@ class ModelRecords:
     rig_sensors: dict = field(default_factory=dict)     # rig id -> {(sensor type, sensor id)}
     frames: Path | None = None                           # the frames file, once read
     frame_images: dict = field(default_factory=dict)    # image id -> (record in frames, camera id)
+    cameras: dict = field(default_factory=dict)         # camera id -> (model id, width, height, params)
+    images: dict = field(default_factory=dict)          # image id -> (pose, camera id, name)
+    frame_poses: dict = field(default_factory=dict)     # image id -> its frame's pose (rig from world)
+    one_camera_rigs: bool = True                         # every rig is one sensor, its reference
+    points: list = field(default_factory=list)          # (x, y, z) of every 3D point
 
 
 def check_camera(model: ModelRecords, path, where, camera_id, model_id, width, height, params) -> None:
-    models = camera_models()
+    models = camera_models(model_id)
     if camera_id in model.camera_ids:
         raise InputError(path, where, f"duplicate camera id {camera_id}")
     if model_id not in models:
@@ -69,6 +102,7 @@ def check_camera(model: ModelRecords, path, where, camera_id, model_id, width, h
     if not (0 < width < 2 ** 31 and 0 < height < 2 ** 31):
         raise InputError(path, where, f"image size must be > 0, got {width} × {height}")
     model.camera_ids.add(camera_id)
+    model.cameras[camera_id] = (model_id, width, height, tuple(params))
 
 
 def check_position(path, where, xyz) -> None:
@@ -112,6 +146,7 @@ def check_image(model: ModelRecords, path, where, image_id, pose, camera_id, nam
                                           f"({model.frames.name}, {frame}) lists it under camera {sensor}")
     model.image_ids.add(image_id)
     model.names[name] = image_id
+    model.images[image_id] = (tuple(pose), camera_id, name)
 
 
 def check_sensor_type(path, where, value) -> None:
@@ -119,9 +154,10 @@ def check_sensor_type(path, where, value) -> None:
         raise InputError(path, where, f"unknown sensor type {value}")
 
 
-def check_frame(model: ModelRecords, path, where, rig_id, data_ids) -> None:
+def check_frame(model: ModelRecords, path, where, rig_id, data_ids, pose) -> None:
     """One frame's ``data_ids``: (sensor type, sensor id, data id); every sensor is one of its
-    rig's, and each camera's data id (an image id) is recorded for the images to be checked."""
+    rig's, and each camera's data id (an image id) is recorded for the images to be checked,
+    with the frame's ``pose`` (qw, qx, qy, qz, tx, ty, tz, the rig from the world)."""
     sensors = model.rig_sensors.get(rig_id)
     names = {v: k for k, v in SENSOR_TYPES.items()}
     for sensor_type, sensor_id, data_id in data_ids:
@@ -132,6 +168,7 @@ def check_frame(model: ModelRecords, path, where, rig_id, data_ids) -> None:
             if data_id in model.frame_images:
                 raise InputError(path, where, f"image {data_id} is in two frames")
             model.frame_images[data_id] = (where, sensor_id)
+            model.frame_poses[data_id] = tuple(pose)
 
 
 def check_track(model: ModelRecords, path, where, track: np.ndarray) -> None:

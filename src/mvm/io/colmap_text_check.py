@@ -98,6 +98,7 @@ def _rigs_txt(data, path, model: ModelRecords) -> None:
             raise InputError(path, where, f"duplicate rig id {rig_id}")
         model.rig_ids.add(rig_id)
         model.rig_sensors[rig_id] = sensors
+        model.one_camera_rigs &= n_sensors <= 1
 
 
 def _cameras_txt(data, path, model: ModelRecords) -> None:
@@ -106,6 +107,8 @@ def _cameras_txt(data, path, model: ModelRecords) -> None:
         where = f"line {number}"
         if len(tokens) < 4:
             raise InputError(path, where, f"expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS…, got {len(tokens)} values")
+        if tokens[1] not in names:
+            names = {name: (model_id, n) for model_id, (name, n, _) in camera_models(tokens[1]).items()}
         if tokens[1] not in names:
             raise InputError(path, where, f"unknown camera model {tokens[1][:40]!r}")
         camera_id, = _ints(tokens[:1], path, where)
@@ -122,7 +125,8 @@ def _frames_txt(data, path, model: ModelRecords) -> None:
             raise InputError(path, where, f"expected FRAME_ID RIG_ID QW QX QY QZ TX TY TZ NUM_DATA_IDS …, "
                                           f"got {len(tokens)} values")
         _, rig_id = _ints(tokens[:2], path, where)
-        check_pose(path, where, _floats(tokens[2:9], path, where))
+        pose = _floats(tokens[2:9], path, where)
+        check_pose(path, where, pose)
         n_data, = _ints(tokens[9:10], path, where)
         if len(tokens) != 10 + 3 * n_data:
             raise InputError(path, where, f"{n_data} data ids need {10 + 3 * n_data} values, got {len(tokens)}")
@@ -134,7 +138,7 @@ def _frames_txt(data, path, model: ModelRecords) -> None:
             data_ids.append((SENSOR_TYPES[tokens[10 + 3 * k]], sensor_id, data_id))
         if model.rig_ids and rig_id not in model.rig_ids:
             raise InputError(path, where, f"rig {rig_id} is not in rigs")
-        check_frame(model, path, where, rig_id, data_ids)
+        check_frame(model, path, where, rig_id, data_ids, pose)
 
 
 def _images_txt(data, path, model: ModelRecords) -> None:
@@ -187,7 +191,9 @@ def _points_txt(data, path, model: ModelRecords) -> None:
             raise InputError(path, where, "expected POINT3D_ID X Y Z R G B ERROR and (IMAGE_ID, POINT2D_IDX) "
                                           f"pairs, got {len(tokens)} values")
         _ints(tokens[:1], path, where, 0, 2 ** 63)
-        check_position(path, where, _floats(tokens[1:4], path, where))
+        xyz = _floats(tokens[1:4], path, where)
+        check_position(path, where, xyz)
+        model.points.append(xyz)
         _ints(tokens[4:7], path, where, 0, 256)
         _floats(tokens[7:8], path, where)
         track = _ints(tokens[8:], path, where)

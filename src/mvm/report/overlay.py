@@ -129,7 +129,7 @@ class ViewRenderer:
 
             model = read_colmap(result.path / "sparse")
             index = model.index()
-            self._colmap = [model.colmap_cameras[index[n]] for n in scene.cameras.names]
+            self._colmap = [model.lens(index[n]) for n in scene.cameras.names]
         self.missing_frames = 0
 
     @property
@@ -168,7 +168,7 @@ class ViewRenderer:
         rows = np.flatnonzero(poses.view == v)
         keypoints = poses.keypoints[rows].copy()
         uv = self.reprojected[v]
-        if real and self._colmap is not None and self._colmap[v].model.name not in ("SIMPLE_PINHOLE", "PINHOLE"):
+        if real and self._colmap is not None and self._colmap[v] is not None:
             K = self.result.scene.cameras.K[v]
             keypoints[:, :, :2] = _distort(self._colmap[v], K, keypoints[:, :, :2])
             uv = _distort(self._colmap[v], K, uv)

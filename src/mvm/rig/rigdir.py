@@ -348,8 +348,9 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     if colmap_model is not None:
         from mvm.io.colmap import ColmapModel
 
-        model = ColmapModel(colmap_model.cameras.subset(np.array(used)),
-                            tuple(colmap_model.colmap_cameras[c] for c in used), colmap_model.points3d, ())
+        model = ColmapModel(colmap_model.cameras.subset(np.array(used)), tuple(colmap_model.models[c] for c in used),
+                            tuple(colmap_model.colmap_cameras[c] for c in used) if colmap_model.colmap_cameras else (),
+                            colmap_model.points3d, ())
     keypoints = undistort(calibration, keypoints, cam_of, model)
     detections = rig_poses(keypoints, instant, cam_of, score)
     log.info("%s: %d cameras, %d instants, %d 2D poses (%s)", rig_dir, len(used), len(all_frames),
