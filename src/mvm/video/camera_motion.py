@@ -25,8 +25,11 @@ MOTION_WIDTH = 320
 MAX_TRACKS = 200
 #: A track is lost when tracking it back lands farther than this from where it started. [px]
 FORWARD_BACKWARD_PX = 1.0
-#: A frame is kept when fewer than this share of the last kept frame's tracks reach it. [fraction]
+#: A frame is kept when fewer than this share of the last kept frame's tracks reach it; a frame
+#: where fewer than this share of the tracks of the frame before survive is a bad one. [fraction]
 MIN_SURVIVING = 0.5
+#: Bad frames in a row tracked past (from the last good frame) before the tracks start anew. [frames]
+MAX_BAD_FRAMES = 3
 
 _LK = {"winSize": (15, 15), "maxLevel": 3,
        "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 10, 0.03)}
@@ -48,24 +51,36 @@ class FeatureTracks:
 
     ``ids[f]: (N_f,)`` int32, sorted, and ``points[f]: (N_f, 2)`` float32: the tracks alive in
     frame ``f`` and where they are (pixels of the grey frames); ``diagonal``: their diagonal.
-    Memory: a few kB per frame, whatever the frames' size.
+    A frame that loses most tracks (a blurred or damaged one) does not end them: the next frames
+    are tracked from the last good one, for up to :data:`MAX_BAD_FRAMES` frames. Memory: a few
+    kB per frame, whatever the frames' size.
     """
 
     ids: list[np.ndarray] = field(default_factory=list)
     points: list[np.ndarray] = field(default_factory=list)
     diagonal: float = 0.0
-    _previous: np.ndarray | None = None
+    _reference: np.ndarray | None = None
+    _reference_tracks: tuple[np.ndarray, np.ndarray] | None = None
+    _bad: int = 0
     _next_id: int = 0
 
     def add(self, image: np.ndarray) -> None:
-        """Track the corners of the previous frame into ``image: (H, W[, 3])`` BGR and store them."""
+        """Track the corners of the last good frame into ``image: (H, W[, 3])`` BGR and store them."""
         grey = motion_grey(image)
-        ids, points = (np.zeros(0, np.int32), np.zeros((0, 2), np.float32)) if not self.ids else \
-            (self.ids[-1], self.points[-1])
-        if self._previous is not None and len(points) and self._previous.shape == grey.shape:
-            ids, points = _follow(self._previous, grey, ids, points)
-        elif self._previous is not None:
-            ids, points = ids[:0], points[:0]
+        self.diagonal = float(np.hypot(*grey.shape))
+        if self._reference is None or self._reference.shape != grey.shape:
+            self._anchor(grey, np.zeros(0, np.int32), np.zeros((0, 2), np.float32))
+            return
+        ids, points = _follow(self._reference, grey, *self._reference_tracks)
+        if len(ids) < MIN_SURVIVING * len(self._reference_tracks[0]) and self._bad < MAX_BAD_FRAMES:
+            self._bad += 1                                          # keep the last good frame as the reference
+            self.ids.append(ids)
+            self.points.append(points)
+            return
+        self._anchor(grey, ids, points)
+
+    def _anchor(self, grey: np.ndarray, ids: np.ndarray, points: np.ndarray) -> None:
+        """Store ``grey``'s tracks, topped up with new corners, and make it the reference."""
         if len(points) < 0.6 * MAX_TRACKS:
             fresh = _corners(grey, points, MAX_TRACKS - len(points))
             ids = np.concatenate([ids, np.arange(self._next_id, self._next_id + len(fresh), dtype=np.int32)])
@@ -73,8 +88,7 @@ class FeatureTracks:
             self._next_id += len(fresh)
         self.ids.append(ids)
         self.points.append(points)
-        self.diagonal = float(np.hypot(*grey.shape))
-        self._previous = grey
+        self._reference, self._reference_tracks, self._bad = grey, (ids, points), 0
 
 
 def _follow(previous: np.ndarray, grey: np.ndarray, ids: np.ndarray, points: np.ndarray):
@@ -137,15 +151,32 @@ def select_by_motion(tracks: FeatureTracks, usable: np.ndarray, timestamps: np.n
             chosen[int(j)], last = "first", int(j)
             continue
         moved, surviving = track_motion(tracks, last, int(j))
-        reason = ("motion" if moved >= min_motion else "tracks lost" if surviving < MIN_SURVIVING
+        reason = ("tracks lost" if surviving < MIN_SURVIVING else "motion" if moved >= min_motion
                   else "max gap" if timestamps[j] - timestamps[last] >= max_gap_s - 1e-9 else None)
         if reason:
             chosen[int(j)], last = reason, int(j)
-    candidates = np.flatnonzero(usable)
-    if len(chosen) < min(min_frames, len(candidates)):
-        spread = candidates[np.round(np.linspace(0, len(candidates) - 1, min_frames)).astype(int)]
-        for j in spread.tolist():
-            chosen.setdefault(int(j), "min frames")
+    for j in _fill(np.flatnonzero(usable), np.array(sorted(chosen), dtype=np.int64), timestamps, min_frames):
+        chosen[j] = "min frames"
     kept = np.array(sorted(chosen), dtype=np.int64)
     motion = np.array([np.nan] + [track_motion(tracks, int(a), int(b))[0] for a, b in zip(kept[:-1], kept[1:])])
     return Selection(kept, tuple(chosen[int(k)] for k in kept), motion[:len(kept)])
+
+
+def _fill(candidates: np.ndarray, kept: np.ndarray, timestamps: np.ndarray, count: int) -> list[int]:
+    """Candidates to add to ``kept`` until it holds ``count`` frames (or every candidate): each
+    time the candidate nearest the middle of the longest stretch of time without a kept frame
+    (the start and the end of the video bound the first and the last). ``candidates, kept:``
+    sorted indices into ``timestamps: (F,)``."""
+    added: list[int] = []
+    kept = kept.tolist()
+    while len(kept) < min(count, len(candidates)):
+        times = timestamps[candidates]
+        marks = [times[0]] + sorted(timestamps[kept]) + [times[-1]]
+        gaps = np.diff(marks)
+        k = int(np.argmax(gaps))
+        free = np.setdiff1d(candidates, kept)
+        middle = 0.5 * (marks[k] + marks[k + 1])
+        j = int(free[np.argmin(np.abs(timestamps[free] - middle))])
+        kept = sorted(kept + [j])
+        added.append(j)
+    return added

@@ -289,7 +289,13 @@ def frame_inputs(video: str | Path) -> dict[str, Path]:
 
 
 def _frame_settings(options: FrameOptions) -> dict:
-    return asdict(options)
+    """The settings that shape the frames: ``select`` as the rule applied, and the motion rule's
+    settings only when it is."""
+    settings = asdict(options) | {"select": options.rule}
+    if options.rule == "all":
+        for name in ("min_motion", "max_gap_s", "min_frames"):
+            settings.pop(name)
+    return settings
 
 
 def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
