@@ -154,3 +154,49 @@ def test_settings_round_trip_through_config_and_the_rerun_record(pan, tmp_path):
     assert "frames: kept (up to date)" in same.output
     bad = CliRunner().invoke(frames_cmd, [str(video), "-o", str(scene), "--min-motion", "0"])
     assert bad.exit_code == 2 and "--min-motion" in bad.output
+
+
+@pytest.mark.slow                                   # rendering the tour: about 15 s on a loaded machine
+def test_a_selected_video_reconstructs_and_its_supervision_covers_every_kept_frame(tmp_path):
+    """A rendered tour with its true cameras and true 2D poses: the frames kept by motion are the
+    scene's views, the people are reconstructed from them, and the exported supervision has an
+    image, with every person, for each kept frame."""
+    from mvm.core.camera import project
+    from mvm.io.colmap import write_colmap
+    from mvm.io.scene_dir import read_poses3d, read_scene
+    from mvm.net.supervision import export_supervision
+    from mvm.sim.mannequin_video import RenderConfig, render_video
+    from mvm.video.run import run_video
+    from mvm.video.sfm import SfmOptions
+
+    from helpers import coco_results
+
+    truth = render_video(tmp_path / "tour.mp4", RenderConfig(frames=30, width=192, height=108, focal_px=170.0,
+                                                             arc_deg=90, seed=2))
+    write_colmap(tmp_path / "model", truth.cameras)
+    (tmp_path / "detections.json").write_text(json.dumps(coco_results(truth, np.random.default_rng(0))))
+    scene = tmp_path / "scene"
+    report = run_video(tmp_path / "tour.mp4", scene, detections=tmp_path / "detections.json",
+                       cameras=tmp_path / "model", frame_options=FrameOptions(min_motion=0.08, min_frames=4),
+                       sfm_options=SfmOptions(camera_model="SIMPLE_PINHOLE"), metric_scale=False)
+    kept = list(report.frames.names)
+    assert report.frames.selection["rule"] == "motion" and 4 <= len(kept) < 15
+    views = read_scene(scene)
+    persons = read_poses3d(scene / "mvm" / "poses3d.json", views.poses)
+    seen = sorted({views.cameras.names[v] for v in views.poses.view})
+    assert seen == kept                                                   # 2D poses of the kept frames only
+    assert len(persons) == len(truth.poses3d)
+    error = np.nanmin(np.linalg.norm(persons.keypoints3d[:, None] - truth.poses3d[None], axis=-1).mean(-1), 0)
+    assert error.max() < 0.05                                             # metres, in the true cameras' world
+    export_supervision([(views, read_poses3d(scene / "mvm" / "poses3d.json"), scene / "frames")],
+                       tmp_path / "supervision", link="copy")                         # as `mvm batch` exports
+    data = json.loads((tmp_path / "supervision" / "annotations.json").read_text())
+    images = {i["id"]: i["file_name"] for i in data["images"]}
+    assert sorted(name.rsplit("/", 1)[-1] for name in images.values()) == kept
+    per_image = np.bincount([a["image_id"] for a in data["annotations"] if a["num_keypoints"]],
+                            minlength=max(images) + 1)
+    for i, name in images.items():                    # every person with 3 joints or more in the frame
+        v = truth.cameras.names.index(name.rsplit("/", 1)[-1])
+        uv, _ = project(truth.poses3d, truth.cameras.K[v], truth.cameras.R[v], truth.cameras.t[v])
+        inside = ((uv >= 0) & (uv < [192, 108])).all(-1).sum(-1) >= 3
+        assert per_image[i] == inside.sum() > 0, name
