@@ -1,12 +1,13 @@
 """What keeping frames by camera motion gives and costs, against keeping every frame.
 
-    python benchmarks/frame_selection.py [--quick] [--frames 300] [--people 6] [--out DIR]
+    python benchmarks/frame_selection.py [--quick] [--frames 300] [--people 6] [--paths real,stop]
+                                         [--trajectory FILE] [--out DIR]
 
 Videos: a simulated mannequin scene (``SimConfig.preset("realistic")``, 640×360, 30 frames/s)
 rendered frame by frame (:func:`mvm.sim.mannequin_video.render_frames`) into an mp4, its camera
 touring the crowd along
 
-* ``real path``: a real hand-held camera path (the first file of
+* ``real path``: a real hand-held camera path (``--trajectory``, by default the first file of
   ``../shared/data/camera_trajectories``; its speed profile, bent onto a 90° arc);
 * ``slow, stop, fast``: a path written for the test: 40 % of the time slow, 30 % stopped, 30 %
   fast (the camera's speed 1 : 0 : 4).
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-TRAJECTORIES = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "camera_trajectories"
+TRAJECTORIES = Path(__file__).resolve().parents[2] / "shared" / "data" / "camera_trajectories"
 FPS = 30.0
 
 
@@ -159,16 +160,21 @@ def main(argv=None) -> None:
     parser.add_argument("--frames", type=int, default=300)
     parser.add_argument("--people", type=int, default=6)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--paths", default="real,stop", help="camera paths: real, stop (comma-separated)")
+    parser.add_argument("--trajectory", type=Path, default=None, help="the real path's camera file")
     parser.add_argument("--out", type=Path, default=None, help="keep the videos and scenes here")
     args = parser.parse_args(argv)
     from mvm.video.frames import FrameOptions
 
     frames = 150 if args.quick else args.frames
     root = args.out or Path(tempfile.mkdtemp(prefix="mvm-frame-selection-"))
-    files = sorted(TRAJECTORIES.glob("*.txt")) if TRAJECTORIES.is_dir() else []
-    paths = ([("real path", files[0])] if files else []) + [("slow, stop, fast", None)]
-    if args.quick:
-        paths = paths[-1:]
+    files = [args.trajectory] if args.trajectory else sorted(TRAJECTORIES.glob("*.txt")) if TRAJECTORIES.is_dir() \
+        else []
+    wanted = {"stop"} if args.quick else set(args.paths.split(","))
+    if "real" in wanted and not files:
+        print(f"no camera file in {TRAJECTORIES} (give --trajectory): the real path is left out", file=sys.stderr)
+    paths = ([("real path", files[0])] if files and "real" in wanted else []) + \
+        ([("slow, stop, fast", None)] if "stop" in wanted else [])
     rows = []
     for label, trajectory in paths:
         out = root / label.replace(", ", "-").replace(" ", "-")
