@@ -33,7 +33,7 @@ FRAMES_STAGE = "the frame extraction"
 class FrameOptions:
     """How frames are taken from a video."""
 
-    #: Frames per second to keep; None: every frame. [1/s]
+    #: Frames per second to sample; None: every frame of the video. [1/s]
     rate: float | None = setting(None, gt=0, le=1000)
     #: Keep at most this many frames, evenly spread; None: no limit. [frames]
     max_frames: int | None = setting(None, ge=1)
@@ -57,8 +57,8 @@ class FrameOptions:
     #: "motion": a frame is kept at least this often whatever the motion (a still camera, a
     #: frozen shot). [s]
     max_gap_s: float = setting(1.0, gt=0, le=3600)
-    #: "motion": at least this many frames are kept, the missing ones spread evenly over the
-    #: video, when the motion keeps fewer. [frames]
+    #: "motion": at least this many frames are kept; when the motion keeps fewer, the missing
+    #: ones fill the longest stretches of the video left without a kept frame. [frames]
     min_frames: int = setting(24, ge=1, le=100_000)
 
     def __post_init__(self):
