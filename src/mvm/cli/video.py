@@ -191,7 +191,7 @@ def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, m
 def _selection_text(selection: dict) -> str:
     """The rule that kept a scene's frames, in words (``FrameIndex.selection``)."""
     if selection.get("rule") != "motion":
-        return f"every sampled frame ({selection.get('candidates', '?')})"
+        return "every sampled frame" + (f" ({selection['candidates']})" if "candidates" in selection else "")
     return (f"camera motion ≥ {selection['min_motion']:g} of the diagonal, gap ≤ {selection['max_gap_s']:g} s: "
             f"{selection['kept']} of {selection['candidates']} sampled")
 
