@@ -1,7 +1,7 @@
 """What keeping frames by camera motion gives and costs, against keeping every frame.
 
     python benchmarks/frame_selection.py [--quick] [--frames 300] [--people 6] [--paths real,stop]
-                                         [--trajectory FILE] [--out DIR]
+                                         [--trajectory FILE] [--cameras both|sfm|true] [--out DIR]
 
 Videos: a simulated mannequin scene (``SimConfig.preset("realistic")``, 640×360, 30 frames/s)
 rendered frame by frame (:func:`mvm.sim.mannequin_video.render_frames`) into an mp4, its camera
@@ -162,6 +162,8 @@ def main(argv=None) -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--paths", default="real,stop", help="camera paths: real, stop (comma-separated)")
     parser.add_argument("--trajectory", type=Path, default=None, help="the real path's camera file")
+    parser.add_argument("--cameras", choices=("both", "sfm", "true"), default="both",
+                        help="SfM, the true cameras, or both")
     parser.add_argument("--out", type=Path, default=None, help="keep the videos and scenes here")
     args = parser.parse_args(argv)
     from mvm.video.frames import FrameOptions
@@ -182,7 +184,8 @@ def main(argv=None) -> None:
         trajectory = trajectory or stop_path(out / "path.txt", frames / FPS)
         video, detections, sim_scene, truth, model = make_video(out, trajectory, frames, args.people, args.seed)
         kept = {}
-        for select, cameras in [(s, c) for c in (None, model) for s in ("all", "motion", "uniform")]:
+        sources = {"both": (None, model), "sfm": (None,), "true": (model,)}[args.cameras]
+        for select, cameras in [(s, c) for c in sources for s in ("all", "motion", "uniform")]:
             name = f"{select}-{'true' if cameras else 'sfm'}"
             options = FrameOptions(max_frames=kept["motion"]) if select == "uniform" else FrameOptions(select=select)
             result = run(video, detections, out / name, options, cameras)
