@@ -202,7 +202,7 @@ def main(argv=None) -> None:
     for label, select, cams, r in rows:
         t = r["timing"]
         cell = lambda k, t=t: f"{t[k][0]:.1f} ({t[k][1]:.1f})"  # noqa: E731
-        kept = f"{r['kept']} of {r['candidates']} ({select})"
+        kept = f"{r['kept']} of {frames} ({select})"
         print(f"| {label} | {kept} | {cams} | {cell('frames')} | {cell('sfm') if cams == 'SfM' else '—'} | "
               f"{cell('reconstruct')} | {r['registered']} | {r['found']} / {r['persons']} ({args.people}) | "
               f"{r['precision']:.4f} | {r['recall']:.4f} | {r['mpjpe_mm']:.1f} | {r['pa_mpjpe_mm']:.1f} |")
