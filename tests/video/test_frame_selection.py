@@ -200,3 +200,16 @@ def test_a_selected_video_reconstructs_and_its_supervision_covers_every_kept_fra
         uv, _ = project(truth.poses3d, truth.cameras.K[v], truth.cameras.R[v], truth.cameras.t[v])
         inside = ((uv >= 0) & (uv < [192, 108])).all(-1).sum(-1) >= 3
         assert per_image[i] == inside.sum() > 0, name
+
+
+def test_batch_and_run_take_the_selection_options(tmp_path):
+    from mvm.cli.batch import read_batch_options
+    from mvm.cli.video import _frame_options
+
+    assert read_batch_options(None, ()).frames.rule == "motion"
+    assert read_batch_options(None, (), every_frame=True).frames.select == "all"
+    settings = tmp_path / "mvm.toml"
+    settings.write_text('[frames]\nmin_motion = 0.07\nmin_frames = 5\n')
+    assert read_batch_options(str(settings), ()).frames.min_motion == 0.07
+    options = _frame_options(str(settings), None, None, None, None, None, None, 2.0)
+    assert (options.min_motion, options.min_frames, options.max_gap_s, options.rule) == (0.07, 5, 2.0, "motion")
