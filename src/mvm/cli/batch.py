@@ -31,7 +31,7 @@ def _f(value) -> str:
 
 
 def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoint=None, detector=None,
-                       max_frames=None, rate=None, width=None, focal_px=None, refine=None):
+                       max_frames=None, rate=None, width=None, focal_px=None, refine=None, every_frame=None):
     """The :class:`~mvm.batch.BatchOptions` of a settings file (its ``[reconstruct]``,
     ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
     command's own options (an option left at None keeps the file's value)."""
@@ -43,13 +43,14 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 
     def table(cls, name, **flags):
         flags = {k: v for k, v in flags.items() if v is not None}
-        options = {"focal_px": "--focal"}
+        options = {"focal_px": "--focal", "select": "--every-frame"}
         return load_settings(cls, name, config_path, flags,
                              {k: options.get(k, "--" + k.replace("_", "-")) for k in flags})
 
     return table(BatchOptions, "batch", checkpoint=checkpoint).replace(
         config=read_config(config_path, sets, refine=refine),
-        frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate, width=width),
+        frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate, width=width,
+                     select="all" if every_frame else None),
         sfm=table(SfmOptions, "sfm", focal_px=focal_px), detect=table(DetectOptions, "detect", detector=detector))
 
 
@@ -72,6 +73,8 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 @click.option("--max-frames", type=MAX_FRAMES, default=None, help="frames: keep at most this many frames per clip.")
 @click.option("--rate", type=RATE, default=None, help="frames: frames per second to keep.")
 @click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
+@click.option("--every-frame", is_flag=True, default=None,
+              help="frames: keep every sampled frame instead of selecting them by camera motion.")
 @click.option("--focal", "focal_px", type=FOCAL, default=None, help="sfm: known focal length (px).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
@@ -80,7 +83,7 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 @REFINE_OPTION
 @click.option("--force", is_flag=True, help="Redo every stage of every clip, even those up to date.")
 def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
-              focal_px, config_path, sets, refine, force):
+              every_frame, focal_px, config_path, sets, refine, force):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
     Progress and results are recorded in ROOT/.mvm/manifest.sqlite: a rerun does only what is
@@ -95,7 +98,7 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
 
     chosen = parse_stages(stages)
     options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, max_frames=max_frames,
-                                 rate=rate, width=width, focal_px=focal_px, refine=refine)
+                                 rate=rate, width=width, focal_px=focal_px, refine=refine, every_frame=every_frame)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")

@@ -40,6 +40,13 @@ frame_options = [
     click.option("--width", type=WIDTH, default=None, help="Resize frames to this width (px)."),
     click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=None,
                  help="Skip frames sharper than less than this fraction of the median (default 0.35; 0: keep all)."),
+    click.option("--every-frame", is_flag=True, default=None,
+                 help="Keep every sampled frame (all, or those at --rate) instead of selecting them by camera motion."),
+    click.option("--min-motion", type=Number(float, gt=0, le=1), default=None,
+                 help="Keep a frame once the image moved this fraction of its diagonal since the last kept one "
+                      "(default 0.03)."),
+    click.option("--max-gap", "max_gap_s", type=Number(float, gt=0, le=3600), default=None,
+                 help="Keep a frame at least every this many seconds, whatever the motion (default 1)."),
 ]
 sfm_options = [
     click.option("--camera-model", default=None,
@@ -81,11 +88,13 @@ def _table(cls, table: str, config_path, names: dict | None = None, **flags):
                          {k: (names or {}).get(k, "--" + k.replace("_", "-")) for k in flags})
 
 
-def _frame_options(config_path, rate, max_frames, width, blur_ratio):
+def _frame_options(config_path, rate, max_frames, width, blur_ratio, every_frame=None, min_motion=None,
+                   max_gap_s=None):
     from mvm.video.frames import FrameOptions
 
-    return _table(FrameOptions, "frames", config_path, rate=rate, max_frames=max_frames, width=width,
-                  blur_ratio=blur_ratio)
+    return _table(FrameOptions, "frames", config_path, {"select": "--every-frame", "max_gap_s": "--max-gap"},
+                  rate=rate, max_frames=max_frames, width=width, blur_ratio=blur_ratio,
+                  select="all" if every_frame else None, min_motion=min_motion, max_gap_s=max_gap_s)
 
 
 def _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
@@ -146,17 +155,28 @@ def _sfm_rows(report):
 @_options(frame_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if frames.json is up to date.")
-def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, config_path, force):
-    """Decode VIDEO into SCENE/frames and SCENE/frames.json."""
+def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_motion, max_gap_s, config_path,
+               force):
+    """Decode VIDEO into SCENE/frames and SCENE/frames.json: the sharp frames the camera's motion
+    calls for (--every-frame: every sampled one)."""
     from mvm.video.frames import extract_frames
 
+    options = _frame_options(config_path, rate, max_frames, width, blur_ratio, every_frame, min_motion, max_gap_s)
     with refused(ValueError), stage_progress(rate_column()) as update:
-        index = extract_frames(video, scene, _frame_options(config_path, rate, max_frames, width, blur_ratio), force,
-                               lambda d, t: update("frames", d, t))
+        index = extract_frames(video, scene, options, force, lambda d, t: update("frames", d, t))
     _say_why("frames", index.why)
     measure_table("mvm frames", [("frames kept", str(len(index.names))),
+                                 ("selection", _selection_text(index.selection)),
                                  ("skipped as blurred", str(len(index.skipped))),
                                  ("size (px)", f"{index.size[0]}×{index.size[1]}"), ("video fps", _f(index.fps, 3))])
+
+
+def _selection_text(selection: dict) -> str:
+    """The rule that kept a scene's frames, in words (``FrameIndex.selection``)."""
+    if selection.get("rule") != "motion":
+        return "every sampled frame" + (f" ({selection['candidates']})" if "candidates" in selection else "")
+    return (f"camera motion ≥ {selection['min_motion']:g} of the diagonal, gap ≤ {selection['max_gap_s']:g} s: "
+            f"{selection['kept']} of {selection['candidates']} sampled")
 
 
 @command("sfm")
@@ -225,9 +245,9 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
               help="Scale the world to metres from the people's bone lengths.")
 @click.option("--force", "force", multiple=True, type=click.Choice(["all", "frames", "sfm", "detect", "reconstruct"]),
               help="Redo this stage and the ones after it (repeatable).")
-def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, focal_px, fix_focal, max_features,
-            vocab_tree, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
-            appearance, cameras, config_path, sets, refine, metric, force):
+def run_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_motion, max_gap_s, camera_model,
+            focal_px, fix_focal, max_features, vocab_tree, detector, model, person_model, mode, device, batch_size,
+            checkpoint, input_size, source, fmt, appearance, cameras, config_path, sets, refine, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
     from mvm.video.run import run_video
 
@@ -239,7 +259,8 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
         with stage_progress(rate_column()) as update:
             r = run_video(video, scene, detections=source, checkpoint=checkpoint, detections_format=fmt,
                           cameras=cameras,
-                          frame_options=_frame_options(config_path, rate, max_frames, width, blur_ratio),
+                          frame_options=_frame_options(config_path, rate, max_frames, width, blur_ratio,
+                                                       every_frame, min_motion, max_gap_s),
                           sfm_options=_sfm_options(config_path, camera_model, focal_px, fix_focal, max_features,
                                                    vocab_tree),
                           detect_options=options, config=config,
@@ -248,7 +269,8 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, camera_model, foc
         _say_why(stage, why)
     rec = r.reconstruction
     scale = rec.scale.to_json()
-    rows = [("frames", str(len(r.frames.names)))] + _sfm_rows(r.sfm) + [
+    rows = [("frames", str(len(r.frames.names))), ("selection", _selection_text(r.frames.selection))] + \
+        _sfm_rows(r.sfm) + [
         ("2D poses", str(len(r.detections.keypoints))), ("persons", str(rec.persons)),
         ("E_R (px)", _f(rec.metrics.get("E_R_px"))),
         ("scale", f"{scale['source']}: {_f(scale['sfm_metres_per_unit'], 4)} m per SfM unit"),

@@ -1,5 +1,6 @@
-"""Frames from a video: sample at a rate or up to a count, resize, skip blurred frames, and
-keep the mapping frame name <-> frame number <-> timestamp in ``SCENE/frames.json``.
+"""Frames from a video: sample at a rate or up to a count, resize, skip blurred frames, keep
+those the camera's motion calls for, and keep the mapping frame name <-> frame number <->
+timestamp in ``SCENE/frames.json``.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.paths import check_name
 from mvm.io.provenance import fingerprints, forget, why_redo, write_record
+from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motion
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +33,7 @@ FRAMES_STAGE = "the frame extraction"
 class FrameOptions:
     """How frames are taken from a video."""
 
-    #: Frames per second to keep; None: every frame. [1/s]
+    #: Frames per second to sample; None: every frame of the video. [1/s]
     rate: float | None = setting(None, gt=0, le=1000)
     #: Keep at most this many frames, evenly spread; None: no limit. [frames]
     max_frames: int | None = setting(None, ge=1)
@@ -43,16 +45,41 @@ class FrameOptions:
     blur_ratio: float = setting(0.35, ge=0, le=1)
     #: JPEG quality of the written frames; lower writes smaller, blurrier files. [0-100]
     jpeg_quality: int = setting(95, ge=1, le=100)
+    #: Which sharp sampled frames are kept: "motion" keeps a frame once the camera's image has
+    #: moved `min_motion` since the last kept one (at least one every `max_gap_s`, at least
+    #: `min_frames` in all); "all" keeps every one; "auto" is "motion", or "all" when a `rate` or
+    #: `max_frames` is given. [-]
+    select: str = setting("auto", choices=("auto", "motion", "all"))
+    #: "motion": a frame is kept once the median shift of the corners tracked since the last
+    #: kept frame reaches this fraction of the image diagonal; raising it keeps fewer frames,
+    #: with a wider baseline between them. [fraction]
+    min_motion: float = setting(0.03, gt=0, le=1)
+    #: "motion": a frame is kept at least this often whatever the motion (a still camera, a
+    #: frozen shot). [s]
+    max_gap_s: float = setting(1.0, gt=0, le=3600)
+    #: "motion": at least this many frames are kept; when the motion keeps fewer, the missing
+    #: ones fill the longest stretches of the video left without a kept frame. [frames]
+    min_frames: int = setting(24, ge=1, le=100_000)
 
     def __post_init__(self):
         check_settings(self)
+
+    @property
+    def rule(self) -> str:
+        """The selection applied: "motion" or "all" (``select``, with "auto" resolved)."""
+        if self.select != "auto":
+            return self.select
+        return "all" if self.rate is not None or self.max_frames is not None else "motion"
 
 
 @dataclass
 class FrameIndex:
     """The frames of a scene: ``names`` (files in ``frames/``), ``numbers: (F,)`` frame numbers
     in the video, ``timestamps: (F,)`` seconds, ``sharpness: (F,)``, the image ``size`` (w, h),
-    the video's ``fps`` and the numbers of frames ``skipped`` as blurred."""
+    the video's ``fps`` and the numbers of frames ``skipped`` as blurred; ``selection``: the rule
+    that kept the frames, its settings and counts; with the "motion" rule, ``reasons[f]``: why
+    frame f was kept and ``motion: (F,)`` the image motion since the frame kept before it
+    (fraction of the diagonal, NaN for the first)."""
 
     video: str
     fps: float
@@ -62,16 +89,24 @@ class FrameIndex:
     timestamps: np.ndarray
     sharpness: np.ndarray
     skipped: tuple[int, ...] = ()
+    selection: dict = field(default_factory=dict)
+    reasons: tuple[str, ...] = ()
+    motion: np.ndarray | None = None
     #: Why the frames were extracted by this call (None: kept, up to date). Not written.
     why: str | None = field(default=None, compare=False)
 
     def to_json(self) -> dict:
-        return {"format": FRAMES_FORMAT, "video": self.video, "fps": self.fps,
-                "width": self.size[0], "height": self.size[1],
-                "frames": [{"file_name": n, "frame": int(k), "timestamp_s": round(float(t), 6),
-                            "sharpness": round(float(s), 3)}
-                           for n, k, t, s in zip(self.names, self.numbers, self.timestamps, self.sharpness)],
-                "skipped_blurred": [int(k) for k in self.skipped]}
+        frames = [{"file_name": n, "frame": int(k), "timestamp_s": round(float(t), 6), "sharpness": round(float(s), 3)}
+                  for n, k, t, s in zip(self.names, self.numbers, self.timestamps, self.sharpness)]
+        for entry, reason, moved in zip(frames, self.reasons, self.motion if self.motion is not None else []):
+            entry["kept_for"] = reason
+            entry["motion"] = None if not np.isfinite(moved) else round(float(moved), 5)
+        document = {"format": FRAMES_FORMAT, "video": self.video, "fps": self.fps,
+                    "width": self.size[0], "height": self.size[1], "frames": frames,
+                    "skipped_blurred": [int(k) for k in self.skipped]}
+        if self.selection:
+            document["selection"] = self.selection
+        return document
 
 
 def sample_indices(n_frames: int, fps: float, rate: float | None, max_frames: int | None) -> np.ndarray:
@@ -165,28 +200,87 @@ def frame_size(video: str | Path, options: FrameOptions = FrameOptions()) -> tup
     return options.width, int(round(h * options.width / w))
 
 
-def _stream_to_disk(video: Path, frames_dir: Path, options: FrameOptions, progress):
-    """Decode the sampled frames and write each at once -> ``numbers (F,)``, ``sharpness (F,)``,
-    the frame size (w, h) and the video's fps."""
+def _decode_sampled(video: Path, options: FrameOptions, visit, progress, total_extra: int = 0) -> float:
+    """Decode the sampled frames of ``video`` (resized to ``options.width``) one at a time,
+    calling ``visit(number, image)`` on each -> the video's fps."""
     capture = _open_video(video)
-    numbers, sharp, size = [], [], (0, 0)
+    done = 0
     try:
         n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
         wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
-        frames_dir.mkdir(parents=True, exist_ok=True)
         for number, image in decode_frames(capture, wanted, options.width):
-            _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
-            numbers.append(number)
-            sharp.append(sharpness(image))
-            size = (image.shape[1], image.shape[0])
+            visit(number, image)
+            done += 1
             if progress:
-                progress(len(numbers), len(wanted))
+                progress(done, len(wanted) + total_extra)
     finally:
         capture.release()
-    if not numbers:
+    if not done:
         raise InputError(video, None, "no frame could be decoded")
-    return np.array(numbers, dtype=np.int64), np.array(sharp), size, fps
+    return fps
+
+
+def _write_all(video: Path, frames_dir: Path, options: FrameOptions, progress):
+    """Rule "all": decode the sampled frames and write each at once -> ``numbers (F,)``,
+    ``sharpness (F,)``, the frame size (w, h) and the video's fps."""
+    numbers, sharp, size = [], [], [(0, 0)]
+    frames_dir.mkdir(parents=True, exist_ok=True)
+
+    def visit(number, image):
+        _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
+        numbers.append(number)
+        sharp.append(sharpness(image))
+        size[0] = (image.shape[1], image.shape[0])
+
+    fps = _decode_sampled(video, options, visit, progress)
+    return np.array(numbers, dtype=np.int64), np.array(sharp), size[0], fps
+
+
+def _measure(video: Path, options: FrameOptions, progress):
+    """Rule "motion", first pass: decode the sampled frames, measuring each one's sharpness and
+    tracking corners through them (nothing written) -> ``numbers (F,)``, ``sharpness (F,)``,
+    the tracks, the frame size (w, h) and the video's fps."""
+    numbers, sharp, size, tracks = [], [], [(0, 0)], FeatureTracks()
+
+    def visit(number, image):
+        numbers.append(number)
+        sharp.append(sharpness(image))
+        tracks.add(image)
+        size[0] = (image.shape[1], image.shape[0])
+
+    fps = _decode_sampled(video, options, visit, progress)
+    return np.array(numbers, dtype=np.int64), np.array(sharp), tracks, size[0], fps
+
+
+def _write_kept(video: Path, frames_dir: Path, kept: np.ndarray, options: FrameOptions, progress, done: int) -> None:
+    """Rule "motion", second pass: decode the frames numbered ``kept: (K,)`` again and write them."""
+    capture = _open_video(video)
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    written = 0
+    try:
+        for number, image in decode_frames(capture, kept, options.width):
+            _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
+            written += 1
+            if progress:
+                progress(done + written, done + len(kept))
+    finally:
+        capture.release()
+    if written < len(kept):
+        raise InputError(video, None, f"frame {int(kept[written])} could be decoded once but not twice")
+
+
+def _select(video: Path, frames_dir: Path, options: FrameOptions, progress):
+    """Rule "motion": measure, keep the sharp frames the camera's motion calls for, write them
+    -> (kept numbers, their sharpness, the :class:`Selection`, the blurred numbers, size, fps,
+    the count of candidates)."""
+    numbers, sharp, tracks, size, fps = _measure(video, options, progress)
+    usable = sharp_mask(sharp, options.blur_ratio)
+    chosen = select_by_motion(tracks, usable, numbers / (fps if fps > 0 else 30.0), options.min_motion,
+                              options.max_gap_s, options.min_frames)
+    _write_kept(video, frames_dir, numbers[chosen.kept], options, progress, len(numbers))
+    return numbers[chosen.kept], sharp[chosen.kept], chosen, tuple(int(k) for k in numbers[~usable]), size, fps, \
+        len(numbers)
 
 
 def frame_inputs(video: str | Path) -> dict[str, Path]:
@@ -195,7 +289,13 @@ def frame_inputs(video: str | Path) -> dict[str, Path]:
 
 
 def _frame_settings(options: FrameOptions) -> dict:
-    return asdict(options)
+    """The settings that shape the frames: ``select`` as the rule applied, and the motion rule's
+    settings only when it is."""
+    settings = asdict(options) | {"select": options.rule}
+    if options.rule == "all":
+        for name in ("min_motion", "max_gap_s", "min_frames"):
+            settings.pop(name)
+    return settings
 
 
 def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
@@ -214,10 +314,13 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     the options). Kept when the record says it was made from this video with these options,
     unless ``force``; the returned index's ``why`` says why it was made again.
 
-    Frames are decoded and written one at a time (bounded memory whatever the video's length);
-    blurred ones are removed once the median sharpness is known, and so are the frames of an
-    earlier extraction that this one does not keep. ``progress(done, total)`` is called after
-    each decoded candidate frame.
+    Which sampled frames are kept follows ``options.rule``: "all" decodes and writes every one
+    as it comes and removes the blurred ones once the median sharpness is known; "motion"
+    decodes them once to measure their sharpness and the camera's image motion
+    (:mod:`mvm.video.camera_motion`), then again to write the sharp frames it keeps. Either way
+    memory holds one frame (and a few kB of tracks per frame) whatever the video's length, and
+    the frames of an earlier extraction that this one does not keep are removed.
+    ``progress(done, total)`` is called after each decoded frame.
     """
     video, scene = Path(video), Path(scene)
     index_path = scene / FRAMES_INDEX
@@ -231,15 +334,25 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     log.info("%s: extracting frames: %s", scene, why)
     frames_dir = scene / FRAMES_DIR
     forget(index_path)
-    numbers, sharp, size, fps = _stream_to_disk(video, frames_dir, options, progress)
-    keep = sharp_mask(sharp, options.blur_ratio)
-    skipped = tuple(int(k) for k in numbers[~keep])
+    rule = options.rule
+    if rule == "all":
+        numbers, sharp, size, fps = _write_all(video, frames_dir, options, progress)
+        keep = sharp_mask(sharp, options.blur_ratio)
+        kept, skipped, sharp, chosen, candidates = numbers[keep], tuple(int(k) for k in numbers[~keep]), \
+            sharp[keep], None, len(numbers)
+    else:
+        kept, sharp, chosen, skipped, size, fps, candidates = _select(video, frames_dir, options, progress)
     if skipped:
         log.warning("%s: %d of %d sampled frames are blurred (sharpness below %.2f × median) and "
-                    "skipped: %s", video, len(skipped), len(numbers), options.blur_ratio, list(skipped)[:20])
-    kept = numbers[keep]
-    index = FrameIndex(str(video), fps, size, tuple(frame_name(k) for k in kept),
-                       kept, kept / fps if fps > 0 else kept.astype(float), sharp[keep], skipped, why)
+                    "skipped: %s", video, len(skipped), candidates, options.blur_ratio, list(skipped)[:20])
+    selection = {"rule": rule, "candidates": candidates, "blurred": len(skipped), "kept": len(kept)}
+    if chosen is not None:
+        selection.update(min_motion=options.min_motion, max_gap_s=options.max_gap_s, min_frames=options.min_frames,
+                         motion_width=MOTION_WIDTH)
+        log.info("%s: kept %d of %d sampled frames by camera motion", video, len(kept), candidates)
+    index = FrameIndex(str(video), fps, size, tuple(frame_name(k) for k in kept), kept,
+                       kept / fps if fps > 0 else kept.astype(float), sharp, skipped, selection,
+                       chosen.reasons if chosen else (), chosen.motion if chosen else None, why=why)
     _remove_other_frames(frames_dir, set(index.names))
     document = index.to_json()
     document["options"] = asdict(options)
@@ -274,6 +387,11 @@ def read_frame_index(scene: str | Path) -> FrameIndex:
             np.array([float(f["timestamp_s"]) for f in frames]),
             np.array([float(f.get("sharpness", 0)) for f in frames]),
             tuple(int(k) for k in data.get("skipped_blurred", [])))
+        selection = data.get("selection", {})
+        index.selection = selection if isinstance(selection, dict) else {}
+        if frames and all(isinstance(f, dict) and "kept_for" in f for f in frames):
+            index.reasons = tuple(str(f["kept_for"]) for f in frames)
+            index.motion = np.array([np.nan if f.get("motion") is None else float(f["motion"]) for f in frames])
     except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise InputError(path, "frames", f"malformed entry: {e}") from None
     for i, name in enumerate(index.names):

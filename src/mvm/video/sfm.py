@@ -335,7 +335,9 @@ def read_sfm_report(scene: str | Path) -> SfmReport:
 def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> SfmReport:
     """Copy an existing COLMAP model (text or binary, ``model`` or ``model/0``) into
     ``scene/sparse`` and write the report. Kept when already imported from this model's
-    bytes; a model in ``scene/sparse`` that mvm did not make is not replaced without ``force``."""
+    bytes (and the scene's ``frames.json``); a model in ``scene/sparse`` that mvm did not make is
+    not replaced without ``force``. With a ``frames.json``, the images of the model that are not
+    among its frames (left out by the frame selection) are left out of the scene."""
     import pycolmap
 
     from mvm.io.colmap import find_model_dir
@@ -344,6 +346,8 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     model_dir = find_model_dir(Path(model))
     in_place = Path(model).resolve() == (scene / "sparse").resolve()
     inputs = {"cameras": model_dir} if not in_place else {}
+    if not in_place and (scene / FRAMES_INDEX).is_file():
+        inputs[FRAMES_INDEX] = scene / FRAMES_INDEX
     settings = {"source": "colmap"}
     if not in_place:
         _check_replaceable(scene, settings, force)
@@ -360,6 +364,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
         raise InputError(model_dir, None,
                          f"cannot read COLMAP model: {str(e).splitlines()[0] if str(e) else e}") from None
     if not in_place:
+        _keep_frames(rec, scene)
         _replace_model(scene, lambda tmp: rec.write_binary(str(tmp)))
     names = _frame_names_or(scene, sorted(i.name for i in rec.images.values()))
     report = _report(rec, names, f"colmap:{model_dir}")
@@ -423,6 +428,19 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     atomic_write_json(report_path, report.to_json(), pretty=True)
     write_record(report_path, SFM_STAGE, inputs, settings, hashed)
     return report
+
+
+def _keep_frames(rec, scene: Path) -> None:
+    """Deregister the images of ``rec`` (a pycolmap Reconstruction) that are not among the frames
+    of ``scene/frames.json``, when it lists some of them (its images are then the scene's views)."""
+    if not (scene / FRAMES_INDEX).is_file():
+        return
+    frames = set(list_frames(scene))
+    drop = [image for image in rec.images.values() if image.name not in frames]
+    if len(drop) < len(rec.images):
+        for image in drop:
+            if image.has_pose:
+                rec.deregister_frame(image.frame_id)
 
 
 def _frame_names_or(scene: Path, default: list[str]) -> list[str]:
