@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
+from mvm.core.association import assign_poses, associate, frame_sequence, stray_limb_joints, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
@@ -435,6 +435,10 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         t = time.perf_counter()
         groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config, threshold)
         timings["association_s"] = time.perf_counter() - t
+    if config.max_bone_ratio > 0 and len(groups):
+        stray = stray_limb_joints(tri.X, config.max_bone_ratio)           # (P, J)
+        tri.X[stray] = np.nan
+        tri.inliers &= ~stray[:, None, :]
     return Triangulated(groups, obs, tri, timings)
 
 
