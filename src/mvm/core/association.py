@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
-from mvm.core.keypoints import BONES, FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
+from mvm.core.keypoints import FLIP_PERMUTATION, bone_ratios
 from mvm.core.quality import row_nanmedian
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
@@ -278,33 +278,6 @@ def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
     ratio = bone_ratios(X)
     deviation = row_nanmedian(np.abs(ratio - 1))
     return np.where(np.isfinite(ratio).sum(1) >= min_bones, deviation, np.nan)
-
-
-def bone_ratios(X: np.ndarray) -> np.ndarray:
-    """Each bone's length over its human proportion at the person's own scale: ``l / (s · l_mean)``,
-    ``s`` the median of ``l / l_mean`` over the person's bones (any unit, any posture: about
-    1 ± 0.05 for a real person). ``X: (Q, J, 3)`` -> ``(Q, B)`` (NaN: a bone not reconstructed)."""
-    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
-    with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
-        return ratio / row_nanmedian(ratio)[:, None]
-
-
-def stray_limb_joints(X: np.ndarray, max_ratio: float) -> np.ndarray:
-    """``(Q, J)`` bool: the far joint (elbow, wrist, knee, ankle) of every limb bone more than
-    ``max_ratio`` times its proportion at the person's scale (:func:`bone_ratios`): a joint whose
-    keypoints agree with a point far along the rays (few views spanning a narrow arc, a keypoint
-    of the other side or of another person among them). ``X: (Q, J, 3)``.
-
-    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.3; X[0, 10, 0] = 9.0
-    >>> np.flatnonzero(stray_limb_joints(X, 3.0)[0]).tolist()
-    [10]
-    """
-    limbs = np.array(BONES[:8])                                                 # (8, 2): near, far joint
-    far = np.zeros(X.shape[:2], dtype=bool)
-    with np.errstate(invalid="ignore"):
-        long = bone_ratios(X)[:, :8] > max_ratio                                # (Q, 8)
-    np.logical_or.at(far, (np.nonzero(long)[0], limbs[np.nonzero(long)[1], 1]), True)
-    return far
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.quality import row_nanmedian
+
 COCO_KEYPOINTS: tuple[str, ...] = (
     "nose",
     "left_eye",
@@ -102,3 +104,28 @@ def optimal_scale(lengths: np.ndarray, mean_lengths: np.ndarray = MEAN_BONE_LENG
     den = np.where(ok, l * l, 0.0).sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, np.nan)
+
+
+def bone_ratios(X: np.ndarray) -> np.ndarray:
+    """Each bone's length over its human proportion at the person's own scale: ``l / (s · l_mean)``,
+    ``s`` the median of ``l / l_mean`` over the person's bones (any unit, any posture: about
+    1 ± 0.05 for a real person). ``X: (Q, J, 3)`` -> ``(Q, B)`` (NaN: a bone not reconstructed)."""
+    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
+    with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
+        return ratio / row_nanmedian(ratio)[:, None]
+
+
+def stray_limb_joints(X: np.ndarray, max_ratio: float) -> np.ndarray:
+    """``(Q, J)`` bool: the far joint (elbow, wrist, knee, ankle) of every limb bone more than
+    ``max_ratio`` times its proportion at the person's scale (:func:`bone_ratios`): a joint whose
+    keypoints agree with a point far along the rays (few views spanning a narrow arc, a keypoint
+    of the other side or of another person among them). ``X: (Q, J, 3)``.
+
+    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.3; X[0, 10, 0] = 9.0
+    >>> np.flatnonzero(stray_limb_joints(X, 3.0)[0]).tolist()
+    [10]
+    """
+    far = np.zeros(X.shape[:2], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        far[:, [b[1] for b in BONES[:8]]] = bone_ratios(X)[:, :8] > max_ratio  # the limbs: one far joint each
+    return far

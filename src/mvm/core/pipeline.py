@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mvm.core.affinity import block_pose_affinity, pose_affinity
-from mvm.core.association import assign_poses, associate, frame_sequence, stray_limb_joints, visible_frames
+from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
 from mvm.core.keyframes import frame_windows, spread_views
+from mvm.core.keypoints import stray_limb_joints
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
