@@ -115,17 +115,26 @@ def bone_ratios(X: np.ndarray) -> np.ndarray:
         return ratio / row_nanmedian(ratio)[:, None]
 
 
-def stray_limb_joints(X: np.ndarray, max_ratio: float) -> np.ndarray:
-    """``(Q, J)`` bool: the far joint (elbow, wrist, knee, ankle) of every limb bone more than
-    ``max_ratio`` times its proportion at the person's scale (:func:`bone_ratios`): a joint whose
-    keypoints agree with a point far along the rays (few views spanning a narrow arc, a keypoint
-    of the other side or of another person among them). ``X: (Q, J, 3)``.
+def stray_joints(X: np.ndarray, max_ratio: float) -> np.ndarray:
+    """``(Q, J)`` bool: the joints whose bones are all more than ``max_ratio`` times their
+    proportion at the person's scale (:func:`bone_ratios`) — a joint whose keypoints agree with a
+    point far along their rays (few views on a narrow arc, a keypoint of the other side among
+    them). A joint of one bone (a wrist, an ankle) is blamed only where the bone's other joint
+    is not: an elbow far off makes the forearm long too. ``X: (Q, J, 3)``.
 
-    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.3; X[0, 10, 0] = 9.0
-    >>> np.flatnonzero(stray_limb_joints(X, 3.0)[0]).tolist()
+    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.02; X[0, 10, 1] = 9.0
+    >>> np.flatnonzero(stray_joints(X, 3.0)[0]).tolist()
     [10]
     """
-    far = np.zeros(X.shape[:2], dtype=bool)
+    ends = np.array(BONES)                                                  # (B, 2)
+    touch = np.zeros((2, len(ends), X.shape[1]))                            # each bone's end joints
+    touch[0, np.arange(len(ends)), ends[:, 0]] = touch[1, np.arange(len(ends)), ends[:, 1]] = 1.0
     with np.errstate(invalid="ignore"):
-        far[:, [b[1] for b in BONES[:8]]] = bone_ratios(X)[:, :8] > max_ratio  # the limbs: one far joint each
-    return far
+        ratio = bone_ratios(X)                                              # (Q, B)
+    known, long = np.isfinite(ratio).astype(float), (ratio > max_ratio).astype(float)
+    bones, bad = known @ touch.sum(0), long @ touch.sum(0)                  # (Q, J) each
+    stray = (bones >= 2) & (bad == bones)
+    for e in (0, 1):
+        leaf = long * (bones[:, ends[:, e]] == 1) * ~stray[:, ends[:, 1 - e]]  # (Q, B)
+        stray |= leaf @ touch[e] > 0
+    return stray

@@ -28,7 +28,7 @@ from mvm.core.config import Config
 from mvm.core.duplicates import merge_groups
 from mvm.core.image_units import in_person_sizes
 from mvm.core.keyframes import frame_windows, spread_views
-from mvm.core.keypoints import stray_limb_joints
+from mvm.core.keypoints import stray_joints
 from mvm.core.matching import greedy_groups
 from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
@@ -436,11 +436,19 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         t = time.perf_counter()
         groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config, threshold)
         timings["association_s"] = time.perf_counter() - t
-    if config.max_bone_ratio > 0 and len(groups):
-        stray = stray_limb_joints(tri.X, config.max_bone_ratio)           # (P, J)
-        tri.X[stray] = np.nan
-        tri.inliers &= ~stray[:, None, :]
     return Triangulated(groups, obs, tri, timings)
+
+
+def drop_stray_joints(X: np.ndarray, tri: Triangulation, config: Config) -> np.ndarray:
+    """``X: (P, J, 3)`` with the joints of :func:`mvm.core.keypoints.stray_joints` (bones over
+    ``max_bone_ratio`` times their proportion) left unreconstructed, their inliers in ``tri``
+    cleared. Checked after the refinement, which pulls many back. A copy; ``X`` as it is
+    where the check is off."""
+    if config.max_bone_ratio <= 0 or not len(X):
+        return X
+    stray = stray_joints(X, config.max_bone_ratio)                          # (P, J)
+    tri.inliers &= ~stray[:, None, :]
+    return np.where(stray[..., None], np.nan, X)
 
 
 def refine_all(parts: list[Triangulated], config: Config, prior=None) -> list[Reconstruction]:
@@ -462,6 +470,7 @@ def refine_all(parts: list[Triangulated], config: Config, prior=None) -> list[Re
                 refined[i] = result
             persons = np.array([len(parts[i].groups) for i in members], dtype=float)
             seconds[members] = (time.perf_counter() - t) * persons / max(persons.sum(), 1.0)
+    refined = [(drop_stray_joints(X, p.tri, config), fallback) for p, (X, fallback) in zip(parts, refined)]
     return [Reconstruction(p.groups, p.obs, p.tri, summarize(X, p.obs, p.tri, config), fallback,
                            dict(p.timings, refinement_s=float(s)))
             for p, (X, fallback), s in zip(parts, refined, seconds)]
