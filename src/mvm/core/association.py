@@ -27,7 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
-from mvm.core.keypoints import FLIP_PERMUTATION, MEAN_BONE_LENGTHS_M, bone_lengths
+from mvm.core.keypoints import FLIP_PERMUTATION, bone_ratios
 from mvm.core.quality import row_nanmedian
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
@@ -275,12 +275,9 @@ def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
     >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
     [nan]
     """
-    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
-    known = np.isfinite(ratio).sum(1)
-    scale = row_nanmedian(ratio)
-    with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
-        deviation = row_nanmedian(np.abs(ratio / scale[:, None] - 1))
-    return np.where(known >= min_bones, deviation, np.nan)
+    ratio = bone_ratios(X)
+    deviation = row_nanmedian(np.abs(ratio - 1))
+    return np.where(np.isfinite(ratio).sum(1) >= min_bones, deviation, np.nan)
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:

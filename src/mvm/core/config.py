@@ -297,6 +297,11 @@ class Config:
     min_views: int = setting(2, ge=2)
     #: A joint whose inlier rays span less than this angle is left unreconstructed. [deg]
     min_parallax_deg: float = setting(3.0, ge=0, lt=180)
+    #: A joint whose bones all come out more than this many times their human proportion at the
+    #: person's scale (a real person: 1 ± 0.3) is left unreconstructed, before the refinement:
+    #: its views agree on a point far along their rays (a narrow arc, a keypoint of the other
+    #: side among them). Raise it to keep such joints; 0 keeps all. [1]
+    max_bone_ratio: float = setting(2.0, ge=0)
     # --- refinement (Eq. bundle) ---------------------------------------------------------
     #: Run the refinement (reprojection + λ·pose prior). [bool]
     refine: bool = True

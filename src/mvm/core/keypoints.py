@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.quality import row_nanmedian
+
 COCO_KEYPOINTS: tuple[str, ...] = (
     "nose",
     "left_eye",
@@ -102,3 +104,37 @@ def optimal_scale(lengths: np.ndarray, mean_lengths: np.ndarray = MEAN_BONE_LENG
     den = np.where(ok, l * l, 0.0).sum(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0, num / den, np.nan)
+
+
+def bone_ratios(X: np.ndarray) -> np.ndarray:
+    """Each bone's length over its human proportion at the person's own scale: ``l / (s · l_mean)``,
+    ``s`` the median of ``l / l_mean`` over the person's bones (any unit, any posture: about
+    1 ± 0.05 for a real person). ``X: (Q, J, 3)`` -> ``(Q, B)`` (NaN: a bone not reconstructed)."""
+    ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
+    with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
+        return ratio / row_nanmedian(ratio)[:, None]
+
+
+def stray_joints(X: np.ndarray, max_ratio: float) -> np.ndarray:
+    """``(Q, J)`` bool: the joints whose bones are all more than ``max_ratio`` times their
+    proportion at the person's scale (:func:`bone_ratios`) — a joint whose keypoints agree with a
+    point far along their rays (few views on a narrow arc, a keypoint of the other side among
+    them). A joint of one bone (a wrist, an ankle) is blamed only where the bone's other joint
+    is not: an elbow far off makes the forearm long too. ``X: (Q, J, 3)``.
+
+    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.02; X[0, 10, 1] = 9.0
+    >>> np.flatnonzero(stray_joints(X, 3.0)[0]).tolist()
+    [10]
+    """
+    ends = np.array(BONES)                                                  # (B, 2)
+    touch = np.zeros((2, len(ends), X.shape[1]))                            # each bone's end joints
+    touch[0, np.arange(len(ends)), ends[:, 0]] = touch[1, np.arange(len(ends)), ends[:, 1]] = 1.0
+    with np.errstate(invalid="ignore"):
+        ratio = bone_ratios(X)                                              # (Q, B)
+    known, long = np.isfinite(ratio).astype(float), (ratio > max_ratio).astype(float)
+    bones, bad = known @ touch.sum(0), long @ touch.sum(0)                  # (Q, J) each
+    stray = (bones >= 2) & (bad == bones)
+    for e in (0, 1):
+        leaf = long * (bones[:, ends[:, e]] == 1) * ~stray[:, ends[:, 1 - e]]  # (Q, B)
+        stray |= leaf @ touch[e] > 0
+    return stray
