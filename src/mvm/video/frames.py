@@ -200,57 +200,35 @@ def frame_size(video: str | Path, options: FrameOptions = FrameOptions()) -> tup
     return options.width, int(round(h * options.width / w))
 
 
-def _decode_sampled(video: Path, options: FrameOptions, visit, progress, total_extra: int = 0) -> float:
+def _decode_sampled(video: Path, options: FrameOptions, progress, frames_dir: Path | None = None,
+                    tracks: FeatureTracks | None = None):
     """Decode the sampled frames of ``video`` (resized to ``options.width``) one at a time,
-    calling ``visit(number, image)`` on each -> the video's fps."""
+    measuring each one's sharpness, writing it into ``frames_dir`` (rule "all") or tracking
+    corners through it into ``tracks`` (rule "motion", first pass) -> ``numbers (F,)``,
+    ``sharpness (F,)``, the frame size (w, h) and the video's fps."""
     capture = _open_video(video)
-    done = 0
+    numbers, sharp, size = [], [], (0, 0)
     try:
         n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
         wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
+        if frames_dir is not None:
+            frames_dir.mkdir(parents=True, exist_ok=True)
         for number, image in decode_frames(capture, wanted, options.width):
-            visit(number, image)
-            done += 1
+            if frames_dir is not None:
+                _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
+            if tracks is not None:
+                tracks.add(image)
+            numbers.append(number)
+            sharp.append(sharpness(image))
+            size = (image.shape[1], image.shape[0])
             if progress:
-                progress(done, len(wanted) + total_extra)
+                progress(len(numbers), len(wanted))
     finally:
         capture.release()
-    if not done:
+    if not numbers:
         raise InputError(video, None, "no frame could be decoded")
-    return fps
-
-
-def _write_all(video: Path, frames_dir: Path, options: FrameOptions, progress):
-    """Rule "all": decode the sampled frames and write each at once -> ``numbers (F,)``,
-    ``sharpness (F,)``, the frame size (w, h) and the video's fps."""
-    numbers, sharp, size = [], [], [(0, 0)]
-    frames_dir.mkdir(parents=True, exist_ok=True)
-
-    def visit(number, image):
-        _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
-        numbers.append(number)
-        sharp.append(sharpness(image))
-        size[0] = (image.shape[1], image.shape[0])
-
-    fps = _decode_sampled(video, options, visit, progress)
-    return np.array(numbers, dtype=np.int64), np.array(sharp), size[0], fps
-
-
-def _measure(video: Path, options: FrameOptions, progress):
-    """Rule "motion", first pass: decode the sampled frames, measuring each one's sharpness and
-    tracking corners through them (nothing written) -> ``numbers (F,)``, ``sharpness (F,)``,
-    the tracks, the frame size (w, h) and the video's fps."""
-    numbers, sharp, size, tracks = [], [], [(0, 0)], FeatureTracks()
-
-    def visit(number, image):
-        numbers.append(number)
-        sharp.append(sharpness(image))
-        tracks.add(image)
-        size[0] = (image.shape[1], image.shape[0])
-
-    fps = _decode_sampled(video, options, visit, progress)
-    return np.array(numbers, dtype=np.int64), np.array(sharp), tracks, size[0], fps
+    return np.array(numbers, dtype=np.int64), np.array(sharp), size, fps
 
 
 def _write_kept(video: Path, frames_dir: Path, kept: np.ndarray, options: FrameOptions, progress, done: int) -> None:
@@ -274,7 +252,8 @@ def _select(video: Path, frames_dir: Path, options: FrameOptions, progress):
     """Rule "motion": measure, keep the sharp frames the camera's motion calls for, write them
     -> (kept numbers, their sharpness, the :class:`Selection`, the blurred numbers, size, fps,
     the count of candidates)."""
-    numbers, sharp, tracks, size, fps = _measure(video, options, progress)
+    tracks = FeatureTracks()
+    numbers, sharp, size, fps = _decode_sampled(video, options, progress, tracks=tracks)
     usable = sharp_mask(sharp, options.blur_ratio)
     chosen = select_by_motion(tracks, usable, numbers / (fps if fps > 0 else 30.0), options.min_motion,
                               options.max_gap_s, options.min_frames)
@@ -336,7 +315,7 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     forget(index_path)
     rule = options.rule
     if rule == "all":
-        numbers, sharp, size, fps = _write_all(video, frames_dir, options, progress)
+        numbers, sharp, size, fps = _decode_sampled(video, options, progress, frames_dir=frames_dir)
         keep = sharp_mask(sharp, options.blur_ratio)
         kept, skipped, sharp, chosen, candidates = numbers[keep], tuple(int(k) for k in numbers[~keep]), \
             sharp[keep], None, len(numbers)
