@@ -169,9 +169,11 @@ def _fill(candidates: np.ndarray, kept: np.ndarray, timestamps: np.ndarray, coun
     sorted indices into ``timestamps: (F,)``."""
     added: list[int] = []
     kept = kept.tolist()
+    if len(kept) >= min(count, len(candidates)):
+        return added
+    start, end = timestamps[candidates[0]], timestamps[candidates[-1]]
     while len(kept) < min(count, len(candidates)):
-        times = timestamps[candidates]
-        marks = [times[0]] + sorted(timestamps[kept]) + [times[-1]]
+        marks = [start] + sorted(timestamps[kept]) + [end]
         gaps = np.diff(marks)
         k = int(np.argmax(gaps))
         free = np.setdiff1d(candidates, kept)
