@@ -16,7 +16,7 @@ from mvm.io.colmap_records import CAMERA_MODELS, PINHOLE_MODEL_IDS, ModelRecords
 
 log = logging.getLogger(__name__)
 
-_PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
+_PINHOLE_MODELS = frozenset(CAMERA_MODELS[i][0] for i in PINHOLE_MODEL_IDS)
 
 
 @dataclass(frozen=True)
