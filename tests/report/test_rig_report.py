@@ -143,6 +143,8 @@ def test_member_detections_follow_file_order():
     members = np.array([[1, 0], [0, 1], [2, -1]])
     found = rig_analysis.member_detections(members, np.array([0, 1, 1]), det_instant, det_view)
     np.testing.assert_array_equal(found, [[1, 3], [2, 5], [-1, -1]])      # member 2 of camera 0 at 1: none
+    huge = rig_analysis.member_detections(np.array([[0, 2**63 - 1]]), np.array([1]), det_instant, det_view)
+    np.testing.assert_array_equal(huge, [[2, -1]])                      # a member past int64's end: none
 
 
 # --- the page ----------------------------------------------------------------------------------
