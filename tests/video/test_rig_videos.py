@@ -198,3 +198,17 @@ def test_a_video_linked_from_outside_the_rig_is_read_or_one_line(rendered, tmp_p
     assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
     if result.exit_code != 0:
         _one_line(result, "cam_02.mkv")
+
+
+@pytest.mark.parametrize("field, value", [("frames", "many"), ("width", 1e400), ("annotations", 3)])
+def test_a_kept_pose_file_with_a_bad_video_record_is_one_line(rendered, tmp_path, field, value):
+    root, _, model = _copy(rendered, tmp_path)
+    assert _detect(root, model).exit_code == 0
+    path = root / "pose" / "cam_01.json"
+    data = json.loads(path.read_text())
+    if field == "annotations":
+        data["annotations"] = value
+    else:
+        data["info"]["video"][field] = value
+    path.write_text(json.dumps(data).replace("Infinity", "1e400"))
+    _one_line(_detect(root, model), "cam_01.json", field)
