@@ -143,6 +143,8 @@ def test_member_detections_follow_file_order():
     members = np.array([[1, 0], [0, 1], [2, -1]])
     found = rig_analysis.member_detections(members, np.array([0, 1, 1]), det_instant, det_view)
     np.testing.assert_array_equal(found, [[1, 3], [2, 5], [-1, -1]])      # member 2 of camera 0 at 1: none
+    huge = rig_analysis.member_detections(np.array([[0, 2**63 - 1]]), np.array([1]), det_instant, det_view)
+    np.testing.assert_array_equal(huge, [[2, -1]])                      # a member past int64's end: none
 
 
 # --- the page ----------------------------------------------------------------------------------
@@ -539,3 +541,21 @@ def test_keypoint_errors_do_not_depend_on_the_block(rig):
     p = data.poses
     args = (p.X, p.flags, data.detection, data.detections.keypoints, data.calibration.cameras.P)
     np.testing.assert_array_equal(rig_analysis.keypoint_errors(*args, block=7), rig_analysis.keypoint_errors(*args))
+
+
+@pytest.mark.parametrize("change", [{"joint_flags": [1, 2]}, {"excluded_per_camera": [1]},
+                                    {"excluded_per_camera": {"cam_01": 3}}, {"keypoints": 5},
+                                    {"excluded_overall_per_camera": [0.1]}, {"options": {"frame_rate": "x"}},
+                                    {"sync_offsets": [1]}, {"instants": "many"}])
+def test_a_recap_of_the_wrong_shape_is_one_line_or_read(rig, tmp_path, change):
+    root = _copy(rig, tmp_path)
+    path = root / "mvm" / "recap.json"
+    path.write_text(json.dumps({**json.loads(path.read_text()), **change}))
+    result = _invoke("report", root)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    if "sync_offsets" in change:                                          # the staleness check's line
+        _one_line_2(result, "out of date", "sync.toml")
+    elif isinstance(next(iter(change.values())), list) or change.get("keypoints") == 5:   # a wrong container
+        _one_line_2(result, "recap.json", next(iter(change)))
+    else:                                                                 # a wrong value inside is read
+        assert result.exit_code == 0, result.output

@@ -169,3 +169,46 @@ def test_frames_past_what_the_header_announces_are_detected_too():
     keypoints, image, _, _ = found.arrays()
     assert image.tolist() == list(range(10)) and keypoints[:, 0, 0].tolist() == list(range(10))
     assert found.sizes.tolist() == [[6, 4]] * 10 and found.readable.all()
+
+
+def test_a_pose_file_that_is_a_folder_is_one_line(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    (root / "pose" / "cam_01.json").mkdir(parents=True)
+    _one_line(_detect(root, model), "cam_01.json")
+    assert (root / "pose" / "cam_01.json").is_dir() and not (root / "pose" / "cam_02.json").exists()
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="no FIFOs on this system")
+def test_a_fifo_named_like_a_video_never_hangs(rendered, tmp_path):
+    import os
+    root, _, model = _copy(rendered, tmp_path)
+    os.mkfifo(root / "videos" / "cam_03.mp4")
+    result = _detect(root, model)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    if result.exit_code != 0:
+        _one_line(result, "cam_03.mp4")
+
+
+def test_a_video_linked_from_outside_the_rig_is_read_or_one_line(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    outside = tmp_path / "elsewhere.mkv"
+    (root / "videos" / "cam_02.mkv").rename(outside)
+    (root / "videos" / "cam_02.mkv").symlink_to(outside)
+    result = _detect(root, model)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    if result.exit_code != 0:
+        _one_line(result, "cam_02.mkv")
+
+
+@pytest.mark.parametrize("field, value", [("frames", "many"), ("width", 1e400), ("annotations", 3)])
+def test_a_kept_pose_file_with_a_bad_video_record_is_one_line(rendered, tmp_path, field, value):
+    root, _, model = _copy(rendered, tmp_path)
+    assert _detect(root, model).exit_code == 0
+    path = root / "pose" / "cam_01.json"
+    data = json.loads(path.read_text())
+    if field == "annotations":
+        data["annotations"] = value
+    else:
+        data["info"]["video"][field] = value
+    path.write_text(json.dumps(data).replace("Infinity", "1e400"))
+    _one_line(_detect(root, model), "cam_01.json", field)

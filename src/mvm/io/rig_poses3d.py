@@ -15,7 +15,7 @@ import numpy as np
 from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
-from mvm.io.checks import decode_text, parse_json, read_bytes
+from mvm.io.checks import decode_text, integer, parse_json, read_bytes
 from mvm.io.scene_dir import MAX_COORDINATE
 
 RIG_POSES3D_FORMAT = "mvm.rig.poses3d/1"
@@ -58,9 +58,7 @@ def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:
     {camera index: pose index}, views (17,), error)``."""
     if not isinstance(person, dict):
         raise InputError(path, where, "expected an object")
-    track = person.get("id")
-    if isinstance(track, bool) or not isinstance(track, int):
-        raise InputError(path, f"{where}.id", f"expected a track number, got {track!r}")
+    track = integer(person.get("id"), path, f"{where}.id")
     try:
         kp = np.array(person.get("keypoints3d"), dtype=float)
     except (TypeError, ValueError):
@@ -85,13 +83,13 @@ def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:
         if ((flags == MISSING) == finite.all(1)).any():
             raise InputError(path, f"{where}.flags", "'missing' must go with null coordinates, and only with them")
     members = person.get("members", {})
-    if not isinstance(members, dict) or not all(isinstance(m, int) and not isinstance(m, bool) and m >= 0
-                                                for m in members.values()):
+    if not isinstance(members, dict) or not all(integer(m, path, f"{where}.members") >= 0 for m in members.values()):
         raise InputError(path, f"{where}.members", "expected an object {camera: pose index >= 0}")
     views = person.get("views_per_joint", [0] * NUM_JOINTS)
-    if not isinstance(views, list) or len(views) != NUM_JOINTS or not all(
-            isinstance(v, int) and not isinstance(v, bool) for v in views):
+    if not isinstance(views, list) or len(views) != NUM_JOINTS:
         raise InputError(path, f"{where}.views_per_joint", f"expected {NUM_JOINTS} integers")
+    for v in views:
+        integer(v, path, f"{where}.views_per_joint")
     error = person.get("reprojection_error_px")
     if error is not None and (isinstance(error, bool) or not isinstance(error, (int, float))):
         raise InputError(path, f"{where}.reprojection_error_px", f"expected a number or null, got {error!r}")
@@ -112,8 +110,7 @@ def read_rig_poses3d(path: str | Path) -> RigPoses3D:
         if not isinstance(record, dict) or record.get("format") != RIG_POSES3D_FORMAT:
             raise InputError(path, here, f"expected an object of format {RIG_POSES3D_FORMAT!r}")
         frame, persons = record.get("frame"), record.get("persons")
-        if isinstance(frame, bool) or not isinstance(frame, int):
-            raise InputError(path, f"{here}: frame", f"expected a frame number, got {frame!r}")
+        frame = integer(frame, path, f"{here}: frame")
         if frames and frame <= frames[-1]:
             raise InputError(path, f"{here}: frame", f"frame {frame} after frame {frames[-1]}: expected increasing")
         if not isinstance(persons, list):

@@ -55,7 +55,7 @@ def read_rig_truth(path: str | Path) -> RigTruth:
     try:
         instants = np.array(data.get("instants"), dtype=np.int64).reshape(-1)
         poses3d = np.array(data.get("poses3d"), dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(path, "poses3d", "expected instants and (S, G, 17, 3) joints") from None
     if poses3d.ndim != 4 or poses3d.shape[0] != len(instants) or poses3d.shape[2:] != (17, 3) \
             or not np.isfinite(poses3d).all():

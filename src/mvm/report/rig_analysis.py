@@ -30,7 +30,7 @@ def member_detections(members: np.ndarray, instant: np.ndarray, det_instant: np.
     wanted = np.asarray(instant, dtype=np.int64)[:, None] * V + np.arange(V)[None]          # (Q, V)
     start = np.searchsorted(sorted_key, wanted, side="left")
     stop = np.searchsorted(sorted_key, wanted, side="right")
-    ok = (members >= 0) & (start + members < stop)
+    ok = (members >= 0) & (members < stop - start)                                    # no overflow
     out = np.full((Q, V), -1, dtype=np.int64)
     out[ok] = order[(start + members)[ok]]
     return out

@@ -100,6 +100,22 @@ def used_calibration(rig_dir: Path, poses3d: Path, calib: str | Path | None) -> 
     return find_calibration(rig_dir), False
 
 
+#: The containers of ``recap.json`` the page reads: field -> (type, what it must be).
+_RECAP_SHAPES = {"joint_flags": (dict, "an object"), "excluded_per_camera": (dict, "an object"),
+                 "excluded_overall_per_camera": (dict, "an object"), "options": (dict, "an object"),
+                 "keypoints": (list, "a list")}
+
+
+def _checked_recap(path: Path) -> dict:
+    """``recap.json``, its containers checked (:data:`_RECAP_SHAPES`): any other shape is one
+    :class:`InputError` naming the field."""
+    recap = load_json_object(path, what="a rig recap object")
+    for field, (kind, what) in _RECAP_SHAPES.items():
+        if recap.get(field) is not None and not isinstance(recap[field], kind):
+            raise InputError(path, field, f"expected {what}, got {type(recap[field]).__name__}")
+    return recap
+
+
 def _command(rig_dir: Path, calib: Path, given: bool, output: str) -> str:
     return (f"mvm rig reconstruct {rig_dir}" + (f" --calib {calib}" if given else "")
             + ("" if output == DEFAULT_OUTPUT else f" -o {rig_dir / output}"))
@@ -125,7 +141,7 @@ def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: st
     calib_path, given = used_calibration(rig_dir, poses3d, calib)
     command = _command(rig_dir, calib_path, given, output)
     check_fresh(poses3d, rig_fingerprint_inputs(rig_dir, calib_path), command)
-    recap = load_json_object(out_dir / RECAP, what="a rig recap object")
+    recap = _checked_recap(out_dir / RECAP)
     rig = read_rig(rig_dir, calib_path, _setting(read_record(poses3d), "frames"), workers)
     _check_sync(recap, rig.offsets, poses3d, command)
     poses = read_rig_poses3d(poses3d)

@@ -363,6 +363,8 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
 
 #: Cameras whose videos' frame rates differ by less than this share agree (29.97 and 30 do not). [1]
 FRAME_RATE_TOLERANCE = 1e-3
+#: The slowest and fastest video frame rates read back from a pose file. [Hz]
+MIN_FRAME_RATE_HZ, MAX_FRAME_RATE_HZ = 1e-3, 1e4
 
 
 def recorded_frame_rate(rig: RigData) -> float | None:
@@ -370,8 +372,12 @@ def recorded_frame_rate(rig: RigData) -> float | None:
     written by ``mvm rig detect``), or None when none records one. Cameras that disagree raise
     :class:`InputError` naming each camera's rate."""
     rates = {n: v.get("frame_rate") for n, v in rig.videos.items()}
-    rates = {n: float(r) for n, r in rates.items()
-             if isinstance(r, (int, float)) and not isinstance(r, bool) and np.isfinite(r) and r > 0}
+    for n, r in rates.items():
+        if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float))
+                              or not MIN_FRAME_RATE_HZ <= r <= MAX_FRAME_RATE_HZ):
+            raise InputError(rig.sources.get(n), "info.video.frame_rate", f"camera {n}: expected a rate in Hz "
+                             f"from {MIN_FRAME_RATE_HZ:g} to {MAX_FRAME_RATE_HZ:g}, or null, got {r!r}")
+    rates = {n: float(r) for n, r in rates.items() if r is not None}
     if not rates:
         return None
     low, high = min(rates.values()), max(rates.values())

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 
 from mvm.errors import InputError
-from mvm.io.checks import load_json
+from mvm.io.checks import integer, load_json
 from mvm.io.files import atomic_write_json
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
 from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
@@ -183,9 +183,12 @@ def _kept(camera: str, path: Path, rig_dir: Path) -> CameraPoses:
     info = data.get("info", {}).get("video") if isinstance(data, dict) and isinstance(data.get("info"), dict) else None
     video = None
     if isinstance(info, dict):
-        video = VideoInfo(str(info.get("file", "")), info.get("frame_rate"), int(info.get("frames", 0)),
-                          int(info.get("width", 0)), int(info.get("height", 0)))
-    poses = len(data.get("annotations", [])) if isinstance(data, dict) else 0
+        video = VideoInfo(str(info.get("file", "")), info.get("frame_rate"),
+                          *(integer(info.get(k, 0), path, f"info.video.{k}") for k in ("frames", "width", "height")))
+    annotations = data.get("annotations", []) if isinstance(data, dict) else []
+    if not isinstance(annotations, list):
+        raise InputError(path, "annotations", f"expected a list, got {type(annotations).__name__}")
+    poses = len(annotations)
     return CameraPoses(camera, path, video, poses, None)
 
 
