@@ -183,21 +183,18 @@ def test_a_fifo_named_like_a_video_never_hangs(rendered, tmp_path):
     import os
     root, _, model = _copy(rendered, tmp_path)
     os.mkfifo(root / "videos" / "cam_03.mp4")
-    result = _detect(root, model)
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    if result.exit_code != 0:
-        _one_line(result, "cam_03.mp4")
+    _one_line(_detect(root, model), "cam_03.mp4")
+    assert not (root / "pose").exists()
 
 
-def test_a_video_linked_from_outside_the_rig_is_read_or_one_line(rendered, tmp_path):
+def test_a_video_linked_from_outside_the_rig_is_read(rendered, tmp_path):
     root, _, model = _copy(rendered, tmp_path)
     outside = tmp_path / "elsewhere.mkv"
     (root / "videos" / "cam_02.mkv").rename(outside)
     (root / "videos" / "cam_02.mkv").symlink_to(outside)
     result = _detect(root, model)
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    if result.exit_code != 0:
-        _one_line(result, "cam_02.mkv")
+    assert result.exit_code == 0, result.output
+    assert (root / "pose" / "cam_02.json").is_file()
 
 
 @pytest.mark.parametrize("field, value", [("frames", "many"), ("width", 1e400), ("annotations", 3)])

@@ -22,15 +22,18 @@ VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpe
 def videos_by_name(folder: str | Path) -> dict[str, Path]:
     """``{name: video}`` of the videos in ``folder`` (a rig's ``videos/``), each named by its file
     name without its type (``cam_01.mp4`` -> ``cam_01``), in name order; hidden files and other
-    types are left out. An absent folder holds none; two videos of one name raise
-    :class:`InputError`."""
+    types are left out. An absent folder holds none; two videos of one name, or a video name on
+    something that is not a file (a FIFO, a folder: reading it would hang or fail later) raise
+    :class:`InputError`. A link to a video elsewhere is followed (videos are often kept apart)."""
     folder = Path(folder)
     if not folder.is_dir():
         return {}
     found: dict[str, Path] = {}
     for path in sorted(folder.iterdir()):
-        if path.name.startswith(".") or path.suffix.lower() not in VIDEO_SUFFIXES or not path.is_file():
+        if path.name.startswith(".") or path.suffix.lower() not in VIDEO_SUFFIXES:
             continue
+        if not path.is_file():
+            raise InputError(path, None, "named like a video but not a file (a FIFO, a folder or a broken link)")
         if path.stem in found:
             raise InputError(folder, None, f"two videos of camera {path.stem}: {found[path.stem].name} and {path.name}")
         found[path.stem] = path
