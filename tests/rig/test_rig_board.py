@@ -331,3 +331,21 @@ def test_intrinsics_videos_matched_by_name(tmp_path):
     assert intrinsic_videos(names, {"cam_02": tmp_path / "c"}) == {"ext_cam02_img": tmp_path / "c"}
     with pytest.raises(InputError, match="no extrinsics video of the same camera"):
         intrinsic_videos(names, {"cam_07": tmp_path / "d"})
+
+
+def test_output_on_an_input_refused_before_work(tmp_path, monkeypatch):
+    """-o on a calibration video, inside calibration/, on the --intrinsics file or a link to it:
+    one line naming -o before any video is read, the inputs unchanged."""
+    root = _small_rig(tmp_path)
+    monkeypatch.setattr("mvm.rig.board_videos.rig_videos", lambda *a: pytest.fail("worked before refusing"))
+    given = write_true_calibration(tmp_path / "given.toml", ring_cameras(3), [f"cam_{v + 1:02d}" for v in range(3)])
+    link = tmp_path / "link.toml"
+    link.symlink_to(given)
+    video = root / "calibration" / "extrinsics" / "cam_01.mp4"
+    before = video.read_bytes(), given.read_bytes()
+    for out, extra, problem in ((video, [], "inside the input"),
+                                (root / "calibration" / "Calib.toml", [], "inside the input"),
+                                (given, ["--intrinsics", given], "is an input"),
+                                (link, ["--intrinsics", given], "is an input")):
+        _one_line_exit_2(_calibrate(root, CHARUCO, out, *extra), str(out), problem)
+    assert (video.read_bytes(), given.read_bytes()) == before and not (root / "calibration" / "Calib.toml").exists()

@@ -32,6 +32,7 @@ from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.io.outputs import check_output_location
 from mvm.parallel import available_workers
 from mvm.rig.board_calibration import (
     BoardRig,
@@ -268,8 +269,11 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
     ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens;
     ``world_frame``: the frame of the extrinsics videos whose board is the world (the nearest
-    frame searched; default: the first in which the most cameras see it)."""
+    frame searched; default: the first in which the most cameras see it). ``out`` being,
+    holding or lying inside ``rig_dir/calibration`` or ``intrinsics`` is refused before any work
+    (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
+    check_output_location(out, [rig_dir / "calibration"] + ([intrinsics] if intrinsics else []), replaced=False)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     names = list(ext_sources)
     if len(names) < 2:
