@@ -349,3 +349,17 @@ def test_output_on_an_input_refused_before_work(tmp_path, monkeypatch):
                                 (link, ["--intrinsics", given], "is an input")):
         _one_line_exit_2(_calibrate(root, CHARUCO, out, *extra), str(out), problem)
     assert (video.read_bytes(), given.read_bytes()) == before and not (root / "calibration" / "Calib.toml").exists()
+
+
+def test_board_sizes_opencv_cannot_find_refused(tmp_path):
+    """Checkerboards with a count below 3 (OpenCV's findChessboardCorners rejects them): one line
+    naming --board-size before any video is read, nothing written."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    for size in ("2x3", "3x2", "0x0", "1x1"):
+        _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--checkerboard", "--board-size", size,
+                                                  "--square-size", "0.07", "-o", str(out)]),
+                         "--board-size", "at least 3x3")
+    with pytest.raises(ValueError, match="at least 3x3"):
+        Board("checkerboard", 3, 2, 0.07)
+    assert not out.exists()

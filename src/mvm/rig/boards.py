@@ -57,9 +57,8 @@ class Board:
     def __post_init__(self):
         if self.kind not in ("checkerboard", "charuco"):
             raise ValueError(f"board kind: expected checkerboard or charuco, got {self.kind!r}")
-        least = 2 if self.kind == "checkerboard" else 3
-        if self.cols < least or self.rows < least:
-            raise ValueError(f"board size: at least {least}x{least}, got {self.cols}x{self.rows}")
+        if self.cols < 3 or self.rows < 3:   # OpenCV finds neither board with a count below 3
+            raise ValueError(f"board size: at least 3x3, got {self.cols}x{self.rows}")
         if not self.square_m > 0:
             raise ValueError(f"square size: expected > 0 m, got {self.square_m}")
         if self.kind == "charuco":
