@@ -363,3 +363,14 @@ def test_board_sizes_opencv_cannot_find_refused(tmp_path):
     with pytest.raises(ValueError, match="at least 3x3"):
         Board("checkerboard", 3, 2, 0.07)
     assert not out.exists()
+
+
+def test_board_too_big_for_its_dictionary_one_line(tmp_path):
+    """A ChArUco board with more markers than its dictionary holds: one line naming --dictionary,
+    the dictionary's count and the board's need, before any video is read."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "100000x3",
+                                              "--square-size", "0.1", "--marker-size", "0.075", "-o", str(out)]),
+                     "error: --dictionary: DICT_4X4_50 holds 50 markers", "100000x3 squares needs 150000")
+    assert not out.exists()

@@ -69,8 +69,8 @@ class Board:
                 raise ValueError(f"dictionary: expected an OpenCV name such as DICT_4X4_50, got {self.dictionary!r}")
             size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
             if size < self.cols * self.rows // 2:
-                raise ValueError(f"dictionary {self.dictionary} holds {size} markers, the board needs "
-                                 f"{self.cols * self.rows // 2}")
+                raise ValueError(f"dictionary: {self.dictionary} holds {size} markers, a board of {self.cols}x"
+                                 f"{self.rows} squares needs {self.cols * self.rows // 2}")
 
     def describe(self) -> str:
         if self.kind == "checkerboard":
