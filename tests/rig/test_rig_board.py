@@ -2,6 +2,8 @@
 --checkerboard / --charuco`` on rendered videos of a rig whose intrinsics, lenses and poses are
 known, and the bad input (one line naming the camera or file, exit 2, nothing written)."""
 import shutil
+import struct
+import zlib
 
 import cv2
 import numpy as np
@@ -373,4 +375,28 @@ def test_board_too_big_for_its_dictionary_one_line(tmp_path):
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "100000x3",
                                               "--square-size", "0.1", "--marker-size", "0.075", "-o", str(out)]),
                      "error: --dictionary: DICT_4X4_50 holds 50 markers", "100000x3 squares needs 150000")
+    assert not out.exists()
+
+
+def _png_header_only(path, width, height):
+    """A PNG whose header claims ``width`` x ``height`` gray pixels (no real image data)."""
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(bytes(1000))) + chunk(b"IEND", b""))
+
+
+def test_huge_or_undecodable_calibration_image_one_line(tmp_path):
+    """An image folder holding an image whose header claims 60000x60000 pixels (OpenCV refuses
+    to decode it: it was a traceback) or a file that is not an image: one line naming it."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    images = root / "calibration" / "extrinsics" / "cam_04"
+    images.mkdir()
+    for content in ("huge", b"not a png"):
+        if content == "huge":
+            _png_header_only(images / "a.png", 60000, 60000)
+        else:
+            (images / "a.png").write_bytes(content)
+        _one_line_exit_2(_calibrate(root, CHARUCO, out), str(images / "a.png"), "not an image OpenCV can decode")
     assert not out.exists()
