@@ -11,6 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from board_scenes import (
+    CHARUCO,
+    CHECKERBOARD,
     FIRST_CORNER,
     SIZE,
     floor_board_poses,
@@ -32,9 +34,6 @@ from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics
 from mvm.rig.board_videos import intrinsic_videos
 from mvm.rig.boards import Board, spread_views, view_features
 from mvm.rig.calibrate import CalibrationError
-
-CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
-CHARUCO = Board("charuco", 6, 5, 0.1, 0.075)
 
 
 def _rotation_deg(A, B) -> float:
