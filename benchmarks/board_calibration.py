@@ -29,6 +29,8 @@ sys.path[:0] = [str(TESTS)]
 from click.testing import CliRunner  # noqa: E402
 
 from board_scenes import (  # noqa: E402
+    CHARUCO,
+    CHECKERBOARD,
     FIRST_CORNER,
     ring_cameras,
     write_board_rig,
@@ -37,10 +39,6 @@ from board_scenes import (  # noqa: E402
 )
 from mvm.cli.rig import rig  # noqa: E402
 from mvm.io.calib_toml import read_calib_toml  # noqa: E402
-from mvm.rig.boards import Board  # noqa: E402
-
-CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
-CHARUCO = Board("charuco", 6, 5, 0.1, 0.075)
 
 
 def _cpu() -> float:

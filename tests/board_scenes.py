@@ -13,6 +13,10 @@ import numpy as np
 from mvm.rig.boards import Board
 
 SIZE = (640, 480)
+#: The boards the tests and the board benchmark film: 7x6 inner corners of 70 mm; 6x5 squares
+#: of 100 mm with 75 mm markers.
+CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
+CHARUCO = Board("charuco", 6, 5, 0.1, 0.075)
 #: Supersampling of the rendering (drawn this many times larger, then reduced).
 SUPERSAMPLE = 1
 

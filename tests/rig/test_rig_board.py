@@ -2,6 +2,8 @@
 --checkerboard / --charuco`` on rendered videos of a rig whose intrinsics, lenses and poses are
 known, and the bad input (one line naming the camera or file, exit 2, nothing written)."""
 import shutil
+import struct
+import zlib
 
 import cv2
 import numpy as np
@@ -9,6 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from board_scenes import (
+    CHARUCO,
+    CHECKERBOARD,
     FIRST_CORNER,
     SIZE,
     floor_board_poses,
@@ -30,9 +34,6 @@ from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics
 from mvm.rig.board_videos import intrinsic_videos
 from mvm.rig.boards import Board, spread_views, view_features
 from mvm.rig.calibrate import CalibrationError
-
-CHECKERBOARD = Board("checkerboard", 7, 6, 0.07)
-CHARUCO = Board("charuco", 6, 5, 0.1, 0.075)
 
 
 def _rotation_deg(A, B) -> float:
@@ -331,3 +332,70 @@ def test_intrinsics_videos_matched_by_name(tmp_path):
     assert intrinsic_videos(names, {"cam_02": tmp_path / "c"}) == {"ext_cam02_img": tmp_path / "c"}
     with pytest.raises(InputError, match="no extrinsics video of the same camera"):
         intrinsic_videos(names, {"cam_07": tmp_path / "d"})
+
+
+def test_output_on_an_input_refused_before_work(tmp_path, monkeypatch):
+    """-o on a calibration video, inside calibration/, on the --intrinsics file or a link to it:
+    one line naming -o before any video is read, the inputs unchanged."""
+    root = _small_rig(tmp_path)
+    monkeypatch.setattr("mvm.rig.board_videos.rig_videos", lambda *a: pytest.fail("worked before refusing"))
+    given = write_true_calibration(tmp_path / "given.toml", ring_cameras(3), [f"cam_{v + 1:02d}" for v in range(3)])
+    link = tmp_path / "link.toml"
+    link.symlink_to(given)
+    video = root / "calibration" / "extrinsics" / "cam_01.mp4"
+    before = video.read_bytes(), given.read_bytes()
+    for out, extra, problem in ((video, [], "inside the input"),
+                                (root / "calibration" / "Calib.toml", [], "inside the input"),
+                                (given, ["--intrinsics", given], "is an input"),
+                                (link, ["--intrinsics", given], "is an input")):
+        _one_line_exit_2(_calibrate(root, CHARUCO, out, *extra), str(out), problem)
+    assert (video.read_bytes(), given.read_bytes()) == before and not (root / "calibration" / "Calib.toml").exists()
+
+
+def test_board_sizes_opencv_cannot_find_refused(tmp_path):
+    """Checkerboards with a count below 3 (OpenCV's findChessboardCorners rejects them): one line
+    naming --board-size before any video is read, nothing written."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    for size in ("2x3", "3x2", "0x0", "1x1"):
+        _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--checkerboard", "--board-size", size,
+                                                  "--square-size", "0.07", "-o", str(out)]),
+                         "--board-size", "at least 3x3")
+    with pytest.raises(ValueError, match="at least 3x3"):
+        Board("checkerboard", 3, 2, 0.07)
+    assert not out.exists()
+
+
+def test_board_too_big_for_its_dictionary_one_line(tmp_path):
+    """A ChArUco board with more markers than its dictionary holds: one line naming --dictionary,
+    the dictionary's count and the board's need, before any video is read."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "100000x3",
+                                              "--square-size", "0.1", "--marker-size", "0.075", "-o", str(out)]),
+                     "error: --dictionary: DICT_4X4_50 holds 50 markers", "100000x3 squares needs 150000")
+    assert not out.exists()
+
+
+def _png_header_only(path, width, height):
+    """A PNG whose header claims ``width`` x ``height`` gray pixels (no real image data)."""
+    def chunk(kind, body):
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(bytes(1000))) + chunk(b"IEND", b""))
+
+
+def test_huge_or_undecodable_calibration_image_one_line(tmp_path):
+    """An image folder holding an image whose header claims 60000x60000 pixels (OpenCV refuses
+    to decode it: it was a traceback) or a file that is not an image: one line naming it."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    images = root / "calibration" / "extrinsics" / "cam_04"
+    images.mkdir()
+    for content in ("huge", b"not a png"):
+        if content == "huge":
+            _png_header_only(images / "a.png", 60000, 60000)
+        else:
+            (images / "a.png").write_bytes(content)
+        _one_line_exit_2(_calibrate(root, CHARUCO, out), str(images / "a.png"), "not an image OpenCV can decode")
+    assert not out.exists()

@@ -185,3 +185,20 @@ def test_focal_lengths_refined_from_people():
     s, R, t = similarity_transform(est, true.centers)
     assert np.linalg.norm(s * est @ R.T + t - true.centers, axis=1).mean() < 0.05
     assert (found.residual_px < 5).all()
+
+
+def test_output_on_an_input_refused_before_work(unsynced, tmp_path, monkeypatch):
+    """-o on the rig's Calib.toml (the intrinsics read), the --intrinsics file, a pose folder, or a
+    link to the Calib.toml: one line naming -o, before any calibration, the inputs unchanged."""
+    root, _ = unsynced
+    monkeypatch.setattr("mvm.rig.prepare.read_rig", lambda *a, **k: pytest.fail("worked before refusing"))
+    calib = next(root.glob("*.toml"))
+    before = calib.read_bytes()
+    link = tmp_path / "link.toml"
+    link.symlink_to(calib)
+    pose = next(p for p in (root / "pose").iterdir())
+    for out, extra, problem in ((calib, [], "is an input"), (link, [], "is an input"), (calib, ["--intrinsics", calib],
+                                "is an input"), (pose / "c.toml", [], "inside the input folder"),
+                                (root / "pose", [], "is a directory")):
+        _one_line_exit_2(_invoke(rig, ["calibrate", root, "--from-people", "-o", out, *extra]), str(out), problem)
+    assert calib.read_bytes() == before and link.is_symlink()

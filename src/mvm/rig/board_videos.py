@@ -32,6 +32,8 @@ from mvm.core.camera import undistort
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.io.images import read_image
+from mvm.io.outputs import check_output_location
 from mvm.parallel import available_workers
 from mvm.rig.board_calibration import (
     BoardRig,
@@ -101,14 +103,12 @@ def frame_count(source: Path) -> int:
 def gray_frames(source: Path, stride: int):
     """Every ``stride``-th frame of a video or image folder, one at a time: yields ``(number,
     gray (H, W) uint8)``; the frames in between are skipped undecoded. A video that does not open
-    or decode raises :class:`InputError`."""
+    or decode, or an image that is not a regular file of bounded size OpenCV decodes
+    (:func:`mvm.io.images.read_image`), raises :class:`InputError`."""
     if source.is_dir() or source.suffix.lower() in IMAGE_EXTENSIONS:
         for number, path in enumerate(_images(source) if source.is_dir() else [source]):
             if number % stride == 0:
-                image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-                if image is None:
-                    raise InputError(path, None, "OpenCV cannot read this image")
-                yield number, image
+                yield number, read_image(path, flags=cv2.IMREAD_GRAYSCALE)
         return
     capture = cv2.VideoCapture(str(source))
     try:
@@ -268,8 +268,11 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     (:mod:`mvm.rig.board_calibration`); ``workers``: videos read at once (default: one per core);
     ``progress(video, frames done, total)``; ``fisheye``: calibrate OpenCV's fisheye lens;
     ``world_frame``: the frame of the extrinsics videos whose board is the world (the nearest
-    frame searched; default: the first in which the most cameras see it)."""
+    frame searched; default: the first in which the most cameras see it). ``out`` being,
+    holding or lying inside ``rig_dir/calibration`` or ``intrinsics`` is refused before any work
+    (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
+    check_output_location(out, [rig_dir / "calibration"] + ([intrinsics] if intrinsics else []), replaced=False)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     names = list(ext_sources)
     if len(names) < 2:

@@ -57,9 +57,8 @@ class Board:
     def __post_init__(self):
         if self.kind not in ("checkerboard", "charuco"):
             raise ValueError(f"board kind: expected checkerboard or charuco, got {self.kind!r}")
-        least = 2 if self.kind == "checkerboard" else 3
-        if self.cols < least or self.rows < least:
-            raise ValueError(f"board size: at least {least}x{least}, got {self.cols}x{self.rows}")
+        if self.cols < 3 or self.rows < 3:   # OpenCV finds neither board with a count below 3
+            raise ValueError(f"board size: at least 3x3, got {self.cols}x{self.rows}")
         if not self.square_m > 0:
             raise ValueError(f"square size: expected > 0 m, got {self.square_m}")
         if self.kind == "charuco":
@@ -70,8 +69,8 @@ class Board:
                 raise ValueError(f"dictionary: expected an OpenCV name such as DICT_4X4_50, got {self.dictionary!r}")
             size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
             if size < self.cols * self.rows // 2:
-                raise ValueError(f"dictionary {self.dictionary} holds {size} markers, the board needs "
-                                 f"{self.cols * self.rows // 2}")
+                raise ValueError(f"dictionary: {self.dictionary} holds {size} markers, a board of {self.cols}x"
+                                 f"{self.rows} squares needs {self.cols * self.rows // 2}")
 
     def describe(self) -> str:
         if self.kind == "checkerboard":

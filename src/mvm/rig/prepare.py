@@ -13,8 +13,10 @@ import numpy as np
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.io.outputs import check_output_location
 from mvm.io.sync_toml import SYNC_FILE, write_sync_toml
 from mvm.rig.calibrate import CalibrationError, PeopleCalibration, calibrate_from_people
+from mvm.rig.output_set import rig_inputs
 from mvm.rig.rigdir import RigData, find_calibration, read_rig
 from mvm.rig.synchronize import MIN_OVERLAP_FRAMES, SyncError, SyncResult, fundamental_matrix, synchronize
 
@@ -111,9 +113,11 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
     its ``sync.toml`` when there is one), with the intrinsics of ``intrinsics`` or of the rig's
     calibration (rotations and translations, if any, are ignored; ``refine_focal``: the focal
     lengths are adjusted too); a full Calib.toml is written at ``out`` with each camera's
-    residual in ``[metadata]``."""
+    residual in ``[metadata]``; ``out`` being or lying inside an input of the rig is refused
+    before any work (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
     source = Path(intrinsics) if intrinsics else find_calibration(rig_dir)
+    check_output_location(out, rig_inputs(rig_dir, source), replaced=False)
     rig = read_rig(rig_dir, source, extrinsics=False)
     _two_cameras(rig, source)
     cams = rig.calibration.cameras
