@@ -286,7 +286,7 @@ class Config:
     #: A person must explain at least this fraction of the views it projects into, else it is
     #: refused (false positives that happen to agree in a few views, or a second person of a
     #: few views beside a true one). [0-1]
-    association_min_support: float = setting(0.3, ge=0, le=1)
+    association_min_support: float = setting(0.2, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
     #: arcs) is refused unless it explains half the views it projects into: false positives
