@@ -353,8 +353,9 @@ def test_output_on_an_input_refused_before_work(tmp_path, monkeypatch):
 
 
 def test_board_sizes_opencv_cannot_find_refused(tmp_path):
-    """Checkerboards with a count below 3 (OpenCV's findChessboardCorners rejects them): one line
-    naming --board-size before any video is read, nothing written."""
+    """Checkerboards with a count below 3 (OpenCV's findChessboardCorners rejects them) or above
+    100 along a side (a typing error): one line naming --board-size before any video is read,
+    nothing written."""
     root = _small_rig(tmp_path)
     out = tmp_path / "c.toml"
     for size in ("2x3", "3x2", "0x0", "1x1"):
@@ -363,6 +364,10 @@ def test_board_sizes_opencv_cannot_find_refused(tmp_path):
                          "--board-size", "at least 3x3")
     with pytest.raises(ValueError, match="at least 3x3"):
         Board("checkerboard", 3, 2, 0.07)
+    for size in ("101x6", "7x100000000000000000000"):
+        _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--checkerboard", "--board-size", size,
+                                                  "--square-size", "0.07", "-o", str(out)]),
+                         "--board-size", "at most 100 along a side")
     assert not out.exists()
 
 

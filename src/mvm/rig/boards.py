@@ -22,6 +22,9 @@ import numpy as np
 
 #: Fewest corners of a usable view (a ChArUco board may be seen in part).
 MIN_CORNERS = 6
+#: Most inner corners (checkerboard) or squares (ChArUco) along a side of a board: printed
+#: calibration boards hold a few dozen; a larger count is a typing error, refused before the scan.
+MAX_BOARD_SIDE = 100
 #: Checkerboards are found in frames reduced to at most this width (an integer factor), then
 #: their corners refined in the full frame: 4K frames cost what HD ones do. [px]
 DETECTION_WIDTH = 1280
@@ -59,6 +62,8 @@ class Board:
             raise ValueError(f"board kind: expected checkerboard or charuco, got {self.kind!r}")
         if self.cols < 3 or self.rows < 3:   # OpenCV finds neither board with a count below 3
             raise ValueError(f"board size: at least 3x3, got {self.cols}x{self.rows}")
+        if max(self.cols, self.rows) > MAX_BOARD_SIDE:
+            raise ValueError(f"board size: at most {MAX_BOARD_SIDE} along a side, got {self.cols}x{self.rows}")
         if not self.square_m > 0:
             raise ValueError(f"square size: expected > 0 m, got {self.square_m}")
         if self.kind == "charuco":
