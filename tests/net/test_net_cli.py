@@ -57,6 +57,44 @@ def test_export_command(tmp_path):
     assert all((tmp_path / "ds" / im["file_name"]).is_file() for im in data["images"])
 
 
+def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_path):
+    """Beside the dataset, ds.inputs.json records what it was made from: the same scenes and
+    options keep it untouched; a changed option, a changed reconstruction, a copied frame that
+    changed or --force export again, saying why; a run where a scene failed leaves no record."""
+    scene, other = _scene_dir(tmp_path), tmp_path / "broken"
+    other.mkdir()
+    ds, runner = tmp_path / "ds", CliRunner()
+
+    def export(*args):
+        result = runner.invoke(export_cmd, [str(scene), "--out", str(ds), "--link", "copy", *args])
+        return result, (ds / "annotations.json").stat().st_mtime_ns if (ds / "annotations.json").exists() else None
+
+    result, made = export()
+    assert result.exit_code == 0 and "export: made: no output yet" in result.stderr
+    assert json.loads((tmp_path / "ds.inputs.json").read_text())["settings"] == \
+        {"link": "copy", "min_keypoints": 3, "complete": False}
+    result, again = export()
+    assert result.exit_code == 0 and "export: kept (up to date)" in result.stderr and again == made
+    result, again = export("--min-keypoints", "5")
+    assert "made: setting min_keypoints changed since the export (3 -> 5)" in result.stderr and again != made
+    frame = scene / "frames" / "0001.jpg"
+    frame.write_bytes(frame.read_bytes() + b"\0")
+    result, made = export("--min-keypoints", "5")
+    assert "made: frames changed since the export" in result.stderr
+    assert (ds / "images" / "scene1" / "0001.jpg").read_bytes() == frame.read_bytes()
+    poses3d = scene / "mvm" / "poses3d.json"
+    poses3d.write_text(poses3d.read_text().replace("\n", "\n "))
+    result, again = export("--min-keypoints", "5")
+    assert "made: poses3d.json changed since the export" in result.stderr and again != made
+    result, _ = export("--min-keypoints", "5", "--force")
+    assert "made: forced" in result.stderr
+    result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
+    assert result.exit_code == 2 and "3 images, 6 annotations from 1 scene(s)" in result.output
+    assert not (tmp_path / "ds.inputs.json").exists()
+    result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
+    assert "made: " in result.stderr
+
+
 def test_export_without_poses3d_is_an_input_error(tmp_path):
     (tmp_path / "empty").mkdir()
     result = CliRunner().invoke(export_cmd, [str(tmp_path / "empty"), "--out", str(tmp_path / "ds")])

@@ -148,10 +148,11 @@ def stage_inputs(clip: Clip, stage: str, output: str = "mvm") -> dict:
     if stage == "detect":
         inputs = {"frames.json": scene / "frames.json", "frames": scene / "frames"}
         return {**inputs, "detections": Path(clip.detections)} if clip.detections else inputs
-    inputs = reconstruction_inputs(scene)
     if stage == "export":
-        inputs = {"poses3d.json": scene / output / "poses3d.json", **inputs}
-    return inputs
+        from mvm.net.supervision import export_inputs
+
+        return export_inputs([scene], output)
+    return reconstruction_inputs(scene)
 
 
 def _export_settings(options: BatchOptions) -> dict:

@@ -29,15 +29,31 @@ from mvm.errors import InputError
 @click.option("--complete", is_flag=True,
               help="Infer the joints a person lacks from the pose prior before projecting; every "
                    "annotation then says per keypoint whether it was observed or inferred (keypoint_flags).")
+@click.option("--force", is_flag=True, help="Export even if the dataset is up to date.")
 def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: str, min_keypoints: int,
-               complete: bool) -> None:
-    """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths."""
+               complete: bool, force: bool) -> None:
+    """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths.
+
+    Beside the dataset, OUT.inputs.json records what it was made from: a rerun with the same
+    scenes, reconstructions and options keeps it."""
     from mvm.io.outputs import check_output_location
+    from mvm.io.provenance import fingerprints, forget, why_redo, write_record
     from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
-    from mvm.net.supervision import export_supervision
+    from mvm.net.supervision import ANNOTATIONS_FILE, EXPORT_STAGE, export_inputs, export_supervision
 
     out_dir = Path(out_dir)
     check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
+    inputs = export_inputs(scenes, output_name, frames=link == "copy")
+    settings = {"link": link, "min_keypoints": min_keypoints, "complete": complete}
+    try:
+        hashed = fingerprints(inputs)
+    except InputError:               # an unreadable input: its scene fails on its own below
+        hashed = None
+    why = ("forced" if force else "an input cannot be read" if hashed is None else
+           why_redo(out_dir, inputs, settings, EXPORT_STAGE, exists=(out_dir / ANNOTATIONS_FILE).is_file()))
+    if why is None:
+        click.echo("export: kept (up to date)", err=True)
+        return
 
     def read(scene_dir):
         poses3d = scene_dir / output_name / "poses3d.json"
@@ -54,9 +70,13 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
         prior = shipped_prior()
     failed: list = []
     items = (item for _, item in each_isolated(scenes, read, failed))
+    forget(out_dir)
     path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints, prior=prior)
+    if not failed and hashed is not None:     # a dataset that lacks a scene is redone by the next run
+        write_record(out_dir, EXPORT_STAGE, inputs, settings, hashed)
     from mvm.io.checks import load_json
 
+    click.echo(f"export: made: {why}", err=True)
     data = load_json(path)
     click.echo(f"{path}: {len(data['images'])} images, {len(data['annotations'])} annotations "
                f"from {len(scenes) - len(failed)} scene(s)")

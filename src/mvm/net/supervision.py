@@ -33,6 +33,29 @@ LOG = logging.getLogger(__name__)
 
 LINK_MODES = ("symlink", "copy", "none")
 ANNOTATIONS_FILE = "annotations.json"
+#: The export's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
+EXPORT_STAGE = "the export"
+
+
+def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames: bool = False) -> dict[str, object]:
+    """What a dataset exported from ``scene_dirs`` is made from (:mod:`mvm.io.provenance`):
+    each scene's ``<output>/poses3d.json`` and what it was reconstructed from (``poses2d.json``,
+    ``sparse/``), and its ``frames/`` when ``frames`` (they are copied into the dataset). One
+    scene's inputs have bare names (``poses3d.json``); several scenes' are prefixed with their
+    folder, and their order (which numbers the images) is an input too."""
+    from mvm.io.scene_dir import reconstruction_inputs
+
+    scene_dirs = [Path(s) for s in scene_dirs]
+    inputs: dict[str, object] = {}
+    for scene in scene_dirs:
+        prefix = "" if len(scene_dirs) == 1 else f"{scene.as_posix()}/"
+        these = {"poses3d.json": scene / output / "poses3d.json", **reconstruction_inputs(scene)}
+        if frames:
+            these["frames"] = scene / "frames"
+        inputs.update({prefix + name: path for name, path in these.items()})
+    if len(scene_dirs) > 1:
+        inputs["scenes"] = [s.as_posix() for s in scene_dirs]
+    return inputs
 
 
 def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:
