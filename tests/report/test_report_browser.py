@@ -1,7 +1,9 @@
 """The report in headless Chromium: the 3D view renders, no console errors, skeletons on the
-screenshot; a 250-frame, 10-person scene stays under 10 MB and opens in under 3 s."""
+screenshot; a 250-frame, 10-person scene stays under 10 MB and opens in under 3 s; a rig's page
+renders its first instant."""
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import subprocess
@@ -108,3 +110,37 @@ def test_blank_canvas_fails_the_pixel_check(tmp_path):
     canvas = cv2.imread(str(shot))[:300, :400].astype(int)
     hits = [(np.abs(canvas - rgb[::-1].astype(int)).sum(-1) < 40).sum() for rgb in person_colors(10)]
     assert max(hits) == 0
+
+
+def test_rig_report_renders_in_chromium(tmp_path):
+    """A simulated rig's page (3 cameras, 2 people, 30 instants) in headless Chromium: no console
+    output, the 3D view drawn at the first instant with every person's bones, within 3 s."""
+    from click.testing import CliRunner
+
+    from mvm.cli.main import main
+    from mvm.core.config import Config
+    from mvm.io.rig_simulation import write_rig_simulation
+    from mvm.rig.options import RigOptions
+    from mvm.rig.reconstruct_rig import reconstruct_rig
+    from mvm.sim.rig_scene import RigSimConfig, simulate_rig
+
+    root = tmp_path / "rig"
+    write_rig_simulation(root, simulate_rig(RigSimConfig(cameras=3, people=2, frames=30, seed=5)))
+    reconstruct_rig(root, Config(refine=False), RigOptions(workers=1))
+    result = CliRunner().invoke(main, ["report", str(root)])
+    assert result.exit_code == 0, result.output
+    page = root / "mvm" / "report.html"
+    first = json.loads(re.search(r'<script type="application/json" id="mvm-data">(.*?)</script>',
+                                 page.read_text(), re.S).group(1))["view"]["instants"][0]
+    status, console, _ = page_status(page)
+    assert not console, f"console output: {console}"
+    assert status["state"] == "rendered" and status["instant"] == "0", status
+    assert int(status["segments"]) >= 16 * len(first["persons"]) > 0
+    assert float(status["render-ms"]) < MAX_OPEN_MS
+    shot = tmp_path / "rig.png"
+    _, console, _ = chromium(page, f"--screenshot={shot}", "--virtual-time-budget=2000")
+    assert not console, f"console output: {console}"
+    x, y, w, h = (int(v) for v in status["canvas"].split(","))
+    canvas = cv2.imread(str(shot))[y:y + h, x:x + w].astype(int)
+    assert canvas.shape[0] > 100 and canvas.shape[1] > 100
+    assert (np.abs(canvas - np.array([0xfb, 0xfb, 0xfb])).sum(-1) > 60).mean() > 0.002     # something drawn
