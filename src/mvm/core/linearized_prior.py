@@ -164,10 +164,10 @@ def _group_matrices(prior, present: bytes, component: int) -> tuple[np.ndarray, 
 def linearized_prior(X: np.ndarray, present: np.ndarray, prior, weight: float | np.ndarray) -> LinearPrior:
     """Linearize ``weight · E_P`` at ``X: (P, J, 3)`` for every person that has both hips and
     shoulders and a positive weight (``weight``: one for all, or each person's ``(P,)``): the
-    prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame ``R, s`` held fixed (so ``y`` is
-    linear in ``X``) and the max-mixture component, whose
-    negative log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of
-    each (present joints, component) pair is built once (:class:`LinearPrior`)."""
+    prior's canonicalization ``y_j = R (X_j − pelvis) / s`` with the body frame ``R, s`` held
+    fixed (so ``y`` is linear in ``X``) and the max-mixture component, whose negative
+    log-likelihood is ``½ |W (y − μ)|²``. ``present: (P, J)`` bool. The whitening of each
+    (present joints, component) pair is built once (:class:`LinearPrior`)."""
     J = X.shape[1]
     weight = np.broadcast_to(np.asarray(weight, dtype=float), (len(X),))
     rotation, scale, keys, which = _prior_groups(X, present, prior, weight)
