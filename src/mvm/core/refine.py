@@ -311,10 +311,11 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
 def robust_terms(e: np.ndarray, obs: Observations, robust_scale: float) -> tuple[np.ndarray, np.ndarray]:
     """The soft-L1 reprojection terms of residuals ``e: (P, M, J, 2)`` (:meth:`Observations.reprojection`):
     ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
-    (0 where not fitted)."""
+    (0 where not fitted), each keypoint's ``c`` its confidence squared, as the triangulation
+    weighs it (:func:`mvm.core.geometry.weighted_dlt`: the confidence on each row)."""
     f2 = robust_scale**2
     root = np.sqrt(1.0 + (e[..., 0] ** 2 + e[..., 1] ** 2) / f2)
-    c = np.where(obs.fit, obs.conf, 0.0)
+    c = np.where(obs.fit, obs.conf**2, 0.0)
     return (c * 2 * f2 * (root - 1)).sum((1, 2)), np.sqrt(2.0 * c / root)
 
 
