@@ -353,9 +353,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         P: ``(P, M, 3, 4)`` projection matrices of the views.
         inliers: ``(P, M, J)`` bool, the keypoints to fit.
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
-        prior_weight: λ, image units² per nat, one for all or each person's ``(P,)``;
-            robust_scale: scale ``f`` of the soft-L1 loss, in image units (those of ``xy``: pixels, or
-            person sizes as the pipeline passes them).
+        prior_weight: λ, image units² per nat, one or each person's ``(P,)``; robust_scale: scale ``f``
+            of the soft-L1 loss, in image units (those of ``xy``: pixels, or person sizes).
         max_iterations: Levenberg-Marquardt steps per person and outer iteration.
         outer_iterations: re-linearizations of the robust loss and the prior.
         bone_lengths: ``(P, B)`` target lengths of :data:`mvm.core.keypoints.BONES` (NaN: none);
