@@ -195,13 +195,14 @@ def test_a_person_pushed_behind_the_cameras_falls_back_to_its_triangulation():
 
 def test_robust_weights_are_the_derivative_of_the_robust_cost():
     """IRLS: the gradient of Σ c ρ(|e|²) by the residuals is ``w² e`` with ``w`` the root weights
-    (central differences), and the cost is soft-L1's ``2 f² (sqrt(1 + |e|²/f²) − 1)``."""
+    (central differences), and the cost is soft-L1's ``2 f² (sqrt(1 + |e|²/f²) − 1)``, each
+    keypoint's ``c`` its confidence squared (as the triangulation's weighted DLT)."""
     _, X0, xy, conf, P, inliers = _capture(8)
     present = np.isfinite(X0).all(-1)
     obs = Observations.build(xy, P, conf, inliers & present[:, None])
     e, _ = obs.reprojection(np.where(present[..., None], X0, 0.0))
     cost, w = robust_terms(e, obs, 5.0)
-    c = np.where(obs.fit, conf, 0.0)
+    c = np.where(obs.fit, conf**2, 0.0)
     np.testing.assert_allclose(cost, (c * 50.0 * (np.sqrt(1 + (e**2).sum(-1) / 25.0) - 1)).sum((1, 2)), rtol=1e-12)
     h = 1e-6
     step = np.zeros_like(e)

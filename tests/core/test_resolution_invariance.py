@@ -8,6 +8,7 @@ import pytest
 
 from mvm.core.config import Config
 from mvm.core.reconstruct import reconstruct
+from mvm.core.refine_units import MAX_SPREAD_FACTOR
 from mvm.core.scene import Cameras, Poses2D, Scene
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.detector import DetectorErrors, pose_scores
@@ -93,8 +94,10 @@ def test_a_pixel_threshold_would_not_be_invariant(scene):
 def test_the_refinement_follows_the_noise_the_scene_measures():
     """A detector twice as noisy (in person sizes) gives a RANSAC threshold, a robust scale and a
     prior weight that grow with the measured noise (the weight as its square), and the recorded
-    values are those the settings imply."""
+    values are those the settings imply (the weight times the narrow arc's spread factor, the
+    same for both: the same tour)."""
     config = Config()
+    spread = []
     metrics = {}
     for noise in (0.01, 0.02):
         scene, _ = simulate(SimConfig.preset("realistic", people=3, frames=16, seed=5, noise=noise))
@@ -104,8 +107,9 @@ def test_the_refinement_follows_the_noise_the_scene_measures():
     assert 1.4 < factor <= 4.0
     for m in (low, high):
         r = m["ransac_threshold"] / config.ransac_threshold
-        assert m["prior_weight"] == pytest.approx(config.prior_weight * r * r, rel=1e-6)
+        spread.append(m["prior_weight"] / (config.prior_weight * r * r))
         assert m["robust_scale_px"] == pytest.approx(config.robust_scale * r * m["person_size_px"], rel=0.05)
+    assert 1.0 < spread[0] <= MAX_SPREAD_FACTOR and spread[1] == pytest.approx(spread[0], rel=0.05)
     held = reconstruct(scene, config.replace(ransac_threshold_sigmas=0.0)).metrics
-    assert held["prior_weight"] == pytest.approx(config.prior_weight)
+    assert held["prior_weight"] == pytest.approx(config.prior_weight * spread[1], rel=0.05)
     assert held["ransac_threshold"] == pytest.approx(config.ransac_threshold)

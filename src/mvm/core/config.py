@@ -306,12 +306,15 @@ class Config:
     #: Run the refinement (reprojection + λ·pose prior). [bool]
     refine: bool = True
     #: λ, the weight of the pose prior's negative log-likelihood against the robust
-    #: reprojection error, whose residuals are in person sizes (as ``ransac_threshold``):
-    #: raise it to trust the prior more than the keypoints. Each scene (rig instant) weighs it
-    #: by the square of its noise relative to ``ransac_threshold`` (its RANSAC threshold over
-    #: ``ransac_threshold``, see ``ransac_threshold_sigmas``), as the variance of a Gaussian
-    #: likelihood would. [person sizes² per nat]
-    prior_weight: float = setting(3e-4, ge=0)
+    #: reprojection error, whose residuals are in person sizes (as ``ransac_threshold``), for a
+    #: person seen from all around (cameras around the people): raise it to trust the prior more
+    #: than the keypoints, lower it to trust the keypoints. A person whose views constrain its
+    #: depth less gets more, up to 5 times (its views' spread, :mod:`mvm.core.refine_units`: a
+    #: hand-held tour's narrow arc), and each scene (rig instant) weighs it by the square of its
+    #: noise relative to ``ransac_threshold`` (its RANSAC threshold over ``ransac_threshold``,
+    #: see ``ransac_threshold_sigmas``), as the variance of a Gaussian likelihood would; the
+    #: weight used is in poses3d.json. [person sizes² per nat]
+    prior_weight: float = setting(1.5e-4, ge=0)
     #: Scale of the robust (soft-L1) loss on reprojection residuals: residuals beyond it count
     #: linearly, not quadratically; lower it to discount large residuals more. Each scene (rig
     #: instant) scales it by its RANSAC threshold over ``ransac_threshold``, so that it stays the

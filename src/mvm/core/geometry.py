@@ -270,3 +270,26 @@ def ray_spread_deg(directions: np.ndarray, mask: np.ndarray) -> np.ndarray:
     far = np.take_along_axis(d, np.argmin(cos_mean, axis=-1)[..., None, None], axis=-2)  # (..., 1, 3)
     cos = np.where(mask, (d * far).sum(-1), 1.0)
     return np.degrees(np.arccos(np.minimum(np.maximum(cos.min(axis=-1), -1.0), 1.0)))
+
+
+def view_spread(points: np.ndarray, centers: np.ndarray, used: np.ndarray) -> np.ndarray:
+    """How well a point's views constrain it in every direction: the smallest eigenvalue of the
+    mean over its views of ``I − d dᵀ`` (``d`` the unit ray from the camera centre to the point;
+    the sum is the normal matrix of triangulating the point from its rays). 2/3 for views spread
+    evenly over a sphere, 1/2 evenly around a circle (a camera ring, a dome), about ``θ²/3`` for
+    views along an arc of ``±θ`` radians (a hand-held tour), 0 for views along one line.
+
+    ``points: (P, 3)``, ``centers: (P, M, 3)`` camera centres, ``used: (P, M)`` bool -> ``(P,)``,
+    NaN for a point that is not finite or has fewer than two views.
+
+    >>> ring = np.array([[[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]])
+    >>> round(float(view_spread(np.zeros((1, 3)), ring, np.ones((1, 8), bool))[0]), 3)
+    0.5
+    """
+    d = points[:, None, :] - centers                                               # (P, M, 3)
+    d = d / np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+    d = np.where((used & np.isfinite(d).all(-1))[..., None], d, 0.0)
+    n = (np.abs(d).sum(-1) > 0).sum(-1)                                            # (P,)
+    normal = n[:, None, None] * np.eye(3) - np.einsum("pmi,pmj->pij", d, d)
+    smallest = np.linalg.eigvalsh(normal)[:, 0] / np.maximum(n, 1)
+    return np.where((n >= 2) & np.isfinite(points).all(-1), smallest, np.nan)

@@ -34,6 +34,7 @@ from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
+from mvm.core.refine_units import noise_factor, prior_weights
 from mvm.core.scene import Cameras, Poses2D
 from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
 from mvm.errors import InputError
@@ -259,19 +260,6 @@ def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObserva
     return np.where(np.isfinite(sigma), scaled, base)[pose_block]
 
 
-def noise_factor(threshold: np.ndarray, config: Config) -> np.ndarray:
-    """``(P,)`` the detector noise of each person's scene (or rig instant) relative to the noise
-    the settings are set for: its RANSAC threshold (``threshold: (P,)``, :func:`block_thresholds`)
-    over ``ransac_threshold``, 1 where the threshold is held. The refinement measures residuals
-    in person sizes times this factor, so that its robust scale grows with the noise and the
-    prior weighs against the keypoints as the noise's variance (as in a Gaussian likelihood).
-
-    >>> noise_factor(np.array([0.06, 0.12, 0.24]), Config()).tolist()
-    [0.5, 1.0, 2.0]
-    """
-    return np.asarray(threshold, dtype=float) / config.ransac_threshold
-
-
 #: What a refinement that fails outright raises (bad numbers the fallback cannot catch person by person).
 _SOLVE_FAILURES = (ValueError, np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError)
 
@@ -283,21 +271,25 @@ def refine_with_fallback(X: np.ndarray, obs: GroupObservations, tri: Triangulati
     triangulation. ``X: (P, J, 3)``; ``prior`` as :func:`mvm.core.prior.load_prior` resolves it.
     Returns the poses and ``fallback: (P,)`` bool."""
     try:
-        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, obs.size, tri.threshold, config, prior)
+        return _refine(X, obs.xy, obs.conf, obs.P, tri.inliers, obs.size, tri.threshold, obs.centers, config, prior)
     except _SOLVE_FAILURES as e:
         log.warning("refinement failed (%s); kept the triangulation of every person", e)
         return X, tri.inliers.any(axis=(1, 2))
 
 
-def _refine(X, xy, conf, P, inliers, size, threshold, config: Config, prior) -> tuple[np.ndarray, np.ndarray]:
+def _refine(X, xy, conf, P, inliers, size, threshold, centers, config: Config, prior
+            ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`refine_with_fallback` of the arrays of :class:`GroupObservations` and
     :class:`Triangulation`, a solve that fails outright raised. The reprojection residuals are
     in person sizes (``size: (P, M)`` px, :func:`mvm.core.image_units.in_person_sizes`) times
-    each person's :func:`noise_factor` (``threshold: (P,)`` its RANSAC threshold), the unit of
-    ``robust_scale`` and ``prior_weight``: both follow the noise measured in the person's scene."""
+    each person's :func:`~mvm.core.refine_units.noise_factor` (``threshold: (P,)`` its RANSAC
+    threshold), the unit of ``robust_scale`` and ``prior_weight``: both follow the noise
+    measured in the person's scene; the prior's weight follows its views' spread too
+    (:func:`~mvm.core.refine_units.prior_weights`, ``centers: (P, M, 3)`` the views' cameras)."""
+    weights = prior_weights(config, X, centers, inliers.any(-1))
     xy, P = in_person_sizes(xy, P, size * noise_factor(threshold, config)[:, None])
     with np.errstate(all="ignore"):
-        refined = refine_poses(X, xy, conf, P, inliers, load_prior(config, prior), config.prior_weight,
+        refined = refine_poses(X, xy, conf, P, inliers, load_prior(config, prior), weights,
                                config.robust_scale, config.refine_max_iterations)
     broken = (np.isfinite(X).all(-1) & ~np.isfinite(refined.X).all(-1)).any(-1)     # a joint lost or inf
     fallback = refined.fallback | broken
@@ -490,7 +482,7 @@ def _refine_together(parts: list[Triangulated], config: Config, prior) -> list[t
     if len(parts) == 1:
         return [refine_with_fallback(parts[0].tri.X, parts[0].obs, parts[0].tri, config, prior)]
     arrays = [np.concatenate(a) for a in zip(*[(p.tri.X, p.obs.xy, p.obs.conf, p.obs.P, p.tri.inliers,
-                                                    p.obs.size, p.tri.threshold) for p in parts])]
+                                                    p.obs.size, p.tri.threshold, p.obs.centers) for p in parts])]
     X, fallback = _refine(*arrays, config, prior)
     bounds = np.cumsum([len(p.groups) for p in parts])[:-1]
     return list(zip(np.split(X, bounds), np.split(fallback, bounds)))

@@ -11,8 +11,9 @@ import numpy as np
 from mvm.core.affinity import affinity_bytes
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
-from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, noise_factor, refine_all, triangulate_poses
+from mvm.core.pipeline import Reconstruction, Triangulated, keyframe_rows, refine_all, triangulate_poses
 from mvm.core.quality import scene_quality
+from mvm.core.refine_units import noise_factor, prior_weights
 from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
 
@@ -216,13 +217,16 @@ def _outcome_warnings(scene: Scene, config: Config, rec: Reconstruction, persons
     return []
 
 
-def effective_thresholds(config: Config, threshold: np.ndarray, size: np.ndarray, slots: np.ndarray) -> dict:
+def effective_thresholds(config: Config, threshold: np.ndarray, size: np.ndarray, slots: np.ndarray,
+                         prior_weight: np.ndarray) -> dict:
     """The thresholds the persons of a scene got: the RANSAC threshold (``threshold: (P,)``,
     person sizes; the median), the median person size (``size: (P, M)`` px of the view slots
     ``slots: (P, M)`` bool), what the RANSAC threshold and the refinement's robust scale came to
     in pixels (the medians over the slots; the robust scale follows the scene's noise,
-    :func:`mvm.core.pipeline.noise_factor`) and the prior weight the refinement used (person
-    sizes² per nat, the median). NaN without any person."""
+    :func:`mvm.core.refine_units.noise_factor`) and the prior weight the refinement used (person
+    sizes² per nat, the median; ``prior_weight: (P,)`` in the persons' noise units,
+    :func:`mvm.core.refine_units.prior_weights`).
+    NaN without any person."""
     if not slots.any():
         return dict.fromkeys(("ransac_threshold", "person_size_px", "ransac_threshold_px", "robust_scale_px",
                               "prior_weight"), float("nan"))
@@ -231,7 +235,7 @@ def effective_thresholds(config: Config, threshold: np.ndarray, size: np.ndarray
     return {"ransac_threshold": float(np.median(threshold)), "person_size_px": float(np.median(size[slots])),
             "ransac_threshold_px": float(np.median(per_slot * size[slots])),
             "robust_scale_px": config.robust_scale * float(np.median(factor * size[slots])),
-            "prior_weight": config.prior_weight * float(np.median(noise_factor(threshold, config) ** 2))}
+            "prior_weight": float(np.median(prior_weight * noise_factor(threshold, config) ** 2))}
 
 
 def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
@@ -243,8 +247,9 @@ def _scene_result(scene: Scene, config: Config, rec: Reconstruction) -> Result:
     metrics = {k: (v if not isinstance(v, float) or np.isfinite(v) else float("nan")) for k, v in metrics.items()}
     fallbacks = int(rec.fallback.sum())
     metrics["refine_fallbacks"] = fallbacks
+    weights = prior_weights(config, rec.tri.X, rec.obs.centers, rec.tri.inliers.any(-1))
     metrics.update(effective_thresholds(config, rec.tri.threshold[keep], rec.obs.size[keep],
-                                        rec.obs.members[keep] >= 0))
+                                        rec.obs.members[keep] >= 0, weights[keep]))
     timings = dict(rec.timings, total_s=sum(rec.timings.values()))
     warnings_ = _scene_warnings(scene, config) + _triangulation_warnings(rec.tri, config)
     if fallbacks:

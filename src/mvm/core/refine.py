@@ -295,9 +295,9 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
     on (a zero diagonal: an absent joint) gets an identity row and does not move."""
     Pn, n = grad.shape
     K = blocks.shape[1]
-    R, s2 = prior.rotation, prior.scale**2
-    # R B Rᵀ of every (symmetric) block, times s² (the whole system is scaled by s², so the
-    # prior's share is its group's matrix as it is): two products per person, not per block.
+    R, s2 = prior.rotation, prior.scale**2 / prior.weight
+    # R B Rᵀ of every (symmetric) block, times s² / λ (the whole system is scaled by s² / λ, so
+    # the prior's share is its group's matrix as it is): two products per person, not per block.
     Rt = np.swapaxes(R, 1, 2) * s2[:, None, None]
     rotated = np.matmul(blocks.reshape(Pn, 3 * K, 3), Rt).reshape(Pn, K, 3, 3)
     rotated = np.matmul(np.swapaxes(rotated, 2, 3).reshape(Pn, 3 * K, 3), np.swapaxes(R, 1, 2)).reshape(Pn, K, 3, 3)
@@ -311,10 +311,11 @@ def damped_steps(prior: LinearPrior, blocks: np.ndarray, grad: np.ndarray, dampi
 def robust_terms(e: np.ndarray, obs: Observations, robust_scale: float) -> tuple[np.ndarray, np.ndarray]:
     """The soft-L1 reprojection terms of residuals ``e: (P, M, J, 2)`` (:meth:`Observations.reprojection`):
     ``Σ c ρ(e²): (P,)`` per person and the IRLS root weights ``sqrt(2 ρ'(e²) c): (P, M, J)``
-    (0 where not fitted)."""
+    (0 where not fitted), each keypoint's ``c`` its confidence squared, as the triangulation
+    weighs it (:func:`mvm.core.geometry.weighted_dlt`: the confidence on each row)."""
     f2 = robust_scale**2
     root = np.sqrt(1.0 + (e[..., 0] ** 2 + e[..., 1] ** 2) / f2)
-    c = np.where(obs.fit, obs.conf, 0.0)
+    c = np.where(obs.fit, obs.conf**2, 0.0)
     return (c * 2 * f2 * (root - 1)).sum((1, 2)), np.sqrt(2.0 * c / root)
 
 
@@ -341,7 +342,7 @@ def fallback_persons(e0: np.ndarray, e1: np.ndarray, depth1: np.ndarray, X: np.n
 
 
 def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray,
-                 prior=None, prior_weight: float = 10.0, robust_scale: float = 5.0,
+                 prior=None, prior_weight: float | np.ndarray = 10.0, robust_scale: float = 5.0,
                  max_iterations: int = 30, outer_iterations: int = 3,
                  bone_lengths: np.ndarray | None = None, bone_weight: float = 0.0,
                  tolerance: float = 1e-8) -> RefineResult:
@@ -352,8 +353,8 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         P: ``(P, M, 3, 4)`` projection matrices of the views.
         inliers: ``(P, M, J)`` bool, the keypoints to fit.
         prior: a :class:`mvm.core.prior.PosePrior` or None (reprojection only).
-        prior_weight: λ, image units² per nat; robust_scale: scale ``f`` of the soft-L1 loss, in
-            image units (those of ``xy``: pixels, or person sizes as the pipeline passes them).
+        prior_weight: λ, image units² per nat, one or each person's ``(P,)``; robust_scale: scale ``f``
+            of the soft-L1 loss, in image units (those of ``xy``: pixels, or person sizes).
         max_iterations: Levenberg-Marquardt steps per person and outer iteration.
         outer_iterations: re-linearizations of the robust loss and the prior.
         bone_lengths: ``(P, B)`` target lengths of :data:`mvm.core.keypoints.BONES` (NaN: none);
@@ -372,7 +373,7 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         return RefineResult(X0.copy(), np.zeros(Pn, bool), 0.0, lambda: 0.0)
     bones = (BoneTerms.build(bone_lengths, bone_weight, present)
              if bone_lengths is not None and bone_weight > 0 else None)
-    prior = prior if prior is not None and prior_weight > 0 else None
+    prior = prior if prior is not None and np.any(np.asarray(prior_weight) > 0) else None
     X = np.where(present[..., None], X0, 0.0)
     e0, _ = obs.reprojection(X)
     robust, sqrt_w = robust_terms(e0, obs, robust_scale)

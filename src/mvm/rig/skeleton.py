@@ -11,6 +11,7 @@ from mvm.core.blas import one_blas_thread
 from mvm.core.image_units import in_person_sizes, view_sizes
 from mvm.core.keypoints import BONES, bone_lengths
 from mvm.core.quality import reprojection_errors
+from mvm.core.refine_units import prior_weights
 from mvm.core.scene import Cameras, Poses2D
 from mvm.rig.instants import InstantPersons
 
@@ -101,7 +102,8 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
     ``bone_weight``, squared person sizes per squared relative length error: the reprojection
     residuals are in person sizes, :mod:`mvm.core.image_units`). ``config``: a
-    :class:`mvm.core.config.Config` (prior weight, robust scale, iterations). Once the lengths
+    :class:`mvm.core.config.Config` (prior weight, following each person's views' spread as in
+    :func:`mvm.core.refine_units.prior_weights`; robust scale, iterations). Once the lengths
     are fixed the persons are independent: one call of :func:`mvm.core.refine.refine_poses`
     solves all of them, with BLAS on one thread (its matrices are small: threads only cost).
     ``tolerance``: the relative change at which a person's inner solve stops (on the rig
@@ -118,8 +120,10 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
     lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
     xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
     xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold))
+    centers = np.broadcast_to(cameras.centers, (len(persons.X), *cameras.centers.shape))
+    weights = prior_weights(config, persons.X, centers, used.any(-1))                # the views' spread
     with one_blas_thread(), np.errstate(all="ignore"):   # small matrices
-        X = refine_poses(persons.X, xy, conf, P, used, prior, config.prior_weight, config.robust_scale,
+        X = refine_poses(persons.X, xy, conf, P, used, prior, weights, config.robust_scale,
                          config.refine_max_iterations, bone_lengths=lengths, bone_weight=bone_weight,
                          outer_iterations=outer_iterations, tolerance=tolerance).X
     X = np.where(np.isfinite(X).all(-1, keepdims=True), X, np.nan)
