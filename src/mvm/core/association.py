@@ -27,6 +27,7 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
+from mvm.core.body_parts import split_persons
 from mvm.core.keypoints import FLIP_PERMUTATION, bone_ratios
 from mvm.core.quality import row_nanmedian
 
@@ -309,7 +310,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
               groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None,
               seed: Callable | None = None, *,
               gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3, min_support: float = 0.2,
-              max_proportion_deviation: float = 0.25, min_person_joints: int = 5,
+              max_proportion_deviation: float = 0.25, min_person_joints: int = 5, max_bone_ratio: float = 0.0,
               keypoint_threshold: float = 0.2, min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
               pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
               temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
@@ -325,6 +326,9 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
             min_group_size, min_support, max_proportion_deviation: see :func:`_credible`.
+        max_bone_ratio: a person whose joints no pose links into one body, its parts joined by
+            a bone over this ratio, is split in two (:func:`mvm.core.body_parts.split_persons`;
+            0: never).
         eligible: ``(N,)`` poses that may be assigned; pose_scene: ``(N,)`` scene of each pose
             when several static scenes (rig instants) are associated at once.
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
@@ -343,8 +347,16 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
         X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
+        split = split_persons(groups, X, result[1].inliers, result[0].members, min_person_joints,
+                              max_bone_ratio) if max_bone_ratio > 0 and groups else None
+        if split is not None:                   # two people as one: each part triangulated from its own poses
+            groups, X, person, part = split
+            parts, seen = np.flatnonzero(part >= 0), seen[person]
+            again = triangulate([groups[q] for q in parts])[1]
+            X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
         if merge is not None and len(groups) > 1:
-            groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
+            groups, X, seen, merged = _merge_persons(merge, X, seen, groups, N)
+            stale |= merged
         if not groups:
             break
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
