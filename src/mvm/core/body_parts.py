@@ -9,11 +9,11 @@ common), so nothing keeps them apart. Triangulated joint by joint, such a group 
 whose head is one person's and whose limbs are the other's, and whose reprojection explains
 the poses of both.
 
-What gives it away is that no pose sees both parts: within one person, the joints a pose is an
-inlier of are *linked*, and the links of a real person join its joints into one body, while
-the links of two people make two parts, joined only by bones of no human proportion (a forearm
-from one person's elbow to the other's wrist). :func:`body_parts` finds such persons;
-:func:`split_members` divides their poses between the parts.
+What gives it away is a bone of no human proportion (a forearm from one person's elbow to the
+other's wrist) whose two ends no view sees together: in a view of one person, both ends of
+its bones are inliers, or one of them is hidden and the other is not an inlier either.
+:func:`body_parts` finds such persons and the joints of each of the two people;
+:func:`split_members` divides their poses between them, :func:`split_persons` their groups.
 
 Arrays: ``P`` persons, ``M`` view slots of each (its group's poses), ``J = 17`` joints. Pure numpy.
 """
@@ -23,44 +23,33 @@ import numpy as np
 
 from mvm.core.keypoints import BONES, bone_ratios
 
-#: Two joints of a person are linked when at least this share of the inlier views of the less
-#: seen of them has both as inliers (a stray keypoint of a crowded view links nothing). [0-1]
+#: The two ends of a bone are seen apart when fewer than this share of the inlier views of the
+#: less seen end have both as inliers (the views of one person see both ends of its bones, or
+#: one of them hidden: then the other is not an inlier of that view either). [0-1]
 LINK_SHARE = 0.1
 
 
-def linked_parts(inliers: np.ndarray, reconstructed: np.ndarray) -> np.ndarray:
-    """Connected parts of each person's joints under the links of :data:`LINK_SHARE`.
-
-    ``inliers: (P, M, J)`` bool, each view slot's inlier keypoints; ``reconstructed: (P, J)``
-    bool. Returns ``(P, J)`` int, the part of each joint, named by its lowest joint index
-    (-1: not reconstructed). Cost ``P · M · J²``: linear in the views.
-
-    >>> inl = np.zeros((1, 4, 17), dtype=bool); inl[0, :2, :8] = True; inl[0, 2:, 8:] = True
-    >>> linked_parts(inl, np.ones((1, 17), dtype=bool))[0].tolist()
-    [0, 0, 0, 0, 0, 0, 0, 0, 8, 8, 8, 8, 8, 8, 8, 8, 8]
-    """
+def shared_views(inliers: np.ndarray, reconstructed: np.ndarray) -> np.ndarray:
+    """``(P, J, J)`` float: the views in which both joints are inliers, for each person (the
+    diagonal: each joint's inlier views). ``inliers: (P, M, J)`` bool, ``reconstructed: (P, J)``
+    bool. Cost ``P · M · J²``: linear in the views."""
     used = (inliers & reconstructed[:, None, :]).astype(np.float32)       # (P, M, J)
-    shared = used.transpose(0, 2, 1) @ used                                 # (P, J, J) views seeing both
-    seen = np.diagonal(shared, axis1=1, axis2=2)                            # (P, J)
-    fewer = np.minimum(seen[:, :, None], seen[:, None, :])
-    reach = (shared > 0) & (shared >= LINK_SHARE * fewer)
-    reach |= np.eye(shared.shape[-1], dtype=bool) & reconstructed[:, :, None]
-    for _ in range(int(np.ceil(np.log2(max(shared.shape[-1], 2))))):     # transitive closure by squaring
-        r = reach.astype(np.float32)
-        reach = r @ r > 0
-    first = np.argmax(reach, axis=-1)                                       # lowest joint each reaches
-    return np.where(reconstructed, first, -1)
+    return used.transpose(0, 2, 1) @ used
 
 
 def body_parts(X: np.ndarray, inliers: np.ndarray, min_joints: int, max_bone_ratio: float) -> np.ndarray:
-    """The persons that are two people: two parts of at least ``min_joints`` joints each that no
-    pose links (:func:`linked_parts`), joined by a bone longer than ``max_bone_ratio`` times its
-    proportion at the person's scale (:func:`mvm.core.keypoints.bone_ratios`; a real person seen
-    in two disjoint sets of views has its parts at human proportions).
+    """The persons that are two people, and the joints of each.
+
+    A person is two people when one of its bones is longer than ``max_bone_ratio`` times its
+    proportion at the person's scale (:func:`mvm.core.keypoints.bone_ratios`) and its two ends
+    are seen apart (:data:`LINK_SHARE`): each end is another person's joint. The longest such
+    bone names the two people; every joint goes to the end it shares more inlier views with
+    (relative to the less seen of the two), a joint sharing none with either to neither; both
+    people need ``min_joints`` joints (a stray joint alone is not a person).
 
     ``X: (P, J, 3)`` (NaN: not reconstructed), ``inliers: (P, M, J)``. Returns ``(P, J)`` int:
-    0 for the joints of the larger part, 1 for the other's, -1 elsewhere (joints of neither,
-    and every joint of a person that is one body).
+    0 for the joints of the person at the bone's first end, 1 for the other's, -1 elsewhere (and
+    for every joint of a person that is one body).
 
     >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.1; X[0, 9:, 2] = 2.0
     >>> inl = np.zeros((1, 4, 17), dtype=bool); inl[0, :2, :9] = True; inl[0, 2:, 9:] = True
@@ -68,19 +57,19 @@ def body_parts(X: np.ndarray, inliers: np.ndarray, min_joints: int, max_bone_rat
     [0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1]
     """
     reconstructed = np.isfinite(X).all(-1)
-    part = linked_parts(inliers, reconstructed)                              # (P, J)
-    J = X.shape[1]
-    size = (part[:, :, None] == np.arange(J)).sum(1)                          # (P, J) joints of each part
-    order = np.argsort(-size, axis=1, kind="stable")
-    first, second = order[:, 0], order[:, 1]
-    p = np.arange(len(X))
-    two = size[p, second] >= min_joints
-    label = np.where(part == first[:, None], 0, np.where(part == second[:, None], 1, -1))
+    shared = shared_views(inliers, reconstructed)                            # (P, J, J)
+    seen = np.diagonal(shared, axis1=1, axis2=2)                            # (P, J)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = shared / np.minimum(seen[:, :, None], seen[:, None, :])      # NaN: a joint unseen
+        ratio = bone_ratios(X)                                              # (P, B)
     ends = np.array(BONES)
-    a, b = label[:, ends[:, 0]], label[:, ends[:, 1]]                         # (P, B)
-    with np.errstate(invalid="ignore"):
-        across = (a >= 0) & (b >= 0) & (a != b) & (bone_ratios(X) > max_bone_ratio)
-    two &= across.any(1)
+    p = np.arange(len(X))
+    apart = (ratio > max_bone_ratio) & (share[:, ends[:, 0], ends[:, 1]] < LINK_SHARE)
+    bone = np.argmax(np.where(apart, ratio, -np.inf), axis=1)                # (P,) the longest
+    a, b = ends[bone, 0], ends[bone, 1]
+    to_a, to_b = share[p, :, a], share[p, :, b]                              # (P, J)
+    label = np.where((to_a >= to_b) & (to_a > 0), 0, np.where(to_b > to_a, 1, -1))
+    two = apart[p, bone] & ((label == 0).sum(1) >= min_joints) & ((label == 1).sum(1) >= min_joints)
     return np.where(two[:, None], label, -1)
 
 
@@ -96,7 +85,8 @@ def split_members(members: np.ndarray, inliers: np.ndarray, label: np.ndarray) -
 
 
 def split_persons(groups: list[np.ndarray], X: np.ndarray, inliers: np.ndarray, members: np.ndarray,
-                  min_joints: int, max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray] | None:
+                  min_joints: int, max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray,
+                                                                   np.ndarray] | None:
     """The persons of :func:`body_parts` split in two, or None where every person is one body.
 
     ``groups``: the ``P`` groups of pose indices triangulated as ``X: (P, J, 3)``, with
