@@ -27,9 +27,8 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
-from mvm.core.body_parts import split_persons
-from mvm.core.keypoints import FLIP_PERMUTATION, bone_ratios
-from mvm.core.quality import row_nanmedian
+from mvm.core.body_parts import body_deviation, split_persons
+from mvm.core.keypoints import FLIP_PERMUTATION
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -265,22 +264,6 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
 
 
-def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
-    """How far each person's bone lengths are from human proportions, whatever the posture
-    and the model's scale: the median over bones of ``|l / (s · l_mean) - 1|`` with ``s`` the
-    median of ``l / l_mean``. About 0.05 for a real person; a cluster of false positives that
-    happens to triangulate gives 0.5 and more.
-
-    ``X: (Q, J, 3)`` -> ``(Q,)``, NaN where fewer than ``min_bones`` bones are reconstructed.
-
-    >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
-    [nan]
-    """
-    ratio = bone_ratios(X)
-    deviation = row_nanmedian(np.abs(ratio - 1))
-    return np.where(np.isfinite(ratio).sum(1) >= min_bones, deviation, np.nan)
-
-
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
     """Position of each view in a video from its image name, numbers compared as numbers
     (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
@@ -347,7 +330,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
         X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
-        split = split_persons(groups, X, result[1].inliers, result[0].members, min_person_joints,
+        split = split_persons(groups, X, result[1].inliers, result[0].members, min_common_keypoints,
                               max_bone_ratio) if max_bone_ratio > 0 and groups else None
         if split is not None:                   # two people as one: each part triangulated from its own poses
             groups, X, person, part = split
@@ -366,7 +349,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         new = _groups_of(assignment, len(groups))
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
-        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
+        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
+                         max_bone_ratio)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
@@ -438,7 +422,7 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
 
 def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
-              max_proportion_deviation: float) -> np.ndarray:
+              max_proportion_deviation: float, max_bone_ratio: float = 0.0) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
     triangulate to no body, unless they explain most of their views, as no false cluster does;
@@ -450,7 +434,7 @@ def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P:
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
-    keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
     keep &= ~((seen_most < min(3, min_group_size)) & (2 * count < visible))
     return keep
 

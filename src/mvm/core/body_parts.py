@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.keypoints import BONES, bone_ratios
+from mvm.core.keypoints import BONES, bone_ratios, stray_joints
+from mvm.core.quality import row_nanmedian
 
 #: The two ends of a bone are seen apart when fewer than this share of the inlier views of the
 #: less seen end have both as inliers (the views of one person see both ends of its bones, or
@@ -43,9 +44,13 @@ def body_parts(X: np.ndarray, inliers: np.ndarray, min_joints: int, max_bone_rat
     A person is two people when one of its bones is longer than ``max_bone_ratio`` times its
     proportion at the person's scale (:func:`mvm.core.keypoints.bone_ratios`) and its two ends
     are seen apart (:data:`LINK_SHARE`): each end is another person's joint. The longest such
-    bone names the two people; every joint goes to the end it shares more inlier views with
-    (relative to the less seen of the two), a joint sharing none with either to neither; both
-    people need ``min_joints`` joints (a stray joint alone is not a person).
+    bone names the two people; a joint goes to the end it is seen with, not apart from, and to
+    neither where it is seen with both (a joint triangulated from both people's keypoints, or a
+    real person's joint: the body of one person is seen with both ends of any bone) or with
+    none. Both people need ``min_joints`` joints, and the two sets of joints are seen apart
+    too (fewer than :data:`LINK_SHARE` of the views of the less seen one see both): a real
+    person's sides, each seen from its end of the arc, are seen together from the middle, and a
+    stray joint, seen apart from its neighbour, is seen with the rest of its body.
 
     ``X: (P, J, 3)`` (NaN: not reconstructed), ``inliers: (P, M, J)``. Returns ``(P, J)`` int:
     0 for the joints of the person at the bone's first end, 1 for the other's, -1 elsewhere (and
@@ -67,9 +72,12 @@ def body_parts(X: np.ndarray, inliers: np.ndarray, min_joints: int, max_bone_rat
     apart = (ratio > max_bone_ratio) & (share[:, ends[:, 0], ends[:, 1]] < LINK_SHARE)
     bone = np.argmax(np.where(apart, ratio, -np.inf), axis=1)                # (P,) the longest
     a, b = ends[bone, 0], ends[bone, 1]
-    to_a, to_b = share[p, :, a], share[p, :, b]                              # (P, J)
-    label = np.where((to_a >= to_b) & (to_a > 0), 0, np.where(to_b > to_a, 1, -1))
+    to_a, to_b = share[p, :, a] >= LINK_SHARE, share[p, :, b] >= LINK_SHARE  # (P, J)
+    label = np.where(to_a & ~to_b, 0, np.where(to_b & ~to_a, 1, -1))
     two = apart[p, bone] & ((label == 0).sum(1) >= min_joints) & ((label == 1).sum(1) >= min_joints)
+    views = [(inliers & (label == k)[:, None, :]).any(-1) for k in (0, 1)]     # (P, M) each
+    both = (views[0] & views[1]).sum(1)
+    two &= both < LINK_SHARE * np.minimum(views[0].sum(1), views[1].sum(1))
     return np.where(two[:, None], label, -1)
 
 
@@ -113,3 +121,33 @@ def split_persons(groups: list[np.ndarray], X: np.ndarray, inliers: np.ndarray, 
     person, part = (np.array(c) for c in zip(*rows))
     keep = (part[:, None] < 0) | (label[person] == part[:, None])             # (P', J) joints kept
     return out_groups, np.where(keep[..., None], X[person], np.nan), person, part
+
+
+def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
+    """How far each person's bone lengths are from human proportions, whatever the posture
+    and the model's scale: the median over bones of ``|l / (s · l_mean) - 1|`` with ``s`` the
+    median of ``l / l_mean``. About 0.05 for a real person; a cluster of false positives that
+    happens to triangulate gives 0.5 and more.
+
+    ``X: (Q, J, 3)`` -> ``(Q,)``, NaN where fewer than ``min_bones`` bones are reconstructed.
+
+    >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
+    [nan]
+    """
+    ratio = bone_ratios(X)
+    deviation = row_nanmedian(np.abs(ratio - 1))
+    return np.where(np.isfinite(ratio).sum(1) >= min_bones, deviation, np.nan)
+
+
+def body_deviation(X: np.ndarray, max_bone_ratio: float) -> np.ndarray:
+    """:func:`proportion_deviation` of the bodies the reconstruction keeps: without the joints
+    :func:`mvm.core.keypoints.stray_joints` leaves out (bones over ``max_bone_ratio``; 0: none
+    left out), of every joint where fewer than 4 bones would remain. A person seen in few views
+    of a joint (a shoulder seen from one side of the arc) may have that joint far along its rays,
+    and, with few bones, the scale it sets makes the others look wrong too. ``X: (Q, J, 3)`` -> ``(Q,)``."""
+    whole = proportion_deviation(X)
+    if max_bone_ratio <= 0 or not len(X):
+        return whole
+    with np.errstate(invalid="ignore"):
+        kept = np.where(stray_joints(X, max_bone_ratio)[..., None], np.nan, X)
+    return np.fmin(proportion_deviation(kept), whole)
