@@ -129,3 +129,20 @@ def test_a_crowd_of_twenty_keeps_its_two_half_hidden_neighbours_apart():
     assert len(result.persons) == 20
     assert precision >= 0.995 and recall >= 0.995
     assert sorted(np.bincount(person[m][person[m] >= 0]).argmax() for m in result.persons.members) == list(range(20))
+
+
+def test_a_body_is_judged_without_its_stray_joints(pair):
+    """A person seen whole in no view: only its arms, a shoulder 0.5 m off along its rays and a
+    wrist 1.2 m off. With so few bones the shoulder sets a scale that makes the right arm look
+    short; the wrist, left out before the refinement, no longer counts."""
+    from mvm.core.body_parts import body_deviation, proportion_deviation
+
+    _, truth = pair
+    arms = [5, 6, 7, 8, 9, 10]
+    X = np.full((1, 17, 3), np.nan)
+    X[0, arms] = truth.poses3d[0, arms]
+    assert body_deviation(X, 2.0)[0] == proportion_deviation(X)[0] < 0.05
+    X[0, 9] += [0.0, 1.2, 0.0]
+    X[0, 5] += [0.5, 0.0, 0.0]
+    assert proportion_deviation(X)[0] > 0.4 > body_deviation(X, 2.0)[0]           # refused, kept
+    assert body_deviation(X, 0.0)[0] == proportion_deviation(X)[0]                  # no joint left out

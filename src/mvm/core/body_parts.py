@@ -1,4 +1,5 @@
-"""Two people triangulated as one: the parts of a person that no pose links.
+"""Two people triangulated as one, told by a bone whose ends no view sees together; and the
+proportions of a body.
 
 In a crowd, a person behind others is seen whole in no view: one shows only its head, the next
 its head and an elbow. Two such neighbours, each seen in a few views and mostly not in the same
@@ -83,7 +84,7 @@ def body_parts(X: np.ndarray, inliers: np.ndarray, min_joints: int, max_bone_rat
 
 def split_members(members: np.ndarray, inliers: np.ndarray, label: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each pose of a person of two parts to the part it has more inlier joints in (ties, and
-    poses of no inlier: the larger part). ``members: (P, M)`` pose index of each slot (-1:
+    poses of no inlier in either: part 0). ``members: (P, M)`` pose index of each slot (-1:
     padding), ``inliers: (P, M, J)``, ``label: (P, J)`` from :func:`body_parts`. Returns the
     ``(K,)`` poses of the parts ``1`` and the ``(K,)`` person each came from; the others stay."""
     votes = np.stack([(inliers & (label == k)[:, None, :]).sum(-1) for k in (0, 1)])   # (2, P, M)
@@ -140,11 +141,17 @@ def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
 
 
 def body_deviation(X: np.ndarray, max_bone_ratio: float) -> np.ndarray:
-    """:func:`proportion_deviation` of the bodies the reconstruction keeps: without the joints
-    :func:`mvm.core.keypoints.stray_joints` leaves out (bones over ``max_bone_ratio``; 0: none
-    left out), of every joint where fewer than 4 bones would remain. A person seen in few views
-    of a joint (a shoulder seen from one side of the arc) may have that joint far along its rays,
-    and, with few bones, the scale it sets makes the others look wrong too. ``X: (Q, J, 3)`` -> ``(Q,)``."""
+    """:func:`proportion_deviation` of the bodies the reconstruction keeps, those without the
+    joints :func:`mvm.core.keypoints.stray_joints` leaves out (bones over ``max_bone_ratio``; 0:
+    none left out), where that is lower than with them (NaN, fewer than 4 bones left: with them).
+    A person seen whole in no view may have a joint seen from one side of the arc only, far along
+    its rays, and with few bones the scale that joint sets makes the others look wrong too.
+    ``X: (Q, J, 3)`` -> ``(Q,)``.
+
+    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.1; X[0, 10] = [0.0, 5.0, 0.0]
+    >>> bool(body_deviation(X, 2.0)[0] <= proportion_deviation(X)[0])
+    True
+    """
     whole = proportion_deviation(X)
     if max_bone_ratio <= 0 or not len(X):
         return whole
