@@ -308,10 +308,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         merge: ``merge(X, groups) -> groups or None`` joins persons whose 3D poses coincide;
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
-            min_group_size, min_support, max_proportion_deviation: see :func:`_credible`.
-        max_bone_ratio: a person whose joints no pose links into one body, its parts joined by
-            a bone over this ratio, is split in two (:func:`mvm.core.body_parts.split_persons`;
-            0: never).
+            min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`_credible`, :func:`_separate`.
         eligible: ``(N,)`` poses that may be assigned; pose_scene: ``(N,)`` scene of each pose
             when several static scenes (rig instants) are associated at once.
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
@@ -322,24 +319,15 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     keypoints = np.asarray(keypoints, dtype=float)
     N = len(keypoints)
     if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
-        raise ValueError(f"associate: expected keypoints (N, 17, 3) and frame (N,), got {keypoints.shape} "
-                         f"and {frame.shape}")
+        raise ValueError(f"associate: expected keypoints (N, 17, 3), frame (N,); got {keypoints.shape}, {frame.shape}")
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
-        split = split_persons(groups, X, result[1].inliers, result[0].members, min_common_keypoints,
-                              max_bone_ratio) if max_bone_ratio > 0 and groups else None
-        if split is not None:                   # two people as one: each part triangulated from its own poses
-            groups, X, person, part = split
-            parts, seen = np.flatnonzero(part >= 0), seen[person]
-            again = triangulate([groups[q] for q in parts])[1]
-            X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
+        (groups, X, seen), stale = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio), False
         if merge is not None and len(groups) > 1:
-            groups, X, seen, merged = _merge_persons(merge, X, seen, groups, N)
-            stale |= merged
+            groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
             break
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
@@ -380,6 +368,24 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
                                 max_gap)
     taken = _groups_of(assign_per_frame(cost, pose, person, frame[pose], len(keypoints), gate), len(groups))
     return [np.sort(np.concatenate([g, t])) for g, t in zip(groups, taken)]
+
+
+def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
+              max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """``(groups, X, seen_most)`` of ``groups`` triangulated as ``result``, where two people
+    triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
+    whose ends no view sees together, parts of ``min_joints`` joints) are split, each part
+    triangulated from its own poses; ``seen_most: (Q,)`` as :func:`_credible` reads it."""
+    X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
+    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
+                          max_bone_ratio) if max_bone_ratio > 0 and groups else None
+    if split is None:
+        return groups, X, seen
+    groups, X, person, part = split
+    parts, seen = np.flatnonzero(part >= 0), seen[person]
+    again = triangulate([groups[q] for q in parts])[1]
+    X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
+    return groups, X, seen
 
 
 def _merge_persons(merge: Callable, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
@@ -427,7 +433,9 @@ def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P:
     they project into, and whose body is one (false positives agreeing in a few close views
     triangulate to no body, unless they explain most of their views, as no false cluster does;
     nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
-    most inlier views of any of its joints: two views agree on a point whatever they saw)."""
+    most inlier views of any of its joints: two views agree on a point whatever they saw). The
+    proportions are those of the body without its stray joints (``max_bone_ratio``,
+    :func:`mvm.core.body_parts.body_deviation`)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
