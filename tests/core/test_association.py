@@ -148,7 +148,7 @@ def test_cost_is_the_median_distance_in_person_sizes_and_forgives_a_swap(mixed):
 
 
 def test_proportions_tell_a_body_from_a_scramble(mixed):
-    from mvm.core.association import proportion_deviation
+    from mvm.core.body_parts import proportion_deviation
 
     _, truth = mixed
     bodies = truth.poses3d                                         # standing and seated

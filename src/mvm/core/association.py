@@ -27,8 +27,8 @@ from collections.abc import Callable
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
-from mvm.core.keypoints import FLIP_PERMUTATION, bone_ratios
-from mvm.core.quality import row_nanmedian
+from mvm.core.body_parts import body_deviation, split_persons
+from mvm.core.keypoints import FLIP_PERMUTATION
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -264,22 +264,6 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
 
 
-def proportion_deviation(X: np.ndarray, min_bones: int = 4) -> np.ndarray:
-    """How far each person's bone lengths are from human proportions, whatever the posture
-    and the model's scale: the median over bones of ``|l / (s · l_mean) - 1|`` with ``s`` the
-    median of ``l / l_mean``. About 0.05 for a real person; a cluster of false positives that
-    happens to triangulate gives 0.5 and more.
-
-    ``X: (Q, J, 3)`` -> ``(Q,)``, NaN where fewer than ``min_bones`` bones are reconstructed.
-
-    >>> proportion_deviation(np.full((1, 17, 3), np.nan)).tolist()
-    [nan]
-    """
-    ratio = bone_ratios(X)
-    deviation = row_nanmedian(np.abs(ratio - 1))
-    return np.where(np.isfinite(ratio).sum(1) >= min_bones, deviation, np.nan)
-
-
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
     """Position of each view in a video from its image name, numbers compared as numbers
     (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
@@ -309,7 +293,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
               groups: list[np.ndarray], triangulate: Callable, merge: Callable | None = None,
               seed: Callable | None = None, *,
               gate: float = 0.15, max_iterations: int = 4, min_group_size: int = 3, min_support: float = 0.2,
-              max_proportion_deviation: float = 0.25, min_person_joints: int = 5,
+              max_proportion_deviation: float = 0.25, min_person_joints: int = 5, max_bone_ratio: float = 0.0,
               keypoint_threshold: float = 0.2, min_common_keypoints: int = 3, eligible: np.ndarray | None = None,
               pose_scene: np.ndarray | None = None, sequence: np.ndarray | None = None,
               temporal_weight: float = 0.5, max_gap: int = 3, triangulated=None):
@@ -324,7 +308,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         merge: ``merge(X, groups) -> groups or None`` joins persons whose 3D poses coincide;
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
-            min_group_size, min_support, max_proportion_deviation: see :func:`_credible`.
+            min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`_credible`, :func:`_separate`.
         eligible: ``(N,)`` poses that may be assigned; pose_scene: ``(N,)`` scene of each pose
             when several static scenes (rig instants) are associated at once.
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
@@ -335,14 +319,13 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     keypoints = np.asarray(keypoints, dtype=float)
     N = len(keypoints)
     if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
-        raise ValueError(f"associate: expected keypoints (N, 17, 3) and frame (N,), got {keypoints.shape} "
-                         f"and {frame.shape}")
+        raise ValueError(f"associate: expected keypoints (N, 17, 3), frame (N,); got {keypoints.shape}, {frame.shape}")
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        X, seen, stale = result[1].X, result[1].inliers.sum(1).max(-1, initial=0), False    # of ``groups``
+        (groups, X, seen), stale = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio), False
         if merge is not None and len(groups) > 1:
             groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
@@ -354,7 +337,8 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         new = _groups_of(assignment, len(groups))
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
-        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation)
+        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
+                         max_bone_ratio)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
@@ -384,6 +368,24 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
                                 max_gap)
     taken = _groups_of(assign_per_frame(cost, pose, person, frame[pose], len(keypoints), gate), len(groups))
     return [np.sort(np.concatenate([g, t])) for g, t in zip(groups, taken)]
+
+
+def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
+              max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """``(groups, X, seen_most)`` of ``groups`` triangulated as ``result``, where two people
+    triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
+    whose ends no view sees together, parts of ``min_joints`` joints) are split, each part
+    triangulated from its own poses; ``seen_most: (Q,)`` as :func:`_credible` reads it."""
+    X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
+    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
+                          max_bone_ratio) if max_bone_ratio > 0 and groups else None
+    if split is None:
+        return groups, X, seen
+    groups, X, person, part = split
+    parts, seen = np.flatnonzero(part >= 0), seen[person]
+    again = triangulate([groups[q] for q in parts])[1]
+    X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
+    return groups, X, seen
 
 
 def _merge_persons(merge: Callable, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
@@ -426,19 +428,21 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
 
 def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
-              max_proportion_deviation: float) -> np.ndarray:
+              max_proportion_deviation: float, max_bone_ratio: float = 0.0) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
     triangulate to no body, unless they explain most of their views, as no false cluster does;
     nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
-    most inlier views of any of its joints: two views agree on a point whatever they saw)."""
+    most inlier views of any of its joints: two views agree on a point whatever they saw). The
+    proportions are those of the body without its stray joints (``max_bone_ratio``,
+    :func:`mvm.core.body_parts.body_deviation`)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
-    keep &= ~((proportion_deviation(X) > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
     keep &= ~((seen_most < min(3, min_group_size)) & (2 * count < visible))
     return keep
 

@@ -300,7 +300,9 @@ class Config:
     #: A joint whose bones all come out more than this many times their human proportion at the
     #: person's scale (a real person: 1 ± 0.3) is left unreconstructed, before the refinement:
     #: its views agree on a point far along their rays (a narrow arc, a keypoint of the other
-    #: side among them). Raise it to keep such joints; 0 keeps all. [1]
+    #: side among them). A bone longer than this whose ends no view sees together splits a
+    #: person into the two people it holds (association in 3D). Raise it to keep such joints;
+    #: 0 keeps all and splits none. [1]
     max_bone_ratio: float = setting(2.0, ge=0)
     # --- refinement (Eq. bundle) ---------------------------------------------------------
     #: Run the refinement (reprojection + λ·pose prior). [bool]

@@ -382,7 +382,8 @@ def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], 
         gate=config.association_gate, max_iterations=config.association_iterations,
         min_group_size=config.min_group_size, min_support=config.association_min_support,
         max_proportion_deviation=config.association_max_proportion_deviation,
-        min_person_joints=config.min_person_joints, keypoint_threshold=config.keypoint_threshold,
+        min_person_joints=config.min_person_joints, max_bone_ratio=config.max_bone_ratio,
+        keypoint_threshold=config.keypoint_threshold,
         min_common_keypoints=config.min_common_keypoints, eligible=poses.score >= config.min_pose_score,
         pose_scene=poses.instant, sequence=sequence, triangulated=triangulated)
 
