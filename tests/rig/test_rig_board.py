@@ -376,9 +376,9 @@ def test_board_too_big_for_its_dictionary_one_line(tmp_path):
     the dictionary's count and the board's need, before any video is read."""
     root = _small_rig(tmp_path)
     out = tmp_path / "c.toml"
-    _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "100000x3",
+    _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--charuco", "--board-size", "100x3",
                                               "--square-size", "0.1", "--marker-size", "0.075", "-o", str(out)]),
-                     "error: --dictionary: DICT_4X4_50 holds 50 markers", "100000x3 squares needs 150000")
+                     "error: --dictionary: DICT_4X4_50 holds 50 markers", "100x3 squares needs 150")
     assert not out.exists()
 
 

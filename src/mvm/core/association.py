@@ -28,6 +28,7 @@ import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
+from mvm.core.duplicates import absorb_explained
 from mvm.core.keypoints import FLIP_PERMUTATION
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
@@ -309,8 +310,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
             min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`_credible`, :func:`_separate`.
-        eligible: ``(N,)`` poses that may be assigned; pose_scene: ``(N,)`` scene of each pose
-            when several static scenes (rig instants) are associated at once.
+        eligible, pose_scene: ``(N,)`` the poses that may be assigned, the scene of each (rig instants).
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
             (:func:`temporal_cost`, ``temporal_weight``, ``max_gap``) may lower a cost.
         triangulated: the ``triangulate(groups)`` result when already computed.
@@ -322,21 +322,22 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         raise ValueError(f"associate: expected keypoints (N, 17, 3), frame (N,); got {keypoints.shape}, {frame.shape}")
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
+    slot = pose_scene * len(P) + frame                                   # the view (and scene) of each pose
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        (groups, X, seen), stale = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio), False
-        if merge is not None and len(groups) > 1:
-            groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
+        groups, X, seen = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio)
+        groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
             break
         usable = np.isfinite(X).all(-1).sum(-1) >= min_person_joints
         pose, person, cost = _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate,
                                     keypoint_threshold, min_common_keypoints, sequence, temporal_weight, max_gap)
-        assignment = assign_per_frame(cost, pose, person, (pose_scene * len(P) + frame)[pose], N, gate)
+        assignment = assign_per_frame(cost, pose, person, slot[pose], N, gate)
         new = _groups_of(assignment, len(groups))
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
+        new = absorb_explained(new, pose, person, cost, slot, gate) or new      # a person seen twice
         keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
                          max_bone_ratio)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
@@ -388,12 +389,12 @@ def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joint
     return groups, X, seen
 
 
-def _merge_persons(merge: Callable, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
+def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
     """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen_most, stale)``. Each
     merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`_credible`) of the
     group it has most poses from until it is re-triangulated (``stale``: ``X`` no longer
     triangulates ``groups``)."""
-    merged = merge(X, groups)
+    merged = merge(X, groups) if merge is not None and len(groups) > 1 else None
     if merged is None:
         return groups, X, seen_most, False
     owner = np.full(N, -1)

@@ -258,8 +258,9 @@ class Config:
     max_triangulation_views: int = setting(150, ge=2)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True
-    #: Two persons whose joints are on average closer than this fraction of the torso length
-    #: are one person split into two groups, and are merged; 0 disables. [torso lengths]
+    #: Two persons whose joints are closer than this fraction of the torso length (the median
+    #: over their joints: a stray joint does not keep them apart) are one person split into two
+    #: groups, and are merged; 0 disables. [torso lengths]
     merge_distance: float = setting(0.3, ge=0)
     # --- association consistent in 3D ----------------------------------------------------
     #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
@@ -287,6 +288,11 @@ class Config:
     #: refused (false positives that happen to agree in a few views, or a second person of a
     #: few views beside a true one). [0-1]
     association_min_support: float = setting(0.2, ge=0, le=1)
+    #: The same for a person of a rig instant, whose cameras stand around the people and see
+    #: each one from every side at once (a hand-held video's frames follow one another along
+    #: an arc, so a person hidden behind another stays hidden for a long stretch of them):
+    #: a cluster of false poses that agree in three of eighteen cameras is refused. [0-1]
+    rig_min_support: float = setting(0.3, ge=0, le=1)
     #: A person whose bone lengths deviate from human proportions by more than this (median
     #: over the bones, after fitting the scale; a real person: about 0.05, up to 0.3 on short
     #: arcs) is refused unless it explains half the views it projects into: false positives
@@ -362,4 +368,5 @@ _LEFT_TO_DRIVER = {"association": "auto", "complete": None}
 DRIVER_DEFAULTS = {"scene": {"association": "3d", "complete": False},
                    "rig": {"association": "paper", "complete": True}}
 #: Settings of :class:`Config` a driver never reads: given to it, they are refused, not ignored.
-UNUSED_BY_DRIVER = {"scene": (), "rig": ("video_order", "max_affinity_bytes", "keyframes")}
+UNUSED_BY_DRIVER = {"scene": ("rig_min_support",),
+                    "rig": ("video_order", "max_affinity_bytes", "keyframes", "association_min_support")}

@@ -13,7 +13,7 @@ from mvm.core.scene import Poses2D
 def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
     """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
 
-    Two persons are duplicates when their mean joint distance, over the joints both have, is
+    Two persons are duplicates when their median joint distance, over the joints both have, is
     below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
     keeps the test free of the model's unknown scale; also when one is the mirror of the other
     (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
@@ -31,8 +31,8 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
         torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
         for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
             diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
-            mean = _nanmean(np.sqrt((diff * diff).sum(-1)), axis=-1)          # (2, K)
-            close[i, j] = np.fmin(mean[0], mean[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
+            median = _nanmedian(np.sqrt((diff * diff).sum(-1)))               # (2, K)
+            close[i, j] = np.fmin(median[0], median[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
     return close
 
 
@@ -67,6 +67,21 @@ def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
     warning machinery."""
     missing = np.isnan(a)
     return np.where(missing, 0.0, a).sum(axis) / (~missing).sum(axis)
+
+
+def _nanmedian(a: np.ndarray) -> np.ndarray:
+    """``np.nanmedian(a, axis=-1)`` (NaN where a row has none), without its warnings: a person
+    seen from few views may have a stray joint metres off, which a mean would follow.
+
+    >>> _nanmedian(np.array([[0.1, np.nan, 0.2, 3.0], [np.nan, np.nan, np.nan, np.nan]])).tolist()
+    [0.2, nan]
+    """
+    n = (~np.isnan(a)).sum(-1)                                                # ≤ J: n // 2 < J
+    s = np.sort(np.where(np.isnan(a), np.inf, a), axis=-1)
+    lo = np.take_along_axis(s, np.maximum(n - 1, 0)[..., None] // 2, -1)[..., 0]
+    hi = np.take_along_axis(s, (n // 2)[..., None], -1)[..., 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, 0.5 * (lo + hi), np.nan)
 
 
 def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
@@ -127,3 +142,55 @@ def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
                                     close[rows[0]:rows[-1] + 1, rows[0]:rows[-1] + 1]) or part
         out += part
     return out
+
+
+def absorb_explained(groups: list[np.ndarray], pose: np.ndarray, person: np.ndarray, cost: np.ndarray,
+                     slot: np.ndarray, gate: float) -> list[np.ndarray] | None:
+    """Persons seen twice that their 3D poses do not show: a person triangulated from a few
+    poorly spread views can lie tenths of a metre from the person it duplicates (and fits its
+    own poses better than anyone, so the assignment keeps them), yet the larger person's
+    reprojection explains every one of its poses, in views the larger person has no pose in.
+    Such a person joins the larger one.
+
+    ``groups``: the pose indices of each person (the assignment's); ``pose, person, cost: (K,)``
+    candidate pairs and their costs (person sizes), ``slot: (N,)`` the view (and scene) of
+    every pose, ``gate``: the largest cost of an assignment. Each person is absorbed by the
+    larger person that explains all its poses at the least summed cost, provided it has no pose
+    in any of their views; chains are followed from the smallest. Returns the new groups, one
+    per person as given (an absorbed person's empty), or None when no person is absorbed.
+
+    >>> groups = [np.array([0, 1, 2, 3]), np.array([4, 5])]    # poses 4, 5 in views 4, 5
+    >>> pose, person = np.array([4, 5, 4, 5]), np.array([0, 0, 1, 1])
+    >>> [g.tolist() for g in absorb_explained(groups, pose, person, np.array([0.05, 0.04, 0.0, 0.0]),
+    ...                                       np.arange(6), 0.15)]
+    [[0, 1, 2, 3, 4, 5], []]
+    """
+    Q = len(groups)
+    if Q < 2:
+        return None
+    size = np.array([len(g) for g in groups])
+    owner = np.full(len(slot), -1)
+    owner[np.concatenate(groups)] = np.repeat(np.arange(Q), size)
+    q = owner[pose]
+    fit = (cost < gate) & (q >= 0) & (q != person)
+    fit[fit] = size[person[fit]] > size[q[fit]]                      # into a larger person only
+    q, r, c = q[fit], person[fit], cost[fit]
+    key, inverse, count = np.unique(q * Q + r, return_inverse=True, return_counts=True)
+    whole = count == size[key // Q]                                  # every pose of q explained by r
+    if not whole.any():
+        return None
+    total = np.bincount(inverse, weights=c)[whole]
+    key = key[whole][np.lexsort((total, size[key[whole] // Q]))]     # smallest person, then least cost
+    views = [set(slot[g].tolist()) for g in groups]
+    into = np.arange(Q)
+    for q, r in zip((key // Q).tolist(), (key % Q).tolist()):
+        if into[q] != q or into[r] != r or views[q] & views[r]:
+            continue
+        into[q] = r
+        views[r] |= views[q]
+    if (into == np.arange(Q)).all():
+        return None
+    merged = [[g] for g in groups]
+    for q in np.flatnonzero(into != np.arange(Q)):
+        merged[into[q]].append(groups[q])
+    return [np.sort(np.concatenate(merged[r])) if into[r] == r else groups[r][:0] for r in range(Q)]

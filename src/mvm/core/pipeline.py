@@ -36,6 +36,7 @@ from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
 from mvm.core.refine_units import noise_factor, prior_weights
 from mvm.core.scene import Cameras, Poses2D
+from mvm.core.support import drop_unsupported
 from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
 from mvm.errors import InputError
 
@@ -380,7 +381,8 @@ def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], 
         lambda X, g: merge_groups(X, g, poses, config),
         lambda rest: match_windows(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
-        min_group_size=config.min_group_size, min_support=config.association_min_support,
+        min_group_size=config.min_group_size,
+        min_support=config.association_min_support if poses.instant is None else config.rig_min_support,
         max_proportion_deviation=config.association_max_proportion_deviation,
         min_person_joints=config.min_person_joints, max_bone_ratio=config.max_bone_ratio,
         keypoint_threshold=config.keypoint_threshold,
@@ -429,8 +431,11 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         t = time.perf_counter()
         groups, (obs, tri) = associate_poses(cameras, poses, groups, (obs, tri), config, threshold)
         timings["association_s"] = time.perf_counter() - t
+    if poses.instant is not None and not associate_3d and not given:
+        drop_unsupported(cameras, groups, tri, config)
     drop_stray_joints(tri, config)
     return Triangulated(groups, obs, tri, timings)
+
 
 
 def drop_stray_joints(tri: Triangulation, config: Config) -> None:
