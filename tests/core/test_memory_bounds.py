@@ -29,15 +29,15 @@ def _reference_pairs(X: np.ndarray, block: np.ndarray, limit: float) -> np.ndarr
         lengths = [v for v in lengths if np.isfinite(v)]
         return np.mean(lengths) if lengths else np.nan
 
-    def median_distance(a, b):
+    def quartile_distance(a, b):
         d = np.linalg.norm(a - b, axis=-1)
         d = d[np.isfinite(d)]
-        return np.median(d) if len(d) else np.nan
+        return np.quantile(d, 0.75) if len(d) else np.nan
 
     for i in range(P):
         for j in range(P):
             if i != j and block[i] == block[j]:
-                d = np.fmin(median_distance(X[i], X[j]), median_distance(X[i], X[j][FLIP_PERMUTATION]))
+                d = np.fmin(quartile_distance(X[i], X[j]), quartile_distance(X[i], X[j][FLIP_PERMUTATION]))
                 close[i, j] = d < limit * np.fmax(torso(X[i]), torso(X[j]))
     return close
 

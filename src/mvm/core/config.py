@@ -258,9 +258,9 @@ class Config:
     max_triangulation_views: int = setting(150, ge=2)
     #: Use RANSAC; off, every keypoint of a group is used (the paper's "w/o RANSAC"). [bool]
     ransac: bool = True
-    #: Two persons whose joints are closer than this fraction of the torso length (the median
-    #: over their joints: a stray joint does not keep them apart) are one person split into two
-    #: groups, and are merged; 0 disables. [torso lengths]
+    #: Two persons whose joints are closer than this fraction of the torso length (the upper
+    #: quartile over their joints: a stray joint does not keep them apart) are one person split
+    #: into two groups, and are merged; 0 disables. [torso lengths]
     merge_distance: float = setting(0.3, ge=0)
     # --- association consistent in 3D ----------------------------------------------------
     #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);

@@ -9,12 +9,24 @@ import numpy as np
 from mvm.core.config import Config
 from mvm.core.scene import Poses2D
 
+#: The quantile of the joint distances :func:`duplicate_pairs` compares where a merge is final
+#: (the paper's grouping): the upper quartile, so that a group mixing two people, half its
+#: joints on each, is taken for neither.
+FINAL_QUANTILE = 0.75
+#: The same within the association in 3D, which releases the poses a merged person does not
+#: explain: the median, so that a copy of a person triangulated from few views, a few of its
+#: joints far off, joins it.
+ASSOCIATION_QUANTILE = 0.5
 
-def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float) -> np.ndarray:
+
+def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: float,
+                    quantile: float = FINAL_QUANTILE) -> np.ndarray:
     """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
 
-    Two persons are duplicates when their median joint distance, over the joints both have, is
-    below ``max_relative_distance`` times the larger torso length (hip to shoulder), which
+    Two persons are duplicates when the ``quantile`` of their joint distances, over the joints
+    both have, is below ``max_relative_distance`` times the larger torso length (hip to
+    shoulder; a quantile, not the mean: a stray joint does not keep copies of one person apart),
+    which
     keeps the test free of the model's unknown scale; also when one is the mirror of the other
     (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
     ``block: (P,)``; only pairs within a block are compared.
@@ -31,8 +43,8 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
         torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
         for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
             diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
-            median = _nanmedian(np.sqrt((diff * diff).sum(-1)))               # (2, K)
-            close[i, j] = np.fmin(median[0], median[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
+            apart = _nanquantile(np.sqrt((diff * diff).sum(-1)), quantile)            # (2, K)
+            close[i, j] = np.fmin(apart[0], apart[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
     return close
 
 
@@ -69,19 +81,21 @@ def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
     return np.where(missing, 0.0, a).sum(axis) / (~missing).sum(axis)
 
 
-def _nanmedian(a: np.ndarray) -> np.ndarray:
-    """``np.nanmedian(a, axis=-1)`` (NaN where a row has none), without its warnings: a person
-    seen from few views may have a stray joint metres off, which a mean would follow.
+def _nanquantile(a: np.ndarray, q: float) -> np.ndarray:
+    """``np.nanquantile(a, q, axis=-1)`` (linear interpolation; NaN where a row has none),
+    without its warnings.
 
-    >>> _nanmedian(np.array([[0.1, np.nan, 0.2, 3.0], [np.nan, np.nan, np.nan, np.nan]])).tolist()
-    [0.2, nan]
+    >>> [round(float(v), 3) for v in _nanquantile(np.array([[0.1, np.nan, 0.2, 3.0, 0.3], [np.nan] * 5]), 0.75)]
+    [0.975, nan]
     """
-    n = (~np.isnan(a)).sum(-1)                                                # ≤ J: n // 2 < J
-    s = np.sort(np.where(np.isnan(a), np.inf, a), axis=-1)
-    lo = np.take_along_axis(s, np.maximum(n - 1, 0)[..., None] // 2, -1)[..., 0]
-    hi = np.take_along_axis(s, (n // 2)[..., None], -1)[..., 0]
+    n = (~np.isnan(a)).sum(-1)
+    s = np.sort(np.where(np.isnan(a), np.inf, a), axis=-1)                   # the n values first
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    below = np.take_along_axis(s, lo[..., None], -1)[..., 0]
+    above = np.take_along_axis(s, np.minimum(lo + 1, np.maximum(n - 1, 0))[..., None], -1)[..., 0]
     with np.errstate(invalid="ignore"):
-        return np.where(n > 0, 0.5 * (lo + hi), np.nan)
+        return np.where(n > 0, below + (pos - lo) * (above - below), np.nan)
 
 
 def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,
@@ -123,14 +137,14 @@ def group_blocks(poses: Poses2D, groups: list[np.ndarray]) -> np.ndarray:
 
 
 def merge_groups(X: np.ndarray, groups: list[np.ndarray], poses: Poses2D,
-                 config: Config) -> list[np.ndarray] | None:
+                 config: Config, quantile: float = FINAL_QUANTILE) -> list[np.ndarray] | None:
     """:func:`merge_duplicates` within each block (groups come block by block, as from
-    :func:`match`), the duplicates of every block found at once. ``X: (P, J, 3)``. Returns the
-    new groups, or None when nothing merges."""
+    :func:`match`), the duplicates of every block found at once (:func:`duplicate_pairs` at
+    ``quantile``). ``X: (P, J, 3)``. Returns the new groups, or None when nothing merges."""
     if config.merge_distance <= 0 or len(groups) < 2:
         return None
     block = group_blocks(poses, groups)
-    close = duplicate_pairs(X, block, config.merge_distance)
+    close = duplicate_pairs(X, block, config.merge_distance, quantile)
     if not close.any():
         return None
     out: list[np.ndarray] = []

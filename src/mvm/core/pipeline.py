@@ -25,7 +25,7 @@ import numpy as np
 from mvm.core.affinity import block_pose_affinity, pose_affinity
 from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
 from mvm.core.config import Config
-from mvm.core.duplicates import merge_groups
+from mvm.core.duplicates import ASSOCIATION_QUANTILE, merge_groups
 from mvm.core.image_units import in_person_sizes
 from mvm.core.keyframes import frame_windows, spread_views
 from mvm.core.keypoints import stray_joints
@@ -378,7 +378,7 @@ def associate_poses(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray], 
     return associate(
         poses.keypoints, poses.view, cameras.P, cameras.size, groups,
         lambda g, initial=None: triangulate_groups(cameras, poses, g, config, initial, threshold),
-        lambda X, g: merge_groups(X, g, poses, config),
+        lambda X, g: merge_groups(X, g, poses, config, ASSOCIATION_QUANTILE),
         lambda rest: match_windows(cameras, poses.subset(rest), config),
         gate=config.association_gate, max_iterations=config.association_iterations,
         min_group_size=config.min_group_size,
