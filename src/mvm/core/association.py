@@ -309,7 +309,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         merge: ``merge(X, groups) -> groups or None`` joins persons whose 3D poses coincide;
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
-            min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`_credible`, :func:`_separate`.
+            min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`credible`, :func:`_separate`.
         eligible, pose_scene: ``(N,)`` the poses that may be assigned, the scene of each (rig instants).
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
             (:func:`temporal_cost`, ``temporal_weight``, ``max_gap``) may lower a cost.
@@ -338,7 +338,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         for q in np.flatnonzero(~usable):      # too incomplete to reproject: keeps what nobody took
             new[q] = groups[q][assignment[groups[q]] < 0]
         new = absorb_explained(new, pose, person, cost, slot, gate) or new      # a person seen twice
-        keep = _credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
+        keep = credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
                          max_bone_ratio)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
@@ -376,7 +376,7 @@ def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joint
     """``(groups, X, seen_most)`` of ``groups`` triangulated as ``result``, where two people
     triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
     whose ends no view sees together, parts of ``min_joints`` joints) are split, each part
-    triangulated from its own poses; ``seen_most: (Q,)`` as :func:`_credible` reads it."""
+    triangulated from its own poses; ``seen_most: (Q,)`` as :func:`credible` reads it."""
     X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
     split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
                           max_bone_ratio) if max_bone_ratio > 0 and groups else None
@@ -391,7 +391,7 @@ def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joint
 
 def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
     """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen_most, stale)``. Each
-    merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`_credible`) of the
+    merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`credible`) of the
     group it has most poses from until it is re-triangulated (``stale``: ``X`` no longer
     triangulates ``groups``)."""
     merged = merge(X, groups) if merge is not None and len(groups) > 1 else None
@@ -427,7 +427,7 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     return pose, person, cost
 
 
-def _credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
               max_proportion_deviation: float, max_bone_ratio: float = 0.0) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views

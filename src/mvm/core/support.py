@@ -1,23 +1,26 @@
 """Persons a rig instant's cameras do not support: a person that explains fewer than
-``rig_min_support`` of the cameras it projects into is a cluster of false poses that agree in a
-few cameras, not someone the cameras around the people saw. Arrays in, arrays out."""
+``rig_min_support`` of the cameras it projects into, or whose body has no human proportions, is
+a cluster of false poses that agree in a few cameras, not someone the cameras around the people
+saw. Arrays in, arrays out."""
 from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.association import visible_frames
+from mvm.core.association import credible
 from mvm.core.config import Config
 from mvm.core.scene import Cameras
 from mvm.core.triangulate import Triangulation
 
 
 def drop_unsupported(cameras: Cameras, groups: list[np.ndarray], tri: Triangulation, config: Config) -> None:
-    """Leave unreconstructed in ``tri``, in place, the persons of rig instants that explain
-    fewer than ``rig_min_support`` of the cameras they project into (false poses that agree in
-    a few cameras): with the paper's grouping, what the 3D association refuses."""
+    """Leave unreconstructed in ``tri``, in place, the persons of rig instants that the 3D
+    association would refuse (:func:`mvm.core.association.credible` with ``rig_min_support``):
+    those explaining too few of the cameras they project into, and clusters of false poses that
+    triangulate to no body. With the paper's grouping, which has no such step."""
     if not len(tri.X):
         return
-    count = np.array([len(g) for g in groups])
-    with np.errstate(all="ignore"):
-        visible = visible_frames(tri.X, cameras.P, cameras.size)
-    tri.X[count < config.rig_min_support * visible] = np.nan
+    usable = np.isfinite(tri.X).all(-1).sum(-1) >= config.min_person_joints
+    seen_most = tri.inliers.sum(1).max(-1, initial=0)
+    keep = credible(groups, tri.X, seen_most, cameras.P, cameras.size, usable, config.min_group_size,
+                    config.rig_min_support, config.association_max_proportion_deviation, config.max_bone_ratio)
+    tri.X[~keep] = np.nan
