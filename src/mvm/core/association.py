@@ -281,6 +281,20 @@ def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
     return sequence
 
 
+#: Settled: at most this fraction of the poses changed person in a round (the groups before are kept).
+SETTLED = 1e-4
+
+
+def _moved(before: list[np.ndarray], after: list[np.ndarray], N: int) -> int:
+    """How many of ``N`` poses changed group from ``before`` to ``after`` (sorted pose indices;
+    a group is named by its first pose)."""
+    names = np.full((2, N), -1)
+    for row, groups in zip(names, (before, after)):
+        held = [g for g in groups if len(g)]
+        row[np.concatenate(held + [np.zeros(0, int)])] = np.repeat([g[0] for g in held], [len(g) for g in held])
+    return int(np.count_nonzero(names[0] != names[1]))
+
+
 def _groups_of(assignment: np.ndarray, count: int) -> list[np.ndarray]:
     """Pose indices of each person ``0..count-1`` (sorted)."""
     held = np.flatnonzero(assignment >= 0)
@@ -343,7 +357,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
-        if len(new) == len(groups) and all(np.array_equal(a, b) for a, b in zip(new, groups)):
+        if len(new) == len(groups) and _moved(groups, new, N) <= SETTLED * N:
             if stale:
                 result = triangulate(groups, X)
             break
