@@ -265,8 +265,8 @@ class Config:
     # --- association consistent in 3D ----------------------------------------------------
     #: How 2D poses become persons: "paper" keeps the groups of Algorithm 1 (Tables 1-2);
     #: "3d" then reassigns every 2D pose to the triangulated person whose reprojection explains
-    #: it, one pose per person per view, and re-triangulates until (almost) nothing changes (slower,
-    #: fewer identity switches in crowds); "auto": "3d" for scenes, "paper" for the instants of
+    #: it, one pose per person per view, and re-triangulates until (almost) nothing changes
+    #: (slower, fewer identity switches in crowds); "auto": "3d" for scenes, "paper" for the instants of
     #: a rig (where the epipolar grouping is rarely wrong and "3d" costs about half of the
     #: reconstruction time for no gain). [-]
     association: str = setting("auto", choices=("auto", "paper", "3d"))

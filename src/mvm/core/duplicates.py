@@ -24,10 +24,9 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
     """``(P, P)`` bool: the pairs of persons of one block whose triangulated poses coincide.
 
     Two persons are duplicates when the ``quantile`` of their joint distances, over the joints
-    both have, is below ``max_relative_distance`` times the larger torso length (hip to
-    shoulder; a quantile, not the mean: a stray joint does not keep copies of one person apart),
-    which
-    keeps the test free of the model's unknown scale; also when one is the mirror of the other
+    both have (a quantile, not the mean: a stray joint does not keep copies of one person
+    apart), is below ``max_relative_distance`` times the larger torso length (hip to shoulder),
+    which keeps the test free of the model's unknown scale; also when one is the mirror of the other
     (left and right exchanged: a group of left-right swapped detections). ``X: (P, J, 3)``,
     ``block: (P,)``; only pairs within a block are compared.
 

@@ -437,7 +437,6 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     return Triangulated(groups, obs, tri, timings)
 
 
-
 def drop_stray_joints(tri: Triangulation, config: Config) -> None:
     """Leave the joints of :func:`mvm.core.keypoints.stray_joints` (bones over ``max_bone_ratio``
     times their proportion) unreconstructed in ``tri``, in place, before the refinement: kept,
