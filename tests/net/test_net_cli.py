@@ -58,7 +58,7 @@ def test_export_command(tmp_path):
 
 
 def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_path):
-    """Beside the dataset, ds.inputs.json records what it was made from: the same scenes and
+    """In the dataset, annotations.inputs.json records what it was made from: the same scenes and
     options keep it untouched; a changed option, a changed reconstruction, a copied frame that
     changed or --force export again, saying why; a run where a scene failed leaves no record."""
     scene, other = _scene_dir(tmp_path), tmp_path / "broken"
@@ -71,7 +71,7 @@ def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_p
 
     result, made = export()
     assert result.exit_code == 0 and "export: made: no output yet" in result.stderr
-    assert json.loads((tmp_path / "ds.inputs.json").read_text())["settings"] == \
+    assert json.loads((ds / "annotations.inputs.json").read_text())["settings"] == \
         {"link": "copy", "min_keypoints": 3, "complete": False}
     result, again = export()
     assert result.exit_code == 0 and "export: kept (up to date)" in result.stderr and again == made
@@ -90,7 +90,7 @@ def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_p
     assert "made: forced" in result.stderr
     result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
     assert result.exit_code == 2 and "3 images, 6 annotations from 1 scene(s)" in result.output
-    assert not (tmp_path / "ds.inputs.json").exists()
+    assert not (ds / "annotations.inputs.json").exists()
     result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
     assert "made: " in result.stderr
 

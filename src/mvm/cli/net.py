@@ -34,10 +34,10 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
                complete: bool, force: bool) -> None:
     """Project the 3D poses of SCENES into every frame: a COCO dataset with relative depths.
 
-    Beside the dataset, OUT.inputs.json records what it was made from: a rerun with the same
+    OUT/annotations.inputs.json records what the dataset was made from: a rerun with the same
     scenes, reconstructions and options keeps it."""
     from mvm.io.outputs import check_output_location
-    from mvm.io.provenance import fingerprints, forget, why_redo, write_record
+    from mvm.io.provenance import fingerprints, why_redo, write_record
     from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import ANNOTATIONS_FILE, EXPORT_STAGE, export_inputs, export_supervision
 
@@ -50,7 +50,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     except InputError:               # an unreadable input: its scene fails on its own below
         hashed = None
     why = ("forced" if force else "an input cannot be read" if hashed is None else
-           why_redo(out_dir, inputs, settings, EXPORT_STAGE, exists=(out_dir / ANNOTATIONS_FILE).is_file()))
+           why_redo(out_dir / ANNOTATIONS_FILE, inputs, settings, EXPORT_STAGE))
     if why is None:
         click.echo("export: kept (up to date)", err=True)
         return
@@ -70,10 +70,12 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
         prior = shipped_prior()
     failed: list = []
     items = (item for _, item in each_isolated(scenes, read, failed))
-    forget(out_dir)
-    path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints, prior=prior)
-    if not failed and hashed is not None:     # a dataset that lacks a scene is redone by the next run
-        write_record(out_dir, EXPORT_STAGE, inputs, settings, hashed)
+
+    def record(annotations: Path) -> None:     # a data set that lacks a scene is redone by the next run
+        if not failed and hashed is not None:
+            write_record(annotations, EXPORT_STAGE, inputs, settings, hashed)
+
+    path = export_supervision(items, out_dir, link=link, min_keypoints=min_keypoints, prior=prior, finish=record)
     from mvm.io.checks import load_json
 
     click.echo(f"export: made: {why}", err=True)

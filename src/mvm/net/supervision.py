@@ -96,7 +96,7 @@ def _as_item(item) -> tuple[Scene, Persons3D, Path | None]:
 
 
 def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: str = "symlink",
-                       min_keypoints: int = 3, prior=None) -> Path:
+                       min_keypoints: int = 3, prior=None, finish: Callable[[Path], None] | None = None) -> Path:
     """Write a COCO-style supervision dataset of several scenes; returns the annotation file.
 
     Args:
@@ -112,13 +112,21 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
             first (:func:`mvm.core.completion.complete_persons`). Whenever the persons carry
             flags (from completion here or in ``poses3d.json``), every annotation carries them as
             ``keypoint_flags`` ("observed", "interpolated", "inferred"; "missing" where not labelled).
+        finish: called with the annotation file once it is written, before the data set is put
+            in place (a record of its inputs written there arrives with it, in the same swap).
     """
     if link not in LINK_MODES:
         raise InputError(None, "link", f"expected one of {', '.join(LINK_MODES)}, got {link!r}")
     out_dir = Path(out_dir)
     items = [_as_item(item) for item in scenes_and_persons]
     check_output_location(out_dir, [frames for _, _, frames in items if frames is not None])
-    atomic_replace_dir(lambda tmp: _write_dataset(items, out_dir, tmp, link, min_keypoints, prior), out_dir)
+
+    def build(tmp: Path) -> None:
+        _write_dataset(items, out_dir, tmp, link, min_keypoints, prior)
+        if finish is not None:
+            finish(tmp / ANNOTATIONS_FILE)
+
+    atomic_replace_dir(build, out_dir)
     return out_dir / ANNOTATIONS_FILE
 
 
