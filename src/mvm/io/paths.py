@@ -16,7 +16,7 @@ from mvm.errors import InputError
 
 _DRIVE = re.compile(r"^[A-Za-z]:")
 #: File types taken as videos (any case): a data set's clips, a rig's cameras.
-VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mts")
 
 
 def videos_by_name(folder: str | Path) -> dict[str, Path]:

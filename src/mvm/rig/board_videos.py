@@ -34,6 +34,7 @@ from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.images import read_image
 from mvm.io.outputs import check_output_location
+from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
 from mvm.rig.board_calibration import (
     BoardRig,
@@ -44,7 +45,6 @@ from mvm.rig.boards import MIN_CORNERS, Board
 from mvm.rig.calibrate import CalibrationError
 from mvm.rig.rigdir import match_cameras, read_calibration
 
-VIDEO_EXTENSIONS = frozenset((".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg", ".wmv", ".mts"))
 IMAGE_EXTENSIONS = frozenset((".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"))
 #: Frames of a video searched for the board, at most (evenly spaced; the same frame numbers in
 #: every camera, so that the extrinsics videos' views stay simultaneous). [frames]
@@ -68,7 +68,8 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
     for p in folder.iterdir():
         if p.name.startswith("."):
             continue
-        if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS | IMAGE_EXTENSIONS or p.is_dir() and _images(p):
+        typed = p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() in VIDEO_SUFFIXES
+        if p.is_file() and typed or p.is_dir() and _images(p):
             name = p.stem if p.is_file() else p.name
             if name in found:
                 raise InputError(p, None, f"camera {name}: two calibration sources ({found[name].name} and {p.name})")
