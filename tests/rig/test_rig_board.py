@@ -1,6 +1,7 @@
 """Calibrating a rig with a board: the math on projected corners, then ``mvm rig calibrate
 --checkerboard / --charuco`` on rendered videos of a rig whose intrinsics, lenses and poses are
 known, and the bad input (one line naming the camera or file, exit 2, nothing written)."""
+import os
 import shutil
 import struct
 import zlib
@@ -403,4 +404,22 @@ def test_huge_or_undecodable_calibration_image_one_line(tmp_path):
         else:
             (images / "a.png").write_bytes(content)
         _one_line_exit_2(_calibrate(root, CHARUCO, out), str(images / "a.png"), "not an image OpenCV can decode")
+    assert not out.exists()
+
+
+def test_fifo_named_like_a_calibration_video_or_image_one_line(tmp_path):
+    """A FIFO named like a camera's video (it was left out unsaid: the rig calibrated without
+    that camera) or like an image of an image folder (leaving it out shifts the frame numbers
+    after it): one line naming it, exit 2, nothing written, no hang."""
+    root = _small_rig(tmp_path)
+    out = tmp_path / "c.toml"
+    fifo = root / "calibration" / "extrinsics" / "cam_04.mp4"
+    os.mkfifo(fifo)
+    _one_line_exit_2(_calibrate(root, CHARUCO, out), str(fifo), "not a file")
+    fifo.unlink()
+    images = root / "calibration" / "extrinsics" / "cam_04"
+    images.mkdir()
+    cv2.imwrite(str(images / "a.png"), np.zeros((8, 8), np.uint8))
+    os.mkfifo(images / "b.png")
+    _one_line_exit_2(_calibrate(root, CHARUCO, out), str(images / "b.png"), "not a file")
     assert not out.exists()

@@ -56,12 +56,20 @@ def _natural(name: str) -> list:
 
 
 def _images(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()),
-                  key=lambda p: _natural(p.name))
+    """The images of ``folder`` in name order; an image name on something that is not a file (a
+    FIFO, a folder, a broken link: leaving it out would shift the frame numbers after it) raises
+    :class:`InputError`."""
+    images = [p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS]
+    for p in images:
+        if not p.is_file():
+            raise InputError(p, None, "named like an image but not a file (a FIFO, a folder or a broken link)")
+    return sorted(images, key=lambda p: _natural(p.name))
 
 
 def calibration_sources(folder: Path) -> dict[str, Path]:
-    """``{camera: video or image folder}`` of ``folder``, ordered by name."""
+    """``{camera: video or image folder}`` of ``folder``, ordered by name. A video or image name
+    on something that is neither a file nor a folder (a FIFO, a broken link: its camera would be
+    left out unsaid) raises :class:`InputError`, as :func:`mvm.io.paths.videos_by_name` does."""
     if not folder.is_dir():
         return {}
     found = {}
@@ -69,6 +77,8 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
         if p.name.startswith("."):
             continue
         typed = p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() in VIDEO_SUFFIXES
+        if typed and not p.is_file() and not p.is_dir():
+            raise InputError(p, None, "named like a video or image but not a file (a FIFO or a broken link)")
         if p.is_file() and typed or p.is_dir() and _images(p):
             name = p.stem if p.is_file() else p.name
             if name in found:
