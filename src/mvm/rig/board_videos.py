@@ -152,11 +152,12 @@ class BoardScan:
     size: tuple[int, int]
 
 
-def scan(source: Path, board: Board, stride: int, progress=None) -> BoardScan:
+def scan(source: Path, board: Board, stride: int, progress=None, frames: int | None = None) -> BoardScan:
     """Find ``board`` in every ``stride``-th frame of ``source``; ``progress(done, total)``
-    after each (total None where the video's header does not say)."""
+    after each (total None where the video's header does not say). ``frames``: its
+    :func:`frame_count`, when already read."""
     detect = board.detector()
-    total = math.ceil(frame_count(source) / stride) or None
+    total = math.ceil((frame_count(source) if frames is None else frames) / stride) or None
     C = len(board.object_points)
     frames, corners, size = [], [], None
     for number, gray in gray_frames(source, stride):
@@ -176,15 +177,15 @@ def scan(source: Path, board: Board, stride: int, progress=None) -> BoardScan:
     return BoardScan(np.array(frames, dtype=int), np.array(corners).reshape(-1, C, 2), size)
 
 
-def _scan_all(jobs: list[tuple[str, Path, int]], board: Board, workers: int | None, progress=None
+def _scan_all(jobs: list[tuple[str, Path, int, int]], board: Board, workers: int | None, progress=None
               ) -> list[BoardScan]:
-    """:func:`scan` of every ``(label, source, stride)`` in threads (OpenCV's decoding and
+    """:func:`scan` of every ``(label, source, stride, frames)`` in threads (OpenCV's decoding and
     detection release the GIL); ``progress(label, done, total)``."""
     if not jobs:
         return []
     def one(job):
-        label, source, stride = job
-        return scan(source, board, stride, None if progress is None else lambda d, t: progress(label, d, t))
+        label, source, stride, frames = job
+        return scan(source, board, stride, None if progress is None else lambda d, t: progress(label, d, t), frames)
 
     with ThreadPoolExecutor(min(len(jobs), available_workers(workers))) as pool:
         futures = [pool.submit(one, job) for job in jobs]
@@ -196,8 +197,9 @@ def _scan_all(jobs: list[tuple[str, Path, int]], board: Board, workers: int | No
             raise
 
 
-def _stride(sources) -> int:
-    return max(1, math.ceil(max(frame_count(s) for s in sources) / MAX_SCANNED_FRAMES))
+def _stride(counts) -> int:
+    """The stride that scans at most ``MAX_SCANNED_FRAMES`` of the longest of videos of ``counts`` frames."""
+    return max(1, math.ceil(max(counts) / MAX_SCANNED_FRAMES))
 
 
 def _check_found(scan_: BoardScan, source: Path, name: str, board: Board) -> None:
@@ -254,7 +256,8 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, w
     """Each camera's :class:`Intrinsics`: on its intrinsics video, else on its extrinsics video."""
     videos = intrinsic_videos(names, intrinsic_sources)
     own = [n for n in names if n in videos]
-    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", videos[n], _stride([videos[n]])) for n in own],
+    counts = {n: frame_count(videos[n]) for n in own}
+    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", videos[n], _stride([counts[n]]), counts[n]) for n in own],
                                     board, workers, progress)))
     found = []
     for v, name in enumerate(names):
@@ -295,8 +298,10 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     given = _given_intrinsics(Path(intrinsics), names) if intrinsics else None
     if given is not None:
         names = list(given.cameras.names)
-    stride = _stride([ext_sources[n] for n in names])
-    ext_scans = _scan_all([(f"{n} extrinsics", ext_sources[n], stride) for n in names], board, workers, progress)
+    counts = {n: frame_count(ext_sources[n]) for n in names}                      # each header read once
+    stride = _stride(counts.values())
+    ext_scans = _scan_all([(f"{n} extrinsics", ext_sources[n], stride, counts[n]) for n in names], board, workers,
+                          progress)
     for name, s in zip(names, ext_scans):
         _check_found(s, ext_sources[name], name, board)
     if given is None:
