@@ -209,3 +209,12 @@ def test_a_kept_pose_file_with_a_bad_video_record_is_one_line(rendered, tmp_path
         data["info"]["video"][field] = value
     path.write_text(json.dumps(data).replace("Infinity", "1e400"))
     _one_line(_detect(root, model), "cam_01.json", field)
+
+
+def test_a_camera_named_like_a_record_is_one_line(rendered, tmp_path):
+    """``cam_01.inputs.mkv``: its pose file would be ``cam_01``'s record (each overwriting the
+    other, and the rig reader skipping it): one line naming the video, nothing written."""
+    root, _, model = _copy(rendered, tmp_path)
+    shutil.copy(root / "videos" / "cam_01.mkv", root / "videos" / "cam_01.inputs.mkv")
+    _one_line(_detect(root, model), "cam_01.inputs.mkv", "camera cam_01.inputs")
+    assert not (root / "pose").exists()

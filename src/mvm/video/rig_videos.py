@@ -30,7 +30,7 @@ from mvm.errors import InputError
 from mvm.io.checks import integer, load_json
 from mvm.io.files import atomic_write_json
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
-from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
+from mvm.io.provenance import RECORD_SUFFIX, fingerprints, forget, read_record, why_redo, write_record
 from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
 from mvm.video.detectors import FrameDetector, check_models, make_detector
 
@@ -86,6 +86,10 @@ def rig_videos(rig_dir: str | Path) -> dict[str, Path]:
     found = videos_by_name(folder)
     if not found:
         raise InputError(folder, None, f"no video in it (file types {', '.join(VIDEO_SUFFIXES)})")
+    for camera, video in found.items():
+        if (camera + ".json").lower().endswith(RECORD_SUFFIX):    # its pose file: another camera's record
+            raise InputError(video, None, f"camera {camera}: a camera name may not end in "
+                                          f"{RECORD_SUFFIX.removesuffix('.json')} (mvm's records of pose files)")
     return found
 
 
