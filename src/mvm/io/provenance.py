@@ -148,9 +148,10 @@ def fingerprints(inputs: Mapping[str, object]) -> dict[str, str]:
 
 def read_record(output: str | Path) -> dict | None:
     """The record of ``output``, or None when there is none or it cannot be read (an output
-    without a usable record is never up to date)."""
+    without a usable record is never up to date). A record is written in place, never as a
+    link: a link there (to another output's record, say) is no record of this output."""
     path = record_path(output)
-    if not (path.exists() or path.is_symlink()):
+    if not path.exists() or path.is_symlink():
         return None
     try:
         data = orjson.loads(read_bytes(path, limit=RECORD_MAX_BYTES))   # a FIFO or a huge file: no record
