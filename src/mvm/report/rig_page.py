@@ -157,8 +157,10 @@ def _frame_rate(recap: dict) -> float:
 
 
 def _cards(items) -> str:
-    return '<div class="cards">' + "".join(f'<div class="card"><div class="value">{v}</div><div class="name">{n}</div>'
-                                           "</div>" for n, v in items) + "</div>"
+    """Cards of ``(name, value)``: names are text (escaped here; a recap's may be anything),
+    values already HTML (:func:`~mvm.report.page._fmt`)."""
+    return '<div class="cards">' + "".join(f'<div class="card"><div class="value">{v}</div><div class="name">'
+                                           f"{escape(n)}</div></div>" for n, v in items) + "</div>"
 
 
 def recap_section(data: RigReportData) -> str:
