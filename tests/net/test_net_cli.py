@@ -208,3 +208,26 @@ def test_export_never_trusts_a_hostile_record(tmp_path, kind):
     assert record.is_file() and not record.is_symlink() and json.loads(record.read_text())["inputs"]
     assert elsewhere.read_bytes() == good
     assert "export: kept (up to date)" in runner.invoke(export_cmd, [str(scene), "--out", str(ds)]).stderr
+
+
+def test_export_rerun_reads_each_input_once(tmp_path, monkeypatch):
+    """Deciding whether a dataset is up to date hashes each input file once (frames just written
+    are not in the hash cache, so a second hashing would read them all again)."""
+    from collections import Counter
+
+    from mvm.io import provenance
+
+    scene, ds = _scene_dir(tmp_path), tmp_path / "ds"
+    runner = CliRunner()
+    assert runner.invoke(export_cmd, [str(scene), "--out", str(ds), "--link", "copy"]).exit_code == 0
+    read, hash_file = Counter(), provenance._hash_file
+
+    def counted(path):
+        read[path] += 1
+        return hash_file(path)
+
+    monkeypatch.setattr(provenance, "_hash_file", counted)
+    result = runner.invoke(export_cmd, [str(scene), "--out", str(ds), "--link", "copy"])
+    assert "export: kept (up to date)" in result.stderr
+    frames = sorted((scene / "frames").iterdir())
+    assert frames and all(read[f] == 1 for f in frames) and set(read.values()) == {1}, read

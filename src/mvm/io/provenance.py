@@ -220,10 +220,11 @@ def compare(record: dict, inputs: Mapping[str, str], settings=None, stage: str |
 
 
 def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, stage: str = "the output was made",
-             exists: bool | None = None) -> str | None:
-    """Why ``output`` should be made again from ``inputs`` (:func:`fingerprints`) and
-    ``settings``: one phrase (``no output yet``, ``poses2d.json changed since the
-    reconstruction``, ...), or None when its record says it was made from exactly these."""
+             exists: bool | None = None, hashed: Mapping[str, str] | None = None) -> str | None:
+    """Why ``output`` should be made again from ``inputs`` (:func:`fingerprints`; ``hashed``:
+    those already computed, not hashed again) and ``settings``: one phrase (``no output yet``,
+    ``poses2d.json changed since the reconstruction``, ...), or None when its record says it was
+    made from exactly these."""
     output = Path(output)
     if not (output.exists() if exists is None else exists):
         return "no output yet"
@@ -231,7 +232,7 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
     if record is None:
         return (f"{output.name} has no record of its inputs (made elsewhere, by an earlier version or an "
                 "interrupted run)")
-    return compare(record, fingerprints(inputs), settings, stage)
+    return compare(record, fingerprints(inputs) if hashed is None else hashed, settings, stage)
 
 
 def stale_reason(output: str | Path, inputs: Mapping[str, object]) -> str | None:
