@@ -101,10 +101,10 @@ def read_rig_poses3d(path: str | Path) -> RigPoses3D:
     path = Path(path)
     text = decode_text(read_bytes(path, limit=MAX_RIG_POSES3D_BYTES), path)
     frames, rows, cameras = [], [], {}
-    for number, line in enumerate(text.splitlines(), start=1):
+    for line_number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
-        here = f"line {number}"
+        here = f"line {line_number}"
         record = parse_json(line, f"{path}: {here}")
         if not isinstance(record, dict) or record.get("format") != RIG_POSES3D_FORMAT:
             raise InputError(path, here, f"expected an object of format {RIG_POSES3D_FORMAT!r}")
