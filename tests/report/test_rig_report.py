@@ -575,3 +575,20 @@ def test_markup_in_the_recap_is_text_on_the_page(rig, tmp_path):
     assert result.exit_code == 0, result.output
     html = (root / "mvm" / "report.html").read_text()
     assert "<img" not in html and html.count("&lt;img src=x onerror=&quot;alert(1)&quot;&gt;") == 2
+
+
+
+def test_a_rig_reconstructed_with_a_calibration_kept_elsewhere(rig, tmp_path):
+    """A rig reconstructed with a calibration kept elsewhere (and none of its own): the page and
+    the overlays read that calibration, named in the set's record, and check their output
+    location against it: an overlay folder over it is refused, the calibration kept."""
+    root = _copy(rig, tmp_path)
+    elsewhere = tmp_path / "calibrations" / "Calib.toml"
+    elsewhere.parent.mkdir()
+    shutil.move(root / "Calib.toml", elsewhere)
+    before = elsewhere.read_bytes()
+    reconstruct_rig(root, Config(refine=False), RigOptions(workers=1), calib=elsewhere)
+    result = _invoke("report", root)
+    assert result.exit_code == 0, result.output
+    _one_line_2(_invoke("overlay", root, "-o", tmp_path), "contains the input", str(elsewhere))
+    assert elsewhere.read_bytes() == before
