@@ -97,11 +97,12 @@ def test_readers_refuse_a_stale_output_in_one_line(tmp_path):
                             "run `mvm reconstruct S` first")
 
 
-@pytest.mark.parametrize("kind", ["fifo", "folder", "garbage", "not an object", "other format", "huge"])
+@pytest.mark.parametrize("kind", ["fifo", "folder", "garbage", "not an object", "other format", "huge", "link"])
 def test_a_record_that_cannot_be_read_is_no_record(tmp_path, kind):
-    """A record that is a FIFO (never read: no hang), a folder, not JSON, of another format or
-    larger than a record can be makes its output out of date, never a traceback."""
-    from mvm.io.provenance import RECORD_MAX_BYTES, read_record, record_path, why_redo
+    """A record that is a FIFO (never read: no hang), a folder, not JSON, of another format,
+    larger than a record can be, or a link (mvm writes records in place: a link, even to a record
+    that would match, is not this output's) makes its output out of date, never a traceback."""
+    from mvm.io.provenance import RECORD_MAX_BYTES, read_record, record_path, why_redo, write_record
 
     output = tmp_path / "poses3d.json"
     output.write_text("{}")
@@ -110,6 +111,12 @@ def test_a_record_that_cannot_be_read_is_no_record(tmp_path, kind):
         os.mkfifo(record)
     elif kind == "folder":
         record.mkdir()
+    elif kind == "link":
+        elsewhere = tmp_path / "elsewhere" / record.name
+        elsewhere.parent.mkdir()
+        write_record(elsewhere.parent / output.name, "the output", {})
+        assert read_record(elsewhere.parent / output.name) is not None
+        record.symlink_to(elsewhere)
     else:
         record.write_bytes({"garbage": b"\xff{", "not an object": b"[1, 2]",
                             "other format": b'{"format": "x", "inputs": {}}',

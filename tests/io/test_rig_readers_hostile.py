@@ -54,7 +54,12 @@ def _instant(frame=0, **person) -> str:
     ("{", "line 1"), (_instant() + "\n" + _instant(), "line 2: frame"), ("[" * 100_000, "line 1"),
     (_instant(id=2**70), None), (_instant(members={"a": 2**70}), None),
     (_instant(views_per_joint=[2**70] * 17), None), (_instant(keypoints3d="x"), "keypoints3d"),
-    (_instant(frame=2**70), None), ("", None), ('"' + "x" * 3_000_000 + '"', "line 1")])
+    (_instant(frame=2**70), None), ("", None), ('"' + "x" * 3_000_000 + '"', "line 1"),
+    (_instant(keypoints3d=[[10**400, 0, 1, 0.9]] * 17), "keypoints3d"),
+    (_instant(reprojection_error_px=10**400), "reprojection_error_px"),
+    (_instant(reprojection_error_px=float("nan")), "reprojection_error_px"),
+    (_instant(reprojection_error_px="1"), "reprojection_error_px"),
+    (_instant(views_per_joint=[-1] * 17), "views_per_joint")])
 def test_a_bad_poses3d_is_one_line(tmp_path, text, field):
     path = tmp_path / "poses3d.jsonl"
     path.write_text(text)

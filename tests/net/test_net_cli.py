@@ -173,3 +173,61 @@ def test_predict_input_size_is_bounded_before_any_work(tmp_path):
             predict([image], tmp_path / "none.pt", input_size=size)           # before the checkpoint is read
     option = next(p for p in predict_cmd.params if p.name == "input_size")
     assert (option.type.bounds.ge, option.type.bounds.le) == (MIN_INPUT_SIZE, MAX_INPUT_SIZE)
+
+
+@pytest.mark.parametrize("kind", ["fifo", "huge", "malformed", "folder", "link"])
+def test_export_never_trusts_a_hostile_record(tmp_path, kind):
+    """An annotations.inputs.json in the dataset that is a FIFO (no hang), huge, not JSON, a
+    folder or a link to a record that would match is no record: the dataset is exported again,
+    and the new record is a file of its own (the linked one is left as it was)."""
+    import os
+
+    from mvm.io.provenance import RECORD_MAX_BYTES
+
+    scene, ds = _scene_dir(tmp_path), tmp_path / "ds"
+    runner = CliRunner()
+    assert runner.invoke(export_cmd, [str(scene), "--out", str(ds)]).exit_code == 0
+    record = ds / "annotations.inputs.json"
+    good = record.read_bytes()
+    record.unlink()
+    elsewhere = tmp_path / "elsewhere.json"
+    elsewhere.write_bytes(good)
+    if kind == "fifo":
+        os.mkfifo(record)
+    elif kind == "huge":
+        record.write_bytes(good[:-2] + b" " * RECORD_MAX_BYTES + good[-2:])
+    elif kind == "malformed":
+        record.write_bytes(good[: len(good) // 2])
+    elif kind == "folder":
+        record.mkdir()
+    else:
+        record.symlink_to(elsewhere)
+    result = runner.invoke(export_cmd, [str(scene), "--out", str(ds)])
+    assert result.exit_code == 0, result.output
+    assert "export: made: annotations.json has no record of its inputs" in result.stderr
+    assert record.is_file() and not record.is_symlink() and json.loads(record.read_text())["inputs"]
+    assert elsewhere.read_bytes() == good
+    assert "export: kept (up to date)" in runner.invoke(export_cmd, [str(scene), "--out", str(ds)]).stderr
+
+
+def test_export_rerun_reads_each_input_once(tmp_path, monkeypatch):
+    """Deciding whether a dataset is up to date hashes each input file once (frames just written
+    are not in the hash cache, so a second hashing would read them all again)."""
+    from collections import Counter
+
+    from mvm.io import provenance
+
+    scene, ds = _scene_dir(tmp_path), tmp_path / "ds"
+    runner = CliRunner()
+    assert runner.invoke(export_cmd, [str(scene), "--out", str(ds), "--link", "copy"]).exit_code == 0
+    read, hash_file = Counter(), provenance._hash_file
+
+    def counted(path):
+        read[path] += 1
+        return hash_file(path)
+
+    monkeypatch.setattr(provenance, "_hash_file", counted)
+    result = runner.invoke(export_cmd, [str(scene), "--out", str(ds), "--link", "copy"])
+    assert "export: kept (up to date)" in result.stderr
+    frames = sorted((scene / "frames").iterdir())
+    assert frames and all(read[f] == 1 for f in frames) and set(read.values()) == {1}, read

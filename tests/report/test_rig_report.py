@@ -559,3 +559,36 @@ def test_a_recap_of_the_wrong_shape_is_one_line_or_read(rig, tmp_path, change):
         _one_line_2(result, "recap.json", next(iter(change)))
     else:                                                                 # a wrong value inside is read
         assert result.exit_code == 0, result.output
+
+
+def test_markup_in_the_recap_is_text_on_the_page(rig, tmp_path):
+    """Names that recap.json gives (its joint flags, its keypoints) are shown as text: markup in
+    them never becomes part of the page (an input file never runs code in the browser)."""
+    root = _copy(rig, tmp_path)
+    path = root / "mvm" / "recap.json"
+    recap = json.loads(path.read_text())
+    hostile = '<img src=x onerror="alert(1)">'
+    recap["joint_flags"] = {**recap["joint_flags"], hostile: 0.5}
+    recap["keypoints"] = [hostile] + recap["keypoints"][1:]
+    path.write_text(json.dumps(recap))
+    result = _invoke("report", root)
+    assert result.exit_code == 0, result.output
+    html = (root / "mvm" / "report.html").read_text()
+    assert "<img" not in html and html.count("&lt;img src=x onerror=&quot;alert(1)&quot;&gt;") == 2
+
+
+
+def test_a_rig_reconstructed_with_a_calibration_kept_elsewhere(rig, tmp_path):
+    """A rig reconstructed with a calibration kept elsewhere (and none of its own): the page and
+    the overlays read that calibration, named in the set's record, and check their output
+    location against it: an overlay folder over it is refused, the calibration kept."""
+    root = _copy(rig, tmp_path)
+    elsewhere = tmp_path / "calibrations" / "Calib.toml"
+    elsewhere.parent.mkdir()
+    shutil.move(root / "Calib.toml", elsewhere)
+    before = elsewhere.read_bytes()
+    reconstruct_rig(root, Config(refine=False), RigOptions(workers=1), calib=elsewhere)
+    result = _invoke("report", root)
+    assert result.exit_code == 0, result.output
+    _one_line_2(_invoke("overlay", root, "-o", tmp_path), "contains the input", str(elsewhere))
+    assert elsewhere.read_bytes() == before

@@ -460,6 +460,16 @@ def read_config(config_path: str | None, sets: tuple[str, ...], driver: str = "s
     return config.replace(**changes) if changes else config
 
 
+def with_options(options):
+    """A decorator that adds the click ``options`` (a list of ``click.option(...)``) to a command,
+    in the order listed."""
+    def wrap(f):
+        for option in reversed(options):
+            f = option(f)
+        return f
+    return wrap
+
+
 #: The options that choose and run a 2D pose detector, the same in ``mvm detect``, ``mvm run``
 #: and ``mvm rig detect`` (:class:`mvm.video.detect.DetectOptions`).
 DETECTOR_OPTIONS = [

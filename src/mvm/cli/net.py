@@ -50,7 +50,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     except InputError:               # an unreadable input: its scene fails on its own below
         hashed = None
     why = ("forced" if force else "an input cannot be read" if hashed is None else
-           why_redo(out_dir / ANNOTATIONS_FILE, inputs, settings, EXPORT_STAGE))
+           why_redo(out_dir / ANNOTATIONS_FILE, inputs, settings, EXPORT_STAGE, hashed=hashed))
     if why is None:
         click.echo("export: kept (up to date)", err=True)
         return

@@ -6,6 +6,7 @@ import sys
 import click
 
 from mvm.cli.common import (
+    DETECTOR_OPTIONS,
     Group,
     Number,
     OutputPath,
@@ -19,6 +20,7 @@ from mvm.cli.common import (
     refuse_unused,
     say,
     stage_progress,
+    with_options,
 )
 from mvm.errors import InputError
 
@@ -323,19 +325,9 @@ def print_rig_recap(title: str, r: dict) -> None:
     print_table(None, ("camera", "excl. overall", "excl. most (keypoint)"), camera_rows, caption=EXCLUDED_NOTE)
 
 
-def _detector_options(f):
-    """The detector options of ``mvm detect`` (:data:`mvm.cli.common.DETECTOR_OPTIONS`); not
-    ``--import`` nor ``--appearance``: a rig's own detections go in its pose folder."""
-    from mvm.cli.common import DETECTOR_OPTIONS
-
-    for option in reversed(DETECTOR_OPTIONS):
-        f = option(f)
-    return f
-
-
 @rig.command("detect")
 @click.argument("rig_dir", type=click.Path(file_okay=False))
-@_detector_options
+@with_options(DETECTOR_OPTIONS)    # not --import nor --appearance: a rig's own detections go in its pose folder
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [detect] table (mvm config prints one); the options given here win.")
 @click.option("--force", is_flag=True,

@@ -27,6 +27,7 @@ from mvm.cli.common import (
     refused,
     say,
     stage_progress,
+    with_options,
 )
 from mvm.cli.common import fmt as _f
 from mvm.errors import InputError
@@ -67,14 +68,6 @@ detect_options = DETECTOR_OPTIONS + [
     click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default=None,
                  help="Appearance descriptor stored with each pose (default auto)."),
 ]
-
-
-def _options(options):
-    def wrap(f):
-        for option in reversed(options):
-            f = option(f)
-        return f
-    return wrap
 
 
 def _table(cls, table: str, config_path, names: dict | None = None, **flags):
@@ -152,7 +145,7 @@ def _sfm_rows(report):
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
               help="The scene directory to write (frames/, frames.json).")
-@_options(frame_options)
+@with_options(frame_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if frames.json is up to date.")
 def frames_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_motion, max_gap_s, config_path,
@@ -181,7 +174,7 @@ def _selection_text(selection: dict) -> str:
 
 @command("sfm")
 @click.argument("scene", type=click.Path(file_okay=False))
-@_options(sfm_options)
+@with_options(sfm_options)
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM: a COLMAP model directory or a RealEstate10K/"
                    "MannequinChallenge camera file.")
@@ -207,7 +200,7 @@ def sfm_cmd(scene, camera_model, focal_px, fix_focal, max_features, vocab_tree, 
 
 @command("detect")
 @click.argument("scene", type=click.Path(file_okay=False))
-@_options(detect_options)
+@with_options(detect_options)
 @config_option
 @click.option("--force", is_flag=True, help="Redo even if poses2d.json is up to date; replace one mvm did not make.")
 def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, checkpoint, input_size, source, fmt,
@@ -233,7 +226,7 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 @click.argument("video", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
               help="The scene directory to write (frames, cameras, 2D poses, mvm/poses3d.json).")
-@_options(frame_options + sfm_options + detect_options)
+@with_options(frame_options + sfm_options + detect_options)
 @click.option("--cameras", type=click.Path(), default=None,
               help="Use these cameras instead of SfM (COLMAP model directory or camera file).")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,

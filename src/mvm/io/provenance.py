@@ -148,9 +148,10 @@ def fingerprints(inputs: Mapping[str, object]) -> dict[str, str]:
 
 def read_record(output: str | Path) -> dict | None:
     """The record of ``output``, or None when there is none or it cannot be read (an output
-    without a usable record is never up to date)."""
+    without a usable record is never up to date). A record is written in place, never as a
+    link: a link there (to another output's record, say) is no record of this output."""
     path = record_path(output)
-    if not (path.exists() or path.is_symlink()):
+    if not path.exists() or path.is_symlink():
         return None
     try:
         data = orjson.loads(read_bytes(path, limit=RECORD_MAX_BYTES))   # a FIFO or a huge file: no record
@@ -219,10 +220,11 @@ def compare(record: dict, inputs: Mapping[str, str], settings=None, stage: str |
 
 
 def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, stage: str = "the output was made",
-             exists: bool | None = None) -> str | None:
-    """Why ``output`` should be made again from ``inputs`` (:func:`fingerprints`) and
-    ``settings``: one phrase (``no output yet``, ``poses2d.json changed since the
-    reconstruction``, ...), or None when its record says it was made from exactly these."""
+             exists: bool | None = None, hashed: Mapping[str, str] | None = None) -> str | None:
+    """Why ``output`` should be made again from ``inputs`` (:func:`fingerprints`; ``hashed``:
+    those already computed, not hashed again) and ``settings``: one phrase (``no output yet``,
+    ``poses2d.json changed since the reconstruction``, ...), or None when its record says it was
+    made from exactly these."""
     output = Path(output)
     if not (output.exists() if exists is None else exists):
         return "no output yet"
@@ -230,7 +232,7 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
     if record is None:
         return (f"{output.name} has no record of its inputs (made elsewhere, by an earlier version or an "
                 "interrupted run)")
-    return compare(record, fingerprints(inputs), settings, stage)
+    return compare(record, fingerprints(inputs) if hashed is None else hashed, settings, stage)
 
 
 def stale_reason(output: str | Path, inputs: Mapping[str, object]) -> str | None:

@@ -15,7 +15,7 @@ import numpy as np
 from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
-from mvm.io.checks import decode_text, integer, parse_json, read_bytes
+from mvm.io.checks import decode_text, integer, number, parse_json, read_bytes
 from mvm.io.scene_dir import MAX_COORDINATE
 
 RIG_POSES3D_FORMAT = "mvm.rig.poses3d/1"
@@ -61,7 +61,7 @@ def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:
     track = integer(person.get("id"), path, f"{where}.id")
     try:
         kp = np.array(person.get("keypoints3d"), dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         kp = np.zeros(0)
     if kp.shape != (NUM_JOINTS, 4):
         raise InputError(path, f"{where}.keypoints3d", f"expected {NUM_JOINTS} [x, y, z, score]")
@@ -74,9 +74,8 @@ def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:
     lookup = {n: i for i, n in enumerate(FLAG_NAMES)}
     if names is None:
         flags = np.where(finite.all(1), OBSERVED, MISSING)
-    elif not isinstance(names, list) or len(names) != NUM_JOINTS or any(n not in lookup for n in names
-                                                                         if isinstance(n, str)) \
-            or not all(isinstance(n, str) for n in names):
+    elif not isinstance(names, list) or len(names) != NUM_JOINTS \
+            or not all(isinstance(n, str) and n in lookup for n in names):
         raise InputError(path, f"{where}.flags", f"expected {NUM_JOINTS} names of {', '.join(FLAG_NAMES)}")
     else:
         flags = np.array([lookup[n] for n in names])
@@ -88,13 +87,13 @@ def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:
     views = person.get("views_per_joint", [0] * NUM_JOINTS)
     if not isinstance(views, list) or len(views) != NUM_JOINTS:
         raise InputError(path, f"{where}.views_per_joint", f"expected {NUM_JOINTS} integers")
-    for v in views:
-        integer(v, path, f"{where}.views_per_joint")
+    if not all(integer(v, path, f"{where}.views_per_joint") >= 0 for v in views):
+        raise InputError(path, f"{where}.views_per_joint", "expected counts >= 0")
     error = person.get("reprojection_error_px")
-    if error is not None and (isinstance(error, bool) or not isinstance(error, (int, float))):
-        raise InputError(path, f"{where}.reprojection_error_px", f"expected a number or null, got {error!r}")
+    if error is not None:
+        error = number(error, path, f"{where}.reprojection_error_px")
     local = {cameras.setdefault(str(c), len(cameras)): m for c, m in members.items()}
-    return track, kp, flags, local, views, np.nan if error is None else float(error)
+    return track, kp, flags, local, views, np.nan if error is None else error
 
 
 def read_rig_poses3d(path: str | Path) -> RigPoses3D:
@@ -102,10 +101,10 @@ def read_rig_poses3d(path: str | Path) -> RigPoses3D:
     path = Path(path)
     text = decode_text(read_bytes(path, limit=MAX_RIG_POSES3D_BYTES), path)
     frames, rows, cameras = [], [], {}
-    for number, line in enumerate(text.splitlines(), start=1):
+    for line_number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
-        here = f"line {number}"
+        here = f"line {line_number}"
         record = parse_json(line, f"{path}: {here}")
         if not isinstance(record, dict) or record.get("format") != RIG_POSES3D_FORMAT:
             raise InputError(path, here, f"expected an object of format {RIG_POSES3D_FORMAT!r}")

@@ -30,6 +30,7 @@ from mvm.report.rig_load import (
     in_output_set,
     load_rig_result,
     rig_videos,
+    used_calibration,
 )
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
@@ -159,6 +160,7 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
     if target.suffix.lower() == ".mp4":
         raise InputError(None, "-o", f"{target} names a video, but a rig's overlays are one video per camera: "
                                      "give a folder")
+    calib, _ = used_calibration(rig_dir, out_dir / POSES3D, calib)
     check_output_location(target, rig_inputs(rig_dir, calib) + [out_dir / POSES3D, out_dir / RECAP,
                                                                  rig_dir / VIDEOS])
     data = load_rig_result(rig_dir, output, calib, workers)

@@ -23,7 +23,7 @@ from mvm.io.outputs import add_to_output_set, check_output_location
 from mvm.report import analysis, rig_analysis
 from mvm.report.page import _CSS, _ERROR_HOOK, _fmt, _nice_step, viewer_script
 from mvm.report.plots import flag_timeline, line_chart
-from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result
+from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result, used_calibration
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
 
@@ -157,8 +157,10 @@ def _frame_rate(recap: dict) -> float:
 
 
 def _cards(items) -> str:
-    return '<div class="cards">' + "".join(f'<div class="card"><div class="value">{v}</div><div class="name">{n}</div>'
-                                           "</div>" for n, v in items) + "</div>"
+    """Cards of ``(name, value)``: names are text (escaped here; a recap's may be anything),
+    values already HTML (:func:`~mvm.report.page._fmt`)."""
+    return '<div class="cards">' + "".join(f'<div class="card"><div class="value">{v}</div><div class="name">'
+                                           f"{escape(n)}</div></div>" for n, v in items) + "</div>"
 
 
 def recap_section(data: RigReportData) -> str:
@@ -335,6 +337,7 @@ def write_rig_report(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, path: st
     rig_dir = Path(rig_dir)
     out_dir = rig_dir / output
     target = Path(path) if path is not None else out_dir / REPORT_NAME
+    calib, _ = used_calibration(rig_dir, out_dir / POSES3D, calib)
     inputs = rig_inputs(rig_dir, calib) + [out_dir / POSES3D, out_dir / RECAP]
     check_output_location(target, inputs, replaced=False)
     data = load_rig_result(rig_dir, output, calib, workers)
