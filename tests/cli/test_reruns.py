@@ -194,3 +194,25 @@ def test_force_redoes_every_stage(clip, scene):
     assert result.exit_code == 0, result.output
     for stage in ("frames", "sfm", "detect", "reconstruct"):
         assert f"{stage}: made: forced" in result.output
+
+
+def test_rerun_decides_each_stage_from_one_hashing_of_its_inputs(clip, scene, monkeypatch):
+    """A rerun with nothing changed hashes each stage's inputs once to decide whether to redo it
+    (files written in the last seconds are not in the hash cache: a second hashing reads them
+    all again; a video of a GB costs a second each time)."""
+    from collections import Counter
+
+    from mvm.io import provenance
+
+    root, _ = clip
+    calls, hash_file = Counter(), provenance._hash_file
+
+    def counted(path):
+        calls[path.name] += 1
+        return hash_file(path)
+
+    monkeypatch.setattr(provenance, "_hash_file", counted)
+    result = run(root, scene)
+    assert result.exit_code == 0, result.output
+    assert calls["tour.mp4"] == 1 and calls["detections.json"] == 1, calls
+    assert calls["poses2d.json"] == 1, calls                        # read by the reconstruction only

@@ -331,7 +331,7 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     inputs = detect_inputs(scene, registered, source, checkpoint)
     settings = detect_settings(kind, fmt, options)
     hashed = fingerprints(inputs)
-    why = "forced" if force else why_redo(out, inputs, settings, DETECT_STAGE)
+    why = "forced" if force else why_redo(out, inputs, settings, DETECT_STAGE, hashed=hashed)
     if why is None:
         log.info("%s is up to date (made from these frames and detections with these settings)", out)
         coco = read_coco_keypoints(out)

@@ -278,12 +278,14 @@ def _frame_settings(options: FrameOptions) -> dict:
 
 
 def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
-                  force: bool = False) -> str | None:
+                  force: bool = False, hashed: dict | None = None) -> str | None:
     """Why :func:`extract_frames` would decode ``video`` again (None: ``frames.json`` is up to
-    date: made from this video's bytes with these options)."""
+    date: made from this video's bytes with these options; ``hashed``: the video's
+    fingerprint when already computed)."""
     if force:
         return "forced"
-    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), _frame_settings(options), FRAMES_STAGE)
+    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), _frame_settings(options), FRAMES_STAGE,
+                    hashed=hashed)
 
 
 def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
@@ -306,7 +308,7 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     if not video.is_file():
         raise InputError(video, None, "video file not found")
     hashed = fingerprints(frame_inputs(video))
-    why = frames_reason(video, scene, options, force)
+    why = frames_reason(video, scene, options, force, hashed)
     if why is None:
         log.info("%s is up to date (made from %s with these options)", index_path, video.name)
         return read_frame_index(scene)

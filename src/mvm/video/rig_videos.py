@@ -230,7 +230,7 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
                                         "replace them")
         inputs = _inputs(video, checkpoint)
         hashed = fingerprints(inputs)
-        why = "forced" if force else why_redo(out, inputs, settings, RIG_DETECT_STAGE)
+        why = "forced" if force else why_redo(out, inputs, settings, RIG_DETECT_STAGE, hashed=hashed)
         plan.append((camera, video, out, inputs, hashed, why))
     probed = {camera: probe_video(video, camera, rig_dir) for camera, video, _, _, _, why in plan if why is not None}
     rates = {c: i.frame_rate for c, i in probed.items() if i.frame_rate is not None}

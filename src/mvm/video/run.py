@@ -116,7 +116,7 @@ def reconstruct_scene(scene: str | Path, config: Config | None = None, output: s
     inputs = reconstruction_inputs(scene)
     settings = {"config": asdict(config), "metric_scale": metric_scale}
     hashed = fingerprints(inputs)
-    why = "forced" if force else why_redo(out, inputs, settings, RECONSTRUCT_STAGE)
+    why = "forced" if force else why_redo(out, inputs, settings, RECONSTRUCT_STAGE, hashed=hashed)
     if why is None:
         log.info("%s is up to date (made from this poses2d.json and sparse/ with these settings)", out)
         doc = load_poses3d_document(out, root=scene)

@@ -258,7 +258,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     _check_replaceable(scene, settings, force)
     hashed = fingerprints(sfm_inputs(scene))
     why = "forced" if force else why_redo(report_path, sfm_inputs(scene), settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
     if why is None:
         log.info("%s is up to date (made from these frames with these options)", report_path)
         return read_sfm_report(scene)
@@ -354,7 +354,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     report_path = scene / SFM_DIR / SFM_REPORT
     hashed = fingerprints(inputs)
     why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
     if why is None and not in_place:
         log.info("%s is up to date (imported from %s)", report_path, model_dir)
         return read_sfm_report(scene)
@@ -401,7 +401,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     report_path = scene / SFM_DIR / SFM_REPORT
     hashed = fingerprints(inputs)
     why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir())
+                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
     if why is None:
         log.info("%s is up to date (imported from %s)", report_path, path)
         return read_sfm_report(scene)
