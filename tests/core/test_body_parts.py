@@ -116,6 +116,29 @@ def test_two_half_hidden_neighbours_grouped_as_one_come_out_as_two(pair):
         sorted(tuple(np.flatnonzero(person == p).tolist()) for p in (0, 1))     # every pose, rightly
 
 
+def test_a_split_that_the_assignment_keeps_comes_back_triangulated(pair):
+    """The same two people as their only poses: the split parts are what the assignment gives
+    at once, and the association stops there; the triangulation it returns is that of the two
+    parts (one person each), not of the group it split."""
+    scene, person = hidden_pair(*pair)
+    first = np.flatnonzero(person == 0)
+    rows = np.sort(np.concatenate([first, np.flatnonzero((person == 1) & ~np.isin(scene.poses.view,
+                                                                                     scene.poses.view[first]))]))
+    scene, person = dataclasses.replace(scene, poses=scene.poses.subset(rows)), person[rows]
+    config = Config(refine=False).for_driver("scene")
+    one = [np.arange(len(rows))]
+    triangulated = triangulate_groups(scene.cameras, scene.poses, one, config)
+    groups, (obs, tri) = associate_poses(scene.cameras, scene.poses, one, triangulated, config)
+    assert sorted(np.unique(person[g]).tolist() for g in groups) == [[0], [1]]
+    assert len(tri.X) == len(obs.members) == 2
+    for g, members in zip(groups, obs.members):
+        assert sorted(members[members >= 0].tolist()) == g.tolist()
+    for g, X in zip(groups, tri.X):                                  # each part's own joints
+        truth = pair[1].poses3d[person[g[0]]]
+        error = np.linalg.norm(X - truth, axis=-1)
+        assert np.isfinite(error).sum() >= 5 and np.nanmax(error) < 0.1
+
+
 def test_a_crowd_of_twenty_keeps_its_two_half_hidden_neighbours_apart():
     """20 people on a 120° arc, 150 frames: two neighbours 0.87 m apart, each behind others
     (seen in 40 and 36 frames, 10 of them both; one mostly its head, the other mostly its body),

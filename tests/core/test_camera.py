@@ -1,9 +1,12 @@
 """The camera and its lens: projection against hand-built ground truth and OpenCV, the lens and its inverse."""
+import subprocess
+import sys
+
 import cv2
 import numpy as np
 import pytest
 
-from mvm.core.camera import distort, has_lens, project, project_views, projection_matrix, undistort
+from mvm.core.camera import UNDISTORT_CRITERIA, distort, has_lens, project, project_views, projection_matrix, undistort
 
 from helpers import random_cameras
 
@@ -68,3 +71,19 @@ def test_no_lens_and_missing_points():
         out = f(xy, K, dist)
         assert out.shape == xy.shape
         assert np.isnan(out[0, 1]).all() and np.isfinite(out[0, [0, 2]]).all()
+
+
+def test_the_undistortion_criteria_are_opencvs_and_a_pinhole_scene_does_not_import_it():
+    """:data:`UNDISTORT_CRITERIA` spells OpenCV's flags as numbers (OpenCV is imported only for
+    a lens): they are its ``COUNT | EPS``; reconstructing a pinhole scene leaves it unimported."""
+    assert UNDISTORT_CRITERIA[0] == cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS
+    code = """
+import sys
+from mvm.core.reconstruct import reconstruct
+from mvm.sim.simulate import SimConfig, simulate
+scene, _ = simulate(SimConfig(people=2, frames=8, seed=0))
+assert len(reconstruct(scene).persons) == 2
+assert "cv2" not in sys.modules
+"""
+    run = subprocess.run([sys.executable, "-c", code], check=False, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr

@@ -19,8 +19,8 @@ from mvm.sim.simulate import SimConfig, simulate
 from helpers import standing_poses
 
 
-def _reference_pairs(X: np.ndarray, block: np.ndarray, limit: float) -> np.ndarray:
-    """The duplicate test written pair by pair, as the docstring states it."""
+def _reference_pairs(X: np.ndarray, block: np.ndarray, limit: float, quantile: float) -> np.ndarray:
+    """The duplicate test written pair by pair, as the docstring states it (numpy's quantile)."""
     P = len(X)
     close = np.zeros((P, P), dtype=bool)
 
@@ -32,7 +32,7 @@ def _reference_pairs(X: np.ndarray, block: np.ndarray, limit: float) -> np.ndarr
     def quartile_distance(a, b):
         d = np.linalg.norm(a - b, axis=-1)
         d = d[np.isfinite(d)]
-        return np.quantile(d, 0.75) if len(d) else np.nan
+        return np.quantile(d, quantile) if len(d) else np.nan
 
     for i in range(P):
         for j in range(P):
@@ -49,17 +49,18 @@ def _candidates(P: int, rng) -> np.ndarray:
     return X
 
 
+@pytest.mark.parametrize("quantile", [duplicates.ASSOCIATION_QUANTILE, duplicates.FINAL_QUANTILE])
 @pytest.mark.parametrize("chunk", [1, 7, 2**14])
-def test_duplicates_in_chunks_equal_the_pair_by_pair_test(monkeypatch, chunk):
+def test_duplicates_in_chunks_equal_the_pair_by_pair_test(monkeypatch, chunk, quantile):
     monkeypatch.setattr(duplicates, "DUPLICATE_PAIRS_CHUNK", chunk)
     rng = np.random.default_rng(3)
     for P, blocks in ((0, 1), (1, 1), (2, 1), (9, 1), (40, 6), (60, 60)):
         X = _candidates(P, rng)
         block = rng.integers(0, blocks, P)
         with np.errstate(invalid="ignore"):
-            expected = _reference_pairs(X, block, 0.5)
-        found = duplicate_pairs(X, block, 0.5)
-        assert np.array_equal(found, expected), (P, blocks, chunk)
+            expected = _reference_pairs(X, block, 0.5, quantile)
+        found = duplicate_pairs(X, block, 0.5, quantile)
+        assert np.array_equal(found, expected), (P, blocks, chunk, quantile)
         if P >= 9 and blocks == 1:
             assert found.any()                                        # the test meets duplicates
 

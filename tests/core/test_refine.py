@@ -51,8 +51,9 @@ def _inner_problem(X0, xy, conf, P, inliers, truth):
     X = np.where(present[..., None], X0, 0.0)
     obs = Observations.build(xy, P, conf, inliers & present[:, None])
     bones = BoneTerms.build(bone_lengths(truth) * 1.02, 2e4, present)
+    weight = 10.0 * (1.0 + np.arange(len(X)))                                 # each person its own λ
     problem = InnerProblem(obs, robust_terms(obs.reprojection(X)[0], obs, 5.0)[1],
-                           linearized_prior(X, present, shipped_prior(), 10.0), bones)
+                           linearized_prior(X, present, shipped_prior(), weight), bones)
     return X.reshape(len(X), -1), present, problem
 
 
@@ -179,6 +180,23 @@ def test_persons_are_refined_independently(with_bones):
     assert not together.fallback.any()
     error = np.linalg.norm(together.X - truth, axis=-1)
     assert np.nanmean(error) < 0.5 * np.nanmean(np.linalg.norm(X0 - truth, axis=-1))
+
+
+def test_each_persons_prior_weight_is_the_one_it_would_be_refined_alone_with():
+    """Per-person prior weights ``(P,)``: each person comes out as refined alone with its own
+    weight, and a larger weight holds it closer to the prior (a larger prior energy costs more)."""
+    truth, X0, xy, conf, P, inliers = _capture(7)
+    prior, weights = shipped_prior(), np.array([2.0, 40.0, 400.0])
+    together = refine_poses(X0, xy, conf, P, inliers, prior, weights, tolerance=1e-10)
+    for p in range(len(X0)):
+        s = slice(p, p + 1)
+        alone = refine_poses(X0[s], xy[s], conf[s], P[s], inliers[s], prior, float(weights[p]), tolerance=1e-10)
+        np.testing.assert_allclose(alone.X, together.X[s], atol=1e-7)
+    present = np.isfinite(X0).all(-1)
+    light = refine_poses(X0, xy, conf, P, inliers, prior, 2.0, tolerance=1e-10)
+    energy = [prior_energy(np.where(present[..., None], r.X, 0.0), present, prior, 1.0) for r in (light, together)]
+    assert energy[1][0] == pytest.approx(energy[0][0], rel=1e-6)                # the same weight
+    assert (energy[1][1:] < energy[0][1:]).all()                                # held closer to the prior
 
 
 def test_a_person_pushed_behind_the_cameras_falls_back_to_its_triangulation():

@@ -340,7 +340,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
     for iteration in range(max_iterations):
-        groups, X, seen = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio)
+        groups, X, seen, split = _separate(triangulate, groups, result, min_common_keypoints, max_bone_ratio)
         groups, X, seen, stale = _merge_persons(merge, X, seen, groups, N)
         if not groups:
             break
@@ -358,7 +358,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
         if len(new) == len(groups) and _moved(groups, new, N) <= SETTLED * N:
-            if stale:
+            if stale or split:                                           # ``result`` is of other groups
                 result = triangulate(groups, X)
             break
         groups = new
@@ -386,21 +386,22 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
 
 
 def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
-              max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """``(groups, X, seen_most)`` of ``groups`` triangulated as ``result``, where two people
+              max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, bool]:
+    """``(groups, X, seen_most, split)`` of ``groups`` triangulated as ``result``, where two people
     triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
-    whose ends no view sees together, parts of ``min_joints`` joints) are split, each part
-    triangulated from its own poses; ``seen_most: (Q,)`` as :func:`credible` reads it."""
+    whose ends no view sees together, parts of ``min_joints`` joints) are split (``split``: then
+    ``result`` no longer triangulates ``groups``), each part triangulated from its own poses;
+    ``seen_most: (Q,)`` as :func:`credible` reads it."""
     X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
     split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
                           max_bone_ratio) if max_bone_ratio > 0 and groups else None
     if split is None:
-        return groups, X, seen
+        return groups, X, seen, False
     groups, X, person, part = split
     parts, seen = np.flatnonzero(part >= 0), seen[person]
     again = triangulate([groups[q] for q in parts])[1]
     X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
-    return groups, X, seen
+    return groups, X, seen, True
 
 
 def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
@@ -412,8 +413,7 @@ def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray,
     if merged is None:
         return groups, X, seen_most, False
     owner = np.full(N, -1)
-    for q, g in enumerate(groups):
-        owner[g] = q
+    owner[np.concatenate(groups)] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
     survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
     return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen_most[survivor], True
 

@@ -148,9 +148,10 @@ def body_deviation(X: np.ndarray, max_bone_ratio: float) -> np.ndarray:
     its rays, and with few bones the scale that joint sets makes the others look wrong too.
     ``X: (Q, J, 3)`` -> ``(Q,)``.
 
-    >>> X = np.zeros((1, 17, 3)); X[0, :, 0] = np.arange(17) * 0.1; X[0, 10] = [0.0, 5.0, 0.0]
-    >>> bool(body_deviation(X, 2.0)[0] <= proportion_deviation(X)[0])
-    True
+    >>> X = np.full((1, 17, 3), np.nan); X[0, 5:11] = 0.0; X[0, 5:11, 0] = np.arange(5, 11) * 0.1
+    >>> X[0, 10] = [0.0, 5.0, 0.0]                                  # the arms only, a wrist far off
+    >>> [round(float(d[0]), 2) for d in (proportion_deviation(X), body_deviation(X, 2.0))]
+    [0.16, 0.08]
     """
     whole = proportion_deviation(X)
     if max_bone_ratio <= 0 or not len(X):

@@ -177,6 +177,10 @@ def absorb_explained(groups: list[np.ndarray], pose: np.ndarray, person: np.ndar
     >>> [g.tolist() for g in absorb_explained(groups, pose, person, np.array([0.05, 0.04, 0.0, 0.0]),
     ...                                       np.arange(6), 0.15)]
     [[0, 1, 2, 3, 4, 5], []]
+    >>> groups = [np.array([0, 1, 2, 3]), np.array([4, 5]), np.array([6])]     # 6 into 4, 5 into 0-3
+    >>> [g.tolist() for g in absorb_explained(groups, np.array([6, 4, 5]), np.array([1, 0, 0]),
+    ...                                       np.full(3, 0.05), np.arange(7), 0.15)]
+    [[0, 1, 2, 3, 4, 5, 6], [], []]
     """
     Q = len(groups)
     if Q < 2:
@@ -203,6 +207,8 @@ def absorb_explained(groups: list[np.ndarray], pose: np.ndarray, person: np.ndar
         views[r] |= views[q]
     if (into == np.arange(Q)).all():
         return None
+    while (into[into] != into).any():                                # a chain: into the person it ends in
+        into = into[into]
     merged = [[g] for g in groups]
     for q in np.flatnonzero(into != np.arange(Q)):
         merged[into[q]].append(groups[q])
