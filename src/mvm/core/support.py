@@ -24,3 +24,4 @@ def drop_unsupported(cameras: Cameras, groups: list[np.ndarray], tri: Triangulat
     keep = credible(groups, tri.X, seen_most, cameras.P, cameras.size, usable, config.min_group_size,
                     config.rig_min_support, config.association_max_proportion_deviation, config.max_bone_ratio)
     tri.X[~keep] = np.nan
+    tri.inliers[~keep] = False                         # no point, no inliers, as RANSAC leaves them
