@@ -147,6 +147,24 @@ def test_cost_is_the_median_distance_in_person_sizes_and_forgives_a_swap(mixed):
     assert (far > 0.15).all()
 
 
+@pytest.mark.parametrize("chunk", [1, 7])
+def test_costs_in_chunks_equal_all_pairs_at_once(mixed, monkeypatch, chunk):
+    """Persons are projected, and pairs measured, a few at a time: the same costs and sizes to
+    the bit as all at once, for every pose against every true person."""
+    import mvm.core.association as association
+
+    scene, truth = mixed
+    N, Q = len(scene.poses), len(truth.poses3d)
+    pose, person = np.repeat(np.arange(N), Q), np.tile(np.arange(Q), N)
+    args = (scene.poses.keypoints, scene.poses.view, scene.cameras.P, truth.poses3d, pose, person, 0.2, 3)
+    expected = reprojection_cost(*args, swap_above=0.15)
+    monkeypatch.setattr(association, "PAIRS_CHUNK", chunk)
+    found = reprojection_cost(*args, swap_above=0.15)
+    assert np.isfinite(expected[0]).sum() > N // 2                         # most poses meet their person
+    for a, b in zip(found, expected):
+        assert np.array_equal(a, b, equal_nan=True)
+
+
 def test_proportions_tell_a_body_from_a_scramble(mixed):
     from mvm.core.body_parts import proportion_deviation
 

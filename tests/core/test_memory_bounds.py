@@ -1,6 +1,7 @@
-"""Memory bounded before it is taken: the duplicate test of thousands of candidate persons works
-in chunks (the same answer as all pairs at once), and a triangulation larger than
-``max_affinity_bytes`` is refused in one line naming the setting, before its arrays exist."""
+"""Memory bounded before it is taken: the duplicate test of thousands of candidate persons and
+the triangulation of persons seen in thousands of frames work in chunks (the same answer as all
+at once), and a triangulation larger than ``max_affinity_bytes`` is refused in one line naming
+the setting, before its arrays exist."""
 from __future__ import annotations
 
 import tracemalloc
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 import mvm.core.duplicates as duplicates
+import mvm.core.triangulate as triangulate
 from mvm.core.config import Config
 from mvm.core.duplicates import duplicate_pairs
 from mvm.core.keypoints import FLIP_PERMUTATION, LEFT_HIP, LEFT_SHOULDER, RIGHT_HIP, RIGHT_SHOULDER
@@ -110,3 +112,38 @@ def test_triangulation_memory_is_as_estimated():
     estimate = triangulation_bytes(groups, 17, config.ransac_hypotheses)
     assert 0.5 * estimate < peak <= estimate, (peak / 2**20, estimate / 2**20)
     triangulate_groups(scene.cameras, scene.poses, groups, config.replace(max_affinity_bytes=estimate))   # fits
+
+
+@pytest.mark.parametrize("chunk", [1, 250_000])
+def test_triangulation_in_chunks_equals_all_groups_at_once(monkeypatch, chunk):
+    """Groups triangulated a few at a time (one, or two of these, per chunk) give the
+    triangulation of all at once to the bit: RANSAC from random pairs and from every pair of
+    views, on spread views of wider groups, from previous poses, again at another threshold
+    from the hypotheses kept, and without RANSAC."""
+    scene, _ = simulate(SimConfig(people=6, frames=40, seed=4), bank_poses=standing_poses())
+    base = Config()
+    groups = match(scene.cameras, scene.poses, base)
+    assert len(groups) >= 5
+
+    def triangulations(config):
+        obs, first = triangulate_groups(scene.cameras, scene.poses, groups, config, keep_hypotheses=True)
+        again = triangulate_groups(scene.cameras, scene.poses, groups, config,
+                                   threshold=np.full(len(scene.poses), 0.05), again=(obs, first))[1]
+        warm = triangulate_groups(scene.cameras, scene.poses, groups, config, initial=first.X)[1]
+        return first, again, warm
+
+    configs = (base, base.replace(ransac_hypotheses=12), base.replace(max_triangulation_views=8),
+               base.replace(ransac=False))
+    expected = [triangulations(c) for c in configs]
+    monkeypatch.setattr(triangulate, "TRIANGULATION_CHUNK", chunk)
+    for config, want in zip(configs, expected):
+        for found, tri in zip(triangulations(config), want):
+            assert np.isfinite(tri.X).any()
+            assert np.array_equal(found.X, tri.X, equal_nan=True)
+            for field in ("inliers", "valid", "parallax_deg", "threshold"):
+                assert np.array_equal(getattr(found, field), getattr(tri, field)), field
+            assert (found.hypotheses is None) == (tri.hypotheses is None)
+            if tri.hypotheses is not None:
+                for field in ("err", "ok", "point"):
+                    assert np.array_equal(getattr(found.hypotheses, field), getattr(tri.hypotheses, field),
+                                          equal_nan=True), field

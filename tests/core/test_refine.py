@@ -182,6 +182,25 @@ def test_persons_are_refined_independently(with_bones):
     assert np.nanmean(error) < 0.5 * np.nanmean(np.linalg.norm(X0 - truth, axis=-1))
 
 
+def test_persons_refined_a_few_at_a_time_come_out_as_all_at_once(monkeypatch):
+    """The persons of a long video are refined in chunks (``REFINE_CHUNK``): the poses, the
+    costs before and after, and the fallbacks are those of all persons at once (each person
+    here its own chunk, one of them pushed behind the cameras)."""
+    import mvm.core.refine as refine
+
+    truth, X0, xy, conf, P, inliers = _capture(5)
+    centre = np.linalg.inv(P[0, 0, :, :3]) @ -P[0, 0, :, 3]
+    X0[2] = 2 * centre - X0[2]                                                       # falls back
+    prior, weights = shipped_prior(), np.array([2.0, 40.0, 400.0])
+    together = refine_poses(X0, xy, conf, P, inliers, prior, weights, tolerance=1e-10)
+    monkeypatch.setattr(refine, "REFINE_CHUNK", 1)
+    chunked = refine_poses(X0, xy, conf, P, inliers, prior, weights, tolerance=1e-10)
+    np.testing.assert_allclose(chunked.X, together.X, atol=1e-12)
+    assert chunked.fallback.tolist() == together.fallback.tolist() == [False, False, True]
+    assert chunked.cost_before == pytest.approx(together.cost_before, rel=1e-12)
+    assert chunked.cost_after == pytest.approx(together.cost_after, rel=1e-12)
+
+
 def test_each_persons_prior_weight_is_the_one_it_would_be_refined_alone_with():
     """Per-person prior weights ``(P,)``: each person comes out as refined alone with its own
     weight, and a larger weight holds it closer to the prior (a larger prior energy costs more)."""

@@ -72,15 +72,7 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
     # Project every person into every view used (Q·F·J points, far fewer than pairs·J).
     frames, frame_of_pair = _used(frame[pose], len(P))
     persons, person_of_pair = _used(person, len(X))
-    Xh = np.concatenate([X[persons], np.ones((len(persons), X.shape[1], 1))], axis=-1)   # (Q', J, 4)
-    x = np.matmul(Xh[:, None], P[frames].transpose(0, 2, 1)[None])                      # (Q', F', J, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv_all = x[..., :2] / x[..., 2:3]
-        seen_all = np.isfinite(uv_all).all(-1) & (x[..., 2] > 0)                          # (Q', F', J)
-        lo = np.where(seen_all[..., None], uv_all, np.inf).min(2)
-        hi = np.where(seen_all[..., None], uv_all, -np.inf).max(2)
-        size_all = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))                   # (Q', F')
-        centre_all = np.where(seen_all[..., None], uv_all, 0).sum(2) / np.maximum(seen_all.sum(2), 1)[..., None]
+    uv_all, seen_all, size_all, centre_all = _projections(X[persons], P[frames])
     # A pose whose keypoints' centre lies more than 1.5 person sizes from the reprojection's
     # centre (half a body even when only the upper or lower half is detected) cannot have half
     # its joints within a fraction of a size of it: such pairs are skipped.
@@ -102,6 +94,30 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
 #: the video (arrays beyond the allocator's reuse threshold, 32 MB, cost their page faults anew
 #: at every call, more than the arithmetic on them).
 PAIRS_CHUNK = 2**14
+
+
+def _projections(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Persons ``X: (Q, J, 3)`` in views ``P: (F, 3, 4)``: pixels ``uv: (Q, F, J, 2)``, ``seen: (Q, F, J)``
+    (finite, in front of the camera), the person's image size ``sqrt(w h)`` of the bounding box
+    of its seen joints ``(Q, F)`` and their centre ``(Q, F, 2)``. A few persons at a time: the
+    temporaries stay under :data:`PAIRS_CHUNK` entries per joint."""
+    Q, J, F = len(X), X.shape[1], len(P)
+    uv, seen = np.empty((Q, F, J, 2)), np.empty((Q, F, J), dtype=bool)
+    size, centre = np.empty((Q, F)), np.empty((Q, F, 2))
+    Pt = P.transpose(0, 2, 1)[None]
+    step = max(1, PAIRS_CHUNK // max(F, 1))
+    for rows in (slice(s, s + step) for s in range(0, Q, step)):
+        Xh = np.concatenate([X[rows], np.ones((len(X[rows]), J, 1))], axis=-1)            # (q, J, 4)
+        x = np.matmul(Xh[:, None], Pt)                                                    # (q, F, J, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            np.divide(x[..., :2], x[..., 2:3], out=uv[rows])
+            seen[rows] = np.isfinite(uv[rows]).all(-1) & (x[..., 2] > 0)
+            lo = np.where(seen[rows, ..., None], uv[rows], np.inf).min(2)
+            hi = np.where(seen[rows, ..., None], uv[rows], -np.inf).max(2)
+            size[rows] = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))
+            centre[rows] = (np.where(seen[rows, ..., None], uv[rows], 0).sum(2)
+                            / np.maximum(seen[rows].sum(2), 1)[..., None])
+    return uv, seen, size, centre
 
 
 def _used(index: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:

@@ -188,12 +188,13 @@ TRIANGULATION_BYTES_PER_ENTRY = 64
 
 
 def triangulation_bytes(groups: list[np.ndarray], joints: int, hypotheses: int, max_views: int | None = None) -> int:
-    """Peak memory of :func:`triangulate_groups`: groups are padded to the largest one's ``M``
-    views, and each of the ``H`` hypotheses of every joint is scored in ``S = min(M, max_views)``
-    view slots at once, so ``P · (M + S · H) · J ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes
-    (the ``M``: the padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no
-    RANSAC), at most the ``S (S - 1) / 2`` pairs of views
-    (:func:`mvm.core.triangulate.ransac_triangulate`)."""
+    """Peak memory of :func:`triangulate_groups`, at most: groups are padded to the largest one's
+    ``M`` views, and each of the ``H`` hypotheses of every joint is scored in ``S = min(M, max_views)``
+    view slots, so ``P · (M + S · H) · J ·`` :data:`TRIANGULATION_BYTES_PER_ENTRY` bytes (the
+    ``M``: the padded keypoints and cameras themselves). ``H`` is ``hypotheses`` (0: no RANSAC),
+    at most the ``S (S - 1) / 2`` pairs of views (:func:`mvm.core.triangulate.ransac_triangulate`).
+    The bound is reached when the hypotheses are kept (the first triangulation of a scene); the
+    others work a few groups at a time (:data:`mvm.core.triangulate.TRIANGULATION_CHUNK`)."""
     widest = max((len(g) for g in groups), default=0)
     scored = widest if max_views is None else min(widest, int(max_views))
     H = min(int(hypotheses), max(1, scored * (scored - 1) // 2)) if hypotheses > 0 else 0

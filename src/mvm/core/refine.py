@@ -363,8 +363,37 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
             (:func:`mvm.core.lm.levenberg_marquardt`) in the last outer iteration; the earlier
             ones stop at :data:`EARLY_TOLERANCE_FACTOR` times it.
     Returns :class:`RefineResult`.
+
+    Persons are independent: they are refined a few at a time (:data:`REFINE_CHUNK`), with
+    the result of all at once (up to rounding).
     """
     X0 = np.asarray(X0, dtype=float)
+    Pn, J, _ = X0.shape
+    step = max(1, REFINE_CHUNK // max(np.shape(inliers)[1] * J, 1))
+    weights = np.broadcast_to(np.asarray(prior_weight, dtype=float), (Pn,))
+    parts = [_refine_persons(X0[r], xy[r], conf[r], P[r], inliers[r], prior, weights[r], robust_scale, max_iterations,
+                             outer_iterations, None if bone_lengths is None else np.asarray(bone_lengths)[r],
+                             bone_weight, tolerance)
+             for r in (slice(s, s + step) for s in range(0, max(Pn, 1), step))]
+    fallback = np.concatenate([part.fallback for part in parts])
+    if fallback.any():
+        log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
+    if len(parts) == 1:
+        return parts[0]
+    return RefineResult(np.concatenate([part.X for part in parts]), fallback,
+                        sum(part.cost_before for part in parts),
+                        lambda: sum(part.objective_after() for part in parts))
+
+
+#: Person · view slot · joint entries refined at once: the normal equations' coefficients stay
+#: a few MB whatever the length of the video (see :data:`mvm.core.association.PAIRS_CHUNK`).
+REFINE_CHUNK = 2**16
+
+
+def _refine_persons(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray, inliers: np.ndarray, prior,
+                    prior_weight: np.ndarray, robust_scale: float, max_iterations: int, outer_iterations: int,
+                    bone_lengths: np.ndarray | None, bone_weight: float, tolerance: float) -> RefineResult:
+    """:func:`refine_poses` of a few persons, arguments as its own."""
     Pn, J, _ = X0.shape
     present = np.isfinite(X0).all(-1)                                    # (P, J)
     obs = Observations.build(np.asarray(xy, dtype=float), np.asarray(P, dtype=float), np.asarray(conf, dtype=float),
@@ -391,8 +420,6 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
         e1, depth1 = obs.reprojection(np.where(present[..., None], X, 0.0))
     fallback = fallback_persons(e0, e1, depth1, X, present, obs, robust_scale)
     X[fallback] = X0[fallback]
-    if fallback.any():
-        log.warning("refinement diverged for %d person(s); kept their triangulation", int(fallback.sum()))
     X_fit, e_fit = np.where(present[..., None], X, 0.0), np.where(fallback[:, None, None, None], e0, e1)
 
     def objective_after() -> float:                      # of copies: the caller may change X

@@ -42,6 +42,12 @@ class GroupObservations:
     world_offset: np.ndarray
     size: np.ndarray
 
+    def rows(self, rows: slice) -> GroupObservations:
+        """The observations of the groups ``rows`` (views of these arrays, not copies)."""
+        return GroupObservations(self.xy[rows], self.conf[rows], self.P[rows], self.normalized_xy[rows],
+                                 self.Rt[rows], self.centers[rows], self.members[rows], self.world_scale,
+                                 self.world_offset, self.size[rows])
+
 
 def gather_groups(cameras: Cameras, poses: Poses2D, groups: list[np.ndarray],
                   keypoint_threshold: float) -> GroupObservations:
@@ -106,6 +112,17 @@ class Hypotheses:
     ok: np.ndarray
     point: np.ndarray
     slots: np.ndarray | None
+
+    def rows(self, rows: slice) -> Hypotheses:
+        """The hypotheses of the groups ``rows`` (views, not copies)."""
+        return Hypotheses(self.err[rows], self.ok[rows], self.point[rows],
+                          None if self.slots is None else self.slots[rows])
+
+    @staticmethod
+    def concatenate(parts: list[Hypotheses]) -> Hypotheses:
+        """The hypotheses of consecutive groups, ``parts`` scored with the same ``S`` and ``H``."""
+        slots = None if parts[0].slots is None else np.concatenate([h.slots for h in parts])
+        return Hypotheses(*(np.concatenate([getattr(h, f) for h in parts]) for f in ("err", "ok", "point")), slots)
 
 
 @functools.lru_cache(maxsize=64)
@@ -201,6 +218,9 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     ``P · M · J · H``. None: every view. ``hypotheses_scored``: the :class:`Hypotheses` of a call
     on the same observations and settings (with ``keep_hypotheses``), at any threshold: they are
     not drawn and scored again, and the result is the one a call of its own gives.
+
+    The groups are triangulated a few at a time (:data:`TRIANGULATION_CHUNK`), the random pairs
+    of all of them drawn at once: the result does not depend on the chunks.
     """
     rng = 0 if rng is None else rng
     valid = obs.conf > 0                                                    # (P, M, J)
@@ -209,10 +229,57 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     if Pn == 0 or M == 0:
         empty = np.zeros((Pn, J, 3)) * np.nan
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
-    terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
+    scored, pairs, slots, H = hypotheses_scored, None, None, 0
+    if use_ransac and scored is not None:
+        slots, H = scored.slots, scored.err.shape[-1]
+    elif use_ransac:
+        if max_views is not None and M > max_views:
+            slots = spread_slots(obs.conf, max_views)
+        scored_valid = valid if slots is None else \
+            valid[np.arange(Pn)[:, None], np.maximum(slots, 0)] & (slots >= 0)[..., None]   # (P, S, J)
+        pairs = _sample_pairs(scored_valid, hypotheses, rng)
+        H = pairs[0].shape[-1] + (initial is not None)
+    S = M if slots is None else slots.shape[1]
+    step = max(1, TRIANGULATION_CHUNK // (J * (10 * M + 3 * S * H)))
+    parts = []
+    for rows in (slice(s, s + step) for s in range(0, Pn, step)):
+        parts.append(_triangulate_rows(
+            obs.rows(rows), threshold[rows], min_views, min_parallax_deg, use_ransac,
+            None if initial is None else initial[rows], None if slots is None else slots[rows],
+            None if pairs is None else (pairs[0][rows], pairs[1][rows]),
+            None if scored is None else scored.rows(rows)))
+    tri = Triangulation(*(np.concatenate([getattr(t, f) for t, _ in parts])
+                          for f in ("X", "inliers", "valid", "parallax_deg")), threshold)
+    if keep_hypotheses and use_ransac:
+        tri.hypotheses = scored if scored is not None else Hypotheses.concatenate([h for _, h in parts])
+    return tri
 
-    inliers, scored = (valid.copy(), None) if not use_ransac else \
-        _ransac_inliers(obs, valid, terms, threshold, hypotheses, rng, initial, max_views, hypotheses_scored)
+
+#: Entries of the largest arrays of a triangulation of a few groups: a group counts
+#: ``J · (10 M + 3 S H)``, the DLT terms of its ``M`` view slots and the projections of its ``H``
+#: hypotheses in ``S`` of them. The arrays stay under 8 MB whatever the length of the video or the
+#: number of groups: beyond the allocator's reuse threshold (32 MB) an array costs its page
+#: faults anew at every call, more than the arithmetic on it.
+TRIANGULATION_CHUNK = 2**20
+
+
+def _triangulate_rows(obs: GroupObservations, threshold: np.ndarray, min_views: int, min_parallax_deg: float,
+                      use_ransac: bool, initial: np.ndarray | None, slots: np.ndarray | None,
+                      pairs: tuple[np.ndarray, np.ndarray] | None, scored: Hypotheses | None
+                      ) -> tuple[Triangulation, Hypotheses | None]:
+    """:func:`ransac_triangulate` of a few groups, ``threshold: (P,)``: their triangulation and
+    hypotheses. Hypotheses are ``scored`` already, or made from the view ``pairs`` (two
+    ``(P, J, H)`` slot indices, :func:`_sample_pairs`) and ``initial: (P, J, 3)``, scored in every
+    view slot or, with ``slots: (P, S)``, in those (:func:`_spread_ransac_inliers`)."""
+    valid = obs.conf > 0                                                    # (P, M, J)
+    terms = dlt_terms(obs.normalized_xy.transpose(0, 2, 1, 3), obs.Rt[:, None])  # (10, P, J, M)
+    if not use_ransac:
+        inliers = valid.copy()
+    elif slots is not None:
+        inliers, scored = _spread_ransac_inliers(obs, valid, threshold, pairs, initial, slots, scored)
+    else:
+        scored = scored or _score_hypotheses(obs, valid, terms, pairs, initial)
+        inliers = _best_inliers(scored, valid, threshold)
 
     weights = np.where(inliers, obs.conf, 0.0).transpose(0, 2, 1)             # (P, J, M)
     solved = None
@@ -234,8 +301,7 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     good = (inliers.sum(axis=1) >= min_views) & (parallax >= min_parallax_deg) & np.isfinite(X).all(-1)
     X[~good] = np.nan
     inliers &= good[:, None, :]
-    return Triangulation(X, inliers, valid, parallax, threshold, scored if keep_hypotheses else None)
-
+    return Triangulation(X, inliers, valid, parallax, threshold), scored
 
 
 def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tuple[np.ndarray, np.ndarray]:
@@ -247,24 +313,14 @@ def _refit(terms: np.ndarray, weights: np.ndarray, previous: tuple | None) -> tu
     return weights, weighted_dlt(terms, weights)
 
 
-def _ransac_inliers(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, threshold: np.ndarray,
-                    hypotheses: int, rng, initial: np.ndarray | None, max_views: int | None,
-                    scored: Hypotheses | None) -> tuple[np.ndarray, Hypotheses]:
-    """The RANSAC inliers ``(P, M, J)`` of :func:`ransac_triangulate` and the hypotheses scored
-    (``scored``, where given): on every view, or on ``max_views`` spread views of wider groups."""
-    if max_views is not None and valid.shape[1] > max_views:
-        return _spread_ransac_inliers(obs, valid, threshold, hypotheses, rng, initial, max_views, scored)
-    scored = scored or _score_hypotheses(obs, valid, terms, hypotheses, rng, initial)
-    return _best_inliers(scored, valid, threshold), scored
-
-
-def _score_hypotheses(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray, hypotheses: int, rng,
-                      initial: np.ndarray | None, slots: np.ndarray | None = None) -> Hypotheses:
+def _score_hypotheses(obs: GroupObservations, valid: np.ndarray, terms: np.ndarray,
+                      pairs: tuple[np.ndarray, np.ndarray], initial: np.ndarray | None,
+                      slots: np.ndarray | None = None) -> Hypotheses:
     """Two-view DLT hypotheses of every joint and their reprojection errors in every view slot
     of ``obs`` (:class:`Hypotheses`). ``terms: (10, P, J, M)`` the views' :func:`mvm.core.geometry.dlt_terms`;
-    ``initial: (P, J, 3)`` world points join the two-view hypotheses; ``slots``: recorded as the
-    scored slots."""
-    a, b = _sample_pairs(valid, hypotheses, rng)                            # (P, J, H)
+    ``pairs``: two ``(P, J, H)`` slot indices (:func:`_sample_pairs`); ``initial: (P, J, 3)``
+    world points join the two-view hypotheses; ``slots``: recorded as the scored slots."""
+    a, b = pairs
     # A pair of one view twice (a joint seen once) has no point: NaN, never a better hypothesis.
     p, j = np.ogrid[:a.shape[0], :a.shape[1]]
     p, j = p[..., None], j[..., None]
@@ -361,18 +417,18 @@ def take_slots(obs: GroupObservations, slots: np.ndarray) -> GroupObservations:
                              obs.world_scale, obs.world_offset, np.where(pad, 1.0, obs.size[p, idx]))
 
 
-def _spread_ransac_inliers(obs: GroupObservations, valid: np.ndarray, threshold: np.ndarray, hypotheses: int, rng,
-                           initial: np.ndarray | None, max_views: int, scored: Hypotheses | None = None
-                           ) -> tuple[np.ndarray, Hypotheses]:
-    """The RANSAC of :func:`ransac_triangulate` on ``max_views`` well-spread views of each group
-    (:func:`spread_slots`), whose inliers' weighted DLT then gives the inliers ``(P, M, J)``
-    among all the views (reprojection error below each group's ``threshold: (P,)``, in person
-    sizes, in front of the camera); and the hypotheses scored (``scored``, where given)."""
-    slots = spread_slots(obs.conf, max_views) if scored is None else scored.slots
+def _spread_ransac_inliers(obs: GroupObservations, valid: np.ndarray, threshold: np.ndarray,
+                           pairs: tuple[np.ndarray, np.ndarray] | None, initial: np.ndarray | None,
+                           slots: np.ndarray, scored: Hypotheses | None = None) -> tuple[np.ndarray, Hypotheses]:
+    """The RANSAC of :func:`ransac_triangulate` on the well-spread view ``slots: (P, S)`` of
+    each group (:func:`spread_slots`), whose inliers' weighted DLT then gives the inliers
+    ``(P, M, J)`` among all the views (reprojection error below each group's ``threshold: (P,)``,
+    in person sizes, in front of the camera); and the hypotheses scored (``scored``, where
+    given; else made from ``pairs`` of those slots and ``initial``, as :func:`_score_hypotheses`)."""
     sub = take_slots(obs, slots)
     terms = dlt_terms(sub.normalized_xy.transpose(0, 2, 1, 3), sub.Rt[:, None])     # (10, P, J, S)
     if scored is None:
-        scored = _score_hypotheses(sub, sub.conf > 0, terms, hypotheses, rng, initial, slots)
+        scored = _score_hypotheses(sub, sub.conf > 0, terms, pairs, initial, slots)
     chosen = _best_inliers(scored, sub.conf > 0, threshold)
     X = weighted_dlt(terms, np.where(chosen, sub.conf, 0.0).transpose(0, 2, 1))       # (P, J, 3) normalized
     err, depth = _reprojection_errors(X[:, :, None] * obs.world_scale + obs.world_offset, obs)
