@@ -8,12 +8,14 @@ frames 150, 300, 600, 1,200, 2,400, 3,600 (doubling, then the two-minute video) 
 people. Each size is written as a scene directory and reconstructed in a process of its own, as
 ``mvm reconstruct`` does (:func:`mvm.scenes.reconstruct_dir`, default settings): the table gives
 that process's wall time (start-up included) and CPU time (user + system: what a loaded machine
-inflates least; with ``--repeat``, the least of several runs), its peak resident memory
+inflates least; with ``--repeat``, the least of several runs, made in rounds over all the
+sizes so that a slow spell of the machine weighs on every size alike), its peak resident memory
 (``VmHWM``), the time of every stage,
 and pairwise precision / recall, persons estimated / found / true and MPJPE, beside the oracle on
 the same scene (the true grouping, RANSAC/DLT triangulation, no refinement, as
 :mod:`mvm.eval.crowd` scores it; also in a process of its own). Below the table: the growth of
-time (wall and CPU) and memory per doubling of the frames, for every crowd size.
+time (wall and CPU) and memory per doubling of the frames, for every crowd size (with
+``--repeat``, also the median and worst over the rounds of the wall time's growth).
 
 ``--quick``: 10 people, 150 to 600 frames. ``--max-frames`` drops the longer videos.
 """
@@ -23,6 +25,7 @@ import argparse
 import json
 import math
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -56,11 +59,11 @@ def run_child(scene_dir: Path, mode: str) -> dict:
     return {**measured, **json.loads(text.strip().splitlines()[-1])}
 
 
-def best_child(scene_dir: Path, mode: str, repeat: int) -> dict:
-    """:func:`run_child` ``repeat`` times: the first row, with the least wall and CPU time of all
-    (on a loaded machine the others measure the load)."""
-    rows = [run_child(scene_dir, mode) for _ in range(max(repeat, 1))]
-    return {**rows[0], "process_s": min(r["process_s"] for r in rows), "cpu_s": min(r["cpu_s"] for r in rows)}
+def best_run(rows: list[dict]) -> dict:
+    """The first of several runs of one size, with the least wall and CPU time of all (on a
+    loaded machine the others measure the load) and every run's wall time (``runs_s``)."""
+    return {**rows[0], "process_s": min(r["process_s"] for r in rows), "cpu_s": min(r["cpu_s"] for r in rows),
+            "runs_s": [r["process_s"] for r in rows]}
 
 
 def peak_mib() -> float:
@@ -112,8 +115,8 @@ def child(mode: str, scene_dir: str) -> None:
                      | {k: float(v) for k, v in report["timings"].items()} | spent))
 
 
-def measure(people: int, frames: int, args, work: Path) -> dict:
-    """The row of one size: simulate, write, reconstruct by the method and by the oracle."""
+def write_size(people: int, frames: int, args, work: Path) -> dict:
+    """Simulate one size and write it as a scene directory: its row, without measurements."""
     from mvm.io.ground_truth import write_simulation
     from mvm.sim.simulate import SimConfig, simulate
 
@@ -121,10 +124,22 @@ def measure(people: int, frames: int, args, work: Path) -> dict:
     scene, truth = simulate(sim)
     scene_dir = work / f"p{people}_f{frames}" / "scene"
     write_simulation(scene_dir, scene, truth, sim)
-    row = {"people": people, "frames": frames, "poses": len(scene.poses)}
-    row["method"] = best_child(scene_dir, "method", args.repeat)
-    row["oracle"] = run_child(scene_dir, "oracle") if not args.no_oracle else {}
-    return row
+    return {"people": people, "frames": frames, "poses": len(scene.poses), "scene": str(scene_dir)}
+
+
+def measure(rows: list[dict], repeat: int, oracle: bool) -> None:
+    """Reconstruct every size ``repeat`` times, by the method, in rounds: each round runs every
+    size once, so a slow spell of the machine weighs on all sizes alike rather than on one;
+    then the oracle once. Fills each row's ``method`` (:func:`best_run`) and ``oracle``."""
+    runs = [[] for _ in rows]
+    for _ in range(max(repeat, 1)):
+        for row, found in zip(rows, runs):
+            found.append(run_child(Path(row["scene"]), "method"))
+            print(f"{row['people']} people, {row['frames']} frames: {json.dumps(found[-1])}", file=sys.stderr,
+                  flush=True)
+    for row, found in zip(rows, runs):
+        row["method"] = best_run(found)
+        row["oracle"] = run_child(Path(row["scene"]), "oracle") if oracle else {}
 
 
 def _fmt(value, digits: int) -> str:
@@ -132,11 +147,16 @@ def _fmt(value, digits: int) -> str:
 
 
 def _growth(a: dict, b: dict) -> str:
-    """Wall time, CPU time and memory of row ``b`` over row ``a``, per doubling of the frames."""
+    """Wall time, CPU time and memory of row ``b`` over row ``a``, per doubling of the frames;
+    with several rounds, also the median over the rounds of the wall time's growth in each."""
     doublings = math.log2(b["frames"] / a["frames"])
     ratio = {k: (b["method"][k] / a["method"][k]) ** (1 / doublings) if a["method"].get(k) else math.nan
              for k in ("process_s", "cpu_s", "peak_mib")}
-    return f"×{ratio['process_s']:.2f} time, ×{ratio['cpu_s']:.2f} CPU, ×{ratio['peak_mib']:.2f} memory"
+    text = f"×{ratio['process_s']:.2f} time, ×{ratio['cpu_s']:.2f} CPU, ×{ratio['peak_mib']:.2f} memory"
+    rounds = [(y / x) ** (1 / doublings) for x, y in zip(a["method"].get("runs_s", []), b["method"].get("runs_s", []))]
+    if len(rounds) > 1:
+        text += f" (time per round: median ×{statistics.median(rounds):.2f}, worst ×{max(rounds):.2f})"
+    return text
 
 
 def table(rows: list[dict]) -> str:
@@ -179,8 +199,8 @@ def main() -> None:
     parser.add_argument("--arc", type=float, default=120.0, help="Angle of the tour, degrees.")
     parser.add_argument("--seed", type=int, default=2)
     parser.add_argument("--no-oracle", action="store_true", help="Skip the oracle (half the time).")
-    parser.add_argument("--repeat", type=int, default=1, help="Reconstruct each size this many times: the least "
-                                                              "wall and CPU time.")
+    parser.add_argument("--repeat", type=int, default=1, help="Reconstruct each size this many times, in rounds "
+                                                              "over all sizes: the least wall and CPU time.")
     parser.add_argument("--out", default=None, help="Write scaling.md and scaling.json into this folder.")
     parser.add_argument("--child", nargs=2, metavar=("MODE", "SCENE_DIR"), help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -190,13 +210,11 @@ def main() -> None:
     people = [int(p) for p in args.people.split(",")] if args.people else (QUICK_PEOPLE if args.quick else PEOPLE)
     frames = [int(f) for f in args.frames.split(",")] if args.frames else (QUICK_FRAMES if args.quick else FRAMES)
     frames = [f for f in frames if args.max_frames is None or f <= args.max_frames]
-    rows = []
     with tempfile.TemporaryDirectory(prefix="mvm-scaling-") as tmp:
-        for p in people:
-            for f in frames:
-                rows.append(measure(p, f, args, Path(tmp)))
-                m = rows[-1]["method"]
-                print(f"{p} people, {f} frames: {json.dumps(m)}", file=sys.stderr, flush=True)
+        rows = [write_size(p, f, args, Path(tmp)) for p in people for f in frames]
+        measure(rows, args.repeat, not args.no_oracle)
+    for row in rows:
+        del row["scene"]                                       # removed with the folder
     text = table(rows)
     print(text)
     if args.out:
