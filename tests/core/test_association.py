@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from mvm.core.association import assign_per_frame, associate, reprojection_cost
+from mvm.core.association import assign_per_frame, associate
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_duplicates
 from mvm.core.pipeline import triangulate_groups
+from mvm.core.pose_distance import reprojection_cost
 from mvm.core.reconstruct import reconstruct
 from mvm.metrics.poses import matching_precision_recall
 from mvm.sim.simulate import SimConfig, simulate
@@ -151,14 +152,14 @@ def test_cost_is_the_median_distance_in_person_sizes_and_forgives_a_swap(mixed):
 def test_costs_in_chunks_equal_all_pairs_at_once(mixed, monkeypatch, chunk):
     """Persons are projected, and pairs measured, a few at a time: the same costs and sizes to
     the bit as all at once, for every pose against every true person."""
-    import mvm.core.association as association
+    import mvm.core.pose_distance as pose_distance
 
     scene, truth = mixed
     N, Q = len(scene.poses), len(truth.poses3d)
     pose, person = np.repeat(np.arange(N), Q), np.tile(np.arange(Q), N)
     args = (scene.poses.keypoints, scene.poses.view, scene.cameras.P, truth.poses3d, pose, person, 0.2, 3)
     expected = reprojection_cost(*args, swap_above=0.15)
-    monkeypatch.setattr(association, "PAIRS_CHUNK", chunk)
+    monkeypatch.setattr(pose_distance, "PAIRS_CHUNK", chunk)
     found = reprojection_cost(*args, swap_above=0.15)
     assert np.isfinite(expected[0]).sum() > N // 2                         # most poses meet their person
     for a, b in zip(found, expected):

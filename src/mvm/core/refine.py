@@ -386,7 +386,7 @@ def refine_poses(X0: np.ndarray, xy: np.ndarray, conf: np.ndarray, P: np.ndarray
 
 
 #: Person · view slot · joint entries refined at once: the normal equations' coefficients stay
-#: a few MB whatever the length of the video (see :data:`mvm.core.association.PAIRS_CHUNK`).
+#: a few MB whatever the length of the video (see :data:`mvm.core.pose_distance.PAIRS_CHUNK`).
 REFINE_CHUNK = 2**16
 
 

@@ -229,16 +229,9 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     if Pn == 0 or M == 0:
         empty = np.zeros((Pn, J, 3)) * np.nan
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
-    scored, pairs, slots, H = hypotheses_scored, None, None, 0
-    if use_ransac and scored is not None:
-        slots, H = scored.slots, scored.err.shape[-1]
-    elif use_ransac:
-        if max_views is not None and M > max_views:
-            slots = spread_slots(obs.conf, max_views)
-        scored_valid = valid if slots is None else \
-            valid[np.arange(Pn)[:, None], np.maximum(slots, 0)] & (slots >= 0)[..., None]   # (P, S, J)
-        pairs = _sample_pairs(scored_valid, hypotheses, rng)
-        H = pairs[0].shape[-1] + (initial is not None)
+    scored = hypotheses_scored
+    slots, pairs, H = (None, None, 0) if not use_ransac else (scored.slots, None, scored.err.shape[-1]) \
+        if scored is not None else _draw_pairs(obs.conf, hypotheses, rng, max_views, initial is not None)
     S = M if slots is None else slots.shape[1]
     step = max(1, TRIANGULATION_CHUNK // (J * (10 * M + 3 * S * H)))
     parts = []
@@ -253,6 +246,20 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     if keep_hypotheses and use_ransac:
         tri.hypotheses = scored if scored is not None else Hypotheses.concatenate([h for _, h in parts])
     return tri
+
+
+def _draw_pairs(conf: np.ndarray, hypotheses: int, rng, max_views: int | None, initial: bool
+                ) -> tuple[np.ndarray | None, tuple[np.ndarray, np.ndarray], int]:
+    """The hypotheses of :func:`ransac_triangulate`, drawn for all groups ``conf: (P, M, J)`` at
+    once: the view slots they are scored in (``(P, S)`` spread slots where ``M > max_views``,
+    else None: every slot), the pairs of those slots (:func:`_sample_pairs`) and ``H``, the
+    hypotheses per joint (one more with ``initial`` points)."""
+    valid = conf > 0
+    slots = spread_slots(conf, max_views) if max_views is not None and conf.shape[1] > max_views else None
+    if slots is not None:
+        valid = valid[np.arange(len(conf))[:, None], np.maximum(slots, 0)] & (slots >= 0)[..., None]   # (P, S, J)
+    pairs = _sample_pairs(valid, hypotheses, rng)
+    return slots, pairs, pairs[0].shape[-1] + initial
 
 
 #: Entries of the largest arrays of a triangulation of a few groups: a group counts
