@@ -106,10 +106,9 @@ def keyframe_rows(cameras: Cameras, poses: Poses2D, config: Config) -> np.ndarra
     return np.flatnonzero(np.isin(poses.view, key))
 
 
-def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
-    """:func:`match` on the poses of :func:`keyframe_rows` (all of them for a short video).
-    Memory: the affinity of those poses only, whatever the length of the video."""
-    rows = keyframe_rows(cameras, poses, config)
+def match_keyframes(cameras: Cameras, poses: Poses2D, config: Config, rows: np.ndarray | None) -> list[np.ndarray]:
+    """:func:`match` on the poses ``rows`` of :func:`keyframe_rows` (None: all of them, a short
+    video). Memory: the affinity of those poses only, whatever the length of the video."""
     if rows is None:
         return match(cameras, poses, config)
     return [rows[g] for g in match(cameras, poses.subset(rows), config)]
@@ -409,8 +408,9 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     timings = {}
     t = time.perf_counter()
     given = groups is not None
+    keyframes = None if given else keyframe_rows(cameras, poses, config)
     if groups is None:
-        groups = match_keyframes(cameras, poses, config)
+        groups = match_keyframes(cameras, poses, config, keyframes)
     timings["matching_s"] = time.perf_counter() - t
     t = time.perf_counter()
     obs, tri = triangulate_groups(cameras, poses, groups, config, keep_hypotheses=True)
@@ -424,8 +424,7 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
         log.info("merged %d duplicate group(s)", len(groups) - len(merged))
         groups = merged
         obs, tri = triangulate_groups(cameras, poses, groups, config, threshold=threshold)
-    keyframes = None if associate_3d or given else keyframe_rows(cameras, poses, config)
-    if keyframes is not None:                                           # the paper's grouping of a long video
+    if keyframes is not None and not associate_3d:                      # the paper's grouping of a long video
         groups, (obs, tri) = extend_groups(cameras, poses, groups, config, (obs, tri), threshold, keyframes)
     timings["triangulation_s"] = time.perf_counter() - t
     if associate_3d:
