@@ -21,7 +21,6 @@ Arrays: ``N`` 2D poses, ``J = 17`` joints, ``F`` views (frames, or the cameras o
 """
 from __future__ import annotations
 
-import re
 import warnings
 from collections.abc import Callable
 
@@ -30,6 +29,7 @@ import numpy as np
 from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained
+from mvm.core.names import natural_key
 from mvm.core.pose_distance import reprojection_cost
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
@@ -154,16 +154,14 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
-    """Position of each view in a video from its image name, numbers compared as numbers
-    (``frame_2`` before ``frame_10``). ``names``: ``F`` names -> ``(F,)`` int.
+    """Position of each view in a video from its image name, in natural order
+    (:func:`mvm.core.names.natural_key`: ``frame_2`` before ``frame_10``). ``names``: ``F``
+    names -> ``(F,)`` int.
 
     >>> frame_sequence(["f_10.jpg", "f_2.jpg", "f_1.jpg"]).tolist()
     [2, 1, 0]
     """
-    def key(name: str):
-        return [(0, int(part), "") if part.isdigit() else (1, 0, part) for part in re.split(r"(\d+)", name)]
-
-    order = sorted(range(len(names)), key=lambda i: key(names[i]))
+    order = sorted(range(len(names)), key=lambda i: natural_key(names[i]))
     sequence = np.empty(len(names), dtype=np.int64)
     sequence[order] = np.arange(len(names))
     return sequence

@@ -20,7 +20,6 @@ cameras are named after the files and ordered by name (the first is the referenc
 from __future__ import annotations
 
 import math
-import re
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ import cv2
 import numpy as np
 
 from mvm.core.camera import undistort
+from mvm.core.names import natural_key
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
@@ -51,10 +51,6 @@ IMAGE_EXTENSIONS = frozenset((".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"))
 MAX_SCANNED_FRAMES = 300
 
 
-def _natural(name: str) -> list:
-    return [int(p) if p.isdigit() else p.lower() for p in re.split(r"(\d+)", name)]
-
-
 def _images(folder: Path) -> list[Path]:
     """The images of ``folder`` in name order; an image name on something that is not a file (a
     FIFO, a folder, a broken link: leaving it out would shift the frame numbers after it) raises
@@ -63,7 +59,7 @@ def _images(folder: Path) -> list[Path]:
     for p in images:
         if not p.is_file():
             raise InputError(p, None, "named like an image but not a file (a FIFO, a folder or a broken link)")
-    return sorted(images, key=lambda p: _natural(p.name))
+    return sorted(images, key=lambda p: natural_key(p.name))
 
 
 def calibration_sources(folder: Path) -> dict[str, Path]:
@@ -84,7 +80,7 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
             if name in found:
                 raise InputError(p, None, f"camera {name}: two calibration sources ({found[name].name} and {p.name})")
             found[name] = p
-    return dict(sorted(found.items(), key=lambda item: _natural(item[0])))
+    return dict(sorted(found.items(), key=lambda item: natural_key(item[0])))
 
 
 def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:

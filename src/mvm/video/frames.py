@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from mvm.core.config import check_settings, setting
+from mvm.core.names import natural_key
 from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
@@ -390,10 +391,5 @@ def list_frames(scene: str | Path) -> list[str]:
     if not folder.is_dir():
         raise InputError(folder, None, "no frames (run `mvm frames` first)")
     names = [p.name for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")]
-    return sorted(names, key=_natural_key)
+    return sorted(names, key=natural_key)
 
-
-def _natural_key(name: str):
-    import re
-
-    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
