@@ -1,7 +1,9 @@
 """Frames of a scene read the guarded way (:func:`mvm.io.checks.read_bytes`): a regular file
-inside the scene directory, of bounded size, decoded from memory by OpenCV."""
+inside the scene directory, of bounded size, decoded from memory by OpenCV; and the frames of a
+video stepped through one at a time (:func:`step_frames`)."""
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -51,3 +53,20 @@ def check_frames(frames_dir: str | Path, names, root: str | Path) -> None:
     (COLMAP's feature extraction) sees them."""
     for name in names:
         check_input_file(Path(frames_dir) / name, root, limit=MAX_IMAGE_BYTES)
+
+
+def step_frames(capture, wanted: Callable[[int], bool], last: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """The frames of an opened ``cv2.VideoCapture`` whose number ``wanted`` accepts, up to frame
+    ``last`` (None: to the end of the video), one at a time: yields ``(number, image (H, W, 3)
+    BGR)``. The frames in between are grabbed, not decoded, and memory holds one frame whatever
+    the video's length; the first frame that does not decode ends the video."""
+    number = 0
+    while last is None or number <= last:
+        if wanted(number):
+            ok, image = capture.read()
+            if not ok:
+                return
+            yield number, image
+        elif not capture.grab():
+            return
+        number += 1

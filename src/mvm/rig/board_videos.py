@@ -32,7 +32,7 @@ from mvm.core.names import natural_key
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
-from mvm.io.images import read_image
+from mvm.io.images import read_image, step_frames
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
@@ -121,19 +121,12 @@ def gray_frames(source: Path, stride: int):
     try:
         if not capture.isOpened():
             raise InputError(source, None, "OpenCV cannot open this video")
-        number = 0
-        while True:
-            if number % stride == 0:
-                ok, image = capture.read()
-                if ok:
-                    yield number, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-            else:
-                ok = capture.grab()
-            if not ok:
-                if number == 0:
-                    raise InputError(source, None, "OpenCV cannot decode this video")
-                return
-            number += 1
+        decoded = False                                      # frame 0, always wanted, decodes
+        for number, image in step_frames(capture, lambda n: n % stride == 0):
+            decoded = True
+            yield number, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        if not decoded:
+            raise InputError(source, None, "OpenCV cannot decode this video")
     finally:
         capture.release()
 

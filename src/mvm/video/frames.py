@@ -17,6 +17,7 @@ from mvm.core.names import natural_key
 from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.images import step_frames
 from mvm.io.paths import check_name
 from mvm.io.provenance import fingerprints, forget, why_redo, write_record
 from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motion
@@ -151,18 +152,9 @@ def decode_frames(capture, wanted: np.ndarray, width: int | None = None):
     """The frames numbered ``wanted: (F,)`` (sorted) of an opened ``cv2.VideoCapture``, one at a
     time: yields ``(number, image (H, W, 3) BGR)`` resized to ``width``. Frames in between are
     grabbed, not decoded; memory holds one frame whatever the video's length."""
-    wanted_set = set(wanted.tolist())
-    last = wanted[-1] if len(wanted) else -1
-    number = 0
-    while number <= last:
-        if number in wanted_set:
-            ok, image = capture.read()
-            if not ok:
-                return
-            yield number, _resize(image, width)
-        elif not capture.grab():
-            return
-        number += 1
+    last = int(wanted[-1]) if len(wanted) else -1
+    for number, image in step_frames(capture, set(wanted.tolist()).__contains__, last):
+        yield number, _resize(image, width)
 
 
 def frame_name(number: int) -> str:
