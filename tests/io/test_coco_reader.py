@@ -277,3 +277,35 @@ def test_data_set_checked_at_once_as_one_by_one():
         assert _dataset_at_once(spoiled, index) is None, spoil
         with pytest.raises(InputError):
             _dataset_one_by_one(spoiled, "x.json", index)
+
+
+def test_the_collector_pauses_while_a_pose_file_is_read_and_resumes_after(tmp_path, monkeypatch):
+    """The reader parses with the garbage collector paused (no full collection over the
+    document's containers) and leaves it as it found it, after a good file and a refused one."""
+    import gc
+
+    good, bad = tmp_path / "good.json", tmp_path / "bad.json"
+    for path, doc in ((good, _dataset()), (bad, _dataset(annotations__0__keypoints=[1.0]))):
+        doc["annotations"] = doc["annotations"][:2]                        # the two with keypoints
+        path.write_text(json.dumps(doc))
+    seen = []
+    real = np.array
+
+    def spy(*args, **kwargs):
+        seen.append(gc.isenabled())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr("mvm.io.coco.np.array", spy)
+    assert gc.isenabled()
+    assert len(read_coco_keypoints(good).keypoints) == 2
+    assert seen and not any(seen)                       # every array made with the collector paused
+    assert gc.isenabled()
+    with pytest.raises(InputError):
+        read_coco_keypoints(bad)
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        read_coco_keypoints(good)
+        assert not gc.isenabled()                       # a caller's pause stays
+    finally:
+        gc.enable()

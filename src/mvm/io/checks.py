@@ -10,6 +10,8 @@ resolved, must stay inside that folder (the scene directory).
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import json
 import math
 import os
@@ -241,6 +243,22 @@ def parse_json(text: str, path: str | Path):
         raise InputError(path, None, "not valid JSON: nested too deeply") from None
     except ValueError:  # an integer literal of more than 4300 digits
         raise InputError(path, None, "not valid JSON: a number has too many digits") from None
+
+
+@contextlib.contextmanager
+def collector_paused():
+    """The cyclic garbage collector paused, for a reader that parses a large document into
+    arrays and drops it: the parse makes a container for every object and list, none in a cycle,
+    which the collector would otherwise go through again and again as they grow (a third of
+    reading a long video's 2D poses, growing faster than the file); once dropped they are freed
+    by their counts, with no collection."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def load_json(path: str | Path, root: str | Path | None = None):

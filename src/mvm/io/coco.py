@@ -29,7 +29,7 @@ import numpy as np
 from mvm.core.completion import MISSING, flag_names
 from mvm.core.keypoints import COCO_PERSON_CATEGORY, NUM_JOINTS
 from mvm.errors import InputError
-from mvm.io.checks import integer, load_json, number, numbers
+from mvm.io.checks import collector_paused, integer, load_json, number, numbers
 from mvm.io.paths import check_name
 
 SUPERVISION_FORMAT = "mvm.net.supervision/1"
@@ -96,7 +96,12 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
     inside that folder once its links are resolved (:func:`mvm.io.checks.read_bytes`).
     """
     path = Path(path)
-    data = _load_document(path, root)
+    with collector_paused():
+        return _read_keypoints(path, _load_document(path, root))
+
+
+def _read_keypoints(path: Path, data: dict) -> CocoKeypoints:
+    """:func:`read_coco_keypoints` of the parsed document ``data``."""
     image_ids, names, sizes = _read_images(data["images"], path)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
     columns = _annotations_at_once(data["annotations"], index)
