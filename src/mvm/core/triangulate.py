@@ -229,9 +229,11 @@ def ransac_triangulate(obs: GroupObservations, threshold: float | np.ndarray, hy
     if Pn == 0 or M == 0:
         empty = np.zeros((Pn, J, 3)) * np.nan
         return Triangulation(empty, valid.copy(), valid, np.zeros((Pn, J)), threshold)
-    scored = hypotheses_scored
-    slots, pairs, H = (None, None, 0) if not use_ransac else (scored.slots, None, scored.err.shape[-1]) \
-        if scored is not None else _draw_pairs(obs.conf, hypotheses, rng, max_views, initial is not None)
+    scored, slots, pairs, H = hypotheses_scored, None, None, 0
+    if use_ransac and scored is not None:
+        slots, H = scored.slots, scored.err.shape[-1]
+    elif use_ransac:
+        slots, pairs, H = _draw_pairs(obs.conf, hypotheses, rng, max_views, initial is not None)
     S = M if slots is None else slots.shape[1]
     step = max(1, TRIANGULATION_CHUNK // (J * (10 * M + 3 * S * H)))
     parts = []

@@ -249,9 +249,9 @@ def parse_json(text: str, path: str | Path):
 def collector_paused():
     """The cyclic garbage collector paused, for a reader that parses a large document into
     arrays and drops it: the parse makes a container for every object and list, none in a cycle,
-    which the collector would otherwise go through again and again as they grow (a third of
-    reading a long video's 2D poses, growing faster than the file); once dropped they are freed
-    by their counts, with no collection."""
+    which the collector would otherwise go through again and again as they grow (a fifth of
+    reading a long video's 2D poses); once dropped they are freed by their counts, with no
+    collection."""
     enabled = gc.isenabled()
     gc.disable()
     try:
