@@ -147,3 +147,31 @@ def test_triangulation_in_chunks_equals_all_groups_at_once(monkeypatch, chunk):
                 for field in ("err", "ok", "point"):
                     assert np.array_equal(getattr(found.hypotheses, field), getattr(tri.hypotheses, field),
                                           equal_nan=True), field
+
+
+def test_persons_seen_in_thousands_of_frames_are_triangulated_in_bounded_memory(monkeypatch):
+    """Four people filmed for 3,000 frames, triangulated again from their previous poses (an
+    association round): beyond the observations themselves, the working memory stays under
+    twice theirs; all groups at once it was more than four times theirs (the DLT terms of every
+    view of every person, 16 MB here, and their temporaries)."""
+    scene, truth = simulate(SimConfig.preset("realistic", people=4, frames=3000, arc_deg=120, seed=1))
+    groups = [np.flatnonzero(truth.person == g) for g in range(len(truth.poses3d))]
+    config = Config()
+    _, first = triangulate_groups(scene.cameras, scene.poses, groups, config)
+
+    def working_memory() -> tuple[float, float]:
+        tracemalloc.start()
+        try:
+            obs, tri = triangulate_groups(scene.cameras, scene.poses, groups, config, initial=first.X)
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        held = sum(getattr(obs, f).nbytes for f in ("xy", "conf", "P", "normalized_xy", "Rt", "centers", "members",
+                                                    "size"))
+        assert np.isfinite(tri.X).all(-1).sum() > 0.9 * tri.X.shape[0] * tri.X.shape[1]
+        return peak - held, held
+
+    chunked, held = working_memory()
+    monkeypatch.setattr(triangulate, "TRIANGULATION_CHUNK", 2**40)
+    at_once, _ = working_memory()
+    assert chunked < 2 * held < 0.5 * at_once, (chunked / 2**20, held / 2**20, at_once / 2**20)
