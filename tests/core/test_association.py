@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from mvm.core.association import assign_per_frame, associate
+from mvm.core.association import assign_per_frame, associate, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import merge_duplicates
 from mvm.core.pipeline import triangulate_groups
@@ -151,7 +151,8 @@ def test_cost_is_the_median_distance_in_person_sizes_and_forgives_a_swap(mixed):
 @pytest.mark.parametrize("chunk", [1, 7])
 def test_costs_in_chunks_equal_all_pairs_at_once(mixed, monkeypatch, chunk):
     """Persons are projected, and pairs measured, a few at a time: the same costs and sizes to
-    the bit as all at once, for every pose against every true person."""
+    the bit as all at once, for every pose against every true person; and the same views each
+    person is visible in as the definition written view by view."""
     import mvm.core.pose_distance as pose_distance
 
     scene, truth = mixed
@@ -164,6 +165,21 @@ def test_costs_in_chunks_equal_all_pairs_at_once(mixed, monkeypatch, chunk):
     assert np.isfinite(expected[0]).sum() > N // 2                         # most poses meet their person
     for a, b in zip(found, expected):
         assert np.array_equal(a, b, equal_nan=True)
+    # The views each person is visible in, against the definition written view by view.
+    P, size = scene.cameras.P, scene.cameras.size
+    X = truth.poses3d.copy()
+    X[0, :3] = np.nan                                                       # a person with joints missing
+    reference = []
+    for x in X:
+        known = np.isfinite(x).all(-1)
+        count = 0
+        for f in range(len(P)):
+            h = P[f] @ np.c_[x[known], np.ones(known.sum())].T
+            uv = (h[:2] / h[2]).T
+            inside = (h[2] > 0) & (uv >= 0).all(-1) & (uv < size[f]).all(-1)
+            count += 2 * inside.sum() >= max(known.sum(), 1)
+        reference.append(count)
+    assert 0 < min(reference) and visible_frames(X, P, size).tolist() == reference
 
 
 def test_proportions_tell_a_body_from_a_scramble(mixed):

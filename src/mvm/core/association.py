@@ -30,7 +30,7 @@ from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained
 from mvm.core.names import natural_key
-from mvm.core.pose_distance import reprojection_cost
+from mvm.core.pose_distance import person_chunks, project_persons, reprojection_cost
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -142,15 +142,16 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
 
     ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
     at least half its reconstructed joints project in front of the camera and inside the
-    image. Returns ``(Q,)``.
+    image. Returns ``(Q,)``; a few persons at a time (:func:`mvm.core.pose_distance.person_chunks`).
     """
-    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)
-    x = np.einsum("fab,qjb->qfja", P, Xh)                                            # (Q, F, J, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = x[..., :2] / x[..., 2:3]
-        inside = (x[..., 2] > 0) & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
-    known = np.isfinite(X).all(-1).sum(-1)                                           # (Q,)
-    return (inside.sum(-1) * 2 >= np.maximum(known, 1)[:, None]).sum(1)
+    known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
+    count = np.zeros(len(X), dtype=np.int64)
+    for rows in person_chunks(len(X), len(P)):
+        uv, seen = project_persons(X[rows], P)                                       # (q, F, J, 2), (q, F, J)
+        with np.errstate(invalid="ignore"):
+            inside = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
+        count[rows] = (inside.sum(-1) * 2 >= known[rows, None]).sum(1)
+    return count
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:

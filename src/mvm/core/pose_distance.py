@@ -11,6 +11,8 @@ Arrays: ``N`` 2D poses, ``J = 17`` joints, ``F`` views, ``Q`` persons, ``K`` pai
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from mvm.core.keypoints import FLIP_PERMUTATION
@@ -76,27 +78,38 @@ def reprojection_cost(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X
 PAIRS_CHUNK = 2**14
 
 
+def person_chunks(Q: int, F: int) -> Iterator[slice]:
+    """Slices of ``Q`` persons to project into ``F`` views a few at a time: under
+    :data:`PAIRS_CHUNK` person-views each, so that the projections' arrays stay a few MB."""
+    step = max(1, PAIRS_CHUNK // max(F, 1))
+    return (slice(s, s + step) for s in range(0, Q, step))
+
+
+def project_persons(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Persons ``X: (q, J, 3)`` (NaN: not reconstructed) in views ``P: (F, 3, 4)``: pixels
+    ``uv: (q, F, J, 2)`` and ``seen: (q, F, J)``, finite and in front of the camera. A few persons
+    at a time (:func:`person_chunks`)."""
+    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)                      # (q, J, 4)
+    x = np.matmul(Xh[:, None], P.transpose(0, 2, 1)[None])                                # (q, F, J, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = x[..., :2] / x[..., 2:3]
+        return uv, np.isfinite(uv).all(-1) & (x[..., 2] > 0)
+
+
 def _projections(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Persons ``X: (Q, J, 3)`` in views ``P: (F, 3, 4)``: pixels ``uv: (Q, F, J, 2)``, ``seen: (Q, F, J)``
-    (finite, in front of the camera), the person's image size ``sqrt(w h)`` of the bounding box
-    of its seen joints ``(Q, F)`` and their centre ``(Q, F, 2)``. A few persons at a time: the
-    temporaries stay under :data:`PAIRS_CHUNK` entries per joint."""
+    (:func:`project_persons`), the person's image size ``sqrt(w h)`` of the bounding box of its
+    seen joints ``(Q, F)`` and their centre ``(Q, F, 2)``."""
     Q, J, F = len(X), X.shape[1], len(P)
     uv, seen = np.empty((Q, F, J, 2)), np.empty((Q, F, J), dtype=bool)
     size, centre = np.empty((Q, F)), np.empty((Q, F, 2))
-    Pt = P.transpose(0, 2, 1)[None]
-    step = max(1, PAIRS_CHUNK // max(F, 1))
-    for rows in (slice(s, s + step) for s in range(0, Q, step)):
-        Xh = np.concatenate([X[rows], np.ones((len(X[rows]), J, 1))], axis=-1)            # (q, J, 4)
-        x = np.matmul(Xh[:, None], Pt)                                                    # (q, F, J, 3)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            np.divide(x[..., :2], x[..., 2:3], out=uv[rows])
-            seen[rows] = np.isfinite(uv[rows]).all(-1) & (x[..., 2] > 0)
-            lo = np.where(seen[rows, ..., None], uv[rows], np.inf).min(2)
-            hi = np.where(seen[rows, ..., None], uv[rows], -np.inf).max(2)
-            size[rows] = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))
-            centre[rows] = (np.where(seen[rows, ..., None], uv[rows], 0).sum(2)
-                            / np.maximum(seen[rows].sum(2), 1)[..., None])
+    for rows in person_chunks(Q, F):
+        uv[rows], seen[rows] = project_persons(X[rows], P)
+        u, s = uv[rows], seen[rows, ..., None]
+        lo = np.where(s, u, np.inf).min(2)
+        hi = np.where(s, u, -np.inf).max(2)
+        size[rows] = np.sqrt(np.prod(np.maximum(hi - lo, 1.0), axis=-1))
+        centre[rows] = np.where(s, u, 0).sum(2) / np.maximum(seen[rows].sum(2), 1)[..., None]
     return uv, seen, size, centre
 
 
