@@ -28,7 +28,7 @@ import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
-from mvm.core.duplicates import absorb_explained
+from mvm.core.duplicates import absorb_explained, pose_groups
 from mvm.core.names import natural_key
 from mvm.core.pose_distance import person_chunks, project_persons, reprojection_cost
 
@@ -175,10 +175,8 @@ SETTLED = 1e-4
 def _moved(before: list[np.ndarray], after: list[np.ndarray], N: int) -> int:
     """How many of ``N`` poses changed group from ``before`` to ``after`` (sorted pose indices;
     a group is named by its first pose)."""
-    names = np.full((2, N), -1)
-    for row, groups in zip(names, (before, after)):
-        held = [g for g in groups if len(g)]
-        row[np.concatenate(held + [np.zeros(0, int)])] = np.repeat([g[0] for g in held], [len(g) for g in held])
+    names = [np.array([g[0] if len(g) else -1 for g in groups] + [-1])[pose_groups(groups, N)]
+             for groups in (before, after)]                                   # -1 (the last): no group
     return int(np.count_nonzero(names[0] != names[1]))
 
 
@@ -299,8 +297,7 @@ def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray,
     merged = merge(X, groups) if merge is not None and len(groups) > 1 else None
     if merged is None:
         return groups, X, seen_most, False
-    owner = np.full(N, -1)
-    owner[np.concatenate(groups)] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+    owner = pose_groups(groups, N)
     survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
     return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen_most[survivor], True
 
@@ -317,9 +314,7 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     cost, size = reprojection_cost(keypoints, frame, P, X, pose, person, keypoint_threshold,
                                    min_common_keypoints, swap_above=gate, max_cost=max_cost)
     if temporal:
-        current = np.full(len(keypoints), -1)
-        for q, g in enumerate(groups):
-            current[g] = q
+        current = pose_groups(groups, len(keypoints))
         hope = np.flatnonzero(cost * (1 - temporal_weight) < gate)         # pairs the cue can bring in
         near = temporal_cost(keypoints, frame, np.asarray(sequence), current, pose[hope], person[hope],
                              size[hope], keypoint_threshold, min_common_keypoints, _CLIP_GATES * gate, max_gap)
