@@ -384,6 +384,9 @@ def test_rig_without_output_is_one_line(rig, tmp_path):
     _one_line_2(_invoke("report", root), "poses3d.jsonl", "mvm rig reconstruct")
     _one_line_2(_invoke("overlay", root), "poses3d.jsonl", "mvm rig reconstruct")
     assert not (root / "mvm").exists()
+    (root / "Calib.toml").unlink()                                         # nor a calibration: the same line
+    for command in ("report", "overlay"):
+        _one_line_2(_invoke(command, root), "poses3d.jsonl: missing: reconstruct the rig first")
 
 
 def test_stale_output_is_refused(rig, tmp_path):
@@ -393,8 +396,9 @@ def test_stale_output_is_refused(rig, tmp_path):
     document = json.loads(pose.read_text())
     document["annotations"][0]["keypoints"][0] += 3.0
     pose.write_text(json.dumps(document))
-    _one_line_2(_invoke("report", root), "out of date", "pose changed since the rig reconstruction",
-                f"mvm rig reconstruct {root}")
+    for command in ("report", "overlay"):                                 # the rig's own calibration: no --calib
+        _one_line_2(_invoke(command, root), "out of date", "pose changed since the rig reconstruction",
+                    f"run `mvm rig reconstruct {root}` first")
     assert not (root / "mvm" / "report.html").exists()
 
 

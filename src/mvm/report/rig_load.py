@@ -130,14 +130,27 @@ def _check_sync(recap: dict, offsets: dict | None, poses3d: Path, command: str) 
                                         f"run `{command}` first")
 
 
+def _reconstructed(rig_dir: Path, output: str) -> Path:
+    """The rig's ``poses3d.jsonl`` in its output set ``output``; refused when there is none."""
+    poses3d = rig_dir / output / POSES3D
+    if not (poses3d.exists() or poses3d.is_symlink()):
+        raise InputError(poses3d, None, f"missing: reconstruct the rig first (mvm rig reconstruct {rig_dir})")
+    return poses3d
+
+
+def report_calibration(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: str | Path | None = None) -> Path:
+    """The calibration a page or the overlays of the reconstructed rig read
+    (:func:`used_calibration`), for checking their output's location before any work; a rig
+    not reconstructed is refused first."""
+    return used_calibration(Path(rig_dir), _reconstructed(Path(rig_dir), output), calib)[0]
+
+
 def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: str | Path | None = None,
                     workers: int | None = None) -> RigReportData:
     """Read a reconstructed rig folder (see the module)."""
     rig_dir = Path(rig_dir)
     out_dir = rig_dir / output
-    poses3d = out_dir / POSES3D
-    if not (poses3d.exists() or poses3d.is_symlink()):
-        raise InputError(poses3d, None, f"missing: reconstruct the rig first (mvm rig reconstruct {rig_dir})")
+    poses3d = _reconstructed(rig_dir, output)
     calib_path, given = used_calibration(rig_dir, poses3d, calib)
     command = _command(rig_dir, calib_path, given, output)
     check_fresh(poses3d, rig_fingerprint_inputs(rig_dir, calib_path), command)

@@ -19,6 +19,7 @@ import numpy as np
 from mvm.core.camera import distort, project
 from mvm.core.completion import MISSING
 from mvm.errors import InputError
+from mvm.io.images import step_frames
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
 from mvm.report.analysis import person_colors
 from mvm.report.overlay import _cv2, _write_video, draw_overlay
@@ -29,8 +30,8 @@ from mvm.report.rig_load import (
     RigReportData,
     in_output_set,
     load_rig_result,
+    report_calibration,
     rig_videos,
-    used_calibration,
 )
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
@@ -130,17 +131,12 @@ def _open(path: Path, size: np.ndarray):
 
 
 def _frames(capture, drawer: CameraDrawer, step: int, max_width: int | None, counter: list) -> Iterator[np.ndarray]:
-    """The overlays of every ``step``-th frame of ``capture`` (released at the end)."""
+    """The overlays of every ``step``-th frame of ``capture`` (released at the end); the frames
+    in between are grabbed, not decoded."""
     try:
-        frame = 0
-        while True:
-            ok, image = capture.read()
-            if not ok:
-                return
-            if frame % step == 0:
-                counter[0] += 1
-                yield drawer.draw(image, frame, max_width)
-            frame += 1
+        for frame, image in step_frames(capture, lambda n: n % step == 0):
+            counter[0] += 1
+            yield drawer.draw(image, frame, max_width)
     finally:
         capture.release()
 
@@ -160,9 +156,8 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
     if target.suffix.lower() == ".mp4":
         raise InputError(None, "-o", f"{target} names a video, but a rig's overlays are one video per camera: "
                                      "give a folder")
-    calib, _ = used_calibration(rig_dir, out_dir / POSES3D, calib)
-    check_output_location(target, rig_inputs(rig_dir, calib) + [out_dir / POSES3D, out_dir / RECAP,
-                                                                 rig_dir / VIDEOS])
+    check_output_location(target, rig_inputs(rig_dir, report_calibration(rig_dir, output, calib))
+                          + [out_dir / POSES3D, out_dir / RECAP, rig_dir / VIDEOS])
     data = load_rig_result(rig_dir, output, calib, workers)
     videos = rig_videos(rig_dir, data.names)
     if not videos:

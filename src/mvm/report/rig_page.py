@@ -23,7 +23,7 @@ from mvm.io.outputs import add_to_output_set, check_output_location
 from mvm.report import analysis, rig_analysis
 from mvm.report.page import _CSS, _ERROR_HOOK, _fmt, _nice_step, viewer_script
 from mvm.report.plots import flag_timeline, line_chart
-from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result, used_calibration
+from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result, report_calibration
 from mvm.rig.output_set import DEFAULT_OUTPUT
 from mvm.rig.reconstruct_rig import rig_inputs
 
@@ -337,8 +337,7 @@ def write_rig_report(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, path: st
     rig_dir = Path(rig_dir)
     out_dir = rig_dir / output
     target = Path(path) if path is not None else out_dir / REPORT_NAME
-    calib, _ = used_calibration(rig_dir, out_dir / POSES3D, calib)
-    inputs = rig_inputs(rig_dir, calib) + [out_dir / POSES3D, out_dir / RECAP]
+    inputs = rig_inputs(rig_dir, report_calibration(rig_dir, output, calib)) + [out_dir / POSES3D, out_dir / RECAP]
     check_output_location(target, inputs, replaced=False)
     data = load_rig_result(rig_dir, output, calib, workers)
     html = rig_report_html(data)
