@@ -72,7 +72,7 @@ def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_p
     result, made = export()
     assert result.exit_code == 0 and "export: made: no output yet" in result.stderr
     assert json.loads((ds / "annotations.inputs.json").read_text())["settings"] == \
-        {"link": "copy", "min_keypoints": 3, "complete": False}
+        {"link": "copy", "min_keypoints": 3, "complete": False, "out": ds.resolve().as_posix()}
     result, again = export()
     assert result.exit_code == 0 and "export: kept (up to date)" in result.stderr and again == made
     result, again = export("--min-keypoints", "5")
@@ -93,6 +93,32 @@ def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_p
     assert not (ds / "annotations.inputs.json").exists()
     result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
     assert "made: " in result.stderr
+
+
+@pytest.mark.parametrize("link", ["symlink", "none"])
+def test_export_redoes_a_dataset_whose_scene_or_itself_moved(tmp_path, link):
+    """The images are named after the scene's folder and linked (or named, --link none)
+    relative to the dataset: a scene renamed, or the dataset moved, exports again rather than
+    keeping images of the old name and links that lead nowhere."""
+    scene, ds, runner = _scene_dir(tmp_path), tmp_path / "ds", CliRunner()
+
+    def export(scene_dir, out):
+        result = runner.invoke(export_cmd, [str(scene_dir), "--out", str(out), "--link", link])
+        assert result.exit_code == 0, result.output
+        return result.stderr
+
+    assert "export: made" in export(scene, ds)
+    assert "export: kept (up to date)" in export(scene, ds)
+    renamed = scene.rename(tmp_path / "renamed")
+    assert "made: scenes changed since the export" in export(renamed, ds)
+    images = json.loads((ds / "annotations.json").read_text())["images"]
+    assert all(im["file_name"].startswith("images/renamed/") for im in images) if link == "symlink" else \
+        all("renamed" in im["file_name"] for im in images)
+    assert all((ds / im["file_name"]).is_file() for im in images)
+    moved = ds.rename(tmp_path / "moved")
+    assert "made: setting out changed" in export(renamed, moved)
+    assert all((moved / im["file_name"]).is_file()
+               for im in json.loads((moved / "annotations.json").read_text())["images"])
 
 
 def test_export_without_poses3d_is_an_input_error(tmp_path):

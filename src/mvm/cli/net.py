@@ -43,8 +43,9 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
 
     out_dir = Path(out_dir)
     check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
-    inputs = export_inputs(scenes, output_name, frames=link == "copy")
-    settings = {"link": link, "min_keypoints": min_keypoints, "complete": complete}
+    inputs = export_inputs(scenes, output_name, frames=link == "copy", located=True)
+    # Where the data set is: the relative links and file names of its images depend on it.
+    settings = {"link": link, "min_keypoints": min_keypoints, "complete": complete, "out": out_dir.resolve().as_posix()}
     try:
         hashed = fingerprints(inputs)
     except InputError:               # an unreadable input: its scene fails on its own below

@@ -37,12 +37,15 @@ ANNOTATIONS_FILE = "annotations.json"
 EXPORT_STAGE = "the export"
 
 
-def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames: bool = False) -> dict[str, object]:
+def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames: bool = False,
+                  located: bool = False) -> dict[str, object]:
     """What a dataset exported from ``scene_dirs`` is made from (:mod:`mvm.io.provenance`):
     each scene's ``<output>/poses3d.json`` and what it was reconstructed from (``poses2d.json``,
     ``sparse/``), and its ``frames/`` when ``frames`` (they are copied into the dataset). One
     scene's inputs have bare names (``poses3d.json``); several scenes' are prefixed with their
-    folder, and their order (which numbers the images) is an input too."""
+    folder, and their order (which numbers the images) is an input too. ``located``: so is where
+    each scene is (a dataset outside the scenes names its images after their folders and links
+    to them there: a scene moved or renamed is exported again)."""
     from mvm.io.scene_dir import reconstruction_inputs
 
     scene_dirs = [Path(s) for s in scene_dirs]
@@ -53,8 +56,8 @@ def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames:
         if frames:
             these["frames"] = scene / "frames"
         inputs.update({prefix + name: path for name, path in these.items()})
-    if len(scene_dirs) > 1:
-        inputs["scenes"] = [s.as_posix() for s in scene_dirs]
+    if located or len(scene_dirs) > 1:
+        inputs["scenes"] = [(s.resolve() if located else s).as_posix() for s in scene_dirs]
     return inputs
 
 
