@@ -17,6 +17,7 @@ import click
 
 from mvm.core.config import Bounds
 from mvm.errors import InputError
+from mvm.io import paths
 
 
 def refuse(error: Exception) -> None:
@@ -366,7 +367,7 @@ def config_options(f):
 
 #: File suffixes that name an image or a video (lower case).
 IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".gif"})
-VIDEO_SUFFIXES = frozenset({".mp4", ".m4v", ".avi", ".mov", ".mkv", ".webm", ".gif"})
+VIDEO_SUFFIXES = frozenset(paths.VIDEO_SUFFIXES) | {".gif"}
 
 
 class OutputPath(click.ParamType):

@@ -141,12 +141,12 @@ class BoardScan:
     size: tuple[int, int]
 
 
-def scan(source: Path, board: Board, stride: int, progress=None, frames: int | None = None) -> BoardScan:
+def scan(source: Path, board: Board, stride: int, progress=None, count: int | None = None) -> BoardScan:
     """Find ``board`` in every ``stride``-th frame of ``source``; ``progress(done, total)``
-    after each (total None where the video's header does not say). ``frames``: its
+    after each (total None where the video's header does not say). ``count``: its
     :func:`frame_count`, when already read."""
     detect = board.detector()
-    total = math.ceil((frame_count(source) if frames is None else frames) / stride) or None
+    total = math.ceil((frame_count(source) if count is None else count) / stride) or None
     C = len(board.object_points)
     frames, corners, size = [], [], None
     for number, gray in gray_frames(source, stride):
