@@ -116,10 +116,11 @@ def test_triangulation_memory_is_as_estimated():
 
 @pytest.mark.parametrize("chunk", [1, 250_000])
 def test_triangulation_in_chunks_equals_all_groups_at_once(monkeypatch, chunk):
-    """Groups triangulated a few at a time (one, or two of these, per chunk) give the
-    triangulation of all at once to the bit: RANSAC from random pairs and from every pair of
-    views, on spread views of wider groups, from previous poses, again at another threshold
-    from the hypotheses kept, and without RANSAC."""
+    """Groups triangulated a few at a time (one, or for some calls two of these, per chunk)
+    give the triangulation of all at once to the bit, and the same hypotheses (drawn for all
+    groups at once, not chunk by chunk): RANSAC from random pairs and from every pair of views,
+    on spread views of wider groups (with pairs of them drawn too), from previous poses, again at
+    another threshold from the hypotheses kept, and without RANSAC."""
     scene, _ = simulate(SimConfig(people=6, frames=40, seed=4), bank_poses=standing_poses())
     base = Config()
     groups = match(scene.cameras, scene.poses, base)
@@ -129,11 +130,12 @@ def test_triangulation_in_chunks_equals_all_groups_at_once(monkeypatch, chunk):
         obs, first = triangulate_groups(scene.cameras, scene.poses, groups, config, keep_hypotheses=True)
         again = triangulate_groups(scene.cameras, scene.poses, groups, config,
                                    threshold=np.full(len(scene.poses), 0.05), again=(obs, first))[1]
-        warm = triangulate_groups(scene.cameras, scene.poses, groups, config, initial=first.X)[1]
+        warm = triangulate_groups(scene.cameras, scene.poses, groups, config, initial=first.X,
+                                  keep_hypotheses=True)[1]                 # an association round's
         return first, again, warm
 
     configs = (base, base.replace(ransac_hypotheses=12), base.replace(max_triangulation_views=8),
-               base.replace(ransac=False))
+               base.replace(max_triangulation_views=8, ransac_hypotheses=12), base.replace(ransac=False))
     expected = [triangulations(c) for c in configs]
     monkeypatch.setattr(triangulate, "TRIANGULATION_CHUNK", chunk)
     for config, want in zip(configs, expected):

@@ -4,7 +4,8 @@ Distances are those of OKS: pixels divided by the person's image size, ``s = sqr
 the bounding box of its reprojected joints, so one gate serves every distance and resolution.
 The distance of a pose is the median over its joints, so a few wrong joints do not move it, and
 a pose detected left-right swapped is measured swapped back. Persons are projected, and pairs
-measured, a few at a time (:data:`PAIRS_CHUNK`): arrays of a few MB at any length of video.
+measured, a few at a time (:data:`PAIRS_CHUNK`): the temporaries stay a few MB at any length of
+video, beside the projections themselves (``Q · F · J`` points, in proportion to the video).
 The association consistent in 3D (:mod:`mvm.core.association`) assigns by these distances.
 
 Arrays: ``N`` 2D poses, ``J = 17`` joints, ``F`` views, ``Q`` persons, ``K`` pairs.
@@ -87,8 +88,8 @@ def person_chunks(Q: int, F: int) -> Iterator[slice]:
 
 def project_persons(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Persons ``X: (q, J, 3)`` (NaN: not reconstructed) in views ``P: (F, 3, 4)``: pixels
-    ``uv: (q, F, J, 2)`` and ``seen: (q, F, J)``, finite and in front of the camera. A few persons
-    at a time (:func:`person_chunks`)."""
+    ``uv: (q, F, J, 2)`` and ``seen: (q, F, J)``, finite and in front of the camera. Callers give
+    it a few persons at a time (:func:`person_chunks`)."""
     Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)                      # (q, J, 4)
     x = np.matmul(Xh[:, None], P.transpose(0, 2, 1)[None])                                # (q, F, J, 3)
     with np.errstate(divide="ignore", invalid="ignore"):
