@@ -60,9 +60,11 @@ def _mpjpe(result, truth) -> float:
     return pose_errors(result.persons.keypoints3d, truth.poses3d, pairs)["mpjpe"]
 
 
-def test_the_spread_weight_is_more_accurate_on_a_hand_held_tour(monkeypatch):
+def test_the_spread_weight_is_more_accurate_than_the_domes_on_a_hand_held_tour(monkeypatch):
     """The demo's scene (a 60° tour of six people): with the weight following the views' spread
-    the poses are closer to the truth than with the dome's weight for every person."""
+    the poses are closer to the truth than with the dome's weight for every person. (One larger
+    weight for every person would do as well on this scene alone, 7.5e-4 gives 3.19 mm against
+    3.20; the rule is what lets a dome keep the small weight it needs at the same setting.)"""
     scene, truth = simulate(SimConfig(seed=0))
     config = Config()
     following = _mpjpe(reconstruct(scene, config), truth)
