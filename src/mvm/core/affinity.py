@@ -8,6 +8,14 @@ default), the same for 640-px and 1920-px frames of the same lens, and γ is dim
 
 With γ = 1 and distance_scale = 0.01, D = 0 gives A = 0.5 · S, an error of 1% of the focal
 length gives 0.27 · S and 3% gives 0.05 · S.
+
+The unit follows the detector's noise. A detector whose joints lie farther from the other views'
+epipolar lines than the unit allows (a small model run on large frames: 20 px where 1 % of the focal
+length is 17 px) would have its true matches refused. So each scene (each rig's capture) measures
+its noise in that unit before the grouping, as the lower quartile of every pose's distance to the
+nearest pose of every other view (:func:`noise_factor`), and divides D by how far that quartile
+exceeds ``distance_quartile`` (at most :data:`MAX_NOISE_FACTOR`-fold): precise data keep the
+unit of ``distance_scale``, and noisy data have it grown in proportion to their noise.
 """
 from __future__ import annotations
 
@@ -15,12 +23,28 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.core.geometry import cross, skew
-from mvm.core.quality import row_nanmedian
+from mvm.core.quality import row_nanmedian, row_nanquantile
 from mvm.core.scene import Cameras, Poses2D
 
 #: Working memory of one block of :func:`epipolar_distance` (bytes): the per-joint distances
 #: of a block of pose pairs, ``17 × rows × columns`` numbers.
 BLOCK_BYTES = 64 * 2**20
+
+#: The unit of D grows at most this many times with the measured noise (:func:`noise_factor`):
+#: an instant whose nearest poses are mostly other people's cannot open its gate without bound.
+MAX_NOISE_FACTOR = 4.0
+
+#: A scene (an instant) measures its noise from this many nearest-pose distances at least; with
+#: fewer it keeps the unit of ``distance_scale``. [distances]
+MIN_NOISE_SAMPLES = 6
+
+#: The views of a scene, and the instants of a rig, whose poses measure the noise
+#: (:func:`measured_noise_factor`): evenly spread, enough for a quartile at any length.
+NOISE_VIEWS = 60
+NOISE_INSTANTS = 200
+#: At most this many of those poses (a frame of thousands of detections): the measure's memory
+#: is bounded, ``NOISE_POSES²`` distances. [poses]
+NOISE_POSES = 3000
 
 
 def affinity_bytes(n_poses: int, appearance: bool, dtype=np.float32) -> int:
@@ -255,6 +279,102 @@ def affinity(D: np.ndarray, gamma: float, S: np.ndarray | float = 1.0,
         return A
     A *= S
     return A
+
+
+def nearest_in_views(D: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Each pose's smallest D to the poses of every view.
+
+    ``D: (..., R, n)`` distances of ``R`` poses to ``n`` poses (inf or NaN: no match), ``view:
+    (..., n)`` the view of each of the ``n`` (-1: padding) -> ``(..., R, V)`` for the ``V`` views
+    present, NaN where a view has no pose within reach (the pose's own view among them).
+
+    >>> D = np.array([[np.inf, 0.3, 0.9, 2.0], [0.3, np.inf, 0.5, np.nan]])
+    >>> nearest_in_views(D, np.array([0, 1, 2, 2])).tolist()
+    [[nan, 0.3, 0.9], [0.3, nan, 0.5]]
+    """
+    D = np.where(np.isnan(D), np.inf, D)
+    used = np.unique(view[view >= 0])
+    if not len(used):
+        return np.full(D.shape[:-1] + (0,), np.nan)
+    if view.ndim == 1:                                   # one set of columns: sorted by view, reduced by runs
+        order = np.argsort(view, kind="stable")
+        order = order[view[order] >= 0]
+        start = np.flatnonzero(np.r_[True, np.diff(view[order]) != 0])
+        nearest = np.minimum.reduceat(D[..., order], start, axis=-1)
+    else:                                                # blocks of their own views: one view at a time
+        nearest = np.stack([np.where(view[..., None, :] == v, D, np.inf).min(-1) for v in used], axis=-1)
+    return np.where(np.isfinite(nearest), nearest, np.nan)
+
+
+def noise_factor(nearest: np.ndarray, quartile: float) -> np.ndarray:
+    """How many times the unit of D must grow for the detector's noise: the lower quartile of
+    the nearest-pose distances of each scene (:func:`nearest_in_views`), over ``quartile``,
+    within ``[1, MAX_NOISE_FACTOR]``; 1 where fewer than :data:`MIN_NOISE_SAMPLES` were measured
+    or ``quartile`` is 0.
+
+    The nearest pose of another view is, for most poses, the same person seen there, at a
+    distance that is the detector's noise (mapped through the two views' geometry); a person
+    unseen there gives a larger distance, a neighbour on the same epipolar line a smaller one, so
+    the lower quartile measures the noise while up to three in four nearest poses are another
+    person's.
+
+    ``nearest: (B, K)`` distances of ``B`` scenes (NaN: none) -> ``(B,)``.
+
+    >>> noise_factor(np.array([[0.1] * 8, [0.8] * 8, [0.8] * 3 + [np.nan] * 5, [9.0] * 8]), 0.4).tolist()
+    [1.0, 2.0, 1.0, 4.0]
+    """
+    nearest = np.asarray(nearest, dtype=float)
+    if quartile <= 0 or nearest.shape[-1] == 0:
+        return np.ones(nearest.shape[0])
+    measured = row_nanquantile(nearest, 0.25)
+    enough = (~np.isnan(nearest)).sum(-1) >= MIN_NOISE_SAMPLES
+    return np.where(enough, np.clip(measured / quartile, 1.0, MAX_NOISE_FACTOR), 1.0)
+
+
+def _spread(values: np.ndarray, count: int) -> np.ndarray:
+    """At most ``count`` of the sorted unique ``values``, evenly spread over them."""
+    values = np.unique(values)
+    return values[np.unique(np.linspace(0, len(values) - 1, min(len(values), count)).round().astype(np.int64))] \
+        if len(values) else values
+
+
+def measured_noise_factor(cameras: Cameras, poses: Poses2D, config: Config) -> float:
+    """:func:`noise_factor` of a scene or of a rig's capture, measured once for all its poses: on
+    the poses of at most :data:`NOISE_VIEWS` evenly spread views of a scene (at most
+    :data:`NOISE_POSES` of them), or of at most
+    :data:`NOISE_INSTANTS` evenly spread instants of a rig (the nearest poses of every instant's
+    poses pooled: the detector's noise is the capture's, not one instant's, and an instant of
+    few poses, most of them false, cannot open the gate for itself)."""
+    if config.distance_quartile <= 0 or not len(poses):
+        return 1.0
+    if poses.instant is None:
+        rows = np.flatnonzero(np.isin(poses.view, _spread(poses.view, NOISE_VIEWS)))
+        sub = poses.subset(rows[_spread(np.arange(len(rows)), NOISE_POSES)])
+        D = epipolar_distance(cameras, sub.keypoints, sub.view, config.keypoint_threshold, config.distance_scale,
+                              config.min_common_keypoints)
+        nearest = nearest_in_views(D, sub.view)
+    else:
+        chosen = _spread(poses.instant, NOISE_INSTANTS)
+        rows = np.flatnonzero(np.isin(poses.instant, chosen))
+        which = np.searchsorted(chosen, poses.instant[rows])
+        order = np.lexsort((rows, which))
+        rows, which = rows[order], which[order]
+        slot = np.arange(len(rows)) - np.searchsorted(which, which)
+        blocks = np.full((len(chosen), int(slot.max()) + 1), -1)
+        blocks[which, slot] = rows
+        D = block_epipolar_distance(cameras, poses.keypoints, poses.view, blocks, config.keypoint_threshold,
+                                    config.distance_scale, config.min_common_keypoints)
+        nearest = nearest_in_views(D, np.where(blocks >= 0, poses.view[np.maximum(blocks, 0)], -1))
+    return float(noise_factor(nearest.reshape(1, -1), config.distance_quartile)[0])
+
+
+def with_measured_unit(cameras: Cameras, poses: Poses2D, config: Config) -> Config:
+    """``config`` whose ``distance_scale`` includes the noise of ``poses``
+    (:func:`measured_noise_factor`), measured once: ``distance_quartile`` becomes 0."""
+    if config.distance_quartile <= 0:
+        return config
+    factor = measured_noise_factor(cameras, poses, config)
+    return config.replace(distance_scale=config.distance_scale * factor, distance_quartile=0.0)
 
 
 def pose_affinity(cameras: Cameras, poses: Poses2D, config: Config, appearance: bool | None = None) -> np.ndarray:

@@ -210,6 +210,14 @@ class Config:
     #: The unit of the epipolar distance D, as a fraction of the focal length: D is divided
     #: by ``distance_scale · f`` pixels, so the same γ works at every image resolution. [focal]
     distance_scale: float = setting(0.01, gt=0)
+    #: The unit of D grows with the detector's noise measured in each scene (each instant of a
+    #: rig): the lower quartile of every 2D pose's distance to the nearest pose of every other
+    #: view (most of them its own person's, whose distance is the noise) is brought down to at
+    #: most this many units, the unit growing up to 4-fold (:func:`mvm.core.affinity.noise_factor`).
+    #: A noisier detector (a small model on large frames) then keeps its true matches; lower it to
+    #: grow the unit sooner, raise it to hold ``distance_scale`` for noisier data; 0 always holds
+    #: ``distance_scale``. [units of D]
+    distance_quartile: float = setting(0.45, ge=0)
     #: Poses sharing fewer keypoints than this have affinity 0. [keypoints]
     min_common_keypoints: int = setting(3, ge=1, le=17)
     #: Use the annotations' appearance descriptors (cosine similarity S) when present. [bool]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.config import Config
+from mvm.core.quality import row_nanquantile
 from mvm.core.scene import Poses2D
 
 #: The quantile of the joint distances :func:`duplicate_pairs` compares where a merge is final
@@ -42,7 +43,7 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
         torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
         for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
             diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
-            apart = _nanquantile(np.sqrt((diff * diff).sum(-1)), quantile)            # (2, K)
+            apart = row_nanquantile(np.sqrt((diff * diff).sum(-1)), quantile)            # (2, K)
             close[i, j] = np.fmin(apart[0], apart[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
     return close
 
@@ -78,24 +79,6 @@ def _nanmean(a: np.ndarray, axis: int) -> np.ndarray:
     warning machinery."""
     missing = np.isnan(a)
     return np.where(missing, 0.0, a).sum(axis) / (~missing).sum(axis)
-
-
-def _nanquantile(a: np.ndarray, q: float) -> np.ndarray:
-    """``np.nanquantile(a, q, axis=-1)`` (linear interpolation; NaN where a row has none),
-    without its warnings, and vectorized: numpy's loops over the rows in Python (70 times
-    slower on a chunk of pairs).
-
-    >>> [round(float(v), 3) for v in _nanquantile(np.array([[0.1, np.nan, 0.2, 3.0, 0.3], [np.nan] * 5]), 0.75)]
-    [0.975, nan]
-    """
-    n = (~np.isnan(a)).sum(-1)
-    s = np.sort(np.where(np.isnan(a), np.inf, a), axis=-1)                   # the n values first
-    pos = q * np.maximum(n - 1, 0)
-    lo = np.floor(pos).astype(np.int64)
-    below = np.take_along_axis(s, lo[..., None], -1)[..., 0]
-    above = np.take_along_axis(s, np.minimum(lo + 1, np.maximum(n - 1, 0))[..., None], -1)[..., 0]
-    with np.errstate(invalid="ignore"):
-        return np.where(n > 0, below + (pos - lo) * (above - below), np.nan)
 
 
 def merge_duplicates(X: np.ndarray, groups: list[np.ndarray], view: np.ndarray,

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvm.core.affinity import block_pose_affinity, pose_affinity
+from mvm.core.affinity import block_pose_affinity, pose_affinity, with_measured_unit
 from mvm.core.association import assign_poses, associate, frame_sequence, visible_frames
 from mvm.core.config import Config
 from mvm.core.duplicates import ASSOCIATION_QUANTILE, merge_groups
@@ -408,6 +408,8 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     timings = {}
     t = time.perf_counter()
     given = groups is not None
+    if not given:
+        config = with_measured_unit(cameras, poses, config)
     keyframes = None if given else keyframe_rows(cameras, poses, config)
     if groups is None:
         groups = match_keyframes(cameras, poses, config, keyframes)

@@ -52,3 +52,21 @@ def row_nanmedian(a: np.ndarray) -> np.ndarray:
     lo = s[rows, np.maximum((n - 1) // 2, 0)]
     hi = s[rows, np.minimum(n // 2, a.shape[1] - 1)]
     return np.where(n > 0, (lo + hi) / 2, np.nan)
+
+
+def row_nanquantile(a: np.ndarray, q: float) -> np.ndarray:
+    """``np.nanquantile(a, q, axis=-1)`` (linear interpolation; NaN where a row has none),
+    without its warnings, and vectorized: numpy's loops over the rows in Python (70 times
+    slower on a chunk of pairs of persons).
+
+    >>> [round(float(v), 3) for v in row_nanquantile(np.array([[0.1, np.nan, 0.2, 3.0, 0.3], [np.nan] * 5]), 0.75)]
+    [0.975, nan]
+    """
+    n = (~np.isnan(a)).sum(-1)
+    s = np.sort(np.where(np.isnan(a), np.inf, a), axis=-1)                   # the n values first
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    below = np.take_along_axis(s, lo[..., None], -1)[..., 0]
+    above = np.take_along_axis(s, np.minimum(lo + 1, np.maximum(n - 1, 0))[..., None], -1)[..., 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(n > 0, below + (pos - lo) * (above - below), np.nan)

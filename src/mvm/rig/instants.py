@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.affinity import with_measured_unit
 from mvm.core.blas import one_blas_thread
 from mvm.core.config import Config
 from mvm.core.duplicates import group_blocks
@@ -121,6 +122,7 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
     # With few cameras the RANSAC of a joint tries each of its pairs of views once
     # (mvm.core.triangulate): C(5, 2) = 10 two-view hypotheses for 5 cameras.
     prior = load_prior(config, prior)
+    config = with_measured_unit(cameras, poses, config)          # the capture's noise, once for every batch
     instants = np.unique(poses.instant)
     order = np.argsort(poses.instant, kind="stable")
     sorted_instant = poses.instant[order]
