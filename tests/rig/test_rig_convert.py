@@ -5,9 +5,9 @@ from __future__ import annotations
 import pickle
 
 import numpy as np
-from calibration_writers import known_cameras, write_opencap, write_qca, write_xcp
 from click.testing import CliRunner
 
+from calibration_writers import known_cameras, write_opencap, write_qca, write_xcp
 from mvm.cli.rig import rig
 from mvm.io.calib_toml import read_calib_toml
 
