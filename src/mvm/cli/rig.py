@@ -63,7 +63,8 @@ def rig() -> None:
       mvm rig detect RIG_DIR                           -> RIG_DIR/pose/ (from RIG_DIR/videos/)
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
-        (or --checkerboard / --charuco: from videos of a board in RIG_DIR/calibration/)
+        (or --checkerboard / --charuco: from videos of a board in RIG_DIR/calibration/;
+         --convert FILE: another system's calibration, converted)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
       mvm report RIG_DIR, mvm overlay RIG_DIR          -> RIG_DIR/mvm/report.html, overlay/
     """
