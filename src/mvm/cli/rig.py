@@ -23,6 +23,7 @@ from mvm.cli.common import (
     with_options,
 )
 from mvm.errors import InputError
+from mvm.io.calibrations import FORMATS as CALIBRATION_FORMATS
 
 
 def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
@@ -62,7 +63,8 @@ def rig() -> None:
       mvm rig detect RIG_DIR                           -> RIG_DIR/pose/ (from RIG_DIR/videos/)
       mvm rig synchronize RIG_DIR                      -> RIG_DIR/sync.toml
       mvm rig calibrate RIG_DIR --from-people -o FILE  -> FILE (a full Calib.toml)
-        (or --checkerboard / --charuco: from videos of a board in RIG_DIR/calibration/)
+        (or --checkerboard / --charuco: from videos of a board in RIG_DIR/calibration/;
+         --convert FILE: another system's calibration, converted)
       mvm rig reconstruct RIG_DIR [--calib FILE]       -> RIG_DIR/mvm/
       mvm report RIG_DIR, mvm overlay RIG_DIR          -> RIG_DIR/mvm/report.html, overlay/
     """
@@ -102,6 +104,13 @@ def synchronize_cmd(rig_dir, calib, max_offset):
 @click.option("--checkerboard", is_flag=True,
               help="Intrinsics and poses from videos of a checkerboard in RIG_DIR/calibration/ (docs/rigs.md).")
 @click.option("--charuco", is_flag=True, help="The same with a ChArUco board.")
+@click.option("--convert", "convert", type=click.Path(), default=None, metavar="FILE",
+              help="Convert a calibration made by another system (Qualisys .qca.txt, Vicon .xcp, EasyMocap, "
+                   "OpenCap, anipose, FreeMoCap, caliscope, bioCV; docs/rigs.md) for RIG_DIR's cameras.")
+@click.option("--format", "convert_format", type=click.Choice(list(CALIBRATION_FORMATS)), default=None,
+              help="The format of --convert's file (default: told from its name and content).")
+@click.option("--binning", type=Number(float, gt=0), default=None,
+              help="Qualisys's binning factor of the videos (default 1; 2 for 540p video of a 1080p sensor).")
 @click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
               help="The Calib.toml to write (use it with mvm rig reconstruct --calib).")
 @click.option("--intrinsics", type=click.Path(dir_okay=False), default=None,
@@ -125,8 +134,8 @@ def synchronize_cmd(rig_dir, calib, max_offset):
 @click.option("--world", type=click.Choice(["board", "camera"]), default=None,
               help="World frame of a board calibration: the board (default; where most cameras first see it "
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
-def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsics, seed, refine_focal, board_size,
-                  square_size, marker_size, dictionary, fisheye, world_frame, world):
+def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_format, binning, output, intrinsics,
+                  seed, refine_focal, board_size, square_size, marker_size, dictionary, fisheye, world_frame, world):
     """Calibrate the cameras from the people or from videos of a board; write a full Calib.toml.
 
     \b
@@ -135,12 +144,28 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsic
       under them; synchronize first, sync.toml is used).
     --checkerboard / --charuco: intrinsics, lenses and extrinsics from videos
       of a board in RIG_DIR/calibration/ (intrinsics/ and extrinsics/, or the
-      videos right there)."""
+      videos right there).
+    --convert FILE: a calibration made by another system, converted (metres,
+      OpenCV's conventions) for RIG_DIR's cameras, matched by name."""
     modes = [m for m, on in (("--from-people", from_people), ("--checkerboard", checkerboard),
-                             ("--charuco", charuco)) if on]
+                             ("--charuco", charuco), ("--convert", convert is not None)) if on]
     if len(modes) != 1:
-        raise InputError(None, "calibrate", "choose one of --from-people, --checkerboard, --charuco"
+        raise InputError(None, "calibrate", "choose one of --from-people, --checkerboard, --charuco, --convert"
                          + (f" (got {' and '.join(modes)})" if modes else ""))
+    if convert is None:
+        for option, value in (("--format", convert_format), ("--binning", binning)):
+            if value is not None:
+                raise InputError(None, option, "applies to --convert only")
+    else:
+        given = [k for k, v in (("--intrinsics", intrinsics), ("--seed", seed),
+                                ("--refine-focal", refine_focal or None),
+                                ("--board-size", board_size), ("--square-size", square_size),
+                                ("--marker-size", marker_size), ("--dictionary", dictionary),
+                                ("--fisheye", fisheye or None), ("--world-frame", world_frame), ("--world", world))
+                 if v is not None]
+        if given:
+            raise InputError(None, given[0], "does not apply to --convert")
+        return _calibrate_by_conversion(rig_dir, convert, output, convert_format, binning or 1.0)
     board_options = {"--board-size": board_size, "--square-size": square_size, "--marker-size": marker_size,
                      "--dictionary": dictionary, "--fisheye": fisheye or None, "--world-frame": world_frame,
                      "--world": world}
@@ -158,6 +183,21 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, output, intrinsic
         raise InputError(None, "--world-frame", "applies to --world board")
     _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
                           square_size, marker_size, dictionary, world or "board", fisheye, world_frame)
+
+
+def _calibrate_by_conversion(rig_dir, source, output, fmt, binning):
+    from mvm.rig.convert import convert_rig_calibration
+
+    found = convert_rig_calibration(rig_dir, source, output, fmt, binning)
+    cams = found.calibration.cameras
+    print_table(f"{source}: converted from {found.format}"
+                + ("" if found.matched else f" (no videos or poses in {rig_dir}: every camera kept)"),
+                ("camera", "focal px", "position x, y, z (m)", "image px"),
+                [(n, f"{cams.focal[v]:.1f}", ", ".join(f"{c:.3f}" for c in cams.centers[v]),
+                  f"{cams.size[v, 0]:g} x {cams.size[v, 1]:g}") for v, n in enumerate(cams.names)])
+    if found.left_out:
+        say(f"left out (not in the rig): {', '.join(found.left_out)}")
+    say(f"wrote {found.path}")
 
 
 def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
