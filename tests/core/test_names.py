@@ -40,6 +40,7 @@ def test_shared_words_of_camera_names_left_out():
     assert without_shared_words(["cam01_ext", "cam02_ext"]) == ["cam01", "cam02"]
     assert without_shared_words(["cam_01", "cam_02"]) == ["cam_01", "cam_02"]            # not "01", "02"
     assert without_shared_words(["a_x", "a_x_x"]) == ["x", "x_x"]                        # a word stays
+    assert without_shared_words(["a_b", "a__b"]) == ["a_b", "a__b"]                      # still two names
     assert without_shared_words(["left", "right"]) == ["left", "right"]
     assert without_shared_words(["int_cam01_img"]) == ["int_cam01_img"]
     assert without_shared_words([]) == []

@@ -22,7 +22,7 @@ def without_shared_words(names: list[str]) -> list[str]:
     spaces) that every one of them begins or ends with: a tool's wrapping of its camera names
     (Pose2Sim's ``int_cam01_img``, anipose's ``calib-camA``). Leading words stay where a name
     would begin with a digit without them (``cam_01`` stays), and every name keeps a word; fewer
-    than two names stay as they are.
+    than two names, or names that would no longer differ, stay as they are.
 
     >>> without_shared_words(["int_cam01_img", "int_cam02_img"])
     ['cam01', 'cam02']
@@ -42,4 +42,5 @@ def without_shared_words(names: list[str]) -> list[str]:
     trail = 0
     while lead + trail + 1 < words and len({p[-1 - 2 * trail] for p in parts}) == 1:
         trail += 1
-    return ["".join(p[2 * lead:len(p) - 2 * trail]) for p in parts]
+    shorter = ["".join(p[2 * lead:len(p) - 2 * trail]) for p in parts]
+    return shorter if len(set(shorter)) == len(set(names)) else list(names)

@@ -88,9 +88,10 @@ LAYOUT_FOLDERS = frozenset(("intrinsics", "extrinsics"))
 
 
 def calibration_sources(folder: Path) -> dict[str, Path]:
-    """``{camera: video, image or image folder}`` of ``folder``, ordered by name. A video or
-    image name on something that is neither a file nor a folder (a FIFO, a broken link: its
-    camera would be left out unsaid) or a camera's folder with no image or video raises
+    """``{camera: video, image or image folder}`` of ``folder``, ordered by name, the cameras
+    named without the words all the names share (:func:`~mvm.core.names.without_shared_words`).
+    A video or image name on something that is neither a file nor a folder (a FIFO, a broken
+    link: its camera would be left out unsaid) or a camera's folder with no image or video raises
     :class:`InputError`, as :func:`mvm.io.paths.videos_by_name` does."""
     if not folder.is_dir():
         return {}
