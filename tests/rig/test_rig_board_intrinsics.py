@@ -217,6 +217,10 @@ def test_intrinsics_only_options_and_layout_one_line(photo_rig, tmp_path):
                                               str(out)]), "--intrinsics-only", "not --from-people")
     _one_line_exit_2(_calibrate(tmp_path / "empty", CHECKERBOARD, out), "calibration", "no calibration videos or "
                      "photos", "int_<camera>_img")
+    full = CliRunner().invoke(rig, ["calibrate", str(root), "--checkerboard", "--board-size", "7x6", "--square-size",
+                                    "0.07", "-o", str(out)])             # extrinsics/: scene pictures, no board
+    _one_line_exit_2(full, "cam01_ext.png", "camera cam01", "in the 1 image searched", "the intrinsics alone: "
+                     "--intrinsics-only")
     inside = root / "calibration" / "Calib.toml"
     _one_line_exit_2(_calibrate(root, CHECKERBOARD, inside), str(inside), "inside the input")
     assert not out.exists() and not inside.exists()

@@ -243,10 +243,10 @@ def searched(scan_: BoardScan, source: Path) -> str:
     return f"{n} {'image' if _is_photos(source) else 'frame'}{'s' if n != 1 else ''}"
 
 
-def _check_found(scan_: BoardScan, source: Path, name: str, board: Board) -> None:
+def _check_found(scan_: BoardScan, source: Path, name: str, board: Board, more: str = "") -> None:
     if not scan_.found:
-        hint = "--board-size counts inner corners" if board.kind == "checkerboard" else \
-            "--board-size counts squares; check --dictionary"
+        hint = ("--board-size counts inner corners" if board.kind == "checkerboard" else
+                "--board-size counts squares; check --dictionary") + more
         raise InputError(source, None, f"camera {name}: no {board.describe()} found in the "
                                        f"{searched(scan_, source)} searched ({hint})")
 
@@ -349,7 +349,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     ext_scans = scan_all([(f"{n} extrinsics", ext_sources[n], stride, counts[n]) for n in names], board, workers,
                           progress)
     for name, s in zip(names, ext_scans):
-        _check_found(s, ext_sources[name], name, board)
+        _check_found(s, ext_sources[name], name, board, "; the intrinsics alone: --intrinsics-only")
     if given is None:
         lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress,
                                    fisheye)
