@@ -27,3 +27,20 @@ def test_any_file_name_has_a_place():
 def test_the_video_order_is_the_natural_order():
     names = ["f_10.jpg", "F_2.jpg", "f_1.jpg"]
     assert frame_sequence(names).tolist() == [2, 1, 0]
+
+
+def test_shared_words_of_camera_names_left_out():
+    """Pose2Sim's and anipose's wrapping goes; a name never loses its last word, nor begins with
+    a digit where it did not."""
+    from mvm.core.names import without_shared_words
+
+    assert without_shared_words(["int_cam01_img", "int_cam02_img", "int_cam10_img"]) == ["cam01", "cam02", "cam10"]
+    assert without_shared_words(["vid_v1_cam1", "vid_v1_cam2"]) == ["cam1", "cam2"]
+    assert without_shared_words(["calib-camA", "calib-camB"]) == ["camA", "camB"]
+    assert without_shared_words(["cam01_ext", "cam02_ext"]) == ["cam01", "cam02"]
+    assert without_shared_words(["cam_01", "cam_02"]) == ["cam_01", "cam_02"]            # not "01", "02"
+    assert without_shared_words(["a_x", "a_x_x"]) == ["x", "x_x"]                        # a word stays
+    assert without_shared_words(["a_b", "a__b"]) == ["a_b", "a__b"]                      # still two names
+    assert without_shared_words(["left", "right"]) == ["left", "right"]
+    assert without_shared_words(["int_cam01_img"]) == ["int_cam01_img"]
+    assert without_shared_words([]) == []

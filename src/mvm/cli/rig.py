@@ -128,6 +128,9 @@ def synchronize_cmd(rig_dir, calib, max_offset):
               help="Side of the ChArUco markers, in metres.")
 @click.option("--dictionary", default=None, help="ArUco dictionary of the ChArUco board (default DICT_4X4_50).")
 @click.option("--fisheye", is_flag=True, help="Calibrate OpenCV's fisheye lens model (wide-angle lenses).")
+@click.option("--intrinsics-only", "intrinsics_only", is_flag=True,
+              help="Calibrate each camera's intrinsics and lens alone, from the videos or photos of the board in "
+                   "RIG_DIR/calibration/intrinsics/ (or calibration/); write them without rotations and translations.")
 @click.option("--world-frame", type=Number(int, ge=0), default=None,
               help="The frame of the extrinsics videos whose board is the world (--world board; default: the "
                    "first frame the most cameras see it in).")
@@ -135,7 +138,8 @@ def synchronize_cmd(rig_dir, calib, max_offset):
               help="World frame of a board calibration: the board (default; where most cameras first see it "
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
 def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_format, binning, output, intrinsics,
-                  seed, refine_focal, board_size, square_size, marker_size, dictionary, fisheye, world_frame, world):
+                  seed, refine_focal, board_size, square_size, marker_size, dictionary, fisheye, intrinsics_only,
+                  world_frame, world):
     """Calibrate the cameras from the people or from videos of a board; write a full Calib.toml.
 
     \b
@@ -161,14 +165,15 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
                                 ("--refine-focal", refine_focal or None),
                                 ("--board-size", board_size), ("--square-size", square_size),
                                 ("--marker-size", marker_size), ("--dictionary", dictionary),
-                                ("--fisheye", fisheye or None), ("--world-frame", world_frame), ("--world", world))
+                                ("--fisheye", fisheye or None), ("--intrinsics-only", intrinsics_only or None),
+                                ("--world-frame", world_frame), ("--world", world))
                  if v is not None]
         if given:
             raise InputError(None, given[0], "does not apply to --convert")
         return _calibrate_by_conversion(rig_dir, convert, output, convert_format, binning or 1.0)
     board_options = {"--board-size": board_size, "--square-size": square_size, "--marker-size": marker_size,
                      "--dictionary": dictionary, "--fisheye": fisheye or None, "--world-frame": world_frame,
-                     "--world": world}
+                     "--world": world, "--intrinsics-only": intrinsics_only or None}
     if from_people:
         given = [k for k, v in board_options.items() if v is not None]
         if given:
@@ -181,8 +186,14 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
         raise InputError(None, "--fisheye", "the lens model comes from --intrinsics")
     if world_frame is not None and world == "camera":
         raise InputError(None, "--world-frame", "applies to --world board")
+    if intrinsics_only:
+        given = [k for k, v in (("--intrinsics", intrinsics), ("--world", world), ("--world-frame", world_frame))
+                 if v is not None]
+        if given:
+            raise InputError(None, given[0], "does not apply to --intrinsics-only")
     _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
-                          square_size, marker_size, dictionary, world or "board", fisheye, world_frame)
+                          square_size, marker_size, dictionary, world or "board", fisheye, world_frame,
+                          intrinsics_only)
 
 
 def _calibrate_by_conversion(rig_dir, source, output, fmt, binning):
@@ -217,7 +228,7 @@ def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
 
 
 def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_size, marker_size, dictionary, world,
-                          fisheye, world_frame):
+                          fisheye, world_frame, intrinsics_only=False):
     from mvm.rig.board_calibration import MIN_COVERAGE
     from mvm.rig.board_videos import calibrate_rig_from_board
     from mvm.rig.boards import Board, parse_board_size
@@ -238,6 +249,8 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
     except ValueError as e:
         what, _, problem = str(e).partition(": ")
         raise InputError(None, "--" + what.replace(" ", "-"), problem) from None
+    if intrinsics_only:
+        return _board_intrinsics(rig_dir, output, board, fisheye)
     with stage_progress() as update:
         found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update, fisheye=fisheye,
                                          world_frame=world_frame)
@@ -256,6 +269,28 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
             say(f"warning: camera {n}: the board covered {lens.coverage:.0%} of the image, so its lens and focal "
                 "length are uncertain: film the board close up over the whole image (calibration/intrinsics/)")
     say(f"wrote {found.path}")
+
+
+def _board_intrinsics(rig_dir, output, board, fisheye):
+    from mvm.rig.board_calibration import MIN_COVERAGE
+    from mvm.rig.board_intrinsics import calibrate_intrinsics_from_board
+    from mvm.rig.board_videos import searched
+
+    with stage_progress() as update:
+        found = calibrate_intrinsics_from_board(rig_dir, output, board, progress=update, fisheye=fisheye)
+    cams = found.calibration.cameras
+    print_table(f"{rig_dir}: intrinsics from a {board.describe()} (no rotations nor translations)",
+                ("camera", "source", "board found in", "focal px (fx, fy)", "principal point px", "RMS px",
+                 "image covered"),
+                [(n, found.sources[n].name, f"{s.found} of {searched(s, found.sources[n])}",
+                  f"{cams.K[v, 0, 0]:.1f}, {cams.K[v, 1, 1]:.1f}", f"{cams.K[v, 0, 2]:.1f}, {cams.K[v, 1, 2]:.1f}",
+                  fmt(lens.rms_px), f"{lens.coverage:.0%}")
+                 for v, (n, s, lens) in enumerate(zip(cams.names, found.scans, found.lenses))])
+    for n, lens in zip(cams.names, found.lenses):
+        if lens.coverage < MIN_COVERAGE:
+            say(f"warning: camera {n}: the board covered {lens.coverage:.0%} of the image, so its lens and focal "
+                "length are uncertain: film the board close up over the whole image")
+    say(f"wrote {found.path} (use it with --intrinsics)")
 
 
 @rig.command("reconstruct")

@@ -7,7 +7,7 @@ One table per camera and an optional ``[metadata]`` table::
     size = [ 1920.0, 1080.0,]
     matrix = [ [ 1500.0, 0.0, 960.0,], [ 0.0, 1500.0, 540.0,], [ 0.0, 0.0, 1.0,],]
     distortions = [ -0.1, 0.01, 0.0, 0.0,]
-    rotation = [ 0.1, -0.2, 0.0,]          # Rodrigues vector, world -> camera
+    rotation = [ 0.1, -0.2, 0.0,]          # Rodrigues vector, world -> camera (absent: intrinsics only)
     translation = [ 0.5, 1.0, 4.0,]       # world -> camera, world units (Pose2Sim: metres)
     fisheye = false
 
@@ -156,18 +156,20 @@ def _fmt(value) -> str:
 
 def calib_toml_text(calibration: RigCalibration) -> str:
     """The Calib.toml text of ``calibration`` (Pose2Sim's layout: one table per camera, then
-    ``[metadata]``)."""
+    ``[metadata]``). A camera whose ``R`` or ``t`` is not finite (intrinsics only, as
+    ``parse_calib(..., extrinsics=False)`` reads them) has no ``rotation`` nor ``translation``."""
     cams = calibration.cameras
     lines = []
     for v, name in enumerate(cams.names):
-        rvec = cv2.Rodrigues(cams.R[v])[0].reshape(3)
+        posed = bool(np.isfinite(cams.R[v]).all() and np.isfinite(cams.t[v]).all())
+        pose = [f"rotation = {_fmt(cv2.Rodrigues(cams.R[v])[0].reshape(3))}",
+                f"translation = {_fmt(cams.t[v])}"] if posed else []
         lines += [f"[{_fmt(name) if not name.replace('_', '').replace('-', '').isalnum() else name}]",
                   f"name = {_fmt(name)}",
                   f"size = {_fmt(cams.size[v])}",
                   f"matrix = {_fmt([list(row) for row in cams.K[v]])}",
                   f"distortions = {_fmt(calibration.distortions[v])}",
-                  f"rotation = {_fmt(rvec)}",
-                  f"translation = {_fmt(cams.t[v])}",
+                  *pose,
                   f"fisheye = {_fmt(bool(calibration.fisheye[v]))}",
                   ""]
     metadata = calibration.metadata or {"adjusted": False, "error": 0.0}

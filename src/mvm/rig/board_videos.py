@@ -1,7 +1,7 @@
-"""Calibrating a rig from videos of a board (:mod:`mvm.rig.board_calibration`): find the
-videos, stream their frames and find the board in them, calibrate, write a Calib.toml. Every
-problem is one :class:`~mvm.errors.InputError` naming the camera or the file, and nothing is
-written then.
+"""Calibrating a rig from videos or photos of a board (:mod:`mvm.rig.board_calibration`): find
+the sources, stream their frames and find the board in them, calibrate, write a Calib.toml.
+Every problem is one :class:`~mvm.errors.InputError` naming the camera or the file, and nothing
+is written then.
 
 ::
 
@@ -13,9 +13,13 @@ written then.
 
 A camera without an intrinsics video is calibrated on its extrinsics video. A camera's video
 may also be a folder of images (``<camera>/`` holding ``*.png``, ``*.jpg``, ... in name order,
-as Pose2Sim's image folders) or, for the extrinsics of a board lying still, one image. The
-cameras are named after the files and ordered by name (the first is the reference), or as in
-``--intrinsics FILE``.
+as Pose2Sim's ``int_<camera>_img/``), a folder holding one video (Pose2Sim's
+``int_<camera>_vid/``) or, for the extrinsics of a board lying still, one image. The cameras are
+named after the files and folders, less the words all of them share
+(:func:`~mvm.core.names.without_shared_words`: ``int_cam01_img`` is ``cam01``), and ordered by
+name (the first is the reference), or as in ``--intrinsics FILE``.
+:func:`calibrate_intrinsics_from_board` calibrates the intrinsics alone, each camera on its own,
+from ``intrinsics/`` (else the sources right in ``calibration/``).
 """
 from __future__ import annotations
 
@@ -28,7 +32,7 @@ import cv2
 import numpy as np
 
 from mvm.core.camera import undistort
-from mvm.core.names import natural_key
+from mvm.core.names import natural_key, without_shared_words
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
@@ -38,6 +42,7 @@ from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
 from mvm.rig.board_calibration import (
     BoardRig,
+    Intrinsics,
     calibrate_extrinsics,
     calibrate_intrinsics,
 )
@@ -62,25 +67,52 @@ def _images(folder: Path) -> list[Path]:
     return sorted(images, key=lambda p: natural_key(p.name))
 
 
+def _folder_source(folder: Path) -> Path | None:
+    """What a camera's folder holds: its images (the folder itself), its one video (returned), or
+    nothing (None). Images beside a video, or several videos, raise :class:`InputError`."""
+    images = _images(folder)
+    videos = sorted((p for p in folder.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES and not p.name.startswith(".")),
+                    key=lambda p: natural_key(p.name))
+    if videos and images:
+        raise InputError(folder, None, f"holds images and a video ({videos[0].name}): keep one or the other")
+    if len(videos) > 1:
+        raise InputError(folder, None, f"holds {len(videos)} videos ({videos[0].name}, {videos[1].name}): "
+                                       "keep one per camera")
+    if videos and not videos[0].is_file():
+        raise InputError(videos[0], None, "named like a video but not a file (a FIFO, a folder or a broken link)")
+    return videos[0] if videos else folder if images else None
+
+
+#: The folders of ``calibration/`` that hold cameras, not a camera.
+LAYOUT_FOLDERS = frozenset(("intrinsics", "extrinsics"))
+
+
 def calibration_sources(folder: Path) -> dict[str, Path]:
-    """``{camera: video or image folder}`` of ``folder``, ordered by name. A video or image name
-    on something that is neither a file nor a folder (a FIFO, a broken link: its camera would be
-    left out unsaid) raises :class:`InputError`, as :func:`mvm.io.paths.videos_by_name` does."""
+    """``{camera: video, image or image folder}`` of ``folder``, ordered by name, the cameras
+    named without the words all the names share (:func:`~mvm.core.names.without_shared_words`).
+    A video or image name on something that is neither a file nor a folder (a FIFO, a broken
+    link: its camera would be left out unsaid) or a camera's folder with no image or video raises
+    :class:`InputError`, as :func:`mvm.io.paths.videos_by_name` does."""
     if not folder.is_dir():
         return {}
     found = {}
     for p in folder.iterdir():
-        if p.name.startswith("."):
+        if p.name.startswith(".") or p.is_dir() and p.name in LAYOUT_FOLDERS:
             continue
         typed = p.suffix.lower() in IMAGE_EXTENSIONS or p.suffix.lower() in VIDEO_SUFFIXES
         if typed and not p.is_file() and not p.is_dir():
             raise InputError(p, None, "named like a video or image but not a file (a FIFO or a broken link)")
-        if p.is_file() and typed or p.is_dir() and _images(p):
+        source = _folder_source(p) if p.is_dir() else p if typed else None
+        if p.is_dir() and source is None:
+            raise InputError(p, None, f"no image ({', '.join(sorted(IMAGE_EXTENSIONS))}) or video in this camera's "
+                                      "folder")
+        if source is not None:
             name = p.stem if p.is_file() else p.name
             if name in found:
                 raise InputError(p, None, f"camera {name}: two calibration sources ({found[name].name} and {p.name})")
-            found[name] = p
-    return dict(sorted(found.items(), key=lambda item: natural_key(item[0])))
+            found[name] = source
+    names = sorted(found, key=natural_key)
+    return dict(zip(without_shared_words(names), (found[n] for n in names)))
 
 
 def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
@@ -140,6 +172,11 @@ class BoardScan:
     corners: np.ndarray
     size: tuple[int, int]
 
+    @property
+    def found(self) -> int:
+        """The frames searched in which the board is found."""
+        return int(np.isfinite(self.corners).all(-1).any(-1).sum())
+
 
 def scan(source: Path, board: Board, stride: int, progress=None, count: int | None = None) -> BoardScan:
     """Find ``board`` in every ``stride``-th frame of ``source``; ``progress(done, total)``
@@ -153,6 +190,10 @@ def scan(source: Path, board: Board, stride: int, progress=None, count: int | No
         if size is None:
             size = (gray.shape[1], gray.shape[0])
         elif (gray.shape[1], gray.shape[0]) != size:
+            if _is_photos(source):
+                images = _images(source)
+                raise InputError(images[number], None, f"{gray.shape[1]}x{gray.shape[0]} pixels, {images[0].name} "
+                                                       f"has {size[0]}x{size[1]}: one camera, one image size")
             raise InputError(source, f"frame {number}", f"{gray.shape[1]}x{gray.shape[0]} pixels, the first "
                                                         f"frame has {size[0]}x{size[1]}")
         found = detect(gray)
@@ -166,8 +207,8 @@ def scan(source: Path, board: Board, stride: int, progress=None, count: int | No
     return BoardScan(np.array(frames, dtype=int), np.array(corners).reshape(-1, C, 2), size)
 
 
-def _scan_all(jobs: list[tuple[str, Path, int, int]], board: Board, workers: int | None, progress=None
-              ) -> list[BoardScan]:
+def scan_all(jobs: list[tuple[str, Path, int, int]], board: Board, workers: int | None, progress=None
+             ) -> list[BoardScan]:
     """:func:`scan` of every ``(label, source, stride, frames)`` in threads (OpenCV's decoding and
     detection release the GIL); ``progress(label, done, total)``."""
     if not jobs:
@@ -186,17 +227,37 @@ def _scan_all(jobs: list[tuple[str, Path, int, int]], board: Board, workers: int
             raise
 
 
-def _stride(counts) -> int:
+def scan_stride(counts) -> int:
     """The stride that scans at most ``MAX_SCANNED_FRAMES`` of the longest of videos of ``counts`` frames."""
     return max(1, math.ceil(max(counts) / MAX_SCANNED_FRAMES))
 
 
-def _check_found(scan_: BoardScan, source: Path, name: str, board: Board) -> None:
-    if not np.isfinite(scan_.corners).all(-1).any():
-        hint = "--board-size counts inner corners" if board.kind == "checkerboard" else \
-            "--board-size counts squares; check --dictionary"
-        raise InputError(source, None, f"camera {name}: no {board.describe()} found in the {len(scan_.frames)} "
-                                       f"frames searched ({hint})")
+def _is_photos(source: Path) -> bool:
+    """A source of images (a folder of them, or one), not a video."""
+    return source.is_dir() or source.suffix.lower() in IMAGE_EXTENSIONS
+
+
+def searched(scan_: BoardScan, source: Path) -> str:
+    """What was searched for the board: ``"7 images"``, ``"300 frames"``."""
+    n = len(scan_.frames)
+    return f"{n} {'image' if _is_photos(source) else 'frame'}{'s' if n != 1 else ''}"
+
+
+def _check_found(scan_: BoardScan, source: Path, name: str, board: Board, more: str = "") -> None:
+    if not scan_.found:
+        hint = ("--board-size counts inner corners" if board.kind == "checkerboard" else
+                "--board-size counts squares; check --dictionary") + more
+        raise InputError(source, None, f"camera {name}: no {board.describe()} found in the "
+                                       f"{searched(scan_, source)} searched ({hint})")
+
+
+def camera_lens(scan_: BoardScan, source: Path, name: str, board: Board, fisheye: bool) -> Intrinsics:
+    """A camera's :class:`Intrinsics` from its scan (the board found in it)."""
+    _check_found(scan_, source, name, board)
+    try:
+        return calibrate_intrinsics(scan_.corners, board.object_points, scan_.size, fisheye=fisheye)
+    except CalibrationError as e:
+        raise InputError(source, None, f"camera {name}: {e.problem} ({searched(scan_, source)} searched)") from None
 
 
 @dataclass
@@ -246,19 +307,15 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, w
     videos = intrinsic_videos(names, intrinsic_sources)
     own = [n for n in names if n in videos]
     counts = {n: frame_count(videos[n]) for n in own}
-    scans = dict(zip(own, _scan_all([(f"{n} intrinsics", videos[n], _stride([counts[n]]), counts[n]) for n in own],
-                                    board, workers, progress)))
+    scans = dict(zip(own, scan_all([(f"{n} intrinsics", videos[n], scan_stride([counts[n]]), counts[n])
+                                    for n in own], board, workers, progress)))
     found = []
     for v, name in enumerate(names):
         s, source = (scans[name], videos[name]) if name in scans else (ext_scans[v], ext_sources[name])
-        _check_found(s, source, name, board)
         if s.size != ext_scans[v].size:
             raise InputError(source, None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, its extrinsics video "
                                            f"{ext_scans[v].size[0]}x{ext_scans[v].size[1]}: calibrate at one size")
-        try:
-            found.append(calibrate_intrinsics(s.corners, board.object_points, s.size, fisheye=fisheye))
-        except CalibrationError as e:
-            raise InputError(source, None, f"camera {name}: {e.problem}") from None
+        found.append(camera_lens(s, source, name, board, fisheye))
     return found
 
 
@@ -288,11 +345,11 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     if given is not None:
         names = list(given.cameras.names)
     counts = {n: frame_count(ext_sources[n]) for n in names}                      # each header read once
-    stride = _stride(counts.values())
-    ext_scans = _scan_all([(f"{n} extrinsics", ext_sources[n], stride, counts[n]) for n in names], board, workers,
+    stride = scan_stride(counts.values())
+    ext_scans = scan_all([(f"{n} extrinsics", ext_sources[n], stride, counts[n]) for n in names], board, workers,
                           progress)
     for name, s in zip(names, ext_scans):
-        _check_found(s, ext_sources[name], name, board)
+        _check_found(s, ext_sources[name], name, board, "; the intrinsics alone: --intrinsics-only")
     if given is None:
         lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress,
                                    fisheye)
