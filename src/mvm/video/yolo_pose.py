@@ -99,17 +99,18 @@ def decode(output: np.ndarray, offset: np.ndarray, scale: np.ndarray, frame_size
     frame pixels (v = 0 and x = y = 0 at or below the keypoint floor), ``score (K,)`` and
     ``boxes (K, 4)`` x1, y1, x2, y2 in frame pixels, best first. ``offset``, ``scale`` (2,):
     the letterbox's (:func:`centred_letterbox`); ``frame_size`` = (W, H) clips the results."""
-    rows = output.T[output[4] > options.score_threshold].astype(float)            # (C, 56)
+    rows = output.T[output[4] > np.asarray(options.score_threshold, output.dtype)].astype(float)      # (C, 56)
     corner = np.concatenate([rows[:, :2] - rows[:, 2:4] / 2, rows[:, 2:4]], 1)     # x1, y1, w, h
     keep = np.asarray(cv2.dnn.NMSBoxes(corner, rows[:, 4].astype(np.float32), 0.0, options.iou_threshold),
                       np.int64).reshape(-1)
-    rows = rows[keep]
+    rows = rows[np.sort(keep)[np.argsort(-rows[np.sort(keep), 4], kind="stable")]]     # best first, ties in order
     boxes = np.concatenate([rows[:, :2] - rows[:, 2:4] / 2, rows[:, :2] + rows[:, 2:4] / 2], 1)
     limit = np.asarray(frame_size, float)
     boxes = np.clip((boxes.reshape(-1, 2, 2) - offset) / scale, 0, limit).reshape(-1, 4)
     kp = rows[:, 5:].reshape(-1, NUM_JOINTS, 3)
     xy = np.clip((kp[:, :, :2] - offset) / scale, 0, limit)
-    confidence = np.where(kp[:, :, 2] > options.keypoint_floor, kp[:, :, 2], 0.0)
+    floor = float(np.asarray(options.keypoint_floor, output.dtype))        # compared in the model's precision
+    confidence = np.where(kp[:, :, 2] > floor, kp[:, :, 2], 0.0)
     return to_coco(xy, confidence), rows[:, 4], boxes
 
 
