@@ -319,3 +319,34 @@ def test_rig_detect_refuses_an_unreadable_video_before_any_detection(models, tmp
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert result.exit_code == 2 and len(lines) == 1 and "camera cam_b" in lines[0], result.output
     assert not (tmp_path / "pose").exists()
+
+
+@pytest.mark.slow
+def test_the_real_model_finds_what_ultralytics_finds(tmp_path):
+    """The real YOLO11n-pose export on the real capture (20 frames of each of its 4 cameras)
+    against Ultralytics' own detections of the same model: nearly every reference pose found,
+    keypoints within a pixel or two. ``benchmarks/yolo_pose_reference.py`` runs all 400 frames."""
+    import importlib.util
+
+    from helpers import REPO, SHARED_DATA
+
+    data = SHARED_DATA / "real_footage"
+    model = data / "models" / "yolo11n-pose.onnx"
+    if not model.is_file():
+        pytest.skip(f"the real capture and its YOLO-pose model are absent: {data}")
+    spec = importlib.util.spec_from_file_location("yolo_pose_reference", REPO / "benchmarks" / "yolo_pose_reference.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    detector = YoloPose(model)
+    found, reference = {}, {}
+    for camera in bench.CAMERAS:
+        capture = cv2.VideoCapture(str(data / "videos" / f"{camera}.mp4"))
+        frames = [capture.read()[1] for _ in range(20)]
+        capture.release()
+        for f, (kp, _) in enumerate(detector(frames)):
+            found[camera, f] = kp
+        ref = bench.by_frame(data / "pose_ultralytics" / f"{camera}.json")
+        reference.update({(camera, f): ref[f] for f in range(20)})
+    result = bench.compare(found, reference)
+    assert result["reference_poses"] >= 100                       # 2 people in cam01 and cam02, 1 in the others
+    assert result["found_share"] >= 0.98 and result["median_px"] <= 2.0, result

@@ -64,7 +64,7 @@ def letterbox_geometry(height: int, width: int, size: tuple[int, int]):
     bottom)`` in input pixels, and the scale ``(sx, sy)`` = resized / frame per axis.
 
     >>> letterbox_geometry(1920, 1088, (640, 640))
-    ((363, 640), (138, 0, 139, 0), (0.33364..., 0.33333...))
+    ((363, 640), (138, 0, 139, 0), (0.33363970..., 0.33333333...))
     """
     w_in, h_in = size
     r = min(h_in / height, w_in / width)
