@@ -31,7 +31,8 @@ def _f(value) -> str:
 
 
 def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoint=None, detector=None,
-                       max_frames=None, rate=None, width=None, focal_px=None, refine=None, every_frame=None):
+                       model=None, max_frames=None, rate=None, width=None, focal_px=None, refine=None,
+                       every_frame=None):
     """The :class:`~mvm.batch.BatchOptions` of a settings file (its ``[reconstruct]``,
     ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
     command's own options (an option left at None keeps the file's value)."""
@@ -51,7 +52,8 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
         config=read_config(config_path, sets, refine=refine),
         frames=table(FrameOptions, "frames", max_frames=max_frames, rate=rate, width=width,
                      select="all" if every_frame else None),
-        sfm=table(SfmOptions, "sfm", focal_px=focal_px), detect=table(DetectOptions, "detect", detector=detector))
+        sfm=table(SfmOptions, "sfm", focal_px=focal_px),
+        detect=table(DetectOptions, "detect", detector=detector, model=model))
 
 
 @command("batch")
@@ -67,9 +69,11 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
               help="Further attempts of a stage after a transient failure (a lost worker, an OS error).")
 @click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
               help="The pose network for detect (default: each clip's imported detections).")
-@click.option("--detector", type=click.Choice(["rtmo", "rtmpose"]), default=None,
+@click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "yolo-pose"]), default=None,
               help="detect: run this 2D pose detector on every clip's frames (default: --checkpoint, or "
                    "each clip's imported detections).")
+@click.option("--model", type=click.Path(dir_okay=False), default=None,
+              help="detect: the detector's ONNX model (as mvm detect --model; yolo-pose: required).")
 @click.option("--max-frames", type=MAX_FRAMES, default=None, help="frames: keep at most this many frames per clip.")
 @click.option("--rate", type=RATE, default=None, help="frames: frames per second to keep.")
 @click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
@@ -82,7 +86,7 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
 @SET_OPTION
 @REFINE_OPTION
 @click.option("--force", is_flag=True, help="Redo every stage of every clip, even those up to date.")
-def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, max_frames, rate, width,
+def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detector, model, max_frames, rate, width,
               every_frame, focal_px, config_path, sets, refine, force):
     """Run every clip of ROOT (videos and scene directories) through the pipeline.
 
@@ -97,8 +101,9 @@ def batch_cmd(root, stages, engine, address, workers, retries, checkpoint, detec
     from mvm.batch import parse_stages, run_batch
 
     chosen = parse_stages(stages)
-    options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, max_frames=max_frames,
-                                 rate=rate, width=width, focal_px=focal_px, refine=refine, every_frame=every_frame)
+    options = read_batch_options(config_path, sets, checkpoint=checkpoint, detector=detector, model=model,
+                                 max_frames=max_frames, rate=rate, width=width, focal_px=focal_px, refine=refine,
+                                 every_frame=every_frame)
     try:
         with progress(TextColumn("{task.fields[info]}")) as bar:
             task = bar.add_task("clips", total=None, info="")

@@ -474,12 +474,13 @@ def with_options(options):
 #: The options that choose and run a 2D pose detector, the same in ``mvm detect``, ``mvm run``
 #: and ``mvm rig detect`` (:class:`mvm.video.detect.DetectOptions`).
 DETECTOR_OPTIONS = [
-    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "mvm"]), default=None,
-                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), mvm (the "
-                      "project's network, --checkpoint). Default: rtmo when ONNX Runtime is installed."),
+    click.option("--detector", type=click.Choice(["rtmo", "rtmpose", "yolo-pose", "mvm"]), default=None,
+                 help="2D pose detector: rtmo (bottom-up), rtmpose (person boxes + top-down), yolo-pose (an "
+                      "Ultralytics YOLO-pose ONNX export, --model), mvm (the project's network, --checkpoint). "
+                      "Default: rtmo when ONNX Runtime is installed."),
     click.option("--model", type=click.Path(dir_okay=False), default=None,
-                 help="The detector's ONNX model (.onnx or the published .zip; default: the published model, "
-                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models)."),
+                 help="The detector's ONNX model (.onnx, the published .zip or a URL; default: the published model, "
+                      "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models; yolo-pose: required)."),
     click.option("--person-model", type=click.Path(dir_okay=False), default=None,
                  help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
     click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default=None,

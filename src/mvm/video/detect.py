@@ -1,11 +1,11 @@
 """2D poses of every frame and their appearance -> ``SCENE/poses2d.json`` (docs/architecture.md).
 
-Detectors (one interface, :func:`detect_scene`; :data:`DETECTORS`): ``rtmo``, ``rtmpose``
-and ``mvm`` (:mod:`mvm.video.detectors`), or ``import``: detections made elsewhere
+Detectors (one interface, :func:`detect_scene`; :data:`DETECTORS`): ``rtmo``, ``rtmpose``,
+``yolo-pose`` and ``mvm`` (:mod:`mvm.video.detectors`), or ``import``: detections made elsewhere
 (:mod:`mvm.video.importers`: OpenPifPaf, OpenPose, a COCO results file whose ``image_id`` is a
 frame's file name or its 1-based position in the scene's frame list, a COCO keypoints file).
 
-For the RTM detectors and imported detections the appearance is the colour descriptor of the
+For the ONNX detectors (RTM, YOLO-pose) and imported detections the appearance is the colour descriptor of the
 frame (:mod:`mvm.video.appearance`). Keypoints are the 17 COCO keypoints in frame pixels.
 ``poses2d.json`` records under ``info`` the detector, its model files and their SHA-256.
 A frame that cannot be read is reported and left out; the others are detected.
@@ -34,6 +34,7 @@ from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_i
 from mvm.video.importers import check_detections_fit, import_detections
 from mvm.video.models import MODES
 from mvm.video.rtm import RtmOptions
+from mvm.video.yolo_pose import YoloPoseOptions
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +42,7 @@ POSES2D = "poses2d.json"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 DETECT_STAGE = "the detection"
 APPEARANCE = ("auto", "colour", "network", "none")
-DETECTORS = ("rtmo", "rtmpose", "mvm", "import")
+DETECTORS = ("rtmo", "rtmpose", "yolo-pose", "mvm", "import")
 DEVICES = ("cpu", "cuda")
 
 
@@ -52,8 +53,9 @@ class DetectOptions:
     #: One of :data:`DETECTORS`; None: "import" when detections are given, "mvm" when a
     #: checkpoint is. [name]
     detector: str | None = setting(None, choices=DETECTORS)
-    #: The detector's ONNX model (.onnx or the published .zip; for "rtmpose" the keypoint
-    #: model); None: the published model of ``mode``, cached on first use. [path]
+    #: The detector's ONNX model (.onnx or the published .zip, or a URL fetched into the cache;
+    #: for "rtmpose" the keypoint model; for "yolo-pose" an Ultralytics export, required);
+    #: None: the published model of ``mode``, cached on first use. [path]
     model: str | None = None
     #: The person detector of "rtmpose" (YOLOX); None: the published one of ``mode``. [path]
     person_model: str | None = None
@@ -65,6 +67,8 @@ class DetectOptions:
     download: bool = True
     #: The RTM detectors' thresholds (a table of their own: ``[detect.rtm]``). [-]
     rtm: RtmOptions = RtmOptions()
+    #: The YOLO-pose detector's thresholds (a table of their own: ``[detect.yolo]``). [-]
+    yolo: YoloPoseOptions = YoloPoseOptions()
     #: Appearance descriptor stored with each pose: "auto" (network features when the network
     #: runs, else colour), "colour", "network" or "none". [name]
     appearance: str = setting("auto", choices=APPEARANCE)
@@ -78,8 +82,8 @@ class DetectOptions:
     #: The mvm network's input (longer side); larger finds smaller people and costs the
     #: square of it. None: the size the network was trained at (its checkpoint's JSON). [px]
     input_size: int | None = setting(None, ge=16, le=4096)
-    #: Where the detector runs: "cpu" or "cuda" (torch for "mvm", ONNX Runtime for the RTM
-    #: detectors). [name]
+    #: Where the detector runs: "cpu" or "cuda" (torch for "mvm", ONNX Runtime for the RTM and
+    #: YOLO-pose detectors). [name]
     device: str = setting("cpu", choices=DEVICES)
 
     def __post_init__(self):
@@ -305,7 +309,7 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
                  progress: Callable[[int, int], None] | None = None) -> FramePoses:
     """2D poses and appearance of every frame of ``scene``, written to ``scene/poses2d.json``.
 
-    The detector is ``options.detector``: ``rtmo`` / ``rtmpose`` (ONNX models), ``mvm`` (the
+    The detector is ``options.detector``: ``rtmo`` / ``rtmpose`` / ``yolo-pose`` (ONNX models), ``mvm`` (the
     network, ``checkpoint``) or ``import`` (``source``, in format ``fmt``); when None, the one
     that ``source`` or ``checkpoint`` implies. Frames that SfM did not register (when
     ``scene/sparse`` exists) and frames that cannot be read are left out.
@@ -382,7 +386,7 @@ def detector_kind(options: DetectOptions, source, checkpoint) -> str:
     ``checkpoint`` (``mvm``) implies; a contradiction raises ``ValueError``."""
     kind = options.detector or ("import" if source is not None else "mvm" if checkpoint is not None else None)
     if kind is None:
-        raise ValueError("no detector: name one (rtmo, rtmpose, mvm) or give detections to import")
+        raise ValueError("no detector: name one (rtmo, rtmpose, yolo-pose, mvm) or give detections to import")
     if (kind == "import") != (source is not None):
         raise ValueError("detections to import (source) go with the import detector only")
     if (kind == "mvm") != (checkpoint is not None):

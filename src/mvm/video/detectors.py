@@ -3,6 +3,8 @@ detector gives one) out; ``info`` says what ran, for ``poses2d.json``.
 
 - ``rtmo``: RTMO, one-stage bottom-up multi-person (:mod:`mvm.video.rtm`, ONNX Runtime);
 - ``rtmpose``: a YOLOX person detector then RTMPose, top-down (same);
+- ``yolo-pose``: an Ultralytics YOLO-pose ONNX export the user gives (:mod:`mvm.video.yolo_pose`;
+  its weights are AGPL-3.0, none is published with mvm);
 - ``mvm``: the project's PifPaf-style network from a local checkpoint (``mvm.net``, imported
   lazily: torch is an optional dependency), whose features give the appearance (pooled
   along the limbs).
@@ -21,7 +23,7 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.video.appearance import pool_features
-from mvm.video.models import RTMO, RTMPOSE, YOLOX, model_problem, resolve_model, sha256
+from mvm.video.models import RTMO, RTMPOSE, YOLOX, is_url, model_problem, resolve_model, sha256, url_spec
 
 if TYPE_CHECKING:
     from mvm.video.detect import DetectOptions
@@ -63,6 +65,29 @@ def _rtm_detector(options: DetectOptions) -> FrameDetector:
         return [(kp, sc, None) for kp, sc in model(frames)]
 
     return FrameDetector(run, {"detector": options.detector, "models": models, "device": options.device})
+
+
+#: How a user makes the model of ``yolo-pose`` (named when none is given).
+YOLO_EXPORT = "yolo export model=yolo11n-pose.pt format=onnx"
+
+
+def _yolo_detector(options: DetectOptions) -> FrameDetector:
+    """The Ultralytics YOLO-pose export ``options.model`` (a file, or a URL fetched into the cache)."""
+    from mvm.video.yolo_pose import YoloPose
+
+    if options.model is None:
+        raise InputError(None, "--model", f"yolo-pose needs an Ultralytics YOLO-pose ONNX export ({YOLO_EXPORT})")
+    if is_url(options.model):
+        path = resolve_model(url_spec(options.model), None, options.download)
+    else:
+        path = resolve_model(None, options.model)
+    model = YoloPose(path, options.device, options.yolo)
+
+    def run(frames):
+        return [(kp, sc, None) for kp, sc in model(frames)]
+
+    return FrameDetector(run, {"detector": "yolo-pose", "models": [_model_info(path, options.model)],
+                               "device": options.device, "input_size": list(model.size)})
 
 
 def _network_detector(checkpoint: str | Path, options: DetectOptions) -> FrameDetector:
@@ -120,8 +145,17 @@ def check_models(options: DetectOptions, checkpoint: str | Path | None = None) -
             problem = model_problem(spec, path, options.download, option)
             if problem is not None:
                 problems.append(problem if path is None else problem.replace(f"{option}: ", f"{option} {path}: ", 1))
-        if importlib.util.find_spec("onnxruntime") is None:
-            problems.append(f'--detector {options.detector}: needs ONNX Runtime: pip install "mvm[detect]"')
+    elif options.detector == "yolo-pose":
+        if options.model is None:
+            problems.append(f"--model: yolo-pose needs an Ultralytics YOLO-pose ONNX export ({YOLO_EXPORT})")
+        else:
+            url = is_url(options.model)
+            problem = model_problem(url_spec(options.model) if url else None, None if url else options.model,
+                                    options.download)
+            if problem is not None:
+                problems.append(problem if url else problem.replace("--model: ", f"--model {options.model}: ", 1))
+    if options.detector in ("rtmo", "rtmpose", "yolo-pose") and importlib.util.find_spec("onnxruntime") is None:
+        problems.append(f'--detector {options.detector}: needs ONNX Runtime: pip install "mvm[detect]"')
     if problems:
         raise InputError(None, None, "; ".join(problems))
 
@@ -131,7 +165,14 @@ def fetch_missing_models(options: DetectOptions) -> None:
     downloads are allowed), so that a failed download ends a run before its first heavy step."""
     from mvm.video.models import cache_dir
 
-    if options.detector not in ("rtmo", "rtmpose") or not options.download:
+    if not options.download:
+        return
+    if options.detector == "yolo-pose" and is_url(options.model):
+        spec = url_spec(options.model)
+        if not (cache_dir() / spec.name).is_file():
+            resolve_model(spec, None, True)
+        return
+    if options.detector not in ("rtmo", "rtmpose"):
         return
     specs = ([(YOLOX[options.mode], options.person_model, "--person-model"),
               (RTMPOSE[options.mode], options.model, "--model")] if options.detector == "rtmpose"
@@ -142,14 +183,17 @@ def fetch_missing_models(options: DetectOptions) -> None:
 
 
 def make_detector(options: DetectOptions, checkpoint: str | Path | None = None) -> FrameDetector:
-    """The detector ``options.detector`` (``rtmo``, ``rtmpose`` or ``mvm`` with ``checkpoint``)."""
+    """The detector ``options.detector`` (``rtmo``, ``rtmpose``, ``yolo-pose`` with
+    ``options.model``, or ``mvm`` with ``checkpoint``)."""
     if options.detector == "mvm":
         if checkpoint is None:
             raise InputError(None, "--checkpoint", "the mvm detector needs its checkpoint")
         return _network_detector(checkpoint, options)
     if options.detector in ("rtmo", "rtmpose"):
         return _rtm_detector(options)
-    raise ValueError(f"detector {options.detector!r}: expected rtmo, rtmpose or mvm")
+    if options.detector == "yolo-pose":
+        return _yolo_detector(options)
+    raise ValueError(f"detector {options.detector!r}: expected rtmo, rtmpose, yolo-pose or mvm")
 
 
 def available_detector() -> str | None:

@@ -1,13 +1,14 @@
 """Published ONNX models of the 2D pose detectors and the local cache that holds them.
 
 A model is a local file (``--model PATH``: an ``.onnx`` file, or the published ``.zip`` that
-holds one) or the model's published URL, downloaded on first use into the cache folder:
-``$MVM_CACHE/models`` when ``MVM_CACHE`` is set, else ``$XDG_CACHE_HOME/mvm/models`` (by
-default ``~/.cache/mvm/models``). A download is verified against the model's SHA-256 when it is
-known, and its SHA-256 is recorded beside it (``NAME.sha256``) and checked at every later use, so
-a corrupted cache is found; it is written atomically: an interrupted or corrupted download leaves
-no file behind. Offline, the error names the file to fetch and where to put it. (The 8 hex
-digits in OpenMMLab's ONNX file names are those of the PyTorch checkpoint, not of the zip.)
+holds one) or a URL (the model's published one, or ``--model URL``: :func:`url_spec`),
+downloaded on first use into the cache folder: ``$MVM_CACHE/models`` when ``MVM_CACHE`` is
+set, else ``$XDG_CACHE_HOME/mvm/models`` (by default ``~/.cache/mvm/models``). A download is
+verified against the model's SHA-256 when it is known, and its SHA-256 is recorded beside it
+(``NAME.sha256``) and checked at every later use, so a corrupted cache is found; it is written
+atomically: an interrupted or corrupted download leaves no file behind. Offline, the error names
+the file to fetch and where to put it. (The 8 hex digits in OpenMMLab's ONNX file names are those
+of the PyTorch checkpoint, not of the zip.)
 
 The URLs are the ones RTMLib (``rtmlib.tools.solution.body.Body``) uses.
 """
@@ -85,6 +86,18 @@ YOLOX = {
     "performance": ModelSpec("yolox-x", f"{_MMPOSE}/rtmposev1/onnx_sdk/yolox_x_8xb8-300e_humanart-a39d44ed.zip",
                    (640, 640)),
 }
+
+
+def is_url(model: str | Path | None) -> bool:
+    """Whether ``--model`` names a model to download (``https://`` or ``http://``) rather than a file."""
+    return isinstance(model, str) and model.lower().startswith(("https://", "http://"))
+
+
+def url_spec(url: str, size: tuple[int, int] = (640, 640)) -> ModelSpec:
+    """A model given by its URL (an ``.onnx`` or a ``.zip`` holding one) as a :class:`ModelSpec`:
+    downloaded into the cache on first use like a published model, its SHA-256 recorded then
+    and checked at every later use."""
+    return ModelSpec(url.rsplit("/", 1)[-1], url, size)
 
 
 def cache_dir() -> Path:
@@ -286,11 +299,12 @@ def onnx_in_zip(archive: Path, folder: Path | None = None) -> Path:
     return target
 
 
-def model_problem(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
+def model_problem(spec: ModelSpec | None, path: str | Path | None = None, download_ok: bool = True,
                   option: str = "--model") -> str | None:
     """What is wrong with a model before any work, in a phrase naming ``option`` (None: nothing
     known): a given file that is missing or not a regular file, a published model neither in
-    the cache nor allowed to be fetched. Reads nothing but the file's status."""
+    the cache nor allowed to be fetched (``spec`` may be None when ``path`` is given). Reads
+    nothing but the file's status."""
     if path is not None:
         path = Path(path)
         if not path.exists() and not path.is_symlink():
@@ -306,7 +320,7 @@ def model_problem(spec: ModelSpec, path: str | Path | None = None, download_ok: 
     return None
 
 
-def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: bool = True,
+def resolve_model(spec: ModelSpec | None, path: str | Path | None = None, download_ok: bool = True,
                   progress: Callable[[int, int], None] | None = None, option: str = "--model") -> Path:
     """The local ``.onnx`` file of a model: ``path`` when given (an ``.onnx``, or the published
     ``.zip``, extracted into the cache), else the cached download of ``spec.url`` (fetched now unless ``download_ok`` is
@@ -327,4 +341,4 @@ def resolve_model(spec: ModelSpec, path: str | Path | None = None, download_ok: 
         download(spec.url, archive, spec.sha256, progress, option=option)
     else:
         verify_cached(archive, spec.sha256)
-    return onnx_in_zip(archive)
+    return archive if archive.suffix.lower() == ".onnx" else onnx_in_zip(archive)

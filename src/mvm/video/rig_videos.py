@@ -14,7 +14,9 @@ Reruns: beside each pose file its record (``<camera>.inputs.json``, :mod:`mvm.io
 holds the video's hash and the settings; only the cameras whose video or settings changed are
 detected again. Every video to detect is opened and its first frame decoded before any
 detection: one that does not decode is refused in one line naming the camera and the file, and
-nothing is written. Each pose file is written whole (atomically) when its video is done.
+nothing is written. Each pose file is written whole (atomically) when its video is done; a
+camera in whose video no person is detected gets none, and the command then ends in one line
+naming it (the other cameras' files are written, and kept by a rerun).
 """
 from __future__ import annotations
 
@@ -201,7 +203,7 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
                       progress: Callable[[str, int, int], None] | None = None) -> list[CameraPoses]:
     """Detect the 2D poses of every video of ``RIG_DIR/videos`` into ``RIG_DIR/pose/<camera>.json``.
 
-    ``options.detector``: ``rtmo``, ``rtmpose`` or ``mvm`` (with ``checkpoint``). A camera is
+    ``options.detector``: ``rtmo``, ``rtmpose``, ``yolo-pose`` or ``mvm`` (with ``checkpoint``). A camera is
     kept when the record of its pose file says it was made from this video with these settings,
     unless ``force``; a pose file mvm did not make (no record) is never replaced without
     ``force``. Checked before any detection: the detector's model files, every video to detect
@@ -212,8 +214,8 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a directory")
     kind = options.detector
-    if kind not in ("rtmo", "rtmpose", "mvm"):
-        raise ValueError(f"detector {kind!r}: expected rtmo, rtmpose or mvm (a rig's own detections go in "
+    if kind not in ("rtmo", "rtmpose", "yolo-pose", "mvm"):
+        raise ValueError(f"detector {kind!r}: expected rtmo, rtmpose, yolo-pose or mvm (a rig's own detections go in "
                          f"{POSE_DIR}/)")
     options = replace(options, appearance="none")
     check_models(options, checkpoint)
@@ -238,7 +240,7 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         log.warning("the videos' frame rates differ: %s; mvm rig reconstruct needs one rate (resample the videos, "
                     "or give it --frame-rate)", ", ".join(f"{c} {r:g} Hz" for c, r in rates.items()))
     detector = make_detector(options, checkpoint) if probed else None
-    done = []
+    done, empty = [], []
     for camera, video, out, inputs, hashed, why in plan:
         if why is None:
             log.info("%s is up to date (made from %s with these settings)", out, video.name)
@@ -246,8 +248,17 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
             continue
         log.info("camera %s: detecting 2D poses in %s: %s", camera, video.name, why)
         poses, document, info = _detect_camera(camera, video, probed[camera], detector, options, kind, progress)
+        if not len(poses.keypoints):
+            empty.append((camera, video, info.frames))
+            continue
         forget(out)
         atomic_write_json(out, document)
         write_record(out, RIG_DETECT_STAGE, inputs, settings, hashed)
         done.append(CameraPoses(camera, out, info, len(poses.keypoints), why))
+    if empty:
+        camera, video, frames = empty[0]
+        others = f" (and cameras {', '.join(c for c, _, _ in empty[1:])})" if len(empty) > 1 else ""
+        raise InputError(video, None, f"camera {camera}{others}: no person detected in any of its {frames} frames, "
+                                      f"no pose file written for it (another --model or lower thresholds of "
+                                      f"[detect]; or move the video out of {VIDEOS_DIR}/ to go on without it)")
     return done

@@ -162,7 +162,7 @@ def _session(model: str | Path, device: str):
         raise InputError(model, None, f"cannot load the ONNX model: {str(e).splitlines()[0]}") from None
 
 
-class _Model:
+class OnnxModel:
     """An ONNX Runtime session with its input name, whether its batch axis is dynamic, and
     its input size (w, h)."""
 
@@ -211,7 +211,7 @@ class Rtmo:
     """RTMO: ``frames`` -> per frame ``(keypoints (K, 17, 3), score (K,))`` in frame pixels."""
 
     def __init__(self, model: str | Path, device: str = "cpu", size=(640, 640), options: RtmOptions = RtmOptions()):
-        self.model = _Model(model, device, size, outputs=2)
+        self.model = OnnxModel(model, device, size, outputs=2)
         self.options = options
 
     def __call__(self, frames: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -234,8 +234,8 @@ class RtmPose:
     def __init__(self, person_model: str | Path, pose_model: str | Path, device: str = "cpu",
                  person_size=(640, 640), pose_size=(192, 256), mean=(123.675, 116.28, 103.53),
                  std=(58.395, 57.12, 57.375), options: RtmOptions = RtmOptions()):
-        self.person = _Model(person_model, device, person_size, outputs=1)
-        self.pose = _Model(pose_model, device, pose_size, outputs=2)
+        self.person = OnnxModel(person_model, device, person_size, outputs=1)
+        self.pose = OnnxModel(pose_model, device, pose_size, outputs=2)
         self.mean, self.std, self.options = mean, std, options
 
     def boxes(self, frames: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -207,7 +207,7 @@ def check_run(video: str | Path, scene: str | Path, detections=None, checkpoint=
 
         raise output_error(scene, e) from None
     output_dir(scene, output)
-    if kind in ("rtmo", "rtmpose"):
+    if kind in ("rtmo", "rtmpose", "yolo-pose"):
         fetch_missing_models(replace(detect_options, detector=kind))
 
 
@@ -223,7 +223,7 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
     Args:
         video: the video file; scene: the scene directory to fill.
         detections / checkpoint: imported 2D poses, or the mvm network's checkpoint; with
-            neither, ``detect_options.detector`` (``rtmo``, ``rtmpose``) detects them.
+            neither, ``detect_options.detector`` (``rtmo``, ``rtmpose``, ``yolo-pose``) detects them.
         cameras: an existing COLMAP model directory or a RealEstate10K / MannequinChallenge
             camera file to use instead of SfM.
         force: stages to redo (names from :data:`STAGES`), ``True`` / ``"all"`` for every stage;
