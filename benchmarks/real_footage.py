@@ -87,6 +87,10 @@ def track_figures(out: Path) -> dict:
     recap = json.loads((out / "recap.json").read_text())
     T = len(rec.frames)
     tracks, counts = np.unique(rec.track, return_counts=True)
+    if not len(tracks):
+        return {"instants": T, "persons_per_instant": {0: T}, "tracks": {}, "main_track_instants": 0,
+                "limb_std_mm": np.nan, "limb_std_max_mm": np.nan, "jitter_mm_per_frame2": np.nan,
+                "reprojection_error_px": np.nan}
     main = tracks[np.argmax(counts)]
     X = np.full((T, 17, 3), np.nan)
     rows = np.flatnonzero(rec.track == main)
