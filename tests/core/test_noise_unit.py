@@ -53,3 +53,32 @@ def test_a_noisy_detector_is_found_in_every_instant_where_the_fixed_unit_loses_i
     assert len(measured) == 40 and len(np.unique(measured.instant)) == 40
     error = np.nanmean(np.linalg.norm(measured.X - truth[measured.instant, 0], axis=-1))
     assert error < 0.1, error                      # the noise: 5 % of a 1.7 m person, four views, no refinement
+
+
+def test_a_rig_refinement_weighs_bones_and_prior_by_the_capture_noise():
+    """The rig's refinement measures residuals in the capture's noise units, as a scene's does:
+    with a noisy detector the track's bones and the prior weigh more against the keypoints, and the
+    bones come out steadier without moving the joints away from the truth."""
+    from mvm.core.prior import load_prior
+    from mvm.metrics.tracks import limb_length_std
+    from mvm.rig.reconstruct_rig import instants_config
+    from mvm.rig.skeleton import capture_noise_factor, refine_tracks
+
+    config = instants_config(Config())
+    cameras, poses, truth = _capture(0.005, instants=40)
+    precise = reconstruct_instants(cameras, poses, config, workers=1)
+    assert capture_noise_factor(precise, poses, config) == 0.5               # below the settings' noise: the bound
+    cameras, poses, truth = _capture(0.05, instants=40)
+    persons = reconstruct_instants(cameras, poses, config, workers=1)
+    noise = capture_noise_factor(persons, poses, config)
+    assert 1.3 < noise <= 2.0
+    track = np.zeros(len(persons), int)
+    prior = load_prior(Config())
+    plain = refine_tracks(persons, track, poses, cameras, Config(), prior, noise=1.0)
+    units = refine_tracks(persons, track, poses, cameras, Config(), prior, noise=noise)
+    std_plain, std_units = np.nanmean(limb_length_std(plain.X)), np.nanmean(limb_length_std(units.X))
+    assert std_units < 0.8 * std_plain, (std_units, std_plain)
+    true = truth[persons.instant, 0]
+    err_plain = np.nanmean(np.linalg.norm(plain.X - true, axis=-1))
+    err_units = np.nanmean(np.linalg.norm(units.X - true, axis=-1))
+    assert err_units < err_plain + 0.002, (err_units, err_plain)

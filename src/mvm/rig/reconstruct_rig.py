@@ -25,7 +25,7 @@ from mvm.rig.options import DEFAULT_FRAME_RATE_HZ, RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
-from mvm.rig.skeleton import refine_tracks
+from mvm.rig.skeleton import capture_noise_factor, refine_tracks
 from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
 
 log = logging.getLogger(__name__)
@@ -194,10 +194,12 @@ def refine_by_tracks(persons: InstantPersons, track: np.ndarray, detections, cam
                      bone_weight: float, workers: int | None = None) -> InstantPersons:
     """:func:`mvm.rig.skeleton.refine_tracks` of ``persons`` with whole tracks shared out among
     ``workers`` processes (:func:`track_groups`, :func:`mvm.parallel.fork_map`): a track's
-    bone lengths are its own, so the result is the same as in one process."""
+    bone lengths are its own, and the capture's noise (:func:`mvm.rig.skeleton.capture_noise_factor`)
+    is measured before, so the result is the same as in one process."""
     groups = track_groups(track, available_workers(workers) if len(persons) >= 200 else 1)
+    noise = capture_noise_factor(persons, detections, config)                  # once, for every share
     parts = fork_map(lambda index: refine_tracks(persons.take(index), track[index], detections, cameras, config,
-                                                 prior, bone_weight), groups, workers)
+                                                 prior, bone_weight, noise=noise), groups, workers)
     merged = InstantPersons.concatenate(parts, persons.members.shape[1])
     return merged.take(np.argsort(np.concatenate(groups), kind="stable"))
 

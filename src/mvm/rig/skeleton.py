@@ -89,6 +89,36 @@ def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: 
                           errors, person_error)
 
 
+def capture_noise_factor(persons: InstantPersons, detections: Poses2D, config) -> float:
+    """The detector noise of a rig's capture relative to the noise the settings are set for, as
+    :func:`mvm.core.refine_units.noise_factor` gives it for a scene: the threshold
+    ``ransac_threshold_sigmas`` standard deviations of the noise would have (within half to twice
+    ``ransac_threshold``, as :func:`mvm.core.pipeline.block_thresholds`), over
+    ``ransac_threshold``; 1 where the threshold is held or nothing measures the noise.
+
+    The noise is measured once for the whole capture (its persons' triangulation), not per
+    instant: the refinement shares tracks out among processes, and the noise is the detector's.
+    Its standard deviation per axis, in person sizes, is the median inlier reprojection error
+    over :data:`mvm.core.triangulate.RAYLEIGH_MEDIAN`, each error of a joint of ``n`` inlier
+    views scaled by ``sqrt(2n / (2n - 3))`` for the 3 coordinates it fitted; joints of three
+    inliers or more only (two views agree on a point whatever they saw)."""
+    from mvm.core.refine_units import noise_factor
+    from mvm.core.triangulate import RAYLEIGH_MEDIAN
+
+    if not len(persons) or not config.ransac or config.ransac_threshold_sigmas <= 0:
+        return 1.0
+    n = persons.inliers.sum(1)                                                     # (Q, 17)
+    used = persons.inliers & (n >= 3)[:, None, :] & np.isfinite(persons.errors)
+    if not used.any():
+        return 1.0
+    size = detection_sizes(persons, detections, config.keypoint_threshold)         # (Q, V)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scaled = persons.errors / size[..., None] * np.sqrt(2 * n / (2 * n - 3))[:, None, :]
+    sigma = float(np.median(scaled[used])) / RAYLEIGH_MEDIAN
+    base = config.ransac_threshold
+    return float(noise_factor(np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base), config))
+
+
 #: Re-linearizations of the robust loss and the prior in a rig's refinement (:func:`refine_tracks`).
 OUTER_ITERATIONS = 2
 #: Relative change at which a person's inner solve stops in a rig's refinement.
@@ -97,7 +127,7 @@ TOLERANCE = 1e-5
 
 def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
                   config, prior=None, bone_weight: float = 0.32, outer_iterations: int = OUTER_ITERATIONS,
-                  tolerance: float = TOLERANCE) -> InstantPersons:
+                  tolerance: float = TOLERANCE, noise: float = 1.0) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
     ``bone_weight``, squared person sizes per squared relative length error: the reprojection
@@ -112,14 +142,17 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
     re-linearizations of the robust loss and the prior (two: a third costs a quarter more time
     and lowers the objective by 0.5 % on the rig benchmark, but leaves the poses as good:
     Panoptic 5 cameras PCP 0.997 and 16.9 mm either way, mean reprojection error 4.11 px with
-    three and 4.105 with two on the rig benchmark)."""
+    three and 4.105 with two on the rig benchmark). ``noise``: the capture's
+    :func:`capture_noise_factor`; the residuals are in person sizes times it, so that the robust
+    scale grows with the noise and the prior and the bones weigh against the keypoints as the
+    noise's variance, as in a scene's refinement."""
     from mvm.core.refine import refine_poses
 
     if not len(persons):
         return persons
     lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
     xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
-    xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold))
+    xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold) * noise)
     centers = np.broadcast_to(cameras.centers, (len(persons.X), *cameras.centers.shape))
     weights = prior_weights(config, persons.X, centers, used.any(-1))                # the views' spread
     with one_blas_thread(), np.errstate(all="ignore"):   # small matrices
