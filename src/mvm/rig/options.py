@@ -51,7 +51,8 @@ class RigOptions:
     #: Weight of the soft bone-length term in the refinement: each person's bones are pulled
     #: to its track's median lengths. A bone 1 % off costs ``bone_weight / 10⁴`` squared person
     #: sizes, as the refinement's reprojection residuals (3.2e-5 by default, a residual of 0.6 %
-    #: of the person's size); raise it for a more rigid skeleton, 0 turns the term off. [person sizes²]
+    #: of the person's size, in the capture's noise units: a noisier detector's keypoints weigh
+    #: less against it); raise it for a more rigid skeleton, 0 turns the term off. [person sizes²]
     bone_weight: float = setting(0.32, ge=0)
     #: Longest run of missing instants a joint is interpolated over; longer gaps are left to the
     #: pose prior. [instants]
