@@ -82,3 +82,19 @@ def test_a_rig_refinement_weighs_bones_and_prior_by_the_capture_noise():
     err_plain = np.nanmean(np.linalg.norm(plain.X - true, axis=-1))
     err_units = np.nanmean(np.linalg.norm(units.X - true, axis=-1))
     assert err_units < err_plain + 0.002, (err_units, err_plain)
+
+
+def test_a_cluster_no_three_views_agree_on_is_refused_even_where_few_cameras_look():
+    """Five false poses that triangulate to a body which only six cameras see, with no joint that
+    three of them agree on, are refused although they explain most of those six views; a person
+    of the same views with a joint three views agree on is kept."""
+    from mvm.core.association import credible
+
+    cameras = ring_cameras(6, radius=4.5)
+    X = np.zeros((2, 17, 3))
+    X[:, :, 2] = np.linspace(1.7, 0.1, 17)                       # a standing body at the ring's centre
+    X[:, :, 0] = np.linspace(-0.2, 0.2, 17)
+    groups = [np.arange(5), np.arange(5, 10)]
+    keep = credible(groups, X, np.array([2, 3]), cameras.P, cameras.size, np.array([True, True]),
+                    min_group_size=3, min_support=0.3, max_proportion_deviation=10.0)
+    assert keep.tolist() == [False, True]

@@ -328,10 +328,13 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: 
               max_proportion_deviation: float, max_bone_ratio: float = 0.0) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
-    triangulate to no body, unless they explain most of their views, as no false cluster does;
-    nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
-    most inlier views of any of its joints: two views agree on a point whatever they saw). The
-    proportions are those of the body without its stray joints (``max_bone_ratio``,
+    triangulate to no body, unless they explain most of their views, as no false cluster does).
+    A person none of whose joints three of its views agree on is refused whatever share of its
+    views it explains (``seen_most: (Q,)`` the most inlier views of any of its joints: two views
+    agree on a point whatever they saw): a cluster of false poses placed where few cameras look
+    explains half of the few views it projects into (a heavy detector on the 18-camera dome:
+    4-5 false poses, 6-9 views), while a person of three poses or more has a joint three of them
+    see. The proportions are those of the body without its stray joints (``max_bone_ratio``,
     :func:`mvm.core.body_parts.body_deviation`)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
@@ -340,7 +343,7 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: 
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
     keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
-    keep &= ~((seen_most < min(3, min_group_size)) & (2 * count < visible))
+    keep &= ~(seen_most < min(3, min_group_size))
     return keep
 
 
