@@ -4,8 +4,8 @@ board's corners: an object of ``J`` points seen at once), reprojection errors in
 pixels, ``scipy.optimize.least_squares`` with an explicit Jacobian sparsity, ``x_scale='jac'``
 and a soft-L1 loss (as aniposelib's ``bundle_adjust``). Each observation may carry a weight
 (a detector's confidence). The cameras' uncertainty comes from the Jacobian at the solution:
-the reduced camera system (the points eliminated by their Schur complement), pseudo-inverted
-(the scale is free), scaled by the residuals' variance."""
+the reduced camera system (the points eliminated by their Schur complement), inverted with
+the scale held (it is free: every translation may grow), scaled by the residuals' variance."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -141,7 +141,11 @@ def centre_sd(jac, variance: float, cams: np.ndarray, n_points: int, focal: bool
     inv = np.linalg.pinv(np.asarray(BB[rows.ravel(), cols.ravel()]).reshape(n_points, 3, 3))
     C = H_cp.reshape(len(H_cc), n_points, 3)
     schur = H_cc - np.einsum("cpk,pkm,dpm->cd", C, inv, C)
-    cov = variance * np.linalg.pinv(schur, hermitian=True)[:width, :width]
+    scale = np.zeros(len(schur))                                                  # the free scale: every t grows
+    scale[:width] = np.column_stack([np.zeros((n_cams, 3)), cams.reshape(n_cams, 6)[:, 3:]]).ravel()
+    basis = np.linalg.svd(np.eye(len(schur)) - np.outer(scale, scale) / max(scale @ scale, 1e-300))[0][:, :-1]
+    reduced = basis.T @ schur @ basis
+    cov = variance * (basis @ np.linalg.pinv(reduced, hermitian=True) @ basis.T)[:width, :width]
     sd = np.zeros(n_cams)
     for v in range(n_cams):
         rvec, tv = cams[6 * v:6 * v + 3], cams[6 * v + 3:6 * v + 6]
