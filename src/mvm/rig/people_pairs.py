@@ -3,9 +3,11 @@
 
 At every instant, every pose of camera ``a`` paired with every pose of camera ``b`` is a
 candidate person correspondence: a correct pairing gives up to 17 point correspondences, a
-wrong one outliers. A pairing that repeats an earlier one (both poses within
-``REPEAT_HEIGHT`` of their height: a person standing still) is counted once, so a static
-bystander seen in every frame weighs as one instant, not a hundred. The essential matrix is
+wrong one outliers. A pairing that repeats an earlier one (one of its poses within
+``REPEAT_HEIGHT`` of its height of that pairing's: a person standing still, seen by the one
+camera or both) is counted once, so a static bystander seen in every frame weighs as one
+instant, not a hundred, and a still pose paired with a moving one (which cannot be the same
+person) is not counted at all. The essential matrix is
 estimated robustly on the undistorted, normalized joints: hypotheses from two candidate
 pairings at once (``cv2.findEssentialMat`` with a short RANSAC on their joints — a good draw
 needs only two correct pairings, not five correct points), each scored by the joints it
@@ -28,9 +30,9 @@ INLIER_PX = 6.0
 #: ... and within this fraction of its pairing's height (the geometric mean of its two poses'
 #: heights in pixels). [1]
 INLIER_HEIGHT = 0.03
-#: A candidate pairing repeats an earlier one when both its poses lie within this fraction of
-#: their height (median over their joints) of that pairing's. [1]
-REPEAT_HEIGHT = 0.01
+#: A candidate pairing repeats an earlier one when one of its poses lies within this fraction of
+#: its height (median over the joints) of that pairing's pose in the same camera. [1]
+REPEAT_HEIGHT = 0.02
 #: A candidate pairing is accepted when at least this fraction of its common joints agree.
 PAIRING_INLIER_FRACTION = 0.6
 #: Fewest common joints of a usable candidate pairing.
@@ -211,7 +213,7 @@ def distinct_pairings(ka: np.ndarray, kb: np.ndarray, height: np.ndarray, ok: np
             keep[now] = True
             continue
         both = ok[now, None] & ok[None, kept]                                       # (n, K, 17)
-        d = np.maximum(np.linalg.norm(ka[now, None] - ka[None, kept], axis=-1),
+        d = np.minimum(np.linalg.norm(ka[now, None] - ka[None, kept], axis=-1),
                        np.linalg.norm(kb[now, None] - kb[None, kept], axis=-1))
         d = np.sort(np.where(both, d, np.inf), axis=-1)
         count = both.sum(-1)
