@@ -7,7 +7,8 @@ wrong one outliers. A pairing that repeats an earlier one (one of its poses with
 ``REPEAT_HEIGHT`` of its height of that pairing's: a person standing still, seen by the one
 camera or both) is counted once, so a static bystander seen in every frame weighs as one
 instant, not a hundred, and a still pose paired with a moving one (which cannot be the same
-person) is not counted at all. The essential matrix is
+person) is not counted at all; once the pair's relative pose is found, every pairing it explains,
+repeats included, links the people for the bundle adjustment. The essential matrix is
 estimated robustly on the undistorted, normalized joints: hypotheses from two candidate
 pairings at once (``cv2.findEssentialMat`` with a short RANSAC on their joints — a good draw
 needs only two correct pairings, not five correct points), each scored by the joints it
@@ -250,14 +251,14 @@ def pair_poses(keypoints: np.ndarray, x: np.ndarray, present: np.ndarray, camera
             h = np.sqrt(height[ia] * height[jb])
             distinct = distinct_pairings(keypoints[ia, :, :2], keypoints[jb, :, :2], h, ok, instant[ia])
             counts[a, b] = PairCount(len(ia), int(distinct.sum()))
-            ia, jb, ok, h = ia[distinct], jb[distinct], ok[distinct], h[distinct]
             scale = np.sqrt(focal[a] * focal[b])
             threshold = np.maximum(INLIER_PX, INLIER_HEIGHT * h) / scale
-            found = relative_pose(x[ia], x[jb], ok, threshold, rng)
+            found = relative_pose(x[ia[distinct]], x[jb[distinct]], ok[distinct], threshold[distinct], rng)
             if found is None:
                 continue
-            R, t, accepted, inlier = found
+            R, t, _, _ = found                               # the repeats, once it is found, link people too
             E = _essential(R, t)
+            _, accepted, inlier = _score(E, x[ia], x[jb], ok, threshold)
             error = float(np.median(sampson(E, x[ia][inlier], x[jb][inlier]))) * scale
             out[a, b] = PairPose(a, b, R, t, ia[accepted], jb[accepted], error)
     return out, counts
