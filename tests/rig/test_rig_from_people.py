@@ -202,3 +202,54 @@ def test_output_on_an_input_refused_before_work(unsynced, tmp_path, monkeypatch)
                                 (root / "pose", [], "is a directory")):
         _one_line_exit_2(_invoke(rig, ["calibrate", root, "--from-people", "-o", out, *extra]), str(out), problem)
     assert calib.read_bytes() == before and link.is_symlink()
+
+
+def _static_bystander_rig(seed: int = 2):
+    """4 cameras without lens distortion; cameras 0-2 see a walking person and a person standing
+    still, camera 3 the one standing still only: ``(sim, keypoints, camera, frame)``, 1 px noise."""
+    import dataclasses
+
+    sim = simulate_rig(RigSimConfig(cameras=4, people=2, frames=40, distortion=0.0, speed=0.8, seed=seed))
+    rng = np.random.default_rng(seed)
+    walking = sim.poses3d[:, 0]                                                  # (S, 17, 3)
+    still = np.broadcast_to(sim.poses3d[0, 1], walking.shape)
+    P = sim.calibration.cameras.P
+    rows = []
+    for v in range(4):
+        for who, X in (("walking", walking), ("still", still)):
+            if who == "walking" and v == 3:
+                continue
+            h = np.einsum("ij,skj->ski", P[v], np.concatenate([X, np.ones(X.shape[:-1] + (1,))], -1))
+            xy = h[..., :2] / h[..., 2:] + rng.normal(0, 1.0, h[..., :2].shape)
+            rows.append((np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1), np.full(len(X), v),
+                         np.arange(len(X)), np.full(len(X), 0 if who == "walking" else 1)))
+    kp, camera, frame, person = (np.concatenate(r) for r in zip(*rows))
+    sim = dataclasses.replace(sim, keypoints=kp, camera=camera, frame=frame, person=person, score=np.ones(len(kp)),
+                              offsets=np.zeros(4, int))
+    return sim
+
+
+def test_camera_sharing_only_a_person_standing_still_refused(tmp_path):
+    sim = _static_bystander_rig()
+    with pytest.raises(calibrate.CalibrationError) as e:
+        calibrate_from_people(sim.keypoints, sim.camera, sim.frame, sim.calibration.cameras.K)
+    assert e.value.camera == 3 and "standing still" in e.value.problem
+    root = tmp_path / "still"
+    write_rig_simulation(root, sim, intrinsics_only=True)
+    out = tmp_path / "c.toml"
+    _one_line_exit_2(_invoke(rig, ["calibrate", root, "--from-people", "-o", out]), "cam_04", "standing still")
+    assert not out.exists()
+
+
+def test_people_standing_still_counted_once():
+    """A pairing that repeats an earlier instant's is not distinct: the person standing still counts
+    once, the walking one whenever they moved 2 % of their height from every pose kept."""
+    from mvm.rig.people_pairs import distinct_pairings
+
+    sim = _static_bystander_rig()
+    a, b = (sim.camera == 0), (sim.camera == 1)
+    ka, kb = sim.keypoints[a][:, :, :2], sim.keypoints[b][:, :, :2]               # same order: who, then instant
+    who, instant = sim.person[a], sim.frame[a]
+    keep = distinct_pairings(ka, kb, np.full(len(ka), 300.0), np.ones(ka.shape[:2], bool), instant)
+    assert keep[who == 1].sum() == 1                                              # the first instant only
+    assert keep[who == 0].sum() >= 10                                            # one every few frames

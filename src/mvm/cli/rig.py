@@ -220,10 +220,13 @@ def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
     frames = "synchronized by sync.toml" if found.sync else "frame numbers as they are"
     focal = ("focal px (change)",) if refine_focal else ()
     print_table(f"{rig_dir}: calibrated from people ({frames})",
-                ("camera", "position x, y, z (m)", *focal, "residual px", "joints"),
+                ("camera", "position x, y, z (m)", "± mm", *focal, "residual px", "joints"),
                 [(n, ", ".join(f"{v:.3f}" for v in cams.centers[v]),
+                  f"{1000 * r.position_sd_m[v]:.0f}" if v else "(reference)",
                   *((f"{cams.K[v, 0, 0]:.1f} ({100 * (r.focal_scale[v] - 1):+.1f} %)",) if refine_focal else ()),
                   fmt(r.residual_px[v]), str(r.observations[v])) for v, n in enumerate(cams.names)])
+    say("± mm: each camera position's standard deviation relative to the reference camera, from the bundle "
+        "adjustment")
     say(f"wrote {found.path}")
 
 

@@ -45,12 +45,15 @@ class RigCalibration:
         distortions: ``V`` arrays of OpenCV distortion coefficients (may be empty).
         fisheye: ``(V,)`` bool, OpenCV fisheye model.
         metadata: the ``[metadata]`` table (empty when absent).
+        camera_notes: ``V`` tables of further keys written into each camera's table (what its
+            calibration knows of it, e.g. ``position_sd_m``; other tools ignore them), or empty.
     """
 
     cameras: Cameras
     distortions: tuple[np.ndarray, ...]
     fisheye: np.ndarray
     metadata: dict = field(default_factory=dict)
+    camera_notes: tuple[dict, ...] = ()
 
     def index(self, name: str) -> int:
         return self.cameras.names.index(name)
@@ -170,8 +173,9 @@ def calib_toml_text(calibration: RigCalibration) -> str:
                   f"matrix = {_fmt([list(row) for row in cams.K[v]])}",
                   f"distortions = {_fmt(calibration.distortions[v])}",
                   *pose,
-                  f"fisheye = {_fmt(bool(calibration.fisheye[v]))}",
-                  ""]
+                  f"fisheye = {_fmt(bool(calibration.fisheye[v]))}"]
+        notes = calibration.camera_notes[v] if calibration.camera_notes else {}
+        lines += [f"{key} = {_fmt(value)}" for key, value in notes.items()] + [""]
     metadata = calibration.metadata or {"adjusted": False, "error": 0.0}
     lines.append("[metadata]")
     lines += [f"{key} = {_fmt(value)}" for key, value in metadata.items()]

@@ -28,7 +28,8 @@ import numpy as np
 from mvm.metrics.poses import similarity_transform
 from mvm.rig.boards import MIN_CORNERS, spread_views, view_features
 from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
-from mvm.rig.calibrate import CalibrationError, PairPose, spanning_tree
+from mvm.rig.calibrate import CalibrationError, spanning_tree
+from mvm.rig.people_pairs import PairPose
 
 #: The cells an image is cut into to measure how much of it the board's views cover. [cols, rows]
 COVERAGE_GRID = (8, 6)
@@ -306,7 +307,8 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     x = np.nan_to_num(x)
     focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
     for _ in range(2):                                    # once more without the views it does not explain
-        R, t, X, _, converged = bundle_adjust(x, present, camera, instant, focal, R, t, X)
+        adjusted = bundle_adjust(x, present, camera, instant, focal, R, t, X)
+        R, t, X, converged = adjusted.R, adjusted.t, adjusted.X, adjusted.converged
         error = reprojection_px(x, present, camera, instant, focal, R, t, X)
         counted = np.isfinite(error)
         view_rms = np.sqrt((np.where(counted, error, 0) ** 2).sum(1) / np.maximum(counted.sum(1), 1))    # (N,)

@@ -2,12 +2,17 @@
 reference (rotation vector, translation) and every point (the people's joints, or a calibration
 board's corners: an object of ``J`` points seen at once), reprojection errors in
 pixels, ``scipy.optimize.least_squares`` with an explicit Jacobian sparsity, ``x_scale='jac'``
-and a soft-L1 loss (as aniposelib's ``bundle_adjust``)."""
+and a soft-L1 loss (as aniposelib's ``bundle_adjust``). Each observation may carry a weight
+(a detector's confidence). The cameras' uncertainty comes from the Jacobian at the solution:
+the reduced camera system (the points eliminated by their Schur complement), inverted with
+the scale held (it is free: every translation may grow), scaled by the residuals' variance."""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
+from scipy.sparse import coo_matrix, csc_matrix, hstack
 from scipy.spatial.transform import Rotation
 
 #: Scale of the soft-L1 loss on the reprojection errors. [px]
@@ -39,9 +44,24 @@ def jacobian_sparsity(cam: np.ndarray, point: np.ndarray, n_cameras: int, n_poin
                       shape=(2 * n, width + (n_cameras if focal else 0)))
 
 
+@dataclass
+class Adjusted:
+    """A bundle adjustment's result: ``R (V, 3, 3)``, ``t (V, 3)``, the points ``X (Q, J, 3)``,
+    ``focal (V,)`` px, ``converged`` (the solver met its tolerance), ``centre_sd (V,)`` each camera
+    centre's standard deviation (the root of its covariance's trace; in the units of ``t``, 0
+    for the fixed reference camera)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    X: np.ndarray
+    focal: np.ndarray
+    converged: bool
+    centre_sd: np.ndarray
+
+
 def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,
-                  R: np.ndarray, t: np.ndarray, X: np.ndarray, refine_focal: bool = False
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+                  R: np.ndarray, t: np.ndarray, X: np.ndarray, refine_focal: bool = False,
+                  weight: np.ndarray | None = None) -> Adjusted:
     """Sparse bundle adjustment (module docstring, step 3). Camera 0 stays fixed.
 
     Args:
@@ -51,11 +71,13 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
             R, t: ``(V, 3, 3)``, ``(V, 3)`` initial cameras; X: ``(Q, J, 3)`` the objects' points.
         refine_focal: adjust every camera's focal length too (its principal point and aspect
             ratio stay).
+        weight: ``(N, J)`` each observation's weight (default 1; 0 drops it).
     Returns:
-        ``(R, t, X, focal (V,) px, converged)``.
+        :class:`Adjusted`.
     """
     V, J = len(R), x.shape[1]
-    use = present & (person >= 0)[:, None] & np.isfinite(X[np.maximum(person, 0)]).all(-1)
+    weight = np.ones(present.shape) if weight is None else weight
+    use = present & (person >= 0)[:, None] & np.isfinite(X[np.maximum(person, 0)]).all(-1) & (weight > 0)
     pose, joint = np.nonzero(use)
     cam, point = camera[pose], person[pose] * J + joint
     points_used, point_index = np.unique(point, return_inverse=True)
@@ -65,7 +87,7 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
     rvec0 = Rotation.from_matrix(R[1:]).as_rotvec()
     params0 = np.concatenate([np.column_stack([rvec0, t[1:]]).ravel(), X0.ravel()] + ([np.ones(V)] if refine_focal
                                                                                         else []))
-    f = focal[cam]
+    f = focal[cam] * np.sqrt(weight[pose, joint])
     end = 6 * (V - 1) + 3 * P
 
     def residuals(params):
@@ -87,7 +109,63 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
     Xout = np.full((len(X) * J, 3), np.nan)
     Xout[points_used] = result.x[6 * (V - 1):end].reshape(P, 3)
     focal_out = focal * result.x[end:] if refine_focal else focal.copy()
-    return R, t, Xout.reshape(X.shape), focal_out, bool(result.status > 0)
+    sd = centre_sd(result.jac, 2 * result.cost / max(result.fun.size - result.x.size, 1), result.x[:6 * (V - 1)], P,
+                   refine_focal)
+    return Adjusted(R, t, Xout.reshape(X.shape), focal_out, bool(result.status > 0), np.concatenate([[0.0], sd]))
+
+
+def centre_sd(jac, variance: float, cams: np.ndarray, n_points: int, focal: bool = False) -> np.ndarray:
+    """The standard deviation of every adjusted camera's centre ``-R^T t`` (module docstring).
+
+    Args:
+        jac: ``(2n, 6 (V - 1) + 3 P [+ V])`` sparse Jacobian at the solution (its columns:
+            :func:`jacobian_sparsity`'s); variance: of one residual; cams: ``(6 (V - 1),)`` the
+            cameras' parameters (rotation vector, translation); n_points: ``P``.
+    Returns:
+        ``(V - 1,)`` the root of each centre covariance's trace.
+    """
+    n_cams = len(cams) // 6
+    width = 6 * n_cams
+    J = csc_matrix(jac)
+    A = J[:, :width]
+    B = J[:, width:width + 3 * n_points]
+    extra = J[:, width + 3 * n_points:]
+    if focal:
+        A = hstack([A, extra]).tocsc()
+    H_cc = (A.T @ A).toarray()
+    H_cp = (A.T @ B).toarray()                                                    # (c, 3P)
+    BB = (B.T @ B).tocsr()
+    index = 3 * np.arange(n_points)[:, None, None]
+    rows = np.broadcast_to(index + np.arange(3)[:, None], (n_points, 3, 3))
+    cols = np.broadcast_to(index + np.arange(3)[None, :], (n_points, 3, 3))
+    inv = np.linalg.pinv(np.asarray(BB[rows.ravel(), cols.ravel()]).reshape(n_points, 3, 3))
+    C = H_cp.reshape(len(H_cc), n_points, 3)
+    schur = H_cc - np.einsum("cpk,pkm,dpm->cd", C, inv, C)
+    scale = np.zeros(len(schur))                                                  # the free scale: every t grows
+    scale[:width] = np.column_stack([np.zeros((n_cams, 3)), cams.reshape(n_cams, 6)[:, 3:]]).ravel()
+    basis = np.linalg.svd(np.eye(len(schur)) - np.outer(scale, scale) / max(scale @ scale, 1e-300))[0][:, :-1]
+    reduced = basis.T @ schur @ basis
+    cov = variance * (basis @ np.linalg.pinv(reduced, hermitian=True) @ basis.T)[:width, :width]
+    sd = np.zeros(n_cams)
+    for v in range(n_cams):
+        rvec, tv = cams[6 * v:6 * v + 3], cams[6 * v + 3:6 * v + 6]
+        G = _centre_jacobian(rvec, tv)                                            # (3, 6)
+        sd[v] = np.sqrt(max(np.trace(G @ cov[6 * v:6 * v + 6, 6 * v:6 * v + 6] @ G.T), 0.0))
+    return sd
+
+
+def _centre_jacobian(rvec: np.ndarray, t: np.ndarray, step: float = 1e-6) -> np.ndarray:
+    """``(3, 6)`` derivative of ``-R(rvec)^T t`` by ``(rvec, t)`` (central differences)."""
+    def centre(p):
+        return -_rotation_matrices(p[:3]).T @ p[3:]
+
+    p0 = np.concatenate([rvec, t])
+    G = np.zeros((3, 6))
+    for k in range(6):
+        d = np.zeros(6)
+        d[k] = step
+        G[:, k] = (centre(p0 + d) - centre(p0 - d)) / (2 * step)
+    return G
 
 
 def reprojection_px(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,

@@ -28,30 +28,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from mvm.core.geometry import triangulate_dlt
 from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, NUM_JOINTS, bone_lengths
 from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
+from mvm.rig.people_pairs import MIN_PAIRINGS, PairCount, PairPose, normalized_points, pair_poses
 
-#: A joint agrees with an essential matrix within this Sampson error. [px]
-INLIER_PX = 6.0
-#: A candidate pairing is accepted when at least this fraction of its common joints agree.
-PAIRING_INLIER_FRACTION = 0.6
-#: Fewest common joints of a usable candidate pairing.
-MIN_PAIR_JOINTS = 8
-#: Hypotheses drawn per camera pair, at most.
-HYPOTHESES = 300
-#: Hypotheses stop once a draw of two accepted pairings had this probability, after at least
-#: ``MIN_HYPOTHESES``.
-CONFIDENCE = 0.9999
-MIN_HYPOTHESES = 30
-#: RANSAC iterations of one hypothesis (on the joints of two pairings: few outliers when both
-#: pairings are right, and a wrong draw is not worth more).
-HYPOTHESIS_ITERATIONS = 32
-#: Fewest accepted pairings for a camera pair to be used.
-MIN_PAIRINGS = 5
 #: Instants used at most (evenly spread) for the pairs and the bundle adjustment.
 MAX_INSTANTS = 150
 #: The calibration has not converged when a camera's median reprojection error exceeds this. [px]
@@ -61,6 +44,14 @@ MAX_RESIDUAL_PX = 15.0
 FLOOR_MIN_SPREAD_M = 0.15
 #: Straight legs: hip-to-ankle distance at least this fraction of thigh + shank. [1]
 STRAIGHT_LEG = 0.9
+
+#: The joints the calibration uses: the body's (shoulders to ankles). The face's are left out:
+#: they are points on the skin that a camera behind the person does not see and a detector
+#: guesses, wrong by tens of pixels on real footage. [joint indices]
+CALIBRATION_JOINTS = np.arange(INDEX["left_shoulder"], NUM_JOINTS)
+#: A camera is placed only when the median angle between its rays and the other cameras' rays to
+#: the same joints is at least this (smaller: the baseline is too short to measure depth). [deg]
+MIN_PARALLAX_DEG = 2.0
 
 _ANKLES = [INDEX["left_ankle"], INDEX["right_ankle"]]
 _SHOULDERS = [INDEX["left_shoulder"], INDEX["right_shoulder"]]
@@ -78,24 +69,6 @@ class CalibrationError(ValueError):
 
 
 @dataclass
-class PairPose:
-    """The relative pose of cameras ``a`` and ``b``: ``x_b = R x_a + t`` (``|t| = 1``).
-
-    Attributes:
-        pose_a, pose_b: ``(M,)`` the accepted pairings (indices into the detections).
-        error_px: median Sampson error of their joints.
-    """
-
-    a: int
-    b: int
-    R: np.ndarray
-    t: np.ndarray
-    pose_a: np.ndarray
-    pose_b: np.ndarray
-    error_px: float
-
-
-@dataclass
 class PeopleCalibration:
     """Extrinsics found from the people.
 
@@ -109,6 +82,8 @@ class PeopleCalibration:
         scale_m: metres per unit of the adjustment; converged: the solver met its tolerance (not
             its evaluation limit).
         focal_scale: ``(V,)`` each camera's focal length over the one given (1 unless refined).
+        position_sd_m: ``(V,)`` each camera centre's standard deviation relative to the
+            reference camera (metres; 0 for it), from the bundle adjustment's Jacobian.
     """
 
     R: np.ndarray
@@ -121,147 +96,7 @@ class PeopleCalibration:
     scale_m: float
     converged: bool
     focal_scale: np.ndarray
-
-
-def normalized_points(keypoints: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixels -> normalized image coordinates ``K^-1 x``. ``keypoints: (N, 17, >=2)``, ``K: (N, 3, 3)``
-    or ``(3, 3)`` -> ``(N, 17, 2)``."""
-    K = np.broadcast_to(K, (len(keypoints), 3, 3))
-    fx, fy, s = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 1, None]
-    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
-    y = (keypoints[..., 1] - cy) / fy
-    x = (keypoints[..., 0] - cx - s * y) / fx
-    return np.stack([x, y], -1)
-
-
-def aligned_pairs(frame_a: np.ndarray, frame_b: np.ndarray, lag: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair of poses ``(i, j)`` with ``frame_a[i] == frame_b[j] + lag``. ``frame_a: (A,)``,
-    ``frame_b: (B,)`` -> ``(ia (M,), jb (M,))``."""
-    order = np.argsort(frame_a, kind="stable")
-    sorted_a = frame_a[order]
-    target = frame_b + lag
-    lo, hi = np.searchsorted(sorted_a, target), np.searchsorted(sorted_a, target, "right")
-    counts = hi - lo
-    jb = np.repeat(np.arange(len(frame_b)), counts)
-    within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    return order[np.repeat(lo, counts) + within], jb
-
-
-def sampson(E: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
-    """Sampson error of ``x_b^T E x_a = 0`` for ``xa, xb: (..., 2)`` (in their units) -> ``(...)``."""
-    ha = np.concatenate([xa, np.ones(xa.shape[:-1] + (1,))], -1)
-    hb = np.concatenate([xb, np.ones(xb.shape[:-1] + (1,))], -1)
-    Ea = ha @ E.T
-    Eb = hb @ E
-    num = np.einsum("...i,...i->...", hb, Ea)
-    den = Ea[..., 0] ** 2 + Ea[..., 1] ** 2 + Eb[..., 0] ** 2 + Eb[..., 1] ** 2
-    return np.abs(num) / np.sqrt(np.maximum(den, 1e-18))
-
-
-def _score(E: np.ndarray, xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, threshold: float
-           ) -> tuple[int, np.ndarray, np.ndarray]:
-    """Joints (in accepted pairings) explained by ``E``; ``(count, accepted (M,), joint inliers (M, 17))``."""
-    inlier = (sampson(E, xa, xb) < threshold) & ok
-    accepted = inlier.sum(1) >= PAIRING_INLIER_FRACTION * np.maximum(ok.sum(1), 1)
-    return int(inlier[accepted].sum()), accepted, inlier & accepted[:, None]
-
-
-def _split(E: np.ndarray | None) -> list[np.ndarray]:
-    """The 3x3 solutions stacked by ``cv2.findEssentialMat``."""
-    if E is None or E.size < 9:
-        return []
-    return [E[3 * k:3 * k + 3] for k in range(E.shape[0] // 3)]
-
-
-def essential_from_pairings(xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, threshold: float,
-                            rng: np.random.Generator, hypotheses: int = HYPOTHESES
-                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """Robust essential matrix of candidate pairings (module docstring, step 1).
-
-    Hypotheses: ``cv2.findEssentialMat`` (five points, a short RANSAC) on the joints of two
-    candidate pairings, each scored by the joints it explains in accepted pairings; drawing
-    stops once a draw of two accepted pairings had a ``CONFIDENCE`` chance. The best is
-    refitted by ``cv2.findEssentialMat`` (RANSAC) on the joints it explains.
-
-    Args:
-        xa, xb: ``(M, 17, 2)`` normalized joints of the ``M`` candidate pairings; ok: ``(M, 17)``
-            present in both.
-        threshold: inlier Sampson error in normalized units.
-    Returns:
-        ``(E (3, 3), accepted (M,), joint inliers (M, 17))`` or None when no hypothesis explains
-        ``MIN_PAIRINGS`` pairings.
-    """
-    usable = np.flatnonzero(ok.sum(1) >= MIN_PAIR_JOINTS)
-    if len(usable) < MIN_PAIRINGS:
-        return None
-    best = (0, None, None, None)
-    for n, (i, j) in enumerate(rng.choice(usable, (hypotheses, 2))):
-        if best[2] is not None:
-            good = (best[2][usable].sum() / len(usable)) ** 2
-            if good > 0 and n >= MIN_HYPOTHESES and n >= np.log(1 - CONFIDENCE) / np.log1p(-min(good, 0.999)):
-                break
-        if i == j:
-            continue
-        pa = np.concatenate([xa[i][ok[i]], xa[j][ok[j]]])
-        pb = np.concatenate([xb[i][ok[i]], xb[j][ok[j]]])
-        E, _ = cv2.findEssentialMat(pa, pb, np.eye(3), cv2.RANSAC, 0.999, threshold, HYPOTHESIS_ITERATIONS)
-        for candidate in _split(E):
-            count, accepted, inlier = _score(candidate, xa, xb, ok, threshold)
-            if count > best[0]:
-                best = (count, candidate, accepted, inlier)
-    if best[1] is None or best[2].sum() < MIN_PAIRINGS:
-        return None
-    _, E, accepted, inlier = best
-    refit, _ = cv2.findEssentialMat(xa[inlier], xb[inlier], np.eye(3), cv2.RANSAC, 0.999, threshold)
-    for candidate in _split(refit):
-        count, acc, inl = _score(candidate, xa, xb, ok, threshold)
-        if count >= best[0]:
-            best = (count, candidate, acc, inl)
-    return best[1], best[2], best[3]
-
-
-def relative_pose(xa: np.ndarray, xb: np.ndarray, ok: np.ndarray, threshold: float, rng: np.random.Generator
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """``(R, t, accepted (M,), joint inliers (M, 17))`` with ``x_b = R x_a + t`` (``|t| = 1``)
-    from candidate pairings (:func:`essential_from_pairings`), or None."""
-    found = essential_from_pairings(xa, xb, ok, threshold, rng)
-    if found is None:
-        return None
-    E, accepted, inlier = found
-    _, R, t, _ = cv2.recoverPose(E, xa[inlier].reshape(-1, 1, 2), xb[inlier].reshape(-1, 1, 2), np.eye(3))
-    return R, t.ravel(), accepted, inlier
-
-
-def pair_poses(x: np.ndarray, present: np.ndarray, camera: np.ndarray, instant: np.ndarray, focal: np.ndarray,
-               rng: np.random.Generator) -> dict[tuple[int, int], PairPose]:
-    """The relative pose of every camera pair that shares enough people (step 1).
-
-    Args:
-        x: ``(N, 17, 2)`` normalized joints; present: ``(N, 17)``; camera, instant: ``(N,)``.
-        focal: ``(V,)`` focal lengths (px), for the pixel threshold.
-    """
-    out = {}
-    V = len(focal)
-    for a in range(V):
-        for b in range(a + 1, V):
-            rows_a, rows_b = np.flatnonzero(camera == a), np.flatnonzero(camera == b)
-            ia, jb = aligned_pairs(instant[rows_a], instant[rows_b])
-            ia, jb = rows_a[ia], rows_b[jb]
-            ok = present[ia] & present[jb]
-            threshold = INLIER_PX / np.sqrt(focal[a] * focal[b])
-            found = relative_pose(x[ia], x[jb], ok, threshold, rng)
-            if found is None:
-                continue
-            R, t, accepted, inlier = found
-            E = _essential(R, t)
-            error = float(np.median(sampson(E, x[ia][inlier], x[jb][inlier]))) * np.sqrt(focal[a] * focal[b])
-            out[a, b] = PairPose(a, b, R, t, ia[accepted], jb[accepted], error)
-    return out
-
-
-def _essential(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return tx @ R
+    position_sd_m: np.ndarray
 
 
 def person_components(pairs: dict[tuple[int, int], PairPose], n_poses: int, camera: np.ndarray) -> np.ndarray:
@@ -422,9 +257,12 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     rng = np.random.default_rng(seed)
     focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
     x = normalized_points(keypoints, K[camera])
-    present = keypoints[..., 2] > 0
-    pairs = pair_poses(x, present, camera, instant, focal, rng)
-    tree = spanning_tree(pairs, V)
+    present = (keypoints[..., 2] > 0) & np.isin(np.arange(NUM_JOINTS), CALIBRATION_JOINTS)
+    pairs, counts = pair_poses(keypoints, x, present, camera, instant, focal, rng)
+    try:
+        tree = spanning_tree(pairs, V)
+    except CalibrationError as e:
+        raise CalibrationError(e.camera, _unplaced(e.camera, counts)) from None
     person = person_components(pairs, len(x), camera)
     if person.max() < 0:
         raise CalibrationError(None, "no person is seen by two cameras")
@@ -442,7 +280,8 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             _place(parent, child, pair, R, t, X, x, present, camera, person)
         placed[child] = True
     X = triangulate_people(x, present, camera, person, R, t, placed)
-    R, t, X, refined, converged = bundle_adjust(x, present, camera, person, focal, R, t, X, refine_focal)
+    adjusted = bundle_adjust(x, present, camera, person, focal, R, t, X, refine_focal, weight=keypoints[..., 2])
+    R, t, X, refined = adjusted.R, adjusted.t, adjusted.X, adjusted.focal
     error = reprojection_px(x, present, camera, person, focal, R, t, X, refined if refine_focal else None)
     residual = np.array([np.nanmedian(error[camera == c]) if np.isfinite(error[camera == c]).any() else np.inf
                          for c in range(V)])
@@ -451,11 +290,49 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     if residual[worst] > MAX_RESIDUAL_PX:
         raise CalibrationError(worst, f"the calibration does not converge (median reprojection error "
                                       f"{residual[worst]:.1f} px)")
+    parallax = parallax_deg(x, np.isfinite(error), camera, person, R, t, X)
+    short = int(np.nanargmin(np.where(np.isfinite(parallax), parallax, -1.0)))
+    if not parallax[short] >= MIN_PARALLAX_DEG:
+        raise CalibrationError(short, f"its rays meet the other cameras' at {parallax[short]:.1f}° (median), under "
+                                      f"{MIN_PARALLAX_DEG:g}°: too short a baseline to place it")
     s, W, b = world_from_people(X, R[0][0])
     R_world = R @ W.T
     t_world = s * t - np.einsum("vij,j->vi", R_world, b)
     X_world = s * X @ W.T + b
     instant_of = np.full(len(X), -1)
     instant_of[person[person >= 0]] = instant[person >= 0]
-    return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s, converged,
-                             refined / focal)
+    return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s,
+                             adjusted.converged, refined / focal, s * adjusted.centre_sd)
+
+
+def _unplaced(camera: int, counts: dict[tuple[int, int], PairCount]) -> str:
+    """Why ``camera`` could not be placed, from the pairings it has with the other cameras."""
+    mine = [c for pair, c in counts.items() if camera in pair]
+    candidates = sum(c.candidates for c in mine)
+    distinct = max((c.distinct for c in mine), default=0)
+    if not candidates:
+        return "shares no people with the other cameras"
+    if distinct < MIN_PAIRINGS:
+        return (f"shares only people standing still with the other cameras ({distinct} distinct poses "
+                f"among {candidates} pairings, {MIN_PAIRINGS} needed): film someone moving through its view")
+    return (f"the people it shares with the other cameras ({distinct} distinct poses at most with one camera) "
+            "give no consistent relative pose")
+
+
+def parallax_deg(x: np.ndarray, used: np.ndarray, camera: np.ndarray, person: np.ndarray, R: np.ndarray,
+                 t: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Each camera's median angle between its ray to a joint and the farthest other camera's ray
+    to it. ``x: (N, 17, 2)``, ``used: (N, 17)`` the observations adjusted, ``camera, person: (N,)``,
+    ``R, t``: ``(V, 3, 3)``, ``(V, 3)``, ``X: (Q, 17, 3)`` -> ``(V,)`` degrees (NaN: no joint)."""
+    V, Q = len(R), len(X)
+    centres = -np.einsum("vji,vj->vi", R, t)
+    rays = X[:, :, None] - centres[None, None]                                    # (Q, 17, V, 3)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    seen = np.zeros((Q, NUM_JOINTS, V), bool)
+    rows = np.flatnonzero(person >= 0)
+    seen[person[rows], :, camera[rows]] = used[rows]
+    cosine = np.einsum("qjvk,qjwk->qjvw", rays, rays)
+    cosine = np.where(seen[..., None, :] & ~np.eye(V, dtype=bool), cosine, np.inf).min(-1)       # (Q, 17, V)
+    angle = np.degrees(np.arccos(np.clip(np.where(np.isfinite(cosine), cosine, np.nan), -1, 1)))
+    return np.array([np.nanmedian(angle[..., v][seen[..., v]]) if (seen[..., v] & np.isfinite(angle[..., v])).any()
+                     else np.nan for v in range(V)])

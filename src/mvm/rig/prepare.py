@@ -113,7 +113,9 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
     its ``sync.toml`` when there is one), with the intrinsics of ``intrinsics`` or of the rig's
     calibration (rotations and translations, if any, are ignored; ``refine_focal``: the focal
     lengths are adjusted too); a full Calib.toml is written at ``out`` with each camera's
-    residual in ``[metadata]``; ``out`` being or lying inside an input of the rig is refused
+    residual in ``[metadata]`` and its position's standard deviation (``position_sd_m``, metres,
+    relative to the first camera) in its own table; only the intrinsics of the calibration are
+    used, never its rotations and translations; ``out`` being or lying inside an input of the rig is refused
     before any work (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
     source = Path(intrinsics) if intrinsics else find_calibration(rig_dir)
@@ -136,8 +138,9 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
     if refine_focal:
         K[:, :2, :2] *= found.focal_scale[:, None, None]
         metadata["focal_refined"] = [round(float(k), 5) for k in found.focal_scale]
+    notes = tuple({"position_sd_m": round(float(sd), 4)} for sd in found.position_sd_m)
     calibration = RigCalibration(Cameras(K, found.R, found.t, cams.size, cams.names),
-                                 rig.calibration.distortions, rig.calibration.fisheye, metadata)
+                                 rig.calibration.distortions, rig.calibration.fisheye, metadata, notes)
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigPeopleCalibration(calibration, found, rig.offsets, out)

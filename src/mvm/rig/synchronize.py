@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from mvm.rig.calibrate import INLIER_PX, aligned_pairs, essential_from_pairings, normalized_points, sampson
+from mvm.rig.people_pairs import INLIER_PX, aligned_pairs, essential_from_pairings, normalized_points, sampson
 
 #: Two poses of consecutive frames are one person when their median joint distance is below
 #: this fraction of the person's image size. [1]
@@ -223,7 +223,7 @@ def estimated_fundamental(ref_kp: np.ndarray, ref_frame: np.ndarray, kp: np.ndar
                           K_ref: np.ndarray, K: np.ndarray, lag: int, rng: np.random.Generator,
                           threshold_px: float = INLIER_PX) -> tuple[np.ndarray | None, int]:
     """The fundamental matrix of the people's poses aligned at ``lag``
-    (:func:`mvm.rig.calibrate.essential_from_pairings` on at most ``ESTIMATE_FRAMES`` frames):
+    (:func:`mvm.rig.people_pairs.essential_from_pairings` on at most ``ESTIMATE_FRAMES`` frames):
     ``(F or None, joints it explains)``."""
     frames = np.unique(frame)
     if len(frames) > ESTIMATE_FRAMES:
