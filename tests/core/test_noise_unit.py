@@ -1,9 +1,9 @@
 """The unit of the epipolar distance follows the detector's noise measured in the data
-(:func:`mvm.core.affinity.measured_noise_factor`): a noisy detector keeps its true matches, a
+(:func:`mvm.core.affinity.measured_unit_factor`): a noisy detector keeps its true matches, a
 precise one keeps the unit of ``distance_scale``."""
 import numpy as np
 
-from mvm.core.affinity import MAX_NOISE_FACTOR, measured_noise_factor, with_measured_unit
+from mvm.core.affinity import MAX_NOISE_FACTOR, measured_unit_factor, with_measured_unit
 from mvm.core.config import Config
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.sim.detector import DetectorErrors, pose_scores
@@ -30,13 +30,13 @@ def _capture(noise: float, instants: int = 30, people: int = 1, seed: int = 0):
 
 def test_a_precise_detector_keeps_the_unit_and_a_noisy_one_grows_it_with_its_noise():
     config = Config()
-    precise = measured_noise_factor(*_capture(0.005)[:2], config)
-    noisy = measured_noise_factor(*_capture(0.05)[:2], config)
-    noisier = measured_noise_factor(*_capture(0.08)[:2], config)
+    precise = measured_unit_factor(*_capture(0.005)[:2], config)
+    noisy = measured_unit_factor(*_capture(0.05)[:2], config)
+    noisier = measured_unit_factor(*_capture(0.08)[:2], config)
     assert precise == 1.0
     assert 1.5 < noisy < noisier <= MAX_NOISE_FACTOR
     # Held: a quartile of 0 keeps distance_scale whatever the noise.
-    assert measured_noise_factor(*_capture(0.08)[:2], config.replace(distance_quartile=0)) == 1.0
+    assert measured_unit_factor(*_capture(0.08)[:2], config.replace(distance_quartile=0)) == 1.0
     folded = with_measured_unit(*_capture(0.05)[:2], config)
     assert folded.distance_quartile == 0 and np.isclose(folded.distance_scale, config.distance_scale * noisy)
 

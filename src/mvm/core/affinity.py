@@ -13,11 +13,13 @@ The unit follows the detector's noise. A detector whose joints lie farther from 
 epipolar lines than the unit allows (a small model run on large frames: 20 px where 1 % of the focal
 length is 17 px) would have its true matches refused. So each scene (each rig's capture) measures
 its noise in that unit before the grouping, as the lower quartile of every pose's distance to the
-nearest pose of every other view (:func:`noise_factor`), and divides D by how far that quartile
+nearest pose of every other view (:func:`unit_factor`), and divides D by how far that quartile
 exceeds ``distance_quartile`` (at most :data:`MAX_NOISE_FACTOR`-fold): precise data keep the
 unit of ``distance_scale``, and noisy data have it grown in proportion to their noise.
 """
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 
@@ -30,16 +32,18 @@ from mvm.core.scene import Cameras, Poses2D
 #: of a block of pose pairs, ``17 × rows × columns`` numbers.
 BLOCK_BYTES = 64 * 2**20
 
-#: The unit of D grows at most this many times with the measured noise (:func:`noise_factor`):
-#: an instant whose nearest poses are mostly other people's cannot open its gate without bound.
+log = logging.getLogger(__name__)
+
+#: The unit of D grows at most this many times with the measured noise (:func:`unit_factor`):
+#: a capture whose nearest poses are mostly other people's cannot open its gate without bound.
 MAX_NOISE_FACTOR = 4.0
 
-#: A scene (an instant) measures its noise from this many nearest-pose distances at least; with
-#: fewer it keeps the unit of ``distance_scale``. [distances]
+#: A scene (a rig's capture) measures its noise from this many nearest-pose distances at least;
+#: with fewer it keeps the unit of ``distance_scale``. [distances]
 MIN_NOISE_SAMPLES = 6
 
 #: The views of a scene, and the instants of a rig, whose poses measure the noise
-#: (:func:`measured_noise_factor`): evenly spread, enough for a quartile at any length.
+#: (:func:`measured_unit_factor`): evenly spread, enough for a quartile at any length.
 NOISE_VIEWS = 60
 NOISE_INSTANTS = 200
 #: At most this many of those poses (a frame of thousands of detections): the measure's memory
@@ -306,7 +310,7 @@ def nearest_in_views(D: np.ndarray, view: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(nearest), nearest, np.nan)
 
 
-def noise_factor(nearest: np.ndarray, quartile: float) -> np.ndarray:
+def unit_factor(nearest: np.ndarray, quartile: float) -> np.ndarray:
     """How many times the unit of D must grow for the detector's noise: the lower quartile of
     the nearest-pose distances of each scene (:func:`nearest_in_views`), over ``quartile``,
     within ``[1, MAX_NOISE_FACTOR]``; 1 where fewer than :data:`MIN_NOISE_SAMPLES` were measured
@@ -320,7 +324,7 @@ def noise_factor(nearest: np.ndarray, quartile: float) -> np.ndarray:
 
     ``nearest: (B, K)`` distances of ``B`` scenes (NaN: none) -> ``(B,)``.
 
-    >>> noise_factor(np.array([[0.1] * 8, [0.8] * 8, [0.8] * 3 + [np.nan] * 5, [9.0] * 8]), 0.4).tolist()
+    >>> unit_factor(np.array([[0.1] * 8, [0.8] * 8, [0.8] * 3 + [np.nan] * 5, [9.0] * 8]), 0.4).tolist()
     [1.0, 2.0, 1.0, 4.0]
     """
     nearest = np.asarray(nearest, dtype=float)
@@ -338,8 +342,8 @@ def _spread(values: np.ndarray, count: int) -> np.ndarray:
         if len(values) else values
 
 
-def measured_noise_factor(cameras: Cameras, poses: Poses2D, config: Config) -> float:
-    """:func:`noise_factor` of a scene or of a rig's capture, measured once for all its poses: on
+def measured_unit_factor(cameras: Cameras, poses: Poses2D, config: Config) -> float:
+    """:func:`unit_factor` of a scene or of a rig's capture, measured once for all its poses: on
     the poses of at most :data:`NOISE_VIEWS` evenly spread views of a scene (at most
     :data:`NOISE_POSES` of them), or of at most
     :data:`NOISE_INSTANTS` evenly spread instants of a rig (the nearest poses of every instant's
@@ -365,15 +369,17 @@ def measured_noise_factor(cameras: Cameras, poses: Poses2D, config: Config) -> f
         D = block_epipolar_distance(cameras, poses.keypoints, poses.view, blocks, config.keypoint_threshold,
                                     config.distance_scale, config.min_common_keypoints)
         nearest = nearest_in_views(D, np.where(blocks >= 0, poses.view[np.maximum(blocks, 0)], -1))
-    return float(noise_factor(nearest.reshape(1, -1), config.distance_quartile)[0])
+    return float(unit_factor(nearest.reshape(1, -1), config.distance_quartile)[0])
 
 
 def with_measured_unit(cameras: Cameras, poses: Poses2D, config: Config) -> Config:
     """``config`` whose ``distance_scale`` includes the noise of ``poses``
-    (:func:`measured_noise_factor`), measured once: ``distance_quartile`` becomes 0."""
+    (:func:`measured_unit_factor`), measured once: ``distance_quartile`` becomes 0."""
     if config.distance_quartile <= 0:
         return config
-    factor = measured_noise_factor(cameras, poses, config)
+    factor = measured_unit_factor(cameras, poses, config)
+    log.info("the unit of the epipolar distance: %.3g of the focal length (the measured noise: x%.2f)",
+             config.distance_scale * factor, factor)
     return config.replace(distance_scale=config.distance_scale * factor, distance_quartile=0.0)
 
 
