@@ -210,10 +210,11 @@ class Config:
     #: The unit of the epipolar distance D, as a fraction of the focal length: D is divided
     #: by ``distance_scale · f`` pixels, so the same γ works at every image resolution. [focal]
     distance_scale: float = setting(0.01, gt=0)
-    #: The unit of D grows with the detector's noise measured in each scene (each instant of a
-    #: rig): the lower quartile of every 2D pose's distance to the nearest pose of every other
-    #: view (most of them its own person's, whose distance is the noise) is brought down to at
-    #: most this many units, the unit growing up to 4-fold (:func:`mvm.core.affinity.measured_unit_factor`).
+    #: The unit of D grows with the detector's noise measured once in each scene (in each rig's
+    #: capture): the lower quartile of every 2D pose's distance to the nearest pose of every
+    #: other view (most of them its own person's, whose distance is the noise) is brought down to
+    #: at most this many units, the unit growing up to 4-fold
+    #: (:func:`mvm.core.affinity.measured_unit_factor`).
     #: A noisier detector (a small model on large frames) then keeps its true matches; lower it to
     #: grow the unit sooner, raise it to hold ``distance_scale`` for noisier data; 0 always holds
     #: ``distance_scale``. [units of D]
