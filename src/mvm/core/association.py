@@ -394,8 +394,9 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: 
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into (with ``scene: (Q,)``, the scene of each person, those in which no nearer
     person of its scene hides it, :func:`visible_frames`: a person behind others for most of a
-    hand-held tour is seen in few of the frames it projects into), and whose body is one (false positives agreeing in a few close views
-    triangulate to no body, unless they explain most of their views, as no false cluster does).
+    hand-held tour is seen in few of the frames it projects into), and whose body is one (false
+    positives agreeing in a few close views triangulate to no body, unless they explain most of
+    their views, as no false cluster does).
     A person none of whose joints three of its views agree on is refused whatever share of its
     views it explains (``seen_most: (Q,)`` the most inlier views of any of its joints: two views
     agree on a point whatever they saw): a cluster of false poses placed where few cameras look
