@@ -39,32 +39,34 @@ def occlude(sim, rng: np.random.Generator, joints: str, lengths=(10, 40)) -> np.
     ``lengths`` instants, in all the views but 0 or 1 of them.
 
     Returns ``hidden: (S, G, 17)`` bool, the (instant, person, joint) cells hidden from all views
-    but at most one."""
+    but at most one, and ``left: (G,)`` the views left seeing each person's hidden joints (0 or 1)."""
     S, G = sim.poses3d.shape[:2]
     V = len(sim.calibration.cameras.names)
     hidden = np.zeros((S, G, 17), bool)
+    left = np.zeros(G, int)
     for g in range(G):
         side = SIDES[rng.integers(2)]
         js = [INDEX[f"{side}_wrist"]] + ([INDEX[f"{side}_elbow"]] if joints == "arm" else [])
         n = int(rng.integers(lengths[0], lengths[1] + 1))
         t0 = int(rng.integers(10, S - n - 10))
-        keep = rng.permutation(V)[:int(rng.integers(2))]            # the 0 or 1 view still seeing it
+        left[g] = int(rng.integers(2))
+        keep = rng.permutation(V)[:left[g]]                         # the 0 or 1 view still seeing it
         rows = (sim.person == g) & (sim.frame >= t0) & (sim.frame < t0 + n) & ~np.isin(sim.camera, keep)
         for j in js:
             sim.keypoints[rows, j] = 0.0
             hidden[t0:t0 + n, g, j] = True
-    return hidden
+    return hidden, left
 
 
 def run(seed: int, frames: int, joints: str, config: Config, prior, options: RigOptions) -> dict:
     sim = simulate_rig(RigSimConfig(cameras=5, people=3, frames=frames, distortion=0.0, seed=seed))
-    hidden = occlude(sim, np.random.default_rng(1000 + seed), joints)
+    hidden, left = occlude(sim, np.random.default_rng(1000 + seed), joints)
     det = rig_poses(sim.keypoints, sim.frame, sim.camera, sim.score)
     cameras = sim.calibration.cameras
     persons = reconstruct_instants(cameras, det, instants_config(config), prior)
     _, persons, X, flags = track_and_complete(persons, options, prior, config, det, cameras)
     out = {"hidden": {f: [] for f in range(len(FLAG_NAMES))}, "around": [], "observed": [], "hidden_cells": 0,
-           "confidence": []}
+           "confidence": [], "by_views": {0: [], 1: []}}
     around = np.zeros_like(hidden)
     for side in SIDES:                                     # the elbow and shoulder of a hidden wrist
         w, e, s = INDEX[f"{side}_wrist"], INDEX[f"{side}_elbow"], INDEX[f"{side}_shoulder"]
@@ -80,6 +82,7 @@ def run(seed: int, frames: int, joints: str, config: Config, prior, options: Rig
                 out["hidden"][int(f[j])].append(d[j])
                 if f[j] != OBSERVED:
                     out["confidence"].append((d[j], float(persons.scores[rows[p], j])))
+                    out["by_views"][int(left[g])].append(d[j])
             out["around"] += d[around[t, g] & (f == OBSERVED)].tolist()
             out["observed"] += d[~hidden[t, g] & (f == OBSERVED)].tolist()
     return out
@@ -90,12 +93,13 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--frames", type=int, default=150)
     parser.add_argument("--joints", choices=("wrist", "arm"), default="wrist")
+    parser.add_argument("--no-fill", action="store_true", help="Without the occlusion fill (occlusion_max_gap = 0).")
     args = parser.parse_args()
     config = Config()
     prior = completion_prior(config)
-    options = RigOptions(frame_rate=30.0)
+    options = RigOptions(frame_rate=30.0, occlusion_max_gap=0 if args.no_fill else RigOptions().occlusion_max_gap)
     total = {"hidden": {f: [] for f in range(len(FLAG_NAMES))}, "around": [], "observed": [], "hidden_cells": 0,
-             "confidence": []}
+             "confidence": [], "by_views": {0: [], 1: []}}
     for seed in range(args.seeds):
         r = run(seed, args.frames, args.joints, config, prior, options)
         for f, v in r["hidden"].items():
@@ -103,11 +107,14 @@ def main() -> int:
         for k in ("around", "observed", "confidence"):
             total[k] += r[k]
         total["hidden_cells"] += r["hidden_cells"]
+        for k in (0, 1):
+            total["by_views"][k] += r["by_views"][k]
 
     def mm(v):
         return f"{1000 * np.mean(v):.1f} ({len(v)})" if v else "- (0)"
 
     print(f"5 cameras, 3 people, {args.frames} instants, {args.seeds} seeds, hidden: {args.joints}, "
+          f"{'without' if args.no_fill else 'with'} the occlusion fill, "
           f"{total['hidden_cells']} hidden joint-instants")
     print("| hidden joints: " + " | ".join(FLAG_NAMES) + " | observed joints around them | all observed |")
     print("|---" * (len(FLAG_NAMES) + 2) + "|")
@@ -117,6 +124,8 @@ def main() -> int:
     if filled:
         print(f"filled hidden joints: MPJPE {1000 * np.mean(filled):.1f} mm, median {1000 * np.median(filled):.1f} mm, "
               f"90th percentile {1000 * np.percentile(filled, 90):.1f} mm")
+    print("filled hidden joints seen by 0 views: MPJPE " + mm(total["by_views"][0]) + " mm; by 1 view: "
+          + mm(total["by_views"][1]) + " mm")
     if total["confidence"]:
         d, c = np.array(total["confidence"]).T
         print(f"confidence of the filled joints: mean {c.mean():.3f}; "
