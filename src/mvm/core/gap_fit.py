@@ -97,7 +97,6 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
         o, d = np.nan_to_num(o), np.nan_to_num(d)
         proj = eye - d[..., :, None] * d[..., None, :]                            # (N, n, R, 3, 3)
         proj_o = np.einsum("ntrij,ntrj->ntri", proj, o)
-    weight = np.zeros((N, n, 0)) if not rays else np.zeros(present.shape)
     bone = np.asarray(bone, float)
     sigma_bone = np.broadcast_to(np.asarray(sigma_bone, float), (N,))
     has_bone = np.isfinite(bone)
@@ -107,22 +106,58 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
              + np.einsum("ts,ntcd->ntcsd", np.eye(n), B_total)).reshape(N, 3 * n, 3 * n)
         return H, np.linalg.solve(H, g_total.reshape(N, 3 * n, 1))[..., 0].reshape(N, n, 3)
 
-    _, r = solve(B + 1e-9 * eye, g_fix)                                            # motion and prior only
-    for k in range(ITERATIONS):
-        B_k, g_k = B.copy(), g_fix.copy()
-        norm = np.linalg.norm(r, axis=-1, keepdims=True)
-        unit = np.where(norm > 0, r / np.maximum(norm, 1e-12), 0.0)                # (N, n, 3)
-        wb = np.where(has_bone, 1.0 / sigma_bone ** 2, 0.0)[:, None]              # (N, 1)
-        B_k += wb[..., None, None] * unit[..., :, None] * unit[..., None, :]
-        g_k += wb[..., None] * unit * np.nan_to_num(bone)[:, None, None]
+    def ray_distances(r):                                                          # (N, n, R)
+        return np.linalg.norm(np.einsum("ntrij,ntj->ntri", proj, r) - proj_o, axis=-1)
+
+    def descend(r):
+        """Gauss-Newton from ``r``: ``(r, H, ray weights, cost (N,))``."""
+        weight = np.zeros((N, n, 0))
+        for k in range(ITERATIONS):
+            B_k, g_k = B.copy(), g_fix.copy()
+            norm = np.linalg.norm(r, axis=-1, keepdims=True)
+            unit = np.where(norm > 0, r / np.maximum(norm, 1e-12), 0.0)            # (N, n, 3)
+            B_k += wb[..., None, None] * unit[..., :, None] * unit[..., None, :]
+            g_k += wb[..., None] * unit * np.nan_to_num(bone)[:, None, None]
+            if rays:
+                distance = ray_distances(r)
+                scale = max(RAY_CAUCHY * sigma_ray, gate * 0.5 ** k)            # graduated: wide first
+                weight = present * (distance <= gate) / (1.0 + (distance / scale) ** 2)
+                w = weight / sigma_ray ** 2
+                B_k += np.einsum("ntr,ntrij->ntij", w, proj)
+                g_k += np.einsum("ntr,ntri->nti", w, proj_o)
+            H, r = solve(B_k, g_k)
+        return r, H, weight, cost(r)
+
+    def cost(r):
+        """The objective at ``r``, per gap: ``(N,)``."""
+        chain = np.concatenate([np.nan_to_num(known[:, :2]), r, np.nan_to_num(known[:, 2:])], 1)   # (N, n + 4, 3)
+        total = (w_acc * (np.einsum("rk,nkc->nrc", D, chain) ** 2).sum(-1)).sum(1)
+        total += (wb[:, 0] * ((np.linalg.norm(r, axis=-1) - np.nan_to_num(bone)[:, None]) ** 2).sum(1))
+        if prior is not None and np.isfinite(sigma_prior):
+            total += np.nansum(((r - prior) ** 2).sum(-1), 1) / sigma_prior ** 2
         if rays:
-            distance = np.linalg.norm(np.einsum("ntrij,ntj->ntri", proj, r) - proj_o, axis=-1)   # (N, n, R)
-            scale = max(RAY_CAUCHY * sigma_ray, gate * 0.5 ** k)                # graduated: wide first
-            weight = present * (distance <= gate) / (1.0 + (distance / scale) ** 2)
-            w = weight / sigma_ray ** 2
-            B_k += np.einsum("ntr,ntrij->ntij", w, proj)
-            g_k += np.einsum("ntr,ntri->nti", w, proj_o)
-        H, r = solve(B_k, g_k)
+            s = RAY_CAUCHY * sigma_ray
+            d = np.minimum(ray_distances(r), gate)
+            total += (present * s ** 2 * np.log1p((d / s) ** 2)).sum((1, 2)) / sigma_ray ** 2
+        return total
+
+    wb = np.where(has_bone, 1.0 / sigma_bone ** 2, 0.0)[:, None]                  # (N, 1)
+    _, start = solve(B + 1e-9 * eye, g_fix)                                        # motion and prior only
+    r, H, weight, best = descend(start)
+    if rays:
+        # The other meeting of a view's ray with the bone's sphere: the start mirrored along
+        # the ray about the ray's point nearest the parent (a depth the motion alone cannot tell).
+        first = np.argmax(present, -1)                                             # (N, n): a present ray
+        seen = present.any(-1)
+        o1 = np.take_along_axis(o, first[..., None, None], 2)[:, :, 0]
+        d1 = np.take_along_axis(d, first[..., None, None], 2)[:, :, 0]
+        along = ((start - o1) * d1).sum(-1, keepdims=True)
+        foot = -(o1 * d1).sum(-1, keepdims=True)
+        mirrored = np.where(seen[..., None], o1 + (2 * foot - along) * d1, start)
+        r2, H2, weight2, cost2 = descend(mirrored)
+        better = cost2 < best
+        r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)
+                        for a, b in ((r, r2), (H, H2), (weight, weight2)))
     cov = np.linalg.inv(H)
     var = np.einsum("nii->ni", cov).reshape(N, n, 3).mean(-1)
     return r, np.sqrt(np.maximum(var, 0.0)), weight
