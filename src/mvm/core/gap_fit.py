@@ -145,15 +145,20 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
     _, start = solve(B + 1e-9 * eye, g_fix)                                        # motion and prior only
     r, H, weight, best = descend(start)
     if rays:
-        # The other meeting of a view's ray with the bone's sphere: the start mirrored along
-        # the ray about the ray's point nearest the parent (a depth the motion alone cannot tell).
+        # The other meeting of a view's ray with the bone's sphere: of the two, the one farther
+        # from the start (a depth the motion alone cannot tell); the start mirrored about the
+        # ray's point nearest the parent where the ray misses the sphere or there is no bone.
         first = np.argmax(present, -1)                                             # (N, n): a present ray
         seen = present.any(-1)
         o1 = np.take_along_axis(o, first[..., None, None], 2)[:, :, 0]
         d1 = np.take_along_axis(d, first[..., None, None], 2)[:, :, 0]
-        along = ((start - o1) * d1).sum(-1, keepdims=True)
-        foot = -(o1 * d1).sum(-1, keepdims=True)
-        mirrored = np.where(seen[..., None], o1 + (2 * foot - along) * d1, start)
+        along = ((start - o1) * d1).sum(-1)                                        # (N, n)
+        foot = -(o1 * d1).sum(-1)
+        half = np.sqrt(np.maximum(foot ** 2 - (o1 ** 2).sum(-1) + np.nan_to_num(bone)[:, None] ** 2, 0.0))
+        meets = has_bone[:, None] & (half > 0)
+        far = np.where(along > foot, foot - half, foot + half)
+        depth = np.where(meets, far, 2 * foot - along)
+        mirrored = np.where(seen[..., None], o1 + depth[..., None] * d1, start)
         r2, H2, weight2, cost2 = descend(mirrored)
         better = cost2 < best
         r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)

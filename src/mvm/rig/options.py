@@ -60,7 +60,7 @@ class RigOptions:
     #: Runs of missing instants of a limb joint (elbow, wrist, knee, ankle) from this long are
     #: filled from the track's motion, its bone lengths, the pose prior and the views that still
     #: see the joint (:mod:`mvm.rig.occlusions`), flagged inferred; shorter ones are interpolated. [instants]
-    occlusion_min_gap: int = setting(1, ge=1)
+    occlusion_min_gap: int = setting(5, ge=1)
     #: The longest run a limb joint is filled over that way; 0 turns it off. [instants]
     occlusion_max_gap: int = setting(90, ge=0)
     #: Write inferred joints into the .trc files too (by default they carry only observed and
