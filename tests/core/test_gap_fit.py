@@ -133,7 +133,8 @@ def test_bad_input_is_named():
     before, after, _ = gap(5)
     with pytest.raises(ValueError, match="before, after"):
         fit_gaps(before[:, :1], after, np.array([L]), np.array([0.01]), 0.01, no_prior(5))
-    with pytest.raises(ValueError, match="next to a gap"):
-        fit_gaps(np.full_like(before, np.nan), after, np.array([L]), np.array([0.01]), 0.01, no_prior(5))
+    with pytest.raises(ValueError, match="on one side at least"):
+        fit_gaps(np.full_like(before, np.nan), np.full_like(after, np.nan), np.array([L]), np.array([0.01]), 0.01,
+                 no_prior(5))
     with pytest.raises(ValueError, match="sigma_acc"):
         fit_gaps(before, after, np.array([L]), np.array([0.0]), 0.01, no_prior(5))

@@ -48,7 +48,8 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
 
     Args:
         before, after: ``(N, 2, 3)`` the known offsets at the two instants before the gap (older
-            first) and the two after it; NaN where unknown (at least the nearest on each side).
+            first) and the two after it; NaN where unknown (the nearest one known on one side
+            at least: a gap at a track's end is continued from the other).
         bone: ``(N,)`` the bone's length (NaN: no bone term).
         sigma_acc: ``(N,)`` the standard deviation of the offset's second differences (> 0).
         sigma_bone: ``(N,)`` (or one number) the standard deviation of the bone's length.
@@ -66,8 +67,8 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
     N = len(before)
     if before.shape != (N, 2, 3) or after.shape != (N, 2, 3):
         raise ValueError(f"before, after: expected (N, 2, 3), got {before.shape} and {after.shape}")
-    if not (np.isfinite(before[:, 1]).all() and np.isfinite(after[:, 0]).all()):
-        raise ValueError("before, after: the offsets next to a gap must be known")
+    if not (np.isfinite(before[:, 1]).all(-1) | np.isfinite(after[:, 0]).all(-1)).all():
+        raise ValueError("before, after: the offset next to a gap must be known on one side at least")
     n = next((np.shape(a)[1] for a in (prior, ray_origin) if a is not None), None)
     if n is None:
         raise ValueError("fit_gaps: the gap's length comes from prior or the rays; neither was given")

@@ -1,17 +1,20 @@
-"""Limb joints through long occlusions of a track: the track's own motion, its bone lengths,
+"""Limb joints through the occlusions of a track: the track's own motion, its bone lengths,
 the pose prior and the rays of the views that still see the joint
-(:func:`mvm.core.gap_fit.fit_gaps`), flagged ``inferred`` with a confidence that falls as the
-fill's uncertainty grows.
+(:func:`mvm.core.gap_fit.fit_gaps`), with a confidence that falls as the fill's uncertainty
+grows (towards the middle of a gap, with its length, away from the views that see it).
 
 A joint is filled over a run of missing instants when its parent joint (the shoulder of an
-elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole run
-and both are seen on either side of it; elbows and knees first, so a wrist hidden with its
-elbow is filled from the filled elbow. Pure numpy; no I/O.
+elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
+run and both are seen on at least one side of it (a run at a track's end is continued from the
+side it has); elbows and knees first, so a wrist hidden with its elbow is filled from the
+filled elbow. Long runs and those at a track's end are flagged ``inferred``, brief ones
+``interpolated``. Pure numpy; no I/O.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from mvm.core.completion import INFERRED, INTERPOLATED
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
 
@@ -34,6 +37,9 @@ PRIOR_SIGMA_M = 0.1
 #: view that sees a wrist (it then takes the ray's wrong meeting with the bone's sphere), 4
 #: lets it follow the noise. [1]
 ACC_SIGMA_FACTOR = 2.0
+#: Second differences beyond this many robust standard deviations (1.4826 median absolute
+#: values) are a swap's or an outlier's jump, not the limb's motion. [1]
+ACC_OUTLIER_SIGMAS = 5.0
 #: Smallest standard deviation of an offset's second differences. [m / instant²]
 MIN_ACC_SIGMA_M = 0.002
 #: Second differences of an offset needed to measure its own; fewer: this default. [m / instant²]
@@ -64,16 +70,19 @@ def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
     """The standard deviation of a hidden offset's second differences, from those of the seen
     ``offsets: (L, 3)`` (NaN: unseen) of its track: :data:`ACC_SIGMA_FACTOR` times their root
-    mean square, in world units (``unit`` per metre)."""
+    mean square, those beyond :data:`ACC_OUTLIER_SIGMAS` robust standard deviations left out,
+    in world units (``unit`` per metre)."""
     acc = offsets[2:] - 2 * offsets[1:-1] + offsets[:-2]
     acc = acc[np.isfinite(acc).all(-1)]
     if len(acc) < MIN_ACC_SAMPLES:
         return DEFAULT_ACC_SIGMA_M * unit
+    robust = 1.4826 * np.median(np.abs(acc))                                      # a swap's jumps left out
+    acc = acc[(np.abs(acc) <= ACC_OUTLIER_SIGMAS * robust).all(-1)]
     return max(ACC_SIGMA_FACTOR * float(np.sqrt(np.mean(acc ** 2))), MIN_ACC_SIGMA_M * unit)
 
 
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
-                    direction: np.ndarray, prior_X: np.ndarray | None = None, min_gap: int = 1,
+                    direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
                     max_gap: int = 90, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
@@ -82,19 +91,22 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
         origin, direction: ``(Q, V, 17, 3)`` the rays of each person's 2D keypoints
             (:func:`rays`), NaN where a view has none.
         prior_X: ``(Q, 17, 3)`` the pose prior's guess of the missing joints (None: no prior).
-        min_gap, max_gap: the runs filled, in instants.
+        long_gap: runs from this long, and those at a track's end, are flagged inferred;
+            shorter ones interpolated. [instants]
+        max_gap: the longest run filled. [instants]
         unit: world units per metre (the module's constants are in metres).
     Returns:
-        ``(X: (Q, 17, 3), filled: (Q, 17) bool, confidence: (Q, 17))`` (confidence 0 where not
-        filled).
+        ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
+        joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
+        confidence (0 elsewhere).
     """
     X = np.array(X, dtype=float)
     instant, track = np.asarray(instant), np.asarray(track)
     Q = len(X)
-    filled = np.zeros((Q, 17), bool)
+    flags = np.zeros((Q, 17), np.int8)
     confidence = np.zeros((Q, 17))
     if not Q:
-        return X, filled, confidence
+        return X, flags, confidence
     order = np.lexsort((instant, track))
     bounds = np.flatnonzero(np.diff(track[order])) + 1
     series_rows = []                                                               # (L,) rows, -1: absent
@@ -104,7 +116,7 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
         index[instant[rows] - t0] = rows
         series_rows.append(index)
     for joints in LIMB_PASSES:
-        gaps = []                               # (rows (n,), before rows, after rows, j, p, length, sigma)
+        gaps = []                       # (rows (n,), before rows, after rows, j, p, length, sigma, flag)
         for index in series_rows:
             S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)   # (L, 17, 3)
             seen = np.isfinite(S).all(-1)
@@ -118,13 +130,15 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
                 starts, ends = _runs(~seen[:, j])
                 for a, b in zip(starts, ends):
                     n = b - a
-                    if not (min_gap <= n <= max_gap) or a == 0 or b == len(S):
+                    at_start = a > 0 and both[a - 1]
+                    at_end = b < len(S) and both[b]
+                    brief = at_start and at_end and n < long_gap
+                    if not (n <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
                         continue
-                    if not (both[a - 1] and both[b] and seen[a:b, p].all()):
-                        continue
-                    before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1]]
-                    after = [index[b], index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
-                    gaps.append((index[a:b], before, after, j, p, length, sigma))
+                    before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
+                    after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
+                    flag = INTERPOLATED if brief else INFERRED
+                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag))
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
             rows = np.array([g[0] for g in group])                                 # (N, n)
@@ -141,6 +155,6 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
                                  prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit)
             X[rows, j[:, None]] = parent + r
-            filled[rows, j[:, None]] = True
+            flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
             confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
-    return X, filled, confidence
+    return X, flags, confidence

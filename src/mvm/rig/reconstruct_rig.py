@@ -238,13 +238,13 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if complete:
-        filled = np.zeros(X.shape[:2], bool)
+        filled = np.zeros(X.shape[:2], np.int8)
         if detections is not None and cameras is not None and options.occlusion_max_gap > 0 and len(persons):
             X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
                                                           options, config or Config())
-            persons = dataclasses.replace(persons, scores=np.where(filled, confidence, persons.scores))
+            persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
-        flags[filled] = INFERRED
+        flags = np.where(filled > 0, filled, flags).astype(np.int8)
     else:
         flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
     return tracking, persons, X, flags
@@ -254,11 +254,12 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
                           options: RigOptions, config: Config):
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
-    person's members and the prior's guess. Returns ``(X, filled: (Q, 17), confidence: (Q, 17))``."""
+    person's members and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
+    (flags 0 where not filled)."""
     xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
     origin, direction = rays(xy, conf, cameras)
     guess = infer_missing(X, prior)[0] if prior is not None else None
-    return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_min_gap,
+    return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
                            options.occlusion_max_gap, 1.0 / options.metres_per_unit)
 
 
