@@ -23,6 +23,8 @@ Arrays in, arrays out; no I/O. Units: those of the arrays (metres in the rig dri
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 #: Gauss-Newton iterations (bone linearization, ray weights).
@@ -38,6 +40,132 @@ def second_differences(n: int) -> np.ndarray:
     i = np.arange(n + 2)
     D[i, i], D[i, i + 1], D[i, i + 2] = 1.0, -2.0, 1.0
     return D
+
+
+@dataclass
+class _Gaps:
+    """The terms of ``N`` gaps of ``n`` instants: ``motion (N, n, n)`` (the normal matrix of the
+    second differences, one per axis), ``fixed (N, n, 3, 3)`` and ``rhs (N, n, 3)`` (motion and
+    prior), ``chain`` for the objective (``D (n + 2, n + 4)``, ``known (N, 4, 3)``, ``w_acc
+    (N, n + 2)``), the bone (``bone, w_bone (N,)``), the prior and the rays (``present (N, n, R)``,
+    origins and directions ``(N, n, R, 3)``, ``proj (N, n, R, 3, 3)`` onto each ray's normal plane)."""
+
+    motion: np.ndarray
+    fixed: np.ndarray
+    rhs: np.ndarray
+    D: np.ndarray
+    known: np.ndarray
+    w_acc: np.ndarray
+    bone: np.ndarray
+    w_bone: np.ndarray
+    prior: np.ndarray | None
+    sigma_prior: float
+    present: np.ndarray | None = None
+    origin: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    proj: np.ndarray | None = None
+    sigma_ray: float = np.inf
+    gate: float = np.inf
+
+    @property
+    def rays(self) -> bool:
+        return self.present is not None
+
+
+def _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
+          sigma_ray, gate, n: int) -> _Gaps:
+    """The terms of :func:`fit_gaps`' problem (arguments as there, checked)."""
+    N = len(before)
+    D = second_differences(n)
+    known = np.concatenate([before, after], 1)                                     # (N, 4, 3)
+    kcols = np.array([0, 1, n + 2, n + 3])
+    # rows touching an unknown known are dropped
+    row_ok = ~((D[None][:, :, kcols] != 0) & ~np.isfinite(known[:, None, :, 0])).any(-1)   # (N, n + 2)
+    Du, Dk = D[:, 2:n + 2], D[:, kcols]
+    w_acc = row_ok / sigma_acc[:, None] ** 2
+    motion = np.einsum("ri,nr,rj->nij", Du, w_acc, Du)
+    rhs = -np.einsum("ri,nr,rk,nkc->nic", Du, w_acc, Dk, np.nan_to_num(known))      # (N, n, 3)
+    fixed = np.zeros((N, n, 3, 3))
+    if prior is not None and np.isfinite(sigma_prior):
+        has = np.isfinite(prior).all(-1)
+        fixed += has[..., None, None] * np.eye(3) / sigma_prior ** 2
+        rhs = rhs + np.where(has[..., None], np.nan_to_num(prior), 0.0) / sigma_prior ** 2
+    else:
+        prior = None
+    bone = np.asarray(bone, float)
+    w_bone = np.where(np.isfinite(bone), 1.0 / np.broadcast_to(np.asarray(sigma_bone, float), (N,)) ** 2, 0.0)
+    gaps = _Gaps(motion, fixed, rhs, D, known, w_acc, np.nan_to_num(bone), w_bone, prior, sigma_prior)
+    if ray_origin is not None and np.isfinite(sigma_ray):
+        o, d = np.asarray(ray_origin, float), np.asarray(ray_direction, float)
+        gaps.present = np.isfinite(o).all(-1) & np.isfinite(d).all(-1)            # (N, n, R)
+        gaps.origin, gaps.direction = np.nan_to_num(o), np.nan_to_num(d)
+        gaps.proj = np.eye(3) - gaps.direction[..., :, None] * gaps.direction[..., None, :]
+        gaps.sigma_ray, gaps.gate = sigma_ray, gate
+    return gaps
+
+
+def _solve(gaps: _Gaps, per_instant: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations with the per-instant ``(N, n, 3, 3)`` terms: ``(H (N, 3n, 3n), r (N, n, 3))``."""
+    N, n = rhs.shape[:2]
+    H = (np.einsum("nts,cd->ntcsd", gaps.motion, np.eye(3))
+         + np.einsum("ts,ntcd->ntcsd", np.eye(n), per_instant)).reshape(N, 3 * n, 3 * n)
+    return H, np.linalg.solve(H, rhs.reshape(N, 3 * n, 1))[..., 0].reshape(N, n, 3)
+
+
+def _ray_distances(gaps: _Gaps, r: np.ndarray) -> np.ndarray:
+    """``(N, n, R)`` distances of the offsets ``r: (N, n, 3)`` to the rays."""
+    return np.linalg.norm(np.einsum("ntrij,ntrj->ntri", gaps.proj, r[:, :, None] - gaps.origin), axis=-1)
+
+
+def _descend(gaps: _Gaps, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton from ``r: (N, n, 3)``: the bone linearized about the current offsets, the rays
+    re-weighted (Cauchy, a scale that narrows from the gate). ``(r, H, ray weights)``."""
+    weight = np.zeros(r.shape[:2] + (0,))
+    for k in range(ITERATIONS):
+        norm = np.linalg.norm(r, axis=-1, keepdims=True)
+        unit = np.where(norm > 0, r / np.maximum(norm, 1e-12), 0.0)                # (N, n, 3)
+        wb = gaps.w_bone[:, None]
+        per_instant = gaps.fixed + wb[..., None, None] * unit[..., :, None] * unit[..., None, :]
+        rhs = gaps.rhs + wb[..., None] * unit * gaps.bone[:, None, None]
+        if gaps.rays:
+            distance = _ray_distances(gaps, r)
+            scale = max(RAY_CAUCHY * gaps.sigma_ray, gaps.gate * 0.5 ** k)         # graduated: wide first
+            weight = gaps.present * (distance <= gaps.gate) / (1.0 + (distance / scale) ** 2)
+            w = weight / gaps.sigma_ray ** 2
+            per_instant = per_instant + np.einsum("ntr,ntrij->ntij", w, gaps.proj)
+            rhs = rhs + np.einsum("ntr,ntrij,ntrj->nti", w, gaps.proj, gaps.origin)
+        H, r = _solve(gaps, per_instant, rhs)
+    return r, H, weight
+
+
+def _objective(gaps: _Gaps, r: np.ndarray) -> np.ndarray:
+    """The objective at ``r: (N, n, 3)``, per gap ``(N,)`` (the rays' Cauchy loss at its final scale)."""
+    known = np.nan_to_num(gaps.known)
+    chain = np.concatenate([known[:, :2], r, known[:, 2:]], 1)                    # (N, n + 4, 3)
+    total = (gaps.w_acc * (np.einsum("rk,nkc->nrc", gaps.D, chain) ** 2).sum(-1)).sum(1)
+    total += gaps.w_bone * ((np.linalg.norm(r, axis=-1) - gaps.bone[:, None]) ** 2).sum(1)
+    if gaps.prior is not None:
+        total += np.nansum(((r - gaps.prior) ** 2).sum(-1), 1) / gaps.sigma_prior ** 2
+    if gaps.rays:
+        s = RAY_CAUCHY * gaps.sigma_ray
+        d = np.minimum(_ray_distances(gaps, r), gaps.gate)
+        total += (gaps.present * s ** 2 * np.log1p((d / s) ** 2)).sum((1, 2)) / gaps.sigma_ray ** 2
+    return total
+
+
+def _other_meeting(gaps: _Gaps, start: np.ndarray) -> np.ndarray:
+    """``start: (N, n, 3)`` moved, where a ray sees the joint, to the meeting of that ray with the
+    bone's sphere farther from it (a depth the motion alone cannot tell); mirrored along the ray
+    about its point nearest the parent where the ray misses the sphere or there is no bone."""
+    first = np.argmax(gaps.present, -1)                                            # (N, n): a present ray
+    o = np.take_along_axis(gaps.origin, first[..., None, None], 2)[:, :, 0]
+    d = np.take_along_axis(gaps.direction, first[..., None, None], 2)[:, :, 0]
+    along = ((start - o) * d).sum(-1)                                              # (N, n)
+    foot = -(o * d).sum(-1)
+    half = np.sqrt(np.maximum(foot ** 2 - (o ** 2).sum(-1) + gaps.bone[:, None] ** 2, 0.0))
+    meets = (gaps.w_bone > 0)[:, None] & (half > 0)
+    depth = np.where(meets, np.where(along > foot, foot - half, foot + half), 2 * foot - along)
+    return np.where(gaps.present.any(-1)[..., None], o + depth[..., None] * d, start)
 
 
 def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
@@ -75,95 +203,14 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
     sigma_acc = np.broadcast_to(np.asarray(sigma_acc, float), (N,))
     if not (sigma_acc > 0).all():
         raise ValueError(f"sigma_acc: must be > 0, got {sigma_acc.min()}")
-    # Motion: H_acc (N, n, n) shared by the 3 axes; rows touching an unknown known are dropped.
-    D = second_differences(n)
-    known = np.concatenate([before, after], 1)                                     # (N, 4, 3)
-    kcols = np.array([0, 1, n + 2, n + 3])
-    row_ok = ~((D[None][:, :, kcols] != 0) & ~np.isfinite(known[:, None, :, 0])).any(-1)   # (N, n + 2)
-    Du, Dk = D[:, 2:n + 2], D[:, kcols]
-    w_acc = row_ok / sigma_acc[:, None] ** 2                                       # (N, n + 2)
-    H_acc = np.einsum("ri,nr,rj->nij", Du, w_acc, Du)
-    g_acc = -np.einsum("ri,nr,rk,nkc->nic", Du, w_acc, Dk, np.nan_to_num(known))  # (N, n, 3)
-    eye = np.eye(3)
-    B = np.zeros((N, n, 3, 3))                                                     # per-instant 3x3 terms
-    g_fix = g_acc.copy()
-    if prior is not None and np.isfinite(sigma_prior):
-        has = np.isfinite(prior).all(-1)
-        B += has[..., None, None] * eye / sigma_prior ** 2
-        g_fix += np.where(has[..., None], np.nan_to_num(prior), 0.0) / sigma_prior ** 2
-    rays = ray_origin is not None and np.isfinite(sigma_ray)
-    if rays:
-        o, d = np.asarray(ray_origin, float), np.asarray(ray_direction, float)
-        present = np.isfinite(o).all(-1) & np.isfinite(d).all(-1)                  # (N, n, R)
-        o, d = np.nan_to_num(o), np.nan_to_num(d)
-        proj = eye - d[..., :, None] * d[..., None, :]                            # (N, n, R, 3, 3)
-        proj_o = np.einsum("ntrij,ntrj->ntri", proj, o)
-    bone = np.asarray(bone, float)
-    sigma_bone = np.broadcast_to(np.asarray(sigma_bone, float), (N,))
-    has_bone = np.isfinite(bone)
-
-    def solve(B_total, g_total):
-        H = (np.einsum("nts,cd->ntcsd", H_acc, eye)
-             + np.einsum("ts,ntcd->ntcsd", np.eye(n), B_total)).reshape(N, 3 * n, 3 * n)
-        return H, np.linalg.solve(H, g_total.reshape(N, 3 * n, 1))[..., 0].reshape(N, n, 3)
-
-    def ray_distances(r):                                                          # (N, n, R)
-        return np.linalg.norm(np.einsum("ntrij,ntj->ntri", proj, r) - proj_o, axis=-1)
-
-    def descend(r):
-        """Gauss-Newton from ``r``: ``(r, H, ray weights, cost (N,))``."""
-        weight = np.zeros((N, n, 0))
-        for k in range(ITERATIONS):
-            B_k, g_k = B.copy(), g_fix.copy()
-            norm = np.linalg.norm(r, axis=-1, keepdims=True)
-            unit = np.where(norm > 0, r / np.maximum(norm, 1e-12), 0.0)            # (N, n, 3)
-            B_k += wb[..., None, None] * unit[..., :, None] * unit[..., None, :]
-            g_k += wb[..., None] * unit * np.nan_to_num(bone)[:, None, None]
-            if rays:
-                distance = ray_distances(r)
-                scale = max(RAY_CAUCHY * sigma_ray, gate * 0.5 ** k)            # graduated: wide first
-                weight = present * (distance <= gate) / (1.0 + (distance / scale) ** 2)
-                w = weight / sigma_ray ** 2
-                B_k += np.einsum("ntr,ntrij->ntij", w, proj)
-                g_k += np.einsum("ntr,ntri->nti", w, proj_o)
-            H, r = solve(B_k, g_k)
-        return r, H, weight, cost(r)
-
-    def cost(r):
-        """The objective at ``r``, per gap: ``(N,)``."""
-        chain = np.concatenate([np.nan_to_num(known[:, :2]), r, np.nan_to_num(known[:, 2:])], 1)   # (N, n + 4, 3)
-        total = (w_acc * (np.einsum("rk,nkc->nrc", D, chain) ** 2).sum(-1)).sum(1)
-        total += (wb[:, 0] * ((np.linalg.norm(r, axis=-1) - np.nan_to_num(bone)[:, None]) ** 2).sum(1))
-        if prior is not None and np.isfinite(sigma_prior):
-            total += np.nansum(((r - prior) ** 2).sum(-1), 1) / sigma_prior ** 2
-        if rays:
-            s = RAY_CAUCHY * sigma_ray
-            d = np.minimum(ray_distances(r), gate)
-            total += (present * s ** 2 * np.log1p((d / s) ** 2)).sum((1, 2)) / sigma_ray ** 2
-        return total
-
-    wb = np.where(has_bone, 1.0 / sigma_bone ** 2, 0.0)[:, None]                  # (N, 1)
-    _, start = solve(B + 1e-9 * eye, g_fix)                                        # motion and prior only
-    r, H, weight, best = descend(start)
-    if rays:
-        # The other meeting of a view's ray with the bone's sphere: of the two, the one farther
-        # from the start (a depth the motion alone cannot tell); the start mirrored about the
-        # ray's point nearest the parent where the ray misses the sphere or there is no bone.
-        first = np.argmax(present, -1)                                             # (N, n): a present ray
-        seen = present.any(-1)
-        o1 = np.take_along_axis(o, first[..., None, None], 2)[:, :, 0]
-        d1 = np.take_along_axis(d, first[..., None, None], 2)[:, :, 0]
-        along = ((start - o1) * d1).sum(-1)                                        # (N, n)
-        foot = -(o1 * d1).sum(-1)
-        half = np.sqrt(np.maximum(foot ** 2 - (o1 ** 2).sum(-1) + np.nan_to_num(bone)[:, None] ** 2, 0.0))
-        meets = has_bone[:, None] & (half > 0)
-        far = np.where(along > foot, foot - half, foot + half)
-        depth = np.where(meets, far, 2 * foot - along)
-        mirrored = np.where(seen[..., None], o1 + depth[..., None] * d1, start)
-        r2, H2, weight2, cost2 = descend(mirrored)
-        better = cost2 < best
+    gaps = _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
+                 sigma_ray, gate, n)
+    _, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)              # motion and prior only
+    r, H, weight = _descend(gaps, start)
+    if gaps.rays:
+        r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))
+        better = _objective(gaps, r2) < _objective(gaps, r)
         r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)
                         for a, b in ((r, r2), (H, H2), (weight, weight2)))
-    cov = np.linalg.inv(H)
-    var = np.einsum("nii->ni", cov).reshape(N, n, 3).mean(-1)
+    var = np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)
     return r, np.sqrt(np.maximum(var, 0.0)), weight
