@@ -34,9 +34,12 @@ MATCH_M = 0.5
 SIDES = ("left", "right")
 
 
-def occlude(sim, rng: np.random.Generator, joints: str, lengths=(10, 40)) -> np.ndarray:
+def occlude(sim, rng: np.random.Generator, joints: str, lengths=(10, 40), wrong: bool = False) -> np.ndarray:
     """Hide one arm of every person of ``sim`` (in place, in ``sim.keypoints``) for a stretch of
-    ``lengths`` instants, in all the views but 0 or 1 of them.
+    ``lengths`` instants, in all the views but 0 or 1 of them. ``wrong``: the views that do not
+    see it report it anyway, each at the projection of a point 20 to 40 cm from the truth (a
+    direction drawn per view and stretch), as a detector confuses a hidden hand with something
+    near it.
 
     Returns ``hidden: (S, G, 17)`` bool, the (instant, person, joint) cells hidden from all views
     but at most one, and ``left: (G,)`` the views left seeing each person's hidden joints (0 or 1)."""
@@ -53,14 +56,25 @@ def occlude(sim, rng: np.random.Generator, joints: str, lengths=(10, 40)) -> np.
         keep = rng.permutation(V)[:left[g]]                         # the 0 or 1 view still seeing it
         rows = (sim.person == g) & (sim.frame >= t0) & (sim.frame < t0 + n) & ~np.isin(sim.camera, keep)
         for j in js:
-            sim.keypoints[rows, j] = 0.0
             hidden[t0:t0 + n, g, j] = True
+            if not wrong:
+                sim.keypoints[rows, j] = 0.0
+                continue
+            cameras = sim.calibration.cameras
+            for v in np.setdiff1d(np.arange(V), keep):
+                offset = rng.normal(size=3)
+                offset *= rng.uniform(0.2, 0.4) / np.linalg.norm(offset)
+                sel = np.flatnonzero(rows & (sim.camera == v))
+                point = sim.poses3d[sim.frame[sel], g, j] + offset                  # (k, 3)
+                uvw = np.einsum("ij,kj->ki", cameras.P[v], np.concatenate([point, np.ones((len(sel), 1))], 1))
+                sim.keypoints[sel, j, :2] = uvw[:, :2] / uvw[:, 2:]
+                sim.keypoints[sel, j, 2] = np.maximum(sim.keypoints[sel, j, 2], 0.5)
     return hidden, left
 
 
-def run(seed: int, frames: int, joints: str, config: Config, prior, options: RigOptions) -> dict:
+def run(seed: int, frames: int, joints: str, config: Config, prior, options: RigOptions, wrong: bool = False) -> dict:
     sim = simulate_rig(RigSimConfig(cameras=5, people=3, frames=frames, distortion=0.0, seed=seed))
-    hidden, left = occlude(sim, np.random.default_rng(1000 + seed), joints)
+    hidden, left = occlude(sim, np.random.default_rng(1000 + seed), joints, wrong=wrong)
     det = rig_poses(sim.keypoints, sim.frame, sim.camera, sim.score)
     cameras = sim.calibration.cameras
     persons = reconstruct_instants(cameras, det, instants_config(config), prior)
@@ -93,6 +107,8 @@ def main() -> int:
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--frames", type=int, default=150)
     parser.add_argument("--joints", choices=("wrist", "arm"), default="wrist")
+    parser.add_argument("--wrong", action="store_true", help="The views that do not see the joint report it "
+                        "20-40 cm off instead of not at all.")
     parser.add_argument("--no-fill", action="store_true", help="Without the occlusion fill (occlusion_max_gap = 0).")
     args = parser.parse_args()
     config = Config()
@@ -101,7 +117,7 @@ def main() -> int:
     total = {"hidden": {f: [] for f in range(len(FLAG_NAMES))}, "around": [], "observed": [], "hidden_cells": 0,
              "confidence": [], "by_views": {0: [], 1: []}}
     for seed in range(args.seeds):
-        r = run(seed, args.frames, args.joints, config, prior, options)
+        r = run(seed, args.frames, args.joints, config, prior, options, args.wrong)
         for f, v in r["hidden"].items():
             total["hidden"][f] += v
         for k in ("around", "observed", "confidence"):
@@ -113,7 +129,8 @@ def main() -> int:
     def mm(v):
         return f"{1000 * np.mean(v):.1f} ({len(v)})" if v else "- (0)"
 
-    print(f"5 cameras, 3 people, {args.frames} instants, {args.seeds} seeds, hidden: {args.joints}, "
+    print(f"5 cameras, 3 people, {args.frames} instants, {args.seeds} seeds, hidden: {args.joints}"
+          f"{' (reported off)' if args.wrong else ''}, "
           f"{'without' if args.no_fill else 'with'} the occlusion fill, "
           f"{total['hidden_cells']} hidden joint-instants")
     print("| hidden joints: " + " | ".join(FLAG_NAMES) + " | observed joints around them | all observed |")
