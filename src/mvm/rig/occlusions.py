@@ -21,6 +21,8 @@ from mvm.core.keypoints import INDEX
 #: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
 LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left", "right") for j, p in pairs)
                     for pairs in ((("elbow", "shoulder"), ("knee", "hip")), (("wrist", "elbow"), ("ankle", "knee"))))
+#: The joints filled.
+LIMB_JOINTS = [j for joints in LIMB_PASSES for j, _ in joints]
 #: Standard deviation of a bone's length about its track's median, relative to it. [1]
 BONE_SIGMA = 0.03
 #: Standard deviation of a joint's distance to the ray of a view's keypoint of it: the
@@ -54,7 +56,8 @@ def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> t
     cameras ``(V,)``, ``conf: (Q, V, J)`` -> ``(origin, direction): (Q, V, J, 3)`` (world; unit
     directions), NaN where ``conf <= threshold``."""
     homogeneous = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
-    d = np.einsum("vji,vjk,qvxk->qvxi", cameras.R, np.linalg.inv(cameras.K), homogeneous)
+    back = np.einsum("vji,vjk->vik", cameras.R, np.linalg.inv(cameras.K))          # (V, 3, 3): R^T K^-1
+    d = np.einsum("vik,qvxk->qvxi", back, homogeneous)
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     ok = (conf > threshold)[..., None]
     origin = np.broadcast_to(cameras.centers[None, :, None], d.shape)
