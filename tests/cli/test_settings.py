@@ -64,8 +64,8 @@ BAD = [
      "--set: video_order: not used by mvm rig reconstruct"),
     (["rig", "reconstruct", "{d}/rig", "--rig-set", "frame_rat=25"], "--rig-set: frame_rat: not a setting of mvm rig "
      "reconstruct (known: batch_size, bone_weight, cutoff_hz, filter_order, frame_rate, max_gap, "
-     "max_interpolation_gap, max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, savgol_window, "
-     "smoothing, trc_inferred, up, workers)"),
+     "max_interpolation_gap, max_link_distance_m, metres_per_unit, min_link_joints, min_track_length, "
+     "occlusion_inferred_gap, occlusion_max_gap, savgol_window, smoothing, trc_inferred, up, workers)"),
     (["rig", "reconstruct", "{d}/rig", "--set", "refine_max_iterations=0"],
      "--set: refine_max_iterations: must be >= 1, got 0"),
 ]

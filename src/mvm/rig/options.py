@@ -57,6 +57,14 @@ class RigOptions:
     #: Longest run of missing instants a joint is interpolated over; longer gaps are left to the
     #: pose prior. [instants]
     max_interpolation_gap: int = setting(30, ge=0)
+    #: Runs of missing instants of a limb joint (elbow, wrist, knee, ankle) are filled from the
+    #: track's motion, its bone lengths, the pose prior and the views that still see the joint
+    #: (:mod:`mvm.rig.occlusions`); runs from this long, and those at a track's end, are flagged
+    #: inferred, shorter ones interpolated. [instants]
+    occlusion_inferred_gap: int = setting(5, ge=1)
+    #: The longest run a limb joint is filled over that way (longer ones are left to the pose
+    #: prior); 0 turns it off. [instants]
+    occlusion_max_gap: int = setting(90, ge=0)
     #: Write inferred joints into the .trc files too (by default they carry only observed and
     #: interpolated markers). [bool]
     trc_inferred: bool = False

@@ -1,6 +1,7 @@
 """``RIG_DIR`` in; per-instant 3D poses (JSON Lines), one ``.trc`` per track and a recap out."""
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -10,7 +11,16 @@ from pathlib import Path
 import numpy as np
 import orjson
 
-from mvm.core.completion import FLAG_NAMES, INFERRED, MISSING, OBSERVED, complete_tracks, flag_names, interpolate_series
+from mvm.core.completion import (
+    FLAG_NAMES,
+    INFERRED,
+    MISSING,
+    OBSERVED,
+    complete_tracks,
+    flag_names,
+    infer_missing,
+    interpolate_series,
+)
 from mvm.core.config import Config
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
@@ -21,11 +31,12 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
+from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
 from mvm.rig.options import DEFAULT_FRAME_RATE_HZ, RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
-from mvm.rig.skeleton import capture_noise_factor, refine_tracks
+from mvm.rig.skeleton import capture_noise_factor, observations, refine_tracks
 from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
 
 log = logging.getLogger(__name__)
@@ -227,10 +238,31 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.rate,
                       cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
     if complete:
+        filled = np.zeros(X.shape[:2], np.int8)
+        if detections is not None and cameras is not None and options.occlusion_max_gap > 0 and len(persons):
+            X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
+                                                          options, config or Config())
+            persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
+        flags = np.where(filled > 0, filled, flags).astype(np.int8)
     else:
         flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
     return tracking, persons, X, flags
+
+
+def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndarray, detections, cameras, prior,
+                          options: RigOptions, config: Config):
+    """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
+    (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
+    person's members and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
+    (flags 0 where not filled)."""
+    xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
+    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
+    conf = np.where(lacking[:, None, None], conf, 0.0)
+    origin, direction = rays(xy, conf, cameras)
+    guess = infer_missing(X, prior)[0] if prior is not None else None
+    return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
+                           options.occlusion_max_gap, 1.0 / options.metres_per_unit)
 
 
 def check_smoothing(options: RigOptions) -> None:

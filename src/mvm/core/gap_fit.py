@@ -1,0 +1,216 @@
+"""A joint through a gap of a track: a least-acceleration curve held at its bone's length from
+its parent joint, pulled weakly to the pose prior's guess and to the rays of the few views that
+still see it.
+
+The unknowns are the joint's offsets from its parent, ``r_t = x_t - parent_t``, at the ``n``
+instants of a gap (the parent is known there: seen, or filled first). Each is a Gaussian
+residual (the weighted least squares of a Gauss-Newton solve, vectorized over gaps of one
+length):
+
+- **motion**: the second differences of ``r`` over the gap and the two known offsets on either
+  side, standard deviation ``sigma_acc`` (the track's own accelerations of that offset);
+- **bone**: ``|r_t| - L``, standard deviation ``sigma_bone`` (linearized about the current
+  estimate: the joint stays on the sphere of the bone's length around its parent);
+- **rays**: the distance of ``x_t`` to each ray of a view's 2D keypoint of the joint,
+  standard deviation ``sigma_ray``, Cauchy-weighted and gated (a keypoint far from the fit is
+  another person's or an outlier). One view fixes the joint to a line; the bone fixes it to a
+  sphere; their meeting nearest the motion's guess is the fill, which interpolation cannot find;
+- **prior**: the offset the pose prior expects from the rest of the body, ``sigma_prior``.
+
+The posterior standard deviation of each filled instant (the inverse of the normal matrix)
+grows towards the middle of a gap and with its length, and shrinks where a ray sees the joint.
+Arrays in, arrays out; no I/O. Units: those of the arrays (metres in the rig driver's calls).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Gauss-Newton iterations (bone linearization, ray weights).
+ITERATIONS = 6
+#: A ray's Cauchy weight halves at this many ``sigma_ray`` from the fit. [1]
+RAY_CAUCHY = 3.0
+
+
+def second_differences(n: int) -> np.ndarray:
+    """``(n + 2, n + 4)``: the second differences of a chain of ``n + 4`` values (two known ones
+    before a gap of ``n``, two after)."""
+    D = np.zeros((n + 2, n + 4))
+    i = np.arange(n + 2)
+    D[i, i], D[i, i + 1], D[i, i + 2] = 1.0, -2.0, 1.0
+    return D
+
+
+@dataclass
+class _Gaps:
+    """The terms of ``N`` gaps of ``n`` instants: ``motion (N, n, n)`` (the normal matrix of the
+    second differences, one per axis), ``fixed (N, n, 3, 3)`` and ``rhs (N, n, 3)`` (motion and
+    prior), ``chain`` for the objective (``D (n + 2, n + 4)``, ``known (N, 4, 3)``, ``w_acc
+    (N, n + 2)``), the bone (``bone, w_bone (N,)``), the prior and the rays (``present (N, n, R)``,
+    origins and directions ``(N, n, R, 3)``, ``proj (N, n, R, 3, 3)`` onto each ray's normal plane)."""
+
+    motion: np.ndarray
+    fixed: np.ndarray
+    rhs: np.ndarray
+    D: np.ndarray
+    known: np.ndarray
+    w_acc: np.ndarray
+    bone: np.ndarray
+    w_bone: np.ndarray
+    prior: np.ndarray | None
+    sigma_prior: float
+    present: np.ndarray | None = None
+    origin: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    proj: np.ndarray | None = None
+    sigma_ray: float = np.inf
+    gate: float = np.inf
+
+    @property
+    def rays(self) -> bool:
+        return self.present is not None
+
+
+def _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
+          sigma_ray, gate, n: int) -> _Gaps:
+    """The terms of :func:`fit_gaps`' problem (arguments as there, checked)."""
+    N = len(before)
+    D = second_differences(n)
+    known = np.concatenate([before, after], 1)                                     # (N, 4, 3)
+    kcols = np.array([0, 1, n + 2, n + 3])
+    # rows touching an unknown known are dropped
+    row_ok = ~((D[None][:, :, kcols] != 0) & ~np.isfinite(known[:, None, :, 0])).any(-1)   # (N, n + 2)
+    Du, Dk = D[:, 2:n + 2], D[:, kcols]
+    w_acc = row_ok / sigma_acc[:, None] ** 2
+    motion = np.einsum("ri,nr,rj->nij", Du, w_acc, Du)
+    rhs = -np.einsum("ri,nr,rk,nkc->nic", Du, w_acc, Dk, np.nan_to_num(known))      # (N, n, 3)
+    fixed = np.zeros((N, n, 3, 3))
+    if prior is not None and np.isfinite(sigma_prior):
+        has = np.isfinite(prior).all(-1)
+        fixed += has[..., None, None] * np.eye(3) / sigma_prior ** 2
+        rhs = rhs + np.where(has[..., None], np.nan_to_num(prior), 0.0) / sigma_prior ** 2
+    else:
+        prior = None
+    bone = np.asarray(bone, float)
+    w_bone = np.where(np.isfinite(bone), 1.0 / np.broadcast_to(np.asarray(sigma_bone, float), (N,)) ** 2, 0.0)
+    gaps = _Gaps(motion, fixed, rhs, D, known, w_acc, np.nan_to_num(bone), w_bone, prior, sigma_prior)
+    if ray_origin is not None and np.isfinite(sigma_ray):
+        o, d = np.asarray(ray_origin, float), np.asarray(ray_direction, float)
+        gaps.present = np.isfinite(o).all(-1) & np.isfinite(d).all(-1)            # (N, n, R)
+        gaps.origin, gaps.direction = np.nan_to_num(o), np.nan_to_num(d)
+        gaps.proj = np.eye(3) - gaps.direction[..., :, None] * gaps.direction[..., None, :]
+        gaps.sigma_ray, gaps.gate = sigma_ray, gate
+    return gaps
+
+
+def _solve(gaps: _Gaps, per_instant: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The normal equations with the per-instant ``(N, n, 3, 3)`` terms: ``(H (N, 3n, 3n), r (N, n, 3))``."""
+    N, n = rhs.shape[:2]
+    H = (np.einsum("nts,cd->ntcsd", gaps.motion, np.eye(3))
+         + np.einsum("ts,ntcd->ntcsd", np.eye(n), per_instant)).reshape(N, 3 * n, 3 * n)
+    return H, np.linalg.solve(H, rhs.reshape(N, 3 * n, 1))[..., 0].reshape(N, n, 3)
+
+
+def _ray_distances(gaps: _Gaps, r: np.ndarray) -> np.ndarray:
+    """``(N, n, R)`` distances of the offsets ``r: (N, n, 3)`` to the rays."""
+    return np.linalg.norm(np.einsum("ntrij,ntrj->ntri", gaps.proj, r[:, :, None] - gaps.origin), axis=-1)
+
+
+def _descend(gaps: _Gaps, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Gauss-Newton from ``r: (N, n, 3)``: the bone linearized about the current offsets, the rays
+    re-weighted (Cauchy, a scale that narrows from the gate). ``(r, H, ray weights)``."""
+    weight = np.zeros(r.shape[:2] + (0,))
+    for k in range(ITERATIONS):
+        norm = np.linalg.norm(r, axis=-1, keepdims=True)
+        unit = np.where(norm > 0, r / np.maximum(norm, 1e-12), 0.0)                # (N, n, 3)
+        wb = gaps.w_bone[:, None]
+        per_instant = gaps.fixed + wb[..., None, None] * unit[..., :, None] * unit[..., None, :]
+        rhs = gaps.rhs + wb[..., None] * unit * gaps.bone[:, None, None]
+        if gaps.rays:
+            distance = _ray_distances(gaps, r)
+            scale = max(RAY_CAUCHY * gaps.sigma_ray, gaps.gate * 0.5 ** k)         # graduated: wide first
+            weight = gaps.present * (distance <= gaps.gate) / (1.0 + (distance / scale) ** 2)
+            w = weight / gaps.sigma_ray ** 2
+            per_instant = per_instant + np.einsum("ntr,ntrij->ntij", w, gaps.proj)
+            rhs = rhs + np.einsum("ntr,ntrij,ntrj->nti", w, gaps.proj, gaps.origin)
+        H, r = _solve(gaps, per_instant, rhs)
+    return r, H, weight
+
+
+def _objective(gaps: _Gaps, r: np.ndarray) -> np.ndarray:
+    """The objective at ``r: (N, n, 3)``, per gap ``(N,)`` (the rays' Cauchy loss at its final scale)."""
+    known = np.nan_to_num(gaps.known)
+    chain = np.concatenate([known[:, :2], r, known[:, 2:]], 1)                    # (N, n + 4, 3)
+    total = (gaps.w_acc * (np.einsum("rk,nkc->nrc", gaps.D, chain) ** 2).sum(-1)).sum(1)
+    total += gaps.w_bone * ((np.linalg.norm(r, axis=-1) - gaps.bone[:, None]) ** 2).sum(1)
+    if gaps.prior is not None:
+        total += np.nansum(((r - gaps.prior) ** 2).sum(-1), 1) / gaps.sigma_prior ** 2
+    if gaps.rays:
+        s = RAY_CAUCHY * gaps.sigma_ray
+        d = np.minimum(_ray_distances(gaps, r), gaps.gate)
+        total += (gaps.present * s ** 2 * np.log1p((d / s) ** 2)).sum((1, 2)) / gaps.sigma_ray ** 2
+    return total
+
+
+def _other_meeting(gaps: _Gaps, start: np.ndarray) -> np.ndarray:
+    """``start: (N, n, 3)`` moved, where a ray sees the joint, to the meeting of that ray with the
+    bone's sphere farther from it (a depth the motion alone cannot tell); mirrored along the ray
+    about its point nearest the parent where the ray misses the sphere or there is no bone."""
+    first = np.argmax(gaps.present, -1)                                            # (N, n): a present ray
+    o = np.take_along_axis(gaps.origin, first[..., None, None], 2)[:, :, 0]
+    d = np.take_along_axis(gaps.direction, first[..., None, None], 2)[:, :, 0]
+    along = ((start - o) * d).sum(-1)                                              # (N, n)
+    foot = -(o * d).sum(-1)
+    half = np.sqrt(np.maximum(foot ** 2 - (o ** 2).sum(-1) + gaps.bone[:, None] ** 2, 0.0))
+    meets = (gaps.w_bone > 0)[:, None] & (half > 0)
+    depth = np.where(meets, np.where(along > foot, foot - half, foot + half), 2 * foot - along)
+    return np.where(gaps.present.any(-1)[..., None], o + depth[..., None] * d, start)
+
+
+def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
+             sigma_bone: np.ndarray, prior: np.ndarray | None = None, sigma_prior: float = np.inf,
+             ray_origin: np.ndarray | None = None, ray_direction: np.ndarray | None = None,
+             sigma_ray: float = np.inf, gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fill ``N`` gaps of ``n`` instants each.
+
+    Args:
+        before, after: ``(N, 2, 3)`` the known offsets at the two instants before the gap (older
+            first) and the two after it; NaN where unknown (the nearest one known on one side
+            at least: a gap at a track's end is continued from the other).
+        bone: ``(N,)`` the bone's length (NaN: no bone term).
+        sigma_acc: ``(N,)`` the standard deviation of the offset's second differences (> 0).
+        sigma_bone: ``(N,)`` (or one number) the standard deviation of the bone's length.
+        prior: ``(N, n, 3)`` the prior's offsets (NaN: none), ``sigma_prior`` their deviation.
+        ray_origin, ray_direction: ``(N, n, R, 3)`` rays relative to the parent (origin: the
+            camera centre minus the parent; direction: unit), NaN where absent; ``sigma_ray``
+            the deviation of a point's distance to its ray; ``gate``: rays farther from the fit
+            than this weigh nothing.
+    Returns:
+        ``(r: (N, n, 3), std: (N, n), ray_weight: (N, n, R))``: the offsets, each instant's
+        posterior standard deviation (per axis, the root mean of its covariance's diagonal)
+        and the rays' final weights (0: refused; ``(N, n, 0)`` without rays).
+    """
+    before, after = np.asarray(before, float), np.asarray(after, float)
+    N = len(before)
+    if before.shape != (N, 2, 3) or after.shape != (N, 2, 3):
+        raise ValueError(f"before, after: expected (N, 2, 3), got {before.shape} and {after.shape}")
+    if not (np.isfinite(before[:, 1]).all(-1) | np.isfinite(after[:, 0]).all(-1)).all():
+        raise ValueError("before, after: the offset next to a gap must be known on one side at least")
+    n = next((np.shape(a)[1] for a in (prior, ray_origin) if a is not None), None)
+    if n is None:
+        raise ValueError("fit_gaps: the gap's length comes from prior or the rays; neither was given")
+    sigma_acc = np.broadcast_to(np.asarray(sigma_acc, float), (N,))
+    if not (sigma_acc > 0).all():
+        raise ValueError(f"sigma_acc: must be > 0, got {sigma_acc.min()}")
+    gaps = _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
+                 sigma_ray, gate, n)
+    _, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)              # motion and prior only
+    r, H, weight = _descend(gaps, start)
+    if gaps.rays:
+        r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))
+        better = _objective(gaps, r2) < _objective(gaps, r)
+        r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)
+                        for a, b in ((r, r2), (H, H2), (weight, weight2)))
+    var = np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)
+    return r, np.sqrt(np.maximum(var, 0.0)), weight

@@ -1,0 +1,163 @@
+"""Limb joints through the occlusions of a track: the track's own motion, its bone lengths,
+the pose prior and the rays of the views that still see the joint
+(:func:`mvm.core.gap_fit.fit_gaps`), with a confidence that falls as the fill's uncertainty
+grows (towards the middle of a gap, with its length, away from the views that see it).
+
+A joint is filled over a run of missing instants when its parent joint (the shoulder of an
+elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
+run and both are seen on at least one side of it (a run at a track's end is continued from the
+side it has); elbows and knees first, so a wrist hidden with its elbow is filled from the
+filled elbow. Long runs and those at a track's end are flagged ``inferred``, brief ones
+``interpolated``. Pure numpy; no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mvm.core.completion import INFERRED, INTERPOLATED
+from mvm.core.gap_fit import fit_gaps
+from mvm.core.keypoints import INDEX
+
+#: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
+LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left", "right") for j, p in pairs)
+                    for pairs in ((("elbow", "shoulder"), ("knee", "hip")), (("wrist", "elbow"), ("ankle", "knee"))))
+#: The joints filled.
+LIMB_JOINTS = [j for joints in LIMB_PASSES for j, _ in joints]
+#: Standard deviation of a bone's length about its track's median, relative to it. [1]
+BONE_SIGMA = 0.03
+#: Standard deviation of a joint's distance to the ray of a view's keypoint of it: the
+#: detector's noise at a rig's distances. [m]
+RAY_SIGMA_M = 0.02
+#: Rays farther than this from the fill are another person's keypoint or an outlier. [m]
+RAY_GATE_M = 0.25
+#: Standard deviation of the pose prior's guess of a limb joint (its error on hidden wrists). [m]
+PRIOR_SIGMA_M = 0.1
+#: The smoothed track's accelerations understate a hidden limb's (the low-pass filter takes the
+#: peaks off, and a limb is hidden when it does what the seen ones do not): its motion term's
+#: standard deviation is this many times the root mean square of the seen second differences.
+#: On the simulated occlusions (benchmarks/rig_occlusion.py) 1 lets the motion outweigh the one
+#: view that sees a wrist (it then takes the ray's wrong meeting with the bone's sphere), 4
+#: lets it follow the noise. [1]
+ACC_SIGMA_FACTOR = 2.0
+#: Second differences beyond this many robust standard deviations (1.4826 median absolute
+#: values) are a swap's or an outlier's jump, not the limb's motion. [1]
+ACC_OUTLIER_SIGMAS = 5.0
+#: Smallest standard deviation of an offset's second differences. [m / instant²]
+MIN_ACC_SIGMA_M = 0.002
+#: Second differences of an offset needed to measure its own; fewer: this default. [m / instant²]
+DEFAULT_ACC_SIGMA_M = 0.01
+MIN_ACC_SAMPLES = 5
+#: A fill whose posterior standard deviation is this has confidence 0.5. [m]
+CONFIDENCE_SCALE_M = 0.05
+
+
+def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Back-projected rays of 2D keypoints: ``xy: (Q, V, J, 2)`` undistorted pixels in the
+    cameras ``(V,)``, ``conf: (Q, V, J)`` -> ``(origin, direction): (Q, V, J, 3)`` (world; unit
+    directions), NaN where ``conf <= threshold``."""
+    homogeneous = np.concatenate([xy, np.ones(xy.shape[:-1] + (1,))], -1)
+    back = np.einsum("vji,vjk->vik", cameras.R, np.linalg.inv(cameras.K))          # (V, 3, 3): R^T K^-1
+    d = np.einsum("vik,qvxk->qvxi", back, homogeneous)
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    ok = (conf > threshold)[..., None]
+    origin = np.broadcast_to(cameras.centers[None, :, None], d.shape)
+    return np.where(ok, origin, np.nan), np.where(ok, d, np.nan)
+
+
+def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive) of the runs of ``True`` in ``missing: (L,)``."""
+    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
+    """The standard deviation of a hidden offset's second differences, from those of the seen
+    ``offsets: (L, 3)`` (NaN: unseen) of its track: :data:`ACC_SIGMA_FACTOR` times their root
+    mean square, those beyond :data:`ACC_OUTLIER_SIGMAS` robust standard deviations left out,
+    in world units (``unit`` per metre)."""
+    acc = offsets[2:] - 2 * offsets[1:-1] + offsets[:-2]
+    acc = acc[np.isfinite(acc).all(-1)]
+    if len(acc) < MIN_ACC_SAMPLES:
+        return DEFAULT_ACC_SIGMA_M * unit
+    robust = 1.4826 * np.median(np.abs(acc))                                      # a swap's jumps left out
+    acc = acc[(np.abs(acc) <= ACC_OUTLIER_SIGMAS * robust).all(-1)]
+    return max(ACC_SIGMA_FACTOR * float(np.sqrt(np.mean(acc ** 2))), MIN_ACC_SIGMA_M * unit)
+
+
+def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
+                    direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
+                    max_gap: int = 90, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fill the limb joints of tracked persons through runs of missing instants.
+
+    Args:
+        X: ``(Q, 17, 3)`` persons, NaN where a joint is missing; instant, track: ``(Q,)``.
+        origin, direction: ``(Q, V, 17, 3)`` the rays of each person's 2D keypoints
+            (:func:`rays`), NaN where a view has none.
+        prior_X: ``(Q, 17, 3)`` the pose prior's guess of the missing joints (None: no prior).
+        long_gap: runs from this long, and those at a track's end, are flagged inferred;
+            shorter ones interpolated. [instants]
+        max_gap: the longest run filled. [instants]
+        unit: world units per metre (the module's constants are in metres).
+    Returns:
+        ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
+        joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
+        confidence (0 elsewhere).
+    """
+    X = np.array(X, dtype=float)
+    instant, track = np.asarray(instant), np.asarray(track)
+    Q = len(X)
+    flags = np.zeros((Q, 17), np.int8)
+    confidence = np.zeros((Q, 17))
+    if not Q:
+        return X, flags, confidence
+    order = np.lexsort((instant, track))
+    bounds = np.flatnonzero(np.diff(track[order])) + 1
+    series_rows = []                                                               # (L,) rows, -1: absent
+    for rows in np.split(order, bounds):
+        t0 = instant[rows].min()
+        index = np.full(instant[rows].max() - t0 + 1, -1)
+        index[instant[rows] - t0] = rows
+        series_rows.append(index)
+    for joints in LIMB_PASSES:
+        gaps = []                       # (rows (n,), before rows, after rows, j, p, length, sigma, flag)
+        for index in series_rows:
+            S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)   # (L, 17, 3)
+            seen = np.isfinite(S).all(-1)
+            for j, p in joints:
+                offsets = S[:, j] - S[:, p]
+                both = seen[:, j] & seen[:, p]
+                if both.sum() < 2:
+                    continue
+                length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
+                sigma = _acc_sigma(offsets, unit)
+                starts, ends = _runs(~seen[:, j])
+                for a, b in zip(starts, ends):
+                    n = b - a
+                    at_start = a > 0 and both[a - 1]
+                    at_end = b < len(S) and both[b]
+                    brief = at_start and at_end and n < long_gap
+                    if not (n <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
+                        continue
+                    before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
+                    after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
+                    flag = INTERPOLATED if brief else INFERRED
+                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag))
+        for n in sorted({len(g[0]) for g in gaps}):
+            group = [g for g in gaps if len(g[0]) == n]
+            rows = np.array([g[0] for g in group])                                 # (N, n)
+            j = np.array([g[3] for g in group])
+            p = np.array([g[4] for g in group])
+            ends = np.array([g[1] + g[2] for g in group])                          # (N, 4)
+            known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
+            known[ends < 0] = np.nan
+            parent = X[rows, p[:, None]]                                           # (N, n, 3)
+            prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
+            o = origin[rows, :, j[:, None]] - parent[:, :, None]                   # (N, n, V, 3)
+            d = direction[rows, :, j[:, None]]
+            bone = np.array([g[5] for g in group])
+            r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
+                                 prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit)
+            X[rows, j[:, None]] = parent + r
+            flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
+            confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
+    return X, flags, confidence
