@@ -69,8 +69,12 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
     Returns groups of pose indices (each within one block), block by block. Memory: one
     ``(n, n)`` float32 matrix for a scene of ``n`` poses (see :func:`mvm.core.affinity.affinity_bytes`),
     ``17 ×`` :data:`MATCH_BATCH_PAIRS` numbers for a rig (a larger instant: as a scene).
+    The instants of a rig whose grouping is final (no association in 3D after it) give the
+    poses of a group too small back to the groups seeded after it (``release`` of
+    :func:`mvm.core.matching.greedy.greedy_groups`).
     """
     groups: list[np.ndarray] = []
+    rig = poses.instant is not None and not config.association == "3d"     # the grouping is final
     for batch in _batches(poses.blocks(), MATCH_BATCH_PAIRS):
         if poses.instant is None or len(batch) == 1 and len(batch[0]) ** 2 > MATCH_BATCH_PAIRS:
             rows = batch[0]
@@ -78,7 +82,7 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
                 continue
             sub = poses if len(rows) == len(poses) else poses.subset(rows)
             found = [greedy_groups(pose_affinity(cameras, sub, config), sub.score, sub.view, config.tau,
-                                   config.min_pose_score, config.min_group_size)]
+                                   config.min_pose_score, config.min_group_size, release=rig)]
         else:
             index = np.full((len(batch), max(len(rows) for rows in batch)), -1)
             for b, rows in enumerate(batch):
@@ -86,7 +90,7 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
             pad = index < 0
             found = greedy_groups_blocks(block_pose_affinity(cameras, poses, index, config),
                                          np.where(pad, 0.0, poses.score[index]), np.where(pad, -1, poses.view[index]),
-                                         config.tau, config.min_pose_score, config.min_group_size)
+                                         config.tau, config.min_pose_score, config.min_group_size, release=rig)
         groups += [rows[g] for rows, block in zip(batch, found) for g in block]
     return groups
 

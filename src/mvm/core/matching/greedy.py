@@ -24,7 +24,7 @@ import numpy as np
 
 
 def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float,
-                  min_score: float = 0.0, min_group_size: int = 1) -> list[np.ndarray]:
+                  min_score: float = 0.0, min_group_size: int = 1, release: bool = False) -> list[np.ndarray]:
     """Greedy grouping of Algorithm 1.
 
     Args:
@@ -33,7 +33,11 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
         view: ``(N,)`` view of each pose; a group holds at most one pose per view.
         tau: a candidate joins while its weighted mean affinity ā to the group is >= tau.
         min_score: poses below this confidence neither seed nor join.
-        min_group_size: smaller groups are dropped (their poses count as visited).
+        min_group_size: smaller groups are dropped, their poses visited.
+        release: a dropped group's poses stay available to the groups seeded after it instead
+            (its seed no longer seeds): a person of four cameras whose first seed closed on two
+            of them is found again from another. For the instants of a rig, whose grouping is
+            final; a scene's association in 3D brings such poses back itself.
     Returns:
         groups: arrays of pose indices, in the order they were built (seeds first).
 
@@ -44,21 +48,22 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
         raise ValueError(f"greedy_groups: expected A (N, N) and view (N,) with N = {N}, "
                          f"got {A.shape} and {np.shape(view)}")
     return greedy_groups_blocks(A[None], np.asarray(score)[None], np.asarray(view)[None], tau, min_score,
-                                min_group_size)[0]
+                                min_group_size, release)[0]
 
 
 def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndarray, tau: float,
-               min_group_size: int) -> list[np.ndarray]:
+               min_group_size: int, release: bool) -> list[np.ndarray]:
     """The steps of :func:`greedy_groups_blocks` for a single block (a scene), on ``(n,)`` state
     and scalars: the same choices and the same sums, without the per-step gathers of the
     batched version, whose fixed cost dominates on a few dozen poses. ``A: (n, n)``; ``w, view,
     eligible: (n,)``, ``n >= 1``."""
     n = len(w)
     available = eligible.copy()
+    seedable = eligible.copy()
     groups: list[np.ndarray] = []
     while True:
-        seed = int(np.argmax(np.where(available, w, -np.inf)))
-        if not available[seed]:
+        seed = int(np.argmax(np.where(available & seedable, w, -np.inf)))
+        if not (available[seed] and seedable[seed]):
             return groups
         members = [seed]
         open_ = available.copy()
@@ -80,10 +85,14 @@ def _one_block(A: np.ndarray, w: np.ndarray, view: np.ndarray, eligible: np.ndar
             members.append(x)
         if len(members) >= min_group_size:
             groups.append(np.array(members, dtype=np.intp))
+        elif release:                                # too small: its poses stay for later groups
+            available[members] = True
+            seedable[seed] = False
 
 
 def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float,
-                         min_score: float = 0.0, min_group_size: int = 1) -> list[list[np.ndarray]]:
+                         min_score: float = 0.0, min_group_size: int = 1,
+                         release: bool = False) -> list[list[np.ndarray]]:
     """:func:`greedy_groups` in ``B`` independent blocks at once (the instants of a rig), all
     blocks advancing in step: one vectorized step seeds or grows one group in every block.
 
@@ -97,17 +106,19 @@ def greedy_groups_blocks(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau
     w = np.where(np.isfinite(w), w, 0.0)
     if B == 1:
         view = np.asarray(view)
-        return [_one_block(A[0], w[0], view[0], (view[0] >= 0) & (w[0] >= min_score), tau, min_group_size)]
+        return [_one_block(A[0], w[0], view[0], (view[0] >= 0) & (w[0] >= min_score), tau, min_group_size,
+                           release)]
     state = _Growth(eligible=(view >= 0) & (w >= min_score), joined=np.full((B, n), -1), seed=np.zeros((B, n), bool),
                     weighted_sum=np.zeros((B, n)), total_weight=np.zeros((B, n)), open_=np.zeros((B, n), bool),
-                    growing=np.zeros(B, bool), done=np.zeros(B, bool))
+                    growing=np.zeros(B, bool), done=np.zeros(B, bool), tried=np.zeros((B, n), bool),
+                    start=np.zeros(B, np.int64))
     step, closed = 0, True
     while True:
         if closed:
             _seed(A, w, view, state, step)
             if not state.growing.any():
                 break
-        closed = _grow(A, w, view, state, tau, step)
+        closed = _grow(A, w, view, state, tau, step, min_group_size if release else 1)
         step += 1
     return _collect(state.joined, state.seed, min_group_size)
 
@@ -117,7 +128,9 @@ class _Growth:
     """The state of :func:`greedy_groups_blocks`, ``(B, n)`` per pose or ``(B,)`` per block:
     the step at which each pose ``joined`` a group (-1: not yet; a pose that joined is no longer
     available) and whether it was the group's ``seed``; the weighted sum and total weight of
-    affinities of each candidate to the growing group; ``open_`` candidates."""
+    affinities of each candidate to the growing group; ``open_`` candidates; the poses that
+    ``tried`` as seeds of a group too small (they may still join another); the step at which
+    each block's current group started."""
 
     eligible: np.ndarray
     joined: np.ndarray
@@ -127,6 +140,8 @@ class _Growth:
     open_: np.ndarray
     growing: np.ndarray
     done: np.ndarray
+    tried: np.ndarray
+    start: np.ndarray
 
 
 def _affinity_rows(A: np.ndarray, b: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,11 +173,12 @@ def _seed(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, step: int)
     if not len(b):
         return
     available = s.eligible[b] & (s.joined[b] < 0)
-    seed = np.argmax(np.where(available, w[b], -np.inf), axis=1)
-    found = available[np.arange(len(b)), seed]
+    seed = np.argmax(np.where(available & ~s.tried[b], w[b], -np.inf), axis=1)
+    found = (available & ~s.tried[b])[np.arange(len(b)), seed]
     s.done[b[~found]] = True
     b, seed, available = b[found], seed[found], available[found]
     s.seed[b, seed] = True
+    s.start[b] = step
     s.weighted_sum[b] = 0.0
     s.total_weight[b] = 0.0
     s.open_[b] = available
@@ -170,9 +186,11 @@ def _seed(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, step: int)
     s.growing[b] = True
 
 
-def _grow(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, tau: float, step: int) -> bool:
+def _grow(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, tau: float, step: int,
+          min_group_size: int = 1) -> bool:
     """Every growing group takes the open candidate with the largest weighted sum of affinities
-    (the paper's rule) while its weighted mean affinity ā is >= ``tau``; otherwise it closes.
+    (the paper's rule) while its weighted mean affinity ā is >= ``tau``; otherwise it closes, and
+    a group of fewer than ``min_group_size`` poses gives them back (:func:`_release`).
     Returns whether a group closed."""
     b = np.flatnonzero(s.growing)
     every = len(b) == len(w)                                      # no gathers needed
@@ -187,7 +205,22 @@ def _grow(A: np.ndarray, w: np.ndarray, view: np.ndarray, s: _Growth, tau: float
         return False
     _join(A, w, view, s, b[accept], best[accept], step + 1)
     s.growing[b[~accept]] = False
+    if min_group_size > 1:
+        _release(s, b[~accept], min_group_size)
     return True
+
+
+def _release(s: _Growth, b: np.ndarray, min_group_size: int) -> None:
+    """The groups that just closed in blocks ``b`` with fewer than ``min_group_size`` poses give
+    their poses back to later groups; their seeds no longer seed (``tried``)."""
+    members = s.joined[b] >= s.start[b][:, None]                               # (k, n) the closed group
+    small = members.sum(1) < min_group_size
+    if not small.any():
+        return
+    b, members = b[small], members[small]
+    s.tried[b] |= members & s.seed[b]
+    s.seed[b] &= ~members
+    s.joined[b] = np.where(members, -1, s.joined[b])
 
 
 def _collect(joined: np.ndarray, seed: np.ndarray, min_group_size: int) -> list[list[np.ndarray]]:
