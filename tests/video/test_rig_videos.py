@@ -218,3 +218,32 @@ def test_a_camera_named_like_a_record_is_one_line(rendered, tmp_path):
     shutil.copy(root / "videos" / "cam_01.mkv", root / "videos" / "cam_01.inputs.mkv")
     _one_line(_detect(root, model), "cam_01.inputs.mkv", "camera cam_01.inputs")
     assert not (root / "pose").exists()
+
+
+@pytest.mark.parametrize("announce", [2 ** 32 - 1, 10 ** 9])
+def test_a_video_announcing_billions_of_frames_is_read_as_what_decodes(rendered, tmp_path, announce):
+    """cam_02's video re-encoded as a (lossless) AVI whose header claims ``announce`` frames: its
+    pose file holds the frames that decode, in memory bounded by the file's size."""
+    import tracemalloc
+
+    import cv2
+
+    from helpers import write_avi
+
+    root, _, model = _copy(rendered, tmp_path)
+    capture = cv2.VideoCapture(str(root / "videos" / "cam_02.mkv"))
+    images = [capture.read()[1] for _ in range(FRAMES)]
+    capture.release()
+    (root / "videos" / "cam_02.mkv").unlink()
+    write_avi(root / "videos" / "cam_02.avi", images, RATE, announce=announce, codec="FFV1")
+    tracemalloc.start()
+    try:
+        result = _detect(root, model)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert result.exit_code == 0, result.output
+    assert peak < 200e6, f"{peak / 1e6:.0f} MB"
+    info = json.loads((root / "pose" / "cam_02.json").read_text())["info"]["video"]
+    assert info == {"file": "videos/cam_02.avi", "frame_rate": RATE, "frames": FRAMES, "width": 640, "height": 360}
+    assert len(read_rig(root, extrinsics=False).frames) >= FRAMES
