@@ -107,8 +107,9 @@ def _open(video: Path, camera: str):
 
 def probe_video(video: Path, camera: str, rig_dir: Path) -> VideoInfo:
     """Open ``video`` and decode its first frame: its header's frame rate and frame count
-    (bounded by the file's size: :func:`mvm.io.images.frame_count_bound`) and the frame size. A video that does not open or decode raises :class:`InputError` naming
-    ``camera`` and the file."""
+    (bounded by the file's size: :func:`mvm.io.images.frame_count_bound`) and the frame size.
+    A video that does not open or decode raises :class:`InputError` naming ``camera`` and the
+    file."""
     capture = _open(video, camera)
     try:
         ok, image = capture.read()
