@@ -16,7 +16,7 @@ from mvm.core.config import check_settings, setting
 from mvm.core.names import natural_key
 from mvm.errors import InputError
 from mvm.io.checks import load_json
-from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
 from mvm.io.images import count_frames, frame_count_bound, step_frames
 from mvm.io.paths import check_name
 from mvm.io.provenance import fingerprints, forget, why_redo, write_record
@@ -316,6 +316,7 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     index_path = scene / FRAMES_INDEX
     if not video.is_file():
         raise InputError(video, None, "video file not found")
+    make_dir(scene)                                         # a file in the way: one line, before anything
     hashed = fingerprints(frame_inputs(video))
     why = frames_reason(video, scene, options, force, hashed)
     if why is None:

@@ -30,7 +30,7 @@ import cv2
 
 from mvm.errors import InputError
 from mvm.io.checks import integer, load_json
-from mvm.io.files import atomic_write_json
+from mvm.io.files import OutputError, atomic_write_json
 from mvm.io.images import frame_count_bound, over_frame_limit
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
 from mvm.io.provenance import RECORD_SUFFIX, fingerprints, forget, read_record, why_redo, write_record
@@ -44,6 +44,10 @@ VIDEOS_DIR = "videos"
 POSE_DIR = "pose"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RIG_DETECT_STAGE = "the rig detection"
+#: The longest camera name (a video's file name without its type) in bytes: the temporary file of
+#: its pose file's record, ``.<camera>.inputs.json.mvm-tmp-XXXXXXXX.tmp``, must fit the file
+#: systems' 255 bytes. [bytes]
+MAX_CAMERA_NAME_BYTES = 200
 #: Decoded frames fewer than the header announces by more than this share are reported. [1]
 SHORT_VIDEO_SHARE = 0.01
 
@@ -90,6 +94,10 @@ def rig_videos(rig_dir: str | Path) -> dict[str, Path]:
     if not found:
         raise InputError(folder, None, f"no video in it (file types {', '.join(VIDEO_SUFFIXES)})")
     for camera, video in found.items():
+        if len(camera.encode()) > MAX_CAMERA_NAME_BYTES:
+            raise InputError(video, None, f"a camera name of {len(camera.encode())} bytes: at most "
+                                          f"{MAX_CAMERA_NAME_BYTES} (its pose file, its record and their temporary "
+                                          "files are named after it)")
         if (camera + ".json").lower().endswith(RECORD_SUFFIX):    # its pose file: another camera's record
             raise InputError(video, None, f"camera {camera}: a camera name may not end in "
                                           f"{RECORD_SUFFIX.removesuffix('.json')} (mvm's records of pose files)")
@@ -223,6 +231,9 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
     options = replace(options, appearance="none")
     check_models(options, checkpoint)
     videos = rig_videos(rig_dir)
+    if (rig_dir / POSE_DIR).exists() and not (rig_dir / POSE_DIR).is_dir():
+        raise OutputError(rig_dir / POSE_DIR, None, "cannot write: exists and is not a folder (the cameras' pose "
+                                                    "files go in it): move it away")
     settings = detect_settings(kind, None, options)
     plan = []
     for camera, video in videos.items():
