@@ -23,7 +23,6 @@ keeps every camera. Exit status 1 if any case fails.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import resource
@@ -43,9 +42,9 @@ import numpy as np
 TESTS = Path(__file__).resolve().parents[1] / "tests"
 sys.path[:0] = [str(TESTS)]
 
-from helpers import write_avi  # noqa: E402
-
 from mvm.errors import InputError  # noqa: E402
+
+from helpers import write_avi  # noqa: E402
 
 FRAMES = 6
 NESTED = '{"a": ' * 1020 + "1" + "}" * 1020
@@ -171,7 +170,7 @@ def fuzz_frames(root: Path, n: int, rng: np.random.Generator, tally: Tally, max_
         options = FrameOptions(rate=[None, 1.0, 30.0][rng.integers(3)], max_frames=[None, 1, 3][rng.integers(3)],
                                select=str(rng.choice(["auto", "motion", "all"])), blur_ratio=float(rng.random()))
 
-        def case():
+        def case(video=video, scene=scene, options=options):
             index = extract_frames(video, scene, options, force=bool(rng.random() < 0.3))
             if len(index.numbers) and index.numbers.max() >= FRAMES:
                 return f"frame {index.numbers.max()} of a {FRAMES}-frame video"
@@ -212,7 +211,7 @@ def fuzz_rig_detect(root: Path, n: int, rng: np.random.Generator, tally: Tally, 
         state = scene_state(rig / "pose", f"{camera}.json", f"{camera}.inputs.json", rng)
         force = bool(rng.random() < 0.5)
 
-        def case():
+        def case(rig=rig, force=force):
             done = rig_videos.detect_rig_videos(rig, None, DetectOptions(detector="rtmo"), force=force)
             for cam in done:
                 if cam.video is not None and cam.video.frames > FRAMES:
@@ -277,7 +276,7 @@ def fuzz_sync(root: Path, n: int, rng: np.random.Generator, tally: Tally, max_by
                 path.write_bytes(bytes(rng.integers(0, 256, 64, dtype=np.uint8)))
         frames = [None, "0:6", "5:", ":3"][rng.integers(4)]
 
-        def case():
+        def case(rig=rig, frames=frames):
             data = read_rig(rig, frames=frames)
             seen = set(np.unique(data.detections.view).tolist())
             if data.offsets is None:
