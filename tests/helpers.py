@@ -206,3 +206,28 @@ def marker_rtmo(path: Path, people: int) -> Path:
     onnx.checker.check_model(model)
     onnx.save(model, path)
     return path
+
+
+def write_avi(path: Path, images, fps: float = 10.0, announce: int | None = None, codec: str = "MJPG") -> Path:
+    """Write ``images`` ((H, W, 3) BGR, one size) as an AVI (``codec``: MJPG, FFV1: lossless);
+    with ``announce``, its RIFF header then claims that many frames (the main header's
+    ``dwTotalFrames`` and the video stream header's ``dwLength``), as a forged or damaged file
+    would."""
+    import struct
+
+    import cv2
+
+    images = list(images)
+    h, w = images[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), fps, (w, h))
+    for image in images:
+        writer.write(image)
+    writer.release()
+    if announce is not None:
+        data = bytearray(path.read_bytes())
+        main, stream = data.find(b"avih"), data.find(b"strh")       # each chunk: fourcc, size, fields
+        assert main > 0 and stream > 0 and data[stream + 8:stream + 12] == b"vids", "not an AVI OpenCV wrote"
+        struct.pack_into("<I", data, main + 8 + 16, announce)         # MainAVIHeader.dwTotalFrames
+        struct.pack_into("<I", data, stream + 8 + 32, announce)       # AVIStreamHeader.dwLength
+        path.write_bytes(bytes(data))
+    return path

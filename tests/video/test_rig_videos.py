@@ -218,3 +218,71 @@ def test_a_camera_named_like_a_record_is_one_line(rendered, tmp_path):
     shutil.copy(root / "videos" / "cam_01.mkv", root / "videos" / "cam_01.inputs.mkv")
     _one_line(_detect(root, model), "cam_01.inputs.mkv", "camera cam_01.inputs")
     assert not (root / "pose").exists()
+
+
+@pytest.mark.parametrize("announce", [2 ** 32 - 1, 10 ** 9])
+def test_a_video_announcing_billions_of_frames_is_read_as_what_decodes(rendered, tmp_path, announce):
+    """cam_02's video re-encoded as a (lossless) AVI whose header claims ``announce`` frames: its
+    pose file holds the frames that decode, in memory bounded by the file's size."""
+    import tracemalloc
+
+    import cv2
+
+    from helpers import write_avi
+
+    root, _, model = _copy(rendered, tmp_path)
+    capture = cv2.VideoCapture(str(root / "videos" / "cam_02.mkv"))
+    images = [capture.read()[1] for _ in range(FRAMES)]
+    capture.release()
+    (root / "videos" / "cam_02.mkv").unlink()
+    write_avi(root / "videos" / "cam_02.avi", images, RATE, announce=announce, codec="FFV1")
+    tracemalloc.start()
+    try:
+        result = _detect(root, model)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert result.exit_code == 0, result.output
+    assert peak < 200e6, f"{peak / 1e6:.0f} MB"
+    info = json.loads((root / "pose" / "cam_02.json").read_text())["info"]["video"]
+    assert info == {"file": "videos/cam_02.avi", "frame_rate": RATE, "frames": FRAMES, "width": 640, "height": 360}
+    assert len(read_rig(root, extrinsics=False).frames) >= FRAMES
+
+
+def test_a_pose_path_that_is_a_file_is_one_line(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    (root / "pose").write_text("notes\n")
+    _one_line(_detect(root, model), "pose", "not a folder")
+    assert (root / "pose").read_text() == "notes\n"
+
+
+def test_a_record_that_is_a_folder_is_one_line_with_force(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    assert _detect(root, model).exit_code == 0
+    (root / "pose" / "cam_01.inputs.json").unlink()
+    (root / "pose" / "cam_01.inputs.json").mkdir()
+    _one_line(_detect(root, model, "--force"), "cam_01.inputs.json", "directory")
+
+
+def test_a_record_nested_deeper_than_python_recurses_is_no_record(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    assert _detect(root, model).exit_code == 0
+    path = root / "pose" / "cam_01.inputs.json"
+    text = json.dumps(json.loads(path.read_text()))
+    path.write_text(text.replace('"settings": {', '"settings": {"deep": ' + '{"a": ' * 1020 + "1" + "}" * 1020
+                                 + ", ", 1))
+    result = _detect(root, model)
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1, result.output                # no record: not mvm's file
+    assert "cam_01.json" in lines[0] and "--force" in lines[0], lines[0]
+    result = _detect(root, model, "--force")
+    assert result.exit_code == 0, result.output
+    assert json.loads(path.read_text())["settings"].get("deep") is None
+
+
+def test_a_camera_name_too_long_for_its_pose_files_is_one_line(rendered, tmp_path):
+    root, _, model = _copy(rendered, tmp_path)
+    long = "c" * 245
+    (root / "videos" / "cam_02.mkv").rename(root / "videos" / f"{long}.mkv")
+    _one_line(_detect(root, model), f"{long}.mkv", "at most 200")
+    assert not (root / "pose").exists()

@@ -86,13 +86,10 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
     from mvm.io.ground_truth import write_simulation
     from mvm.sim.simulate import simulate
 
+    refuse_other_mode(click.get_current_context(), rig, videos)
     if rig:
         return simulate_rig_cmd(scene_dir, preset, people, frames, seed, cameras, offsets, intrinsics_only,
                                 video_type if videos else None)
-    if videos:
-        from mvm.errors import InputError
-
-        raise InputError(None, "--videos", "goes with --rig (a scene's frames: --render)")
 
     with refused(ValueError):
         sim = read_sim(config_path, preset, people=people, frames=frames, arc_deg=arc_deg, seed=seed,
@@ -112,6 +109,36 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
         ("merged poses", str(int((truth.merged_with >= 0).sum()))),
         ("scene", str(scene_dir)), ("ground truth", str(truth_path))]
         + ([("rendered frames", f"{scene_dir}/frames")] if render else []))
+
+
+#: The options of ``mvm simulate`` that only one mode reads: the option, its parameter, and what
+#: to use instead in the other mode.
+SCENE_ONLY = (("--arc", "arc_deg", "a rig's cameras stand on a ring"),
+              ("--trajectory", "trajectory", "a rig's cameras stand on a ring"),
+              ("--render", "render", "--videos renders each camera's video"),
+              ("--config", "config_path", "a rig's simulation reads no settings file: --people, --frames, --seed"))
+RIG_ONLY = (("--cameras", "cameras", "a scene is one moving camera: --frames, --arc"),
+            ("--offsets", "offsets", "a scene is one moving camera"),
+            ("--intrinsics-only", "intrinsics_only", "a scene's cameras are in its scene.json"),
+            ("--videos", "videos", "a scene's frames: --render"))
+
+
+def refuse_other_mode(ctx: click.Context, rig: bool, videos: bool) -> None:
+    """Refuse, in one line, an option given on the command line that the chosen mode of ``mvm
+    simulate`` would ignore (:data:`SCENE_ONLY` with ``--rig``, :data:`RIG_ONLY` without it;
+    ``--video-type`` without ``--videos``)."""
+    from click.core import ParameterSource
+
+    from mvm.errors import InputError
+
+    def given(name: str) -> bool:
+        return ctx.get_parameter_source(name) not in (ParameterSource.DEFAULT, None)
+
+    for option, name, instead in SCENE_ONLY if rig else RIG_ONLY:
+        if given(name):
+            raise InputError(None, option, f"{'not read with' if rig else 'read only with'} --rig ({instead})")
+    if given("video_type") and not videos:
+        raise InputError(None, "--video-type", "read only with --rig --videos (the type of the rendered videos)")
 
 
 def parse_offsets(text: str | None, cameras: int) -> tuple[int, ...]:

@@ -1,8 +1,12 @@
 """Frames of a scene read the guarded way (:func:`mvm.io.checks.read_bytes`): a regular file
 inside the scene directory, of bounded size, decoded from memory by OpenCV; and the frames of a
-video stepped through one at a time (:func:`step_frames`)."""
+video stepped through one at a time (:func:`step_frames`), as many as decode, never more than
+:data:`MAX_VIDEO_FRAMES` (a video's header may announce any count: :func:`frame_count_bound`)."""
 from __future__ import annotations
 
+import logging
+import math
+import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -11,8 +15,23 @@ import numpy as np
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_bytes
 
+log = logging.getLogger(__name__)
+
 MAX_IMAGE_BYTES = 512 * 2 ** 20
 """The largest image file a reader decodes (bytes)."""
+
+
+def _frames_from_env() -> int:
+    try:
+        frames = float(os.environ.get("MVM_MAX_VIDEO_FRAMES", "2000000"))
+    except ValueError:
+        frames = 2e6
+    return int(frames) if math.isfinite(frames) and frames >= 1 else 2_000_000
+
+
+MAX_VIDEO_FRAMES = _frames_from_env()
+"""The most frames read from one video (``MVM_MAX_VIDEO_FRAMES``, default 2,000,000: 18.5 hours
+at 30 frames/s); the frames past it are not read, with a warning."""
 
 
 class UndecodableImage(InputError):
@@ -55,13 +74,48 @@ def check_frames(frames_dir: str | Path, names, root: str | Path) -> None:
         check_input_file(Path(frames_dir) / name, root, limit=MAX_IMAGE_BYTES)
 
 
-def step_frames(capture, wanted: Callable[[int], bool], last: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-    """The frames of an opened ``cv2.VideoCapture`` whose number ``wanted`` accepts, up to frame
-    ``last`` (None: to the end of the video), one at a time: yields ``(number, image (H, W, 3)
-    BGR)``. The frames in between are grabbed, not decoded, and memory holds one frame whatever
-    the video's length; the first frame that does not decode ends the video."""
+def frame_count_bound(video: str | Path, announced: float) -> int:
+    """How many frames ``video`` may hold, for a reader to make room for: the count its header
+    ``announced`` (a forged header says anything), at most one per byte of the file and at most
+    :data:`MAX_VIDEO_FRAMES`; 0 when the header says nothing usable. The frames actually there
+    are those that decode (:func:`step_frames`)."""
+    try:
+        size = os.stat(video).st_size
+    except OSError:
+        size = 0
+    if not math.isfinite(announced) or announced <= 0:
+        return 0
+    count = int(min(announced, size))
+    return MAX_VIDEO_FRAMES if over_frame_limit(video, count - 1) else count
+
+
+def over_frame_limit(video: str | Path, number: int) -> bool:
+    """Whether frame ``number`` (from 0) of ``video`` is at or past :data:`MAX_VIDEO_FRAMES`;
+    logs a warning naming the video when it is."""
+    if number < MAX_VIDEO_FRAMES:
+        return False
+    log.warning("%s: only its first %d frames are read (MVM_MAX_VIDEO_FRAMES)", video, MAX_VIDEO_FRAMES)
+    return True
+
+
+def count_frames(capture, video: str | Path) -> int:
+    """The frames of an opened ``cv2.VideoCapture`` counted by grabbing them (nothing converted
+    or kept; at most :data:`MAX_VIDEO_FRAMES`), from where it stands to the end of ``video``."""
     number = 0
-    while last is None or number <= last:
+    while not over_frame_limit(video, number) and capture.grab():
+        number += 1
+    return number
+
+
+def step_frames(capture, wanted: Callable[[int], bool], last: int | None = None,
+                video: str | Path = "a video") -> Iterator[tuple[int, np.ndarray]]:
+    """The frames of an opened ``cv2.VideoCapture`` whose number ``wanted`` accepts, up to frame
+    ``last`` (None: to the end of ``video``) and below :data:`MAX_VIDEO_FRAMES`, one at a time:
+    yields ``(number, image (H, W, 3) BGR)``. The frames in between are grabbed, not decoded,
+    and memory holds one frame whatever the video's length; the first frame that does not
+    decode ends the video."""
+    number = 0
+    while (last is None or number <= last) and not over_frame_limit(video, number):
         if wanted(number):
             ok, image = capture.read()
             if not ok:

@@ -33,7 +33,7 @@ import orjson
 
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_bytes
-from mvm.io.files import atomic_write_json
+from mvm.io.files import atomic_write_json, output_error
 
 RECORD_FORMAT = "mvm.inputs/1"
 #: The largest record read back (one holds a few hashes and the settings). [bytes]
@@ -159,12 +159,21 @@ def read_record(output: str | Path) -> dict | None:
         return None
     if not isinstance(data, dict) or data.get("format") != RECORD_FORMAT or not isinstance(data.get("inputs"), dict):
         return None
+    try:
+        _flat(data.get("settings"))              # nested deeper than Python recurses: no record
+    except RecursionError:
+        return None
     return data
 
 
 def forget(output: str | Path) -> None:
-    """Remove the record of ``output``: call it before replacing the output."""
-    record_path(output).unlink(missing_ok=True)
+    """Remove the record of ``output``: call it before replacing the output. A record that
+    cannot be removed (a folder in its place) raises :class:`~mvm.io.files.OutputError`."""
+    path = record_path(output)
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as e:
+        raise output_error(path, e) from None
 
 
 def write_record(output: str | Path, stage: str, inputs: Mapping[str, object], settings=None,

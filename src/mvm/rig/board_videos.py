@@ -36,7 +36,7 @@ from mvm.core.names import natural_key, without_shared_words
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
-from mvm.io.images import read_image, step_frames
+from mvm.io.images import frame_count_bound, read_image, step_frames
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
@@ -127,14 +127,15 @@ def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
 
 
 def frame_count(source: Path) -> int:
-    """Frames of a video (its header; 0 when it does not say) or images of a folder."""
+    """Frames of a video (its header's count, bounded: :func:`mvm.io.images.frame_count_bound`;
+    0 when it does not say) or images of a folder."""
     if source.is_dir():
         return len(_images(source))
     if source.suffix.lower() in IMAGE_EXTENSIONS:
         return 1
     capture = cv2.VideoCapture(str(source))
     try:
-        return max(int(capture.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if capture.isOpened() else 0
+        return frame_count_bound(source, capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
     finally:
         capture.release()
 
@@ -154,7 +155,7 @@ def gray_frames(source: Path, stride: int):
         if not capture.isOpened():
             raise InputError(source, None, "OpenCV cannot open this video")
         decoded = False                                      # frame 0, always wanted, decodes
-        for number, image in step_frames(capture, lambda n: n % stride == 0):
+        for number, image in step_frames(capture, lambda n: n % stride == 0, video=source):
             decoded = True
             yield number, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         if not decoded:

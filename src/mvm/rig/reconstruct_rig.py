@@ -283,6 +283,17 @@ def check_smoothing(options: RigOptions) -> None:
                                       "frame_rate or filter_order, or use smoothing = savgol")
 
 
+def check_group_size(config: Config, rig: RigData) -> None:
+    """Refuse, with an :class:`InputError` naming ``min_group_size``, settings the rig's cameras
+    cannot meet: a person is reconstructed from a group of at least ``min_group_size`` 2D poses,
+    one per camera, so a rig with fewer cameras with poses would reconstruct nobody."""
+    cameras = len(rig.calibration.cameras.names)
+    if cameras < config.min_group_size:
+        raise InputError(None, "min_group_size", f"{config.min_group_size} cameras must see a person to reconstruct "
+                                                 f"it, and this rig has {cameras} with 2D poses: nobody would be "
+                                                 f"reconstructed (give --set min_group_size={cameras})")
+
+
 def with_frame_rate(options: RigOptions, rig: RigData) -> tuple[RigOptions, str]:
     """``options`` with the rig's frame rate, and where it comes from: ``"setting"`` (given; a
     warning when the videos recorded another), ``"videos"`` (the rate ``mvm rig detect``
@@ -357,6 +368,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     hashed = fingerprints(inputs)                                    # before reading: never newer than the set
     t0 = time.perf_counter()
     rig = read_rig(rig_dir, calib, frames, options.workers)
+    check_group_size(config, rig)
     given, (options, rate_source) = options, with_frame_rate(options, rig)
     timings["read_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()

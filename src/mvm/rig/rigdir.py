@@ -197,7 +197,7 @@ def _read_frame_files(files: list[Path], fmt: str, root: Path) -> list[tuple[np.
 
 def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: str, root: Path,
                   start: int | None, stop: int | None, workers: int | None = None,
-                  shifts: list[int] | None = None, videos: list | None = None
+                  shifts: list[int] | None = None, videos: list | None = None, spans: list | None = None
                   ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """The 2D poses of each camera's source of ``paths`` (its per-frame ``files``,
     :func:`_source_format`) with a frame number in ``[start, stop)`` (None: open):
@@ -205,7 +205,8 @@ def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: s
     added to its frame numbers first (the range applies to the shifted numbers, which are
     returned). Per-frame files outside the range are not read; the files of all cameras are
     read on ``workers`` processes (:func:`mvm.parallel.fork_map`). ``videos``: a list that gets
-    each COCO file's ``info.video`` (or None)."""
+    each COCO file's ``info.video`` (or None); ``spans``: a list that gets each camera's first
+    and last shifted frame number before the range is applied (None: no pose)."""
     low, high = -np.inf if start is None else start, np.inf if stop is None else stop
     shifts = shifts or [0] * len(paths)
     if fmt == "coco":
@@ -215,9 +216,14 @@ def _read_sources(paths: list[Path], files: list[list[tuple[int, Path]]], fmt: s
             if videos is not None:
                 videos.append(video)
             f = f + shift
+            if spans is not None:
+                spans.append((int(f.min()), int(f.max())) if len(f) else None)
             keep = (f >= low) & (f < high)
             out.append((f[keep], kp[keep], score[keep]))
         return out
+    if spans is not None:
+        spans += [(min(f for f, _ in listing) + shift, max(f for f, _ in listing) + shift) if listing else None
+                  for listing, shift in zip(files, shifts)]
     listings = [[(f + shift, file) for f, file in listing if low <= f + shift < high]
                 for listing, shift in zip(files, shifts)]
     flat = [file for files in listings for _, file in files]
@@ -264,16 +270,17 @@ def sync_shifts(offsets: dict[str, int], names: list[str], path: Path) -> list[i
     return [offsets[n] for n in names]
 
 
-def check_overlap(frames: list[np.ndarray], names: list[str], path: Path) -> None:
-    """Every camera's shifted ``frames`` must share instants with the first camera's: a
-    camera whose offset moves it past the other videos raises :class:`InputError` naming it."""
-    if not frames or not len(frames[0]):
+def check_overlap(spans: list[tuple[int, int] | None], names: list[str], path: Path) -> None:
+    """Every camera's shifted frames (``spans``: first and last frame number, None: no pose)
+    must share instants with the first camera's: a camera whose offset moves it past the other
+    videos raises :class:`InputError` naming it."""
+    if not spans or spans[0] is None:
         return
-    low, high = frames[0].min(), frames[0].max()
-    for name, f in zip(names[1:], frames[1:]):
-        if len(f) and (f.max() < low or f.min() > high):
+    low, high = spans[0]
+    for name, span in zip(names[1:], spans[1:]):
+        if span is not None and (span[1] < low or span[0] > high):
             raise InputError(path, f"[offsets].{name}", f"the offset moves camera {name} beyond the videos' "
-                                                        f"length (its frames {f.min()}..{f.max()}, the reference's "
+                                                        f"length (its frames {span[0]}..{span[1]}, the reference's "
                                                         f"{low}..{high})")
 
 
@@ -294,7 +301,8 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     calib_path = Path(calib) if calib else find_calibration(rig_dir)
     calibration, colmap_model = read_calibration(calib_path, extrinsics)
     sync_path = rig_dir / SYNC_FILE
-    offsets = read_sync_toml(sync_path) if sync and sync_path.is_file() else None
+    present = sync_path.exists() or sync_path.is_symlink()       # a link to nothing, a FIFO: refused
+    offsets = read_sync_toml(sync_path) if sync and present else None
     sources = pose_sources(rig_dir)
     names = calibration.cameras.names
     try:
@@ -328,9 +336,10 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     used_names = [names[c] for c in used]
     shifts = sync_shifts(offsets, used_names, sync_path) if offsets is not None else None
     videos: list = []
-    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers, shifts, videos)
+    spans: list = []
+    read = _read_sources(paths, list(files), fmt, rig_dir, start, stop, workers, shifts, videos, spans)
     if offsets is not None:
-        check_overlap([f for f, _, _ in read], used_names, sync_path)
+        check_overlap(spans, used_names, sync_path)
     kps = [kp for _, kp, _ in read]
     scores = [score for _, _, score in read]
     frame_of = [f for f, _, _ in read]

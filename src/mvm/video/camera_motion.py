@@ -93,7 +93,10 @@ class FeatureTracks:
 
 def _follow(previous: np.ndarray, grey: np.ndarray, ids: np.ndarray, points: np.ndarray):
     """The tracks ``ids: (N,)`` at ``points: (N, 2)`` of ``previous`` found in ``grey`` (forward
-    and back within :data:`FORWARD_BACKWARD_PX`, inside the frame) -> (ids, points)."""
+    and back within :data:`FORWARD_BACKWARD_PX`, inside the frame) -> (ids, points). No track
+    (a black or flat frame has no corner) follows into nothing."""
+    if not len(points):
+        return ids, points
     start = points.reshape(-1, 1, 2)
     ahead, found, _ = cv2.calcOpticalFlowPyrLK(previous, grey, start, None, **_LK)
     back, found_back, _ = cv2.calcOpticalFlowPyrLK(grey, previous, ahead, None, **_LK)
@@ -119,7 +122,11 @@ def _corners(grey: np.ndarray, existing: np.ndarray, count: int) -> np.ndarray:
 
 def track_motion(tracks: FeatureTracks, a: int, b: int) -> tuple[float, float]:
     """(median displacement of the tracks frames ``a`` and ``b`` share, as a fraction of the
-    diagonal; the share of ``a``'s tracks that reach ``b``). No shared track: (inf, 0)."""
+    diagonal; the share of ``a``'s tracks that reach ``b``). No shared track: (inf, 0); no track
+    in ``a`` (a black or flat frame): (NaN, 1), nothing measured, so that only ``max_gap_s``
+    and ``min_frames`` keep frames."""
+    if not len(tracks.ids[a]):
+        return float("nan"), 1.0
     common, ia, ib = np.intersect1d(tracks.ids[a], tracks.ids[b], assume_unique=True, return_indices=True)
     surviving = len(common) / max(len(tracks.ids[a]), 1)
     if not len(common):

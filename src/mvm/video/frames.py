@@ -16,8 +16,8 @@ from mvm.core.config import check_settings, setting
 from mvm.core.names import natural_key
 from mvm.errors import InputError
 from mvm.io.checks import load_json
-from mvm.io.files import atomic_write_bytes, atomic_write_json
-from mvm.io.images import step_frames
+from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
+from mvm.io.images import count_frames, frame_count_bound, step_frames
 from mvm.io.paths import check_name
 from mvm.io.provenance import fingerprints, forget, why_redo, write_record
 from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motion
@@ -148,12 +148,13 @@ def _resize(image: np.ndarray, width: int | None) -> np.ndarray:
     return cv2.resize(image, (width, height), interpolation=interpolation)
 
 
-def decode_frames(capture, wanted: np.ndarray, width: int | None = None):
-    """The frames numbered ``wanted: (F,)`` (sorted) of an opened ``cv2.VideoCapture``, one at a
-    time: yields ``(number, image (H, W, 3) BGR)`` resized to ``width``. Frames in between are
-    grabbed, not decoded; memory holds one frame whatever the video's length."""
+def decode_frames(capture, wanted: np.ndarray, width: int | None = None, video: str | Path = "a video"):
+    """The frames numbered ``wanted: (F,)`` (sorted) of an opened ``cv2.VideoCapture`` of
+    ``video``, one at a time: yields ``(number, image (H, W, 3) BGR)`` resized to ``width``.
+    Frames in between are grabbed, not decoded; memory holds one frame whatever the video's
+    length."""
     last = int(wanted[-1]) if len(wanted) else -1
-    for number, image in step_frames(capture, set(wanted.tolist()).__contains__, last):
+    for number, image in step_frames(capture, set(wanted.tolist()).__contains__, last, video):
         yield number, _resize(image, width)
 
 
@@ -193,6 +194,20 @@ def frame_size(video: str | Path, options: FrameOptions = FrameOptions()) -> tup
     return options.width, int(round(h * options.width / w))
 
 
+def _frame_count(video: Path, capture, options: FrameOptions) -> int:
+    """The frames of ``video`` to sample from: with ``max_frames`` (spread over the whole video)
+    those that decode, counted by a first pass that grabs them (then ``video`` is opened again);
+    otherwise the header's count bounded by the file's size (:func:`mvm.io.images.frame_count_bound`),
+    the frames that do not decode past the last one that does ending the video all the same."""
+    if options.max_frames is None:
+        return frame_count_bound(video, capture.get(cv2.CAP_PROP_FRAME_COUNT))
+    counting = _open_video(video)
+    try:
+        return count_frames(counting, video)
+    finally:
+        counting.release()
+
+
 def _decode_sampled(video: Path, options: FrameOptions, progress, frames_dir: Path | None = None,
                     tracks: FeatureTracks | None = None):
     """Decode the sampled frames of ``video`` (resized to ``options.width``) one at a time,
@@ -202,12 +217,13 @@ def _decode_sampled(video: Path, options: FrameOptions, progress, frames_dir: Pa
     capture = _open_video(video)
     numbers, sharp, size = [], [], (0, 0)
     try:
-        n_frames = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+        n_frames = _frame_count(video, capture, options)
         fps = float(capture.get(cv2.CAP_PROP_FPS)) or 0.0
+        fps = fps if np.isfinite(fps) and 0 < fps < 10_000 else 0.0
         wanted = sample_indices(n_frames, fps, options.rate, options.max_frames)
         if frames_dir is not None:
             frames_dir.mkdir(parents=True, exist_ok=True)
-        for number, image in decode_frames(capture, wanted, options.width):
+        for number, image in decode_frames(capture, wanted, options.width, video):
             if frames_dir is not None:
                 _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
             if tracks is not None:
@@ -230,7 +246,7 @@ def _write_kept(video: Path, frames_dir: Path, kept: np.ndarray, options: FrameO
     frames_dir.mkdir(parents=True, exist_ok=True)
     written = 0
     try:
-        for number, image in decode_frames(capture, kept, options.width):
+        for number, image in decode_frames(capture, kept, options.width, video):
             _write_frame(frames_dir / frame_name(number), image, options.jpeg_quality)
             written += 1
             if progress:
@@ -300,6 +316,7 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     index_path = scene / FRAMES_INDEX
     if not video.is_file():
         raise InputError(video, None, "video file not found")
+    make_dir(scene)                                         # a file in the way: one line, before anything
     hashed = fingerprints(frame_inputs(video))
     why = frames_reason(video, scene, options, force, hashed)
     if why is None:

@@ -30,7 +30,8 @@ import cv2
 
 from mvm.errors import InputError
 from mvm.io.checks import integer, load_json
-from mvm.io.files import atomic_write_json
+from mvm.io.files import OutputError, atomic_write_json
+from mvm.io.images import frame_count_bound, over_frame_limit
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
 from mvm.io.provenance import RECORD_SUFFIX, fingerprints, forget, read_record, why_redo, write_record
 from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
@@ -43,6 +44,10 @@ VIDEOS_DIR = "videos"
 POSE_DIR = "pose"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RIG_DETECT_STAGE = "the rig detection"
+#: The longest camera name (a video's file name without its type) in bytes: the temporary file of
+#: its pose file's record, ``.<camera>.inputs.json.mvm-tmp-XXXXXXXX.tmp``, must fit the file
+#: systems' 255 bytes. [bytes]
+MAX_CAMERA_NAME_BYTES = 200
 #: Decoded frames fewer than the header announces by more than this share are reported. [1]
 SHORT_VIDEO_SHARE = 0.01
 
@@ -89,6 +94,10 @@ def rig_videos(rig_dir: str | Path) -> dict[str, Path]:
     if not found:
         raise InputError(folder, None, f"no video in it (file types {', '.join(VIDEO_SUFFIXES)})")
     for camera, video in found.items():
+        if len(camera.encode()) > MAX_CAMERA_NAME_BYTES:
+            raise InputError(video, None, f"a camera name of {len(camera.encode())} bytes: at most "
+                                          f"{MAX_CAMERA_NAME_BYTES} (its pose file, its record and their temporary "
+                                          "files are named after it)")
         if (camera + ".json").lower().endswith(RECORD_SUFFIX):    # its pose file: another camera's record
             raise InputError(video, None, f"camera {camera}: a camera name may not end in "
                                           f"{RECORD_SUFFIX.removesuffix('.json')} (mvm's records of pose files)")
@@ -105,16 +114,17 @@ def _open(video: Path, camera: str):
 
 
 def probe_video(video: Path, camera: str, rig_dir: Path) -> VideoInfo:
-    """Open ``video`` and decode its first frame: its header's frame rate and frame count and
-    the frame size. A video that does not open or decode raises :class:`InputError` naming
-    ``camera`` and the file."""
+    """Open ``video`` and decode its first frame: its header's frame rate and frame count
+    (bounded by the file's size: :func:`mvm.io.images.frame_count_bound`) and the frame size.
+    A video that does not open or decode raises :class:`InputError` naming ``camera`` and the
+    file."""
     capture = _open(video, camera)
     try:
         ok, image = capture.read()
         if not ok or image is None:
             raise InputError(video, None, f"camera {camera}: no frame of this video decodes")
         fps = float(capture.get(cv2.CAP_PROP_FPS) or 0.0)
-        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+        count = frame_count_bound(video, capture.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
     finally:
         capture.release()
     rate = fps if math.isfinite(fps) and 0 < fps < 10_000 else None
@@ -125,12 +135,13 @@ def probe_video(video: Path, camera: str, rig_dir: Path) -> VideoInfo:
     return VideoInfo(name, rate, max(count, 0), image.shape[1], image.shape[0])
 
 
-def video_batches(capture, batch_size: int, decoded: list[int]):
-    """The frames of an opened ``cv2.VideoCapture`` in decode order, ``batch_size`` at a time:
-    yields ``(frame numbers, images (H, W, 3) BGR)``; ``decoded[0]`` counts the frames read.
-    Memory holds one batch whatever the video's length."""
+def video_batches(capture, batch_size: int, decoded: list[int], video: str | Path = "a video"):
+    """The frames of an opened ``cv2.VideoCapture`` of ``video`` in decode order (at most
+    :data:`mvm.io.images.MAX_VIDEO_FRAMES`), ``batch_size`` at a time: yields ``(frame numbers,
+    images (H, W, 3) BGR)``; ``decoded[0]`` counts the frames read. Memory holds one batch
+    whatever the video's length."""
     indices, images = [], []
-    while True:
+    while not over_frame_limit(video, decoded[0]):
         ok, image = capture.read()
         if not ok:
             break
@@ -164,7 +175,7 @@ def _detect_camera(camera: str, video: Path, info: VideoInfo, detector: FrameDet
     capture = _open(video, camera)
     decoded = [0]
     try:
-        batches = video_batches(capture, options.batch_size, decoded)
+        batches = video_batches(capture, options.batch_size, decoded, video)
         report = (lambda done, total: progress(camera, done, total)) if progress else None
         found = detect_batches(batches, info.frames, detector, options, report)
     finally:
@@ -220,6 +231,9 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
     options = replace(options, appearance="none")
     check_models(options, checkpoint)
     videos = rig_videos(rig_dir)
+    if (rig_dir / POSE_DIR).exists() and not (rig_dir / POSE_DIR).is_dir():
+        raise OutputError(rig_dir / POSE_DIR, None, "cannot write: exists and is not a folder (the cameras' pose "
+                                                    "files go in it): move it away")
     settings = detect_settings(kind, None, options)
     plan = []
     for camera, video in videos.items():
