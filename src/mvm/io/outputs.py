@@ -18,9 +18,11 @@ Three rules keep a command from destroying what it did not make:
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
+import stat
 import tempfile
 import time
 from collections.abc import Callable, Iterable
@@ -30,6 +32,7 @@ from mvm.io.files import (
     TEMPORARY_INFIX,
     OutputError,
     atomic_write_text,
+    check_file_target,
     fsync_dir,
     make_dir,
     new_dir_mode,
@@ -45,6 +48,11 @@ except ImportError:                                    # not POSIX: no advisory 
 OUTPUT_MARKER = ".mvm-output"
 #: File inside every temporary folder mvm makes: only such folders are removed as leftovers.
 TEMPORARY_MARKER = ".mvm-temporary"
+#: How a lock file is opened: created if absent, never through a link, never blocking on a FIFO.
+_LOCK_FLAGS = (os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0)
+               | getattr(os, "O_NONBLOCK", 0))
+#: The lock of a folder's marker while a run lists its names there (:func:`writing_into`).
+_MARKER_LOCK = f".{OUTPUT_MARKER}.lock"
 #: Seconds a run waits for another run writing the same output before refusing.
 LOCK_WAIT_S = 10.0
 
@@ -100,7 +108,7 @@ def check_replaceable(path: str | Path) -> None:
     if written is None:
         raise OutputError(path, None, f"is a folder mvm did not make (no {OUTPUT_MARKER} inside) and not empty: "
                                       "it would be replaced; choose a new or empty folder")
-    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER)
+    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER, _MARKER_LOCK)
              and not _own_temporary(n, written)]
     if other:
         raise OutputError(path, None, f"holds {other[0]!r}, which mvm did not write there: it would be "
@@ -129,6 +137,69 @@ def add_to_output_set(folder: str | Path, name: str, write: Callable[[Path], Non
             atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted(written | {name})))
         write(folder / name)
     return folder / name
+
+
+@contextlib.contextmanager
+def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float = LOCK_WAIT_S):
+    """Decide whether a command may write the entries ``names`` (names mvm chooses: a scene's
+    ``poses2d.json``, a report folder's ``clips.csv``) into ``folder`` (one a user names), and
+    hold the folder while it does. Under the folder's lock (``.mvm-output`` 's lock inside it)
+    each name is checked (:func:`check_may_write`): nothing there, or an entry that mvm made
+    (listed in the folder's :data:`OUTPUT_MARKER`, or carrying the record of its inputs that
+    an mvm stage wrote beside it); a user's file of that name, or a link, FIFO, device or socket
+    in its place, is refused in one :class:`OutputError` line before anything is written. The
+    names are then listed in the marker (created when absent) so that the next run knows them
+    as its own, and the block writes them. Yields ``folder`` as a :class:`Path`."""
+    folder = make_dir(folder)
+    names = list(names)
+    with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
+        written = check_names(folder, names)
+        if written is None or not set(names) <= written:
+            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | set(names))))
+        yield folder
+
+
+def check_names(folder: str | Path, names: Iterable[str]) -> set[str] | None:
+    """Refuse (:func:`check_may_write`) any of ``names`` in ``folder`` that mvm may not write
+    there; returns the names the folder's marker lists (None: no marker). For a check before
+    any work; :func:`writing_into` checks again under the lock when it writes."""
+    folder = Path(folder)
+    written = _marked_names(folder)
+    for name in names:
+        check_may_write(folder / name, owned=written or set())
+    return written
+
+
+def check_may_write(path: str | Path, owned: Iterable[str] | None = None) -> None:
+    """Whether mvm may put its output at ``path``: the one decision every writer follows.
+
+    Refused in one :class:`OutputError` line (exit 2), before any write: a symbolic link, a
+    FIFO, a device or a socket at ``path`` (:func:`mvm.io.files.check_file_target`; a folder is
+    let through for an output that is a folder). With ``owned`` (the names of ``path``'s folder
+    that mvm wrote, :data:`OUTPUT_MARKER`'s list; None when the user named ``path`` itself, so it
+    is theirs to replace): an existing entry not in ``owned`` and without an mvm record of its
+    inputs beside it (:func:`mvm.io.provenance.record_path`) is a user's and never replaced."""
+    path = Path(path)
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise output_error(path, e) from None
+    if not stat.S_ISDIR(info.st_mode):
+        check_file_target(path)
+    if owned is None or path.name in set(owned) or _has_record(path):
+        return
+    raise OutputError(path, None, "exists and mvm did not write it (not listed in the folder's "
+                                  f"{OUTPUT_MARKER}): it would be replaced; move it or choose another output")
+
+
+def _has_record(path: Path) -> bool:
+    """Whether an mvm stage wrote ``path``: the record of its inputs lies beside it."""
+    from mvm.io.provenance import record_path
+
+    record = record_path(path)
+    return record != path and record.is_file() and not record.is_symlink()
 
 
 def is_mvm_output(path: str | Path) -> bool:
@@ -218,10 +289,17 @@ def output_lock(path: str | Path, timeout_s: float = LOCK_WAIT_S, poll_s: float 
     lock = lock_path(path)
     deadline = time.monotonic() + timeout_s
     while True:
+        check_file_target(lock)                        # a planted link, FIFO or device: refused
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+            fd = os.open(lock, _LOCK_FLAGS, 0o644)
         except OSError as e:
+            if e.errno == errno.ELOOP:                 # a link planted since the check
+                raise OutputError(lock, None, "refusing to write: is a symbolic link, not a regular file; "
+                                              "choose another output") from None
             raise output_error(lock, e) from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise OutputError(lock, None, "refusing to write: not a regular file; choose another output")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
