@@ -297,6 +297,9 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
     output = Path(output)
     if not (output.exists() if exists is None else exists):
         return "no output yet"
+    mode = _mode(output)
+    if mode and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        return f"{output.name} is not a regular file"          # a link, FIFO or device is no output of mvm
     record, problem = _load_record(output)
     if problem is not None:
         return f"its record is unusable ({problem})"

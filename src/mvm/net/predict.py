@@ -19,7 +19,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file
 from mvm.io.files import atomic_write_bytes, atomic_write_json
-from mvm.io.outputs import writing_into
+from mvm.io.outputs import check_names, writing_into
 from mvm.net.checkpoints import read_checkpoint
 from mvm.net.data import load_image
 from mvm.net.decoder import DecoderConfig, normalize_depth
@@ -150,11 +150,13 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
         raise InputError(None, "images", "no image given")
     if input_size is not None:
         check_input_size(input_size, None, "--input-size")
+    out = Path(out_dir) if out_dir is not None else None
+    names = [PREDICTIONS_FILE, *(f"{Path(p).stem}.overlay.jpg" for p in images)]
+    if out is not None:
+        check_names(out, names)                       # a user's file there: refused before the work
     model, meta = load_model(checkpoint, device=str(select_device(device)))
     size = input_size or trained_input_size(meta, checkpoint)
     results = []
-    out = Path(out_dir) if out_dir is not None else None
-    names = [PREDICTIONS_FILE, *(f"{Path(p).stem}.overlay.jpg" for p in images)]
     with writing_into(out, names) if out is not None else contextlib.nullcontext():   # a user's file: refused
         for path in images:
             results.append(_predict_one(model, Path(path), size, focal_px, decoder, out))
