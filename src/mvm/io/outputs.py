@@ -11,9 +11,14 @@ Three rules keep a command from destroying what it did not make:
   named ``.NAME.mvm-tmp-RANDOM`` *and* carries :data:`TEMPORARY_MARKER`; the leftovers of a
   killed run are removed only when both hold (:func:`remove_leftovers`), never a user's
   ``.NAME.backup`` beside the output.
+* **What lies there** (:func:`check_may_write`, the one decision every writer follows): a FIFO,
+  a device, a socket or a link where an output goes is refused; a file a command names inside a
+  folder it is given (``D/clips.csv``, ``SCENE/poses2d.json``) is replaced only when mvm wrote it
+  (the folder's marker lists it, :func:`writing_into`, or its record lies beside it).
 * **One writer** (:func:`output_lock`): a run holds an ``flock`` on ``.NAME.lock`` beside the
-  output while it writes. A second run into the same output waits a bounded time, then is
-  refused in one line; the lock dies with its process, so a killed run never blocks the next.
+  output while it writes (opened without following a link). A second run into the same output
+  waits a bounded time, then is refused in one line; the lock dies with its process, so a killed
+  run never blocks the next.
 """
 from __future__ import annotations
 
@@ -133,8 +138,8 @@ def add_to_output_set(folder: str | Path, name: str, write: Callable[[Path], Non
     folder = Path(folder)
     with output_lock(folder, lock_timeout_s):
         written = _marked_names(folder)
-        if written is not None and name not in written:
-            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted(written | {name})))
+        if written is not None:
+            _list_names(folder, written, [name])
         write(folder / name)
     return folder / name
 
@@ -153,10 +158,14 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
     folder = make_dir(folder)
     names = list(names)
     with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
-        written = check_names(folder, names)
-        if written is None or not set(names) <= written:
-            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | set(names))))
+        _list_names(folder, check_names(folder, names), names)
         yield folder
+
+
+def _list_names(folder: Path, written: set[str] | None, names: list[str]) -> None:
+    """List ``names`` in ``folder``'s marker (which lists ``written``; None: no marker yet)."""
+    if written is None or not set(names) <= written:
+        atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | set(names))))
 
 
 def check_names(folder: str | Path, names: Iterable[str]) -> set[str] | None:
