@@ -317,7 +317,7 @@ def stale_reason(output: str | Path, inputs: Mapping[str, object]) -> str | None
     is there but unusable (not a small regular JSON file of the record's form) makes it stale."""
     record, problem = _load_record(output)
     if problem is not None:
-        return f"its record is unusable ({problem}): redo"
+        return f"its record is unusable ({problem})"
     if record is None:
         return None
     known = {name: value for name, value in inputs.items() if name in record["inputs"]}
