@@ -396,3 +396,31 @@ def test_a_leftover_record_temporary_is_removed(inputs, tmp_path):
         (scene / "mvm" / f".{name}.mvm-tmp-k2j4h_x.tmp").write_text("{half")
     assert invoke("reconstruct", scene, "--workers", "1", "--no-refine").exit_code == 0
     assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.inputs.json", "poses3d.json"]
+
+
+def test_writing_into_a_folder_knows_its_own_names(tmp_path):
+    """The decision for names mvm chooses inside a user's folder: a user's file is refused
+    before anything is written, mvm's own (listed in the marker, or with a record beside it) is
+    replaced, and a killed writer's temporary of a name is removed."""
+    from mvm.io.files import OutputError, atomic_write_text
+    from mvm.io.outputs import OUTPUT_MARKER, writing_into
+
+    folder = tmp_path / "d"
+    place("user", folder / "clips.csv", tmp_path / "x")
+    with pytest.raises(OutputError, match="clips.csv: exists and mvm did not write it"):
+        with writing_into(folder, ["table.md", "clips.csv"]):
+            raise AssertionError("never reached")
+    assert sorted(p.name for p in folder.iterdir()) == ["clips.csv"]            # no marker, no lock left
+    (folder / "clips.csv").unlink()
+    (folder / ".table.md.mvm-tmp-k2j4h_x.tmp").write_text("half")
+    (folder / ".table.md.old.tmp").write_text("a user's")
+    for _ in range(2):                                                          # the second run: its own files
+        with writing_into(folder, ["table.md", "clips.csv"]):
+            atomic_write_text(folder / "table.md", "t")
+            atomic_write_text(folder / "clips.csv", "c")
+    assert sorted(p.name for p in folder.iterdir()) == [OUTPUT_MARKER, ".table.md.old.tmp", "clips.csv", "table.md"]
+    assert json.loads((folder / OUTPUT_MARKER).read_text()) == ["clips.csv", "table.md"]
+    (folder / "index.json").write_text("{}")                                    # made by a stage: its record
+    (folder / "index.inputs.json").write_text("{}")
+    with writing_into(folder, ["index.json"]):
+        atomic_write_text(folder / "index.json", "[]")

@@ -42,6 +42,7 @@ from mvm.io.files import (
     make_dir,
     new_dir_mode,
     output_error,
+    remove_stale_temporaries,
 )
 
 try:
@@ -154,11 +155,14 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
     an mvm stage wrote beside it); a user's file of that name, or a link, FIFO, device or socket
     in its place, is refused in one :class:`OutputError` line before anything is written. The
     names are then listed in the marker (created when absent) so that the next run knows them
-    as its own, and the block writes them. Yields ``folder`` as a :class:`Path`."""
+    as its own, the temporaries a killed writer of them left (``.NAME.mvm-tmp-*.tmp``) are
+    removed, and the block writes them. Yields ``folder`` as a :class:`Path`."""
     folder = make_dir(folder)
     names = list(names)
     with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
         _list_names(folder, check_names(folder, names), names)
+        for name in names:                            # a killed writer's temporaries of these names
+            remove_stale_temporaries(folder, name)
         yield folder
 
 
