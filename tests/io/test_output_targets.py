@@ -424,3 +424,14 @@ def test_writing_into_a_folder_knows_its_own_names(tmp_path):
     (folder / "index.inputs.json").write_text("{}")
     with writing_into(folder, ["index.json"]):
         atomic_write_text(folder / "index.json", "[]")
+
+
+@pytest.mark.parametrize("kind", ["device", "fifo", "link"])
+def test_rig_calibrate_from_people_refuses_a_device_before_any_work(tmp_path, kind):
+    rig = tmp_path / "r"
+    assert invoke("simulate", rig, "--rig", "--cameras", "3", "--people", "2", "--frames", "20",
+                  "--intrinsics-only").exit_code == 0
+    out, outside = tmp_path / "null", tmp_path / "outside.txt"
+    place(kind, out, outside)
+    one_line_exit_2(invoke("rig", "calibrate", rig, "--from-people", "-o", out), out, "refusing to write")
+    assert intact(kind, out, outside)

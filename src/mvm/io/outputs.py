@@ -75,7 +75,8 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
     """Refuse ``output`` when it is one of ``inputs``, contains one, or lies inside an input
     folder (symbolic links resolved); with ``replaced`` (a folder written as one set, which
     replaces what is there) also refuse an existing non-empty folder that mvm did not make
-    (:func:`check_replaceable`). Each refusal is one :class:`OutputError` line naming
+    (:func:`check_replaceable`); without, refuse a FIFO, a device, a socket or a link to a file
+    there (:func:`check_may_write`). Each refusal is one :class:`OutputError` line naming
     ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
     output = Path(output)
     target = _resolved(output)
@@ -92,6 +93,8 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
             raise OutputError(output, None, f"lies inside the input folder {given}: choose another output")
     if replaced:
         check_replaceable(output)
+    else:
+        check_may_write(output)                        # -o /dev/null, a FIFO, a link to a file: refused now
     return output
 
 
@@ -187,8 +190,9 @@ def check_may_write(path: str | Path, owned: Iterable[str] | None = None) -> Non
     """Whether mvm may put its output at ``path``: the one decision every writer follows.
 
     Refused in one :class:`OutputError` line (exit 2), before any write: a symbolic link, a
-    FIFO, a device or a socket at ``path`` (:func:`mvm.io.files.check_file_target`; a folder is
-    let through for an output that is a folder). With ``owned`` (the names of ``path``'s folder
+    FIFO, a device or a socket at ``path`` (:func:`mvm.io.files.check_file_target`; a folder,
+    or a link to one, is let through for an output that is a folder: where it may lie is
+    :func:`check_output_location`'s to say). With ``owned`` (the names of ``path``'s folder
     that mvm wrote, :data:`OUTPUT_MARKER`'s list; None when the user named ``path`` itself, so it
     is theirs to replace): an existing entry not in ``owned`` and without an mvm record of its
     inputs beside it (:func:`mvm.io.provenance.record_path`) is a user's and never replaced."""
@@ -199,8 +203,8 @@ def check_may_write(path: str | Path, owned: Iterable[str] | None = None) -> Non
         return
     except OSError as e:
         raise output_error(path, e) from None
-    if not stat.S_ISDIR(info.st_mode):
-        check_file_target(path)
+    if not (stat.S_ISDIR(info.st_mode) or stat.S_ISLNK(info.st_mode) and path.is_dir()):
+        check_file_target(path)                        # a folder, or a link to one, is an output folder's place
     if owned is None or path.name in set(owned) or _has_record(path):
         return
     raise OutputError(path, None, "exists and mvm did not write it (not listed in the folder's "
