@@ -229,7 +229,8 @@ def write_record(output: str | Path, stage: str, inputs: Mapping[str, object], s
     path = record_path(output)
     if made is not None:
         record["made"] = [Path(m).relative_to(path.parent).as_posix() for m in made]
-    forget(output)                                 # a link, a FIFO, garbage: replaced; a device: refused
+    if not stat.S_ISREG(_mode(path)):
+        forget(output)                             # a link or a FIFO there: removed; a device, a folder: refused
     atomic_write_json(path, record, pretty=True)
     return record
 
