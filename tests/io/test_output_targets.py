@@ -435,3 +435,23 @@ def test_rig_calibrate_from_people_refuses_a_device_before_any_work(tmp_path, ki
     place(kind, out, outside)
     one_line_exit_2(invoke("rig", "calibrate", rig, "--from-people", "-o", out), out, "refusing to write")
     assert intact(kind, out, outside)
+
+
+def test_a_failed_run_leaves_no_folder_nor_name_behind(tmp_path):
+    from mvm.io.outputs import OUTPUT_MARKER, writing_into
+
+    folder = tmp_path / "new"
+    with pytest.raises(RuntimeError):
+        with writing_into(folder, ["a.csv"]):
+            raise RuntimeError("the work failed")
+    assert not folder.exists()
+    place("user", tmp_path / "old" / "notes.txt", tmp_path / "x")
+    with pytest.raises(RuntimeError):
+        with writing_into(tmp_path / "old", ["a.csv"]):
+            raise RuntimeError("the work failed")
+    assert sorted(p.name for p in (tmp_path / "old").iterdir()) == ["notes.txt"]
+    with pytest.raises(RuntimeError):
+        with writing_into(tmp_path / "old", ["a.csv", "b.csv"]):
+            (tmp_path / "old" / "a.csv").write_text("1")
+            raise RuntimeError("the work failed half-way")
+    assert json.loads((tmp_path / "old" / OUTPUT_MARKER).read_text()) == ["a.csv"]

@@ -160,19 +160,47 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
     names are then listed in the marker (created when absent) so that the next run knows them
     as its own, the temporaries a killed writer of them left (``.NAME.mvm-tmp-*.tmp``) are
     removed, and the block writes them. Yields ``folder`` as a :class:`Path`."""
-    folder = make_dir(folder)
-    names = list(names)
-    with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
-        _list_names(folder, check_names(folder, names), names)
-        for name in names:                            # a killed writer's temporaries of these names
-            remove_stale_temporaries(folder, name)
-        yield folder
+    folder, names = Path(folder), list(names)
+    created = not os.path.lexists(folder)
+    make_dir(folder)
+    try:
+        with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
+            written = check_names(folder, names)
+            _list_names(folder, written, names)
+            for name in names:                        # a killed writer's temporaries of these names
+                remove_stale_temporaries(folder, name)
+            try:
+                yield folder
+            except BaseException:                     # a failed run lists only what it left
+                _unlist_missing(folder, written, names)
+                raise
+    finally:
+        if created:
+            _remove_if_bare(folder)
 
 
 def _list_names(folder: Path, written: set[str] | None, names: list[str]) -> None:
     """List ``names`` in ``folder``'s marker (which lists ``written``; None: no marker yet)."""
     if written is None or not set(names) <= written:
         atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | set(names))))
+
+
+def _unlist_missing(folder: Path, written: set[str] | None, names: list[str]) -> None:
+    """Put ``folder``'s marker back to ``written`` and the ``names`` that are there now."""
+    made = {n for n in names if os.path.lexists(folder / n)}
+    with contextlib.suppress(OSError, OutputError):
+        if written is None and not made:
+            (folder / OUTPUT_MARKER).unlink(missing_ok=True)
+        else:
+            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | made)))
+
+
+def _remove_if_bare(folder: Path) -> None:
+    """Remove ``folder`` (which a failed or refused run created) when it holds its marker at most."""
+    with contextlib.suppress(OSError):
+        if set(os.listdir(folder)) <= {OUTPUT_MARKER}:
+            (folder / OUTPUT_MARKER).unlink(missing_ok=True)
+            folder.rmdir()
 
 
 def check_names(folder: str | Path, names: Iterable[str]) -> set[str] | None:
