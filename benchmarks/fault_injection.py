@@ -1,6 +1,7 @@
 """SIGKILL fault injection on ``mvm reconstruct``: kill runs at random moments and at chosen
-points of writing ``poses3d.json`` (before the rename, half-way through the write, after the
-rename), on fresh scenes and on scenes with a previous output; then rerun.
+points of writing ``poses3d.json`` and then its record ``poses3d.inputs.json`` (before the
+rename, half-way through the write, after the rename: :data:`test_faults.FAULTS`), on fresh
+scenes and on scenes with a previous output; then rerun.
 
 Prints faults injected, outcomes after the kill (absent / complete / partial), outputs lost (a
 previous complete output gone or damaged: must be 0), partial outputs (must be 0), reruns

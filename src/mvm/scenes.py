@@ -20,7 +20,7 @@ from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
 from mvm.errors import InputError
 from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
-from mvm.io.provenance import fingerprints, forget, write_record
+from mvm.io.provenance import fingerprints, forget, record_path, write_record
 from mvm.io.scene_dir import (
     RECONSTRUCT_STAGE,
     output_dir,
@@ -205,7 +205,8 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     document, scene, hashed = made
     try:
         with exclusive_lock(out_dir, config.lock_timeout_s):
-            remove_stale_temporaries(out_dir, "poses3d.json")
+            for name in ("poses3d.json", record_path(out_dir / "poses3d.json").name):   # the output's and its record's
+                remove_stale_temporaries(out_dir, name)
             forget(out_dir / "poses3d.json")
             write_poses3d(out_dir / "poses3d.json", document)
             if hashed is not None:

@@ -35,6 +35,8 @@ PRELUDE = r'''
 import os, signal, sys
 fault = os.environ.get("MVM_TEST_FAULT", "")
 target = "poses3d.json"
+if fault.startswith("record_"):                  # the same points of writing the output's record
+    fault, target = fault[len("record_"):], "poses3d.inputs.json"
 def die():
     os.kill(os.getpid(), signal.SIGKILL)
 if fault in ("before_rename", "after_rename"):
@@ -64,15 +66,17 @@ if fault == "mid_write":
         def __getattr__(self, name):
             return getattr(self.f, name)
     def fdopen(fd, mode="r", *a, **k):
+        name = os.readlink(f"/proc/self/fd/{fd}") if os.path.exists(f"/proc/self/fd/{fd}") else target
         f = real_fdopen(fd, mode, *a, **k)
-        return HalfWriter(f) if "w" in mode else f
+        return HalfWriter(f) if "w" in mode and f".{target}." in name else f
     os.fdopen = fdopen
 from mvm.cli.main import run
 sys.argv = ["mvm"] + sys.argv[1:]
 run()
 '''
 
-FAULTS = ("before_rename", "mid_write", "after_rename")
+FAULTS = ("before_rename", "mid_write", "after_rename",
+          "record_before_rename", "record_mid_write", "record_after_rename")
 
 
 def write_test_scene(path: Path, people: int = 3, frames: int = 30, seed: int = 0) -> Path:
@@ -120,7 +124,8 @@ def state(scene: Path, reference) -> str:
 
 
 def stale_temporaries(scene: Path) -> list[Path]:
-    return sorted((scene / "mvm").glob(".poses3d.json.*.tmp")) if (scene / "mvm").exists() else []
+    """The temporaries of ``poses3d.json`` and of its record (``poses3d.inputs.json``)."""
+    return sorted((scene / "mvm").glob(".poses3d.*.tmp")) if (scene / "mvm").exists() else []
 
 
 @pytest.fixture(scope="module")
@@ -146,13 +151,13 @@ def test_killed_while_writing_then_rerun(reference, tmp_path, fault, with_output
     process = start(scene, fault)
     assert process.wait(120) == -signal.SIGKILL
     after_kill = state(scene, reference[1])
-    if fault == "after_rename":
+    if fault.endswith("after_rename") or fault.startswith("record_"):
         assert after_kill == "complete"
     elif with_output:
         assert after_kill == "complete"                  # the previous output survives
     else:
         assert after_kill == "absent"
-    if fault != "after_rename":
+    if not fault.endswith("after_rename"):
         assert stale_temporaries(scene)                  # the fault did hit the write
     rerun = start(scene)
     assert rerun.wait(120) == 0, rerun.stderr.read().decode()

@@ -60,7 +60,8 @@ def test_export_command(tmp_path):
 def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_path):
     """In the dataset, annotations.inputs.json records what it was made from: the same scenes and
     options keep it untouched; a changed option, a changed reconstruction, a copied frame that
-    changed or --force export again, saying why; a run where a scene failed leaves no record."""
+    changed or --force export again, saying why; a run where a scene failed leaves the previous
+    data set whole, and a first one writes the scenes it read without a record."""
     scene, other = _scene_dir(tmp_path), tmp_path / "broken"
     other.mkdir()
     ds, runner = tmp_path / "ds", CliRunner()
@@ -88,11 +89,14 @@ def test_export_rerun_keeps_an_up_to_date_dataset_and_redoes_a_changed_one(tmp_p
     assert "made: poses3d.json changed since the export" in result.stderr and again != made
     result, _ = export("--min-keypoints", "5", "--force")
     assert "made: forced" in result.stderr
+    before = {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()}
     result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
+    assert result.exit_code == 2 and "left as it was" in result.stderr      # the previous data set is kept whole
+    assert {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()} == before
+    fresh = tmp_path / "fresh"                                 # a first export writes the scenes it could read
+    result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(fresh)])
     assert result.exit_code == 2 and "3 images, 6 annotations from 1 scene(s)" in result.output
-    assert not (ds / "annotations.inputs.json").exists()
-    result = runner.invoke(export_cmd, [str(scene), str(other), "--out", str(ds)])
-    assert "made: " in result.stderr
+    assert not (fresh / "annotations.inputs.json").exists()
 
 
 @pytest.mark.parametrize("link", ["symlink", "none"])
@@ -230,7 +234,7 @@ def test_export_never_trusts_a_hostile_record(tmp_path, kind):
         record.symlink_to(elsewhere)
     result = runner.invoke(export_cmd, [str(scene), "--out", str(ds)])
     assert result.exit_code == 0, result.output
-    assert "export: made: annotations.json has no record of its inputs" in result.stderr
+    assert "export: made: its record is unusable (annotations.inputs.json" in result.stderr
     assert record.is_file() and not record.is_symlink() and json.loads(record.read_text())["inputs"]
     assert elsewhere.read_bytes() == good
     assert "export: kept (up to date)" in runner.invoke(export_cmd, [str(scene), "--out", str(ds)]).stderr

@@ -70,7 +70,10 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
 
         prior = shipped_prior()
     failed: list = []
-    items = (item for _, item in each_isolated(scenes, read, failed))
+    items = [item for _, item in each_isolated(scenes, read, failed)]
+    if failed and (out_dir / ANNOTATIONS_FILE).exists():    # a refused run never replaces the previous data set
+        click.echo(f"export: {out_dir} left as it was (a scene was refused; fix it and export again)", err=True)
+        report_failures(failed, len(scenes))
 
     def record(annotations: Path) -> None:     # a data set that lacks a scene is redone by the next run
         if not failed and hashed is not None:

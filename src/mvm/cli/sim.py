@@ -237,8 +237,10 @@ def bench_cmd(quick, out_dir, refine, trajectories):
     """Reproduce the paper's Tables 1-2 on simulated clips with ground truth, plus sweeps."""
     from mvm.core.config import Config
     from mvm.eval.bench import run_bench
-    from mvm.eval.bench_files import write_bench_report
+    from mvm.eval.bench_files import BENCH_FILES, write_bench_report
+    from mvm.io.outputs import check_names
 
+    check_names(out_dir, BENCH_FILES)                 # a user's file there: refused before the work
     paths = sorted(str(p) for p in Path(trajectories).glob("*.txt")) if trajectories else []
     t = time.perf_counter()
     result = run_bench(quick=quick, config=Config(refine=refine), trajectories=paths)

@@ -8,6 +8,12 @@ from pathlib import Path
 
 from mvm.eval.bench import COLUMNS, SWEEP_METHODS, BenchResult, markdown_table, sweep_table
 from mvm.io.files import atomic_write_bytes, atomic_write_text
+from mvm.io.outputs import writing_into
+
+#: The files :func:`write_bench_report` writes into its folder.
+BENCH_FILES = ("paper_tables.md", "clips.csv", "sweeps.csv", "matching_time.png")
+#: The files :func:`write_crowd_report` writes into its folder.
+CROWD_FILES = ("crowd.md", "crowd.csv", "crowd_sweeps.csv", "crowd.json")
 
 TABLE_COLUMNS = [("method", "method", 0)] + list(COLUMNS)
 
@@ -69,11 +75,11 @@ def write_bench_report(result: BenchResult, out: str | Path, command: str, secon
     """Write ``paper_tables.md``, ``clips.csv``, ``sweeps.csv`` and ``matching_time.png`` to
     ``out``; returns the Markdown file's path."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "paper_tables.md", report_markdown(result, command, seconds))
-    atomic_write_text(out / "clips.csv", _csv(result.rows))
-    atomic_write_text(out / "sweeps.csv", _csv(result.sweep_rows))
-    atomic_write_bytes(out / "matching_time.png", plot_times(result))
+    with writing_into(out, BENCH_FILES):              # a user's file of one of these names: refused
+        atomic_write_text(out / "paper_tables.md", report_markdown(result, command, seconds))
+        atomic_write_text(out / "clips.csv", _csv(result.rows))
+        atomic_write_text(out / "sweeps.csv", _csv(result.sweep_rows))
+        atomic_write_bytes(out / "matching_time.png", plot_times(result))
     return out / "paper_tables.md"
 
 
@@ -99,10 +105,10 @@ def write_crowd_report(result, out: str | Path, command: str, seconds: float) ->
     from mvm.io.files import atomic_write_json
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "crowd.md", crowd_markdown(result, command, seconds))
-    atomic_write_text(out / "crowd.csv", _csv(result.rows))
-    atomic_write_text(out / "crowd_sweeps.csv", _csv(result.sweep_rows))
-    atomic_write_json(out / "crowd.json", {"command": command, "seconds": seconds, "rows": result.rows,
-                                           "sweep_rows": result.sweep_rows}, pretty=True)
+    with writing_into(out, CROWD_FILES):              # a user's file of one of these names: refused
+        atomic_write_text(out / "crowd.md", crowd_markdown(result, command, seconds))
+        atomic_write_text(out / "crowd.csv", _csv(result.rows))
+        atomic_write_text(out / "crowd_sweeps.csv", _csv(result.sweep_rows))
+        atomic_write_json(out / "crowd.json", {"command": command, "seconds": seconds, "rows": result.rows,
+                                               "sweep_rows": result.sweep_rows}, pretty=True)
     return out / "crowd.md"

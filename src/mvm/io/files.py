@@ -21,6 +21,7 @@ import errno
 import json
 import math
 import os
+import stat
 import tempfile
 import time
 from pathlib import Path
@@ -110,15 +111,40 @@ def fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+_NOT_A_FILE = ((stat.S_ISLNK, "is a symbolic link"), (stat.S_ISFIFO, "is a FIFO (named pipe)"),
+               (stat.S_ISCHR, "is a device"), (stat.S_ISBLK, "is a device"), (stat.S_ISSOCK, "is a socket"))
+
+
+def check_file_target(path: str | Path) -> None:
+    """Refuse, in one :class:`OutputError` line, to put a file at ``path`` when something other
+    than a regular file is there: a symbolic link (whatever it points to), a FIFO, a device, a
+    socket or a folder. Nothing at ``path``, or a regular file, passes. Every file output is
+    checked here before its temporary is made and again just before the rename: a device given
+    as an output is never replaced by a regular file, a link never followed nor replaced."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise output_error(path, e) from None
+    if stat.S_ISDIR(mode):
+        raise OutputError(path, None, "cannot write: is a directory, expected a file")
+    for test, problem in _NOT_A_FILE:
+        if test(mode):
+            raise OutputError(path, None, f"refusing to write: {problem}, not a regular file; "
+                                          "choose another output")
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | Path, suffix: str = ".tmp"):
     """Yield the name of a fresh temporary file beside ``path`` (``.NAME.XXXX<suffix>``) for a
     writer to fill; when the block ends cleanly it is renamed over ``path``, otherwise removed.
-    Every OS error (the folder, the temporary file, the rename) raises :class:`OutputError`."""
+    Something at ``path`` that is not a regular file (a link, a FIFO, a device, a socket, a
+    folder) is refused before any write (:func:`check_file_target`). Every OS error (the
+    folder, the temporary file, the rename) raises :class:`OutputError`."""
     path = Path(path)
     make_dir(path.parent)
-    if path.is_dir():
-        raise OutputError(path, None, "cannot write: is a directory, expected a file")
+    check_file_target(path)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}", suffix=suffix, dir=path.parent)
     except OSError as e:
@@ -131,6 +157,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
         os.close(fd)
     try:
         yield Path(tmp)
+        check_file_target(path)                    # what the writer took its time over may have changed
         os.replace(tmp, path)
     except OSError as e:
         raise output_error(path, e) from None

@@ -60,15 +60,18 @@ def write_simulation(path: str | Path, scene, truth: GroundTruth, config=None) -
     (:func:`ground_truth_path`), with the simulation's settings (a dataclass) when given.
     Returns the truth's path."""
     from mvm.io.files import atomic_write_json
+    from mvm.io.outputs import check_names, writing_into
     from mvm.io.scene_dir import write_scene
 
     path = Path(path)
-    write_scene(path, scene.cameras, scene.poses)
+    truth_path = ground_truth_path(path)
+    check_names(truth_path.parent, [truth_path.name])     # a user's file of that name: refused before any write
     document = truth.to_json()
     if config is not None:
         document["simulation"] = asdict(config)
-    truth_path = ground_truth_path(path)
-    atomic_write_json(truth_path, document)
+    write_scene(path, scene.cameras, scene.poses)
+    with writing_into(truth_path.parent, [truth_path.name]):
+        atomic_write_json(truth_path, document)
     return truth_path
 
 

@@ -11,16 +11,23 @@ Three rules keep a command from destroying what it did not make:
   named ``.NAME.mvm-tmp-RANDOM`` *and* carries :data:`TEMPORARY_MARKER`; the leftovers of a
   killed run are removed only when both hold (:func:`remove_leftovers`), never a user's
   ``.NAME.backup`` beside the output.
+* **What lies there** (:func:`check_may_write`, the one decision every writer follows): a FIFO,
+  a device, a socket or a link where an output goes is refused; a file a command names inside a
+  folder it is given (``D/clips.csv``, ``SCENE/poses2d.json``) is replaced only when mvm wrote it
+  (the folder's marker lists it, :func:`writing_into`, or its record lies beside it).
 * **One writer** (:func:`output_lock`): a run holds an ``flock`` on ``.NAME.lock`` beside the
-  output while it writes. A second run into the same output waits a bounded time, then is
-  refused in one line; the lock dies with its process, so a killed run never blocks the next.
+  output while it writes (opened without following a link). A second run into the same output
+  waits a bounded time, then is refused in one line; the lock dies with its process, so a killed
+  run never blocks the next.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import shutil
+import stat
 import tempfile
 import time
 from collections.abc import Callable, Iterable
@@ -30,10 +37,12 @@ from mvm.io.files import (
     TEMPORARY_INFIX,
     OutputError,
     atomic_write_text,
+    check_file_target,
     fsync_dir,
     make_dir,
     new_dir_mode,
     output_error,
+    remove_stale_temporaries,
 )
 
 try:
@@ -45,6 +54,11 @@ except ImportError:                                    # not POSIX: no advisory 
 OUTPUT_MARKER = ".mvm-output"
 #: File inside every temporary folder mvm makes: only such folders are removed as leftovers.
 TEMPORARY_MARKER = ".mvm-temporary"
+#: How a lock file is opened: created if absent, never through a link, never blocking on a FIFO.
+_LOCK_FLAGS = (os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_NOFOLLOW", 0)
+               | getattr(os, "O_NONBLOCK", 0))
+#: The lock of a folder's marker while a run lists its names there (:func:`writing_into`).
+_MARKER_LOCK = f".{OUTPUT_MARKER}.lock"
 #: Seconds a run waits for another run writing the same output before refusing.
 LOCK_WAIT_S = 10.0
 
@@ -61,7 +75,8 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
     """Refuse ``output`` when it is one of ``inputs``, contains one, or lies inside an input
     folder (symbolic links resolved); with ``replaced`` (a folder written as one set, which
     replaces what is there) also refuse an existing non-empty folder that mvm did not make
-    (:func:`check_replaceable`). Each refusal is one :class:`OutputError` line naming
+    (:func:`check_replaceable`); without, refuse a FIFO, a device, a socket or a link to a file
+    there (:func:`check_may_write`). Each refusal is one :class:`OutputError` line naming
     ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
     output = Path(output)
     target = _resolved(output)
@@ -78,6 +93,8 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
             raise OutputError(output, None, f"lies inside the input folder {given}: choose another output")
     if replaced:
         check_replaceable(output)
+    else:
+        check_may_write(output)                        # -o /dev/null, a FIFO, a link to a file: refused now
     return output
 
 
@@ -100,7 +117,7 @@ def check_replaceable(path: str | Path) -> None:
     if written is None:
         raise OutputError(path, None, f"is a folder mvm did not make (no {OUTPUT_MARKER} inside) and not empty: "
                                       "it would be replaced; choose a new or empty folder")
-    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER)
+    other = [n for n in names if n not in written and n not in (OUTPUT_MARKER, TEMPORARY_MARKER, _MARKER_LOCK)
              and not _own_temporary(n, written)]
     if other:
         raise OutputError(path, None, f"holds {other[0]!r}, which mvm did not write there: it would be "
@@ -125,10 +142,109 @@ def add_to_output_set(folder: str | Path, name: str, write: Callable[[Path], Non
     folder = Path(folder)
     with output_lock(folder, lock_timeout_s):
         written = _marked_names(folder)
-        if written is not None and name not in written:
-            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted(written | {name})))
+        if written is not None:
+            _list_names(folder, written, [name])
         write(folder / name)
     return folder / name
+
+
+@contextlib.contextmanager
+def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float = LOCK_WAIT_S):
+    """Decide whether a command may write the entries ``names`` (names mvm chooses: a scene's
+    ``poses2d.json``, a report folder's ``clips.csv``) into ``folder`` (one a user names), and
+    hold the folder while it does. Under the folder's lock (``.mvm-output`` 's lock inside it)
+    each name is checked (:func:`check_may_write`): nothing there, or an entry that mvm made
+    (listed in the folder's :data:`OUTPUT_MARKER`, or carrying the record of its inputs that
+    an mvm stage wrote beside it); a user's file of that name, or a link, FIFO, device or socket
+    in its place, is refused in one :class:`OutputError` line before anything is written. The
+    names are then listed in the marker (created when absent) so that the next run knows them
+    as its own, the temporaries a killed writer of them left (``.NAME.mvm-tmp-*.tmp``) are
+    removed, and the block writes them. Yields ``folder`` as a :class:`Path`."""
+    folder, names = Path(folder), list(names)
+    created = not os.path.lexists(folder)
+    make_dir(folder)
+    try:
+        with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
+            written = check_names(folder, names)
+            _list_names(folder, written, names)
+            for name in names:                        # a killed writer's temporaries of these names
+                remove_stale_temporaries(folder, name)
+            try:
+                yield folder
+            except BaseException:                     # a failed run lists only what it left
+                _unlist_missing(folder, written, names)
+                raise
+    finally:
+        if created:
+            _remove_if_bare(folder)
+
+
+def _list_names(folder: Path, written: set[str] | None, names: list[str]) -> None:
+    """List ``names`` in ``folder``'s marker (which lists ``written``; None: no marker yet)."""
+    if written is None or not set(names) <= written:
+        atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | set(names))))
+
+
+def _unlist_missing(folder: Path, written: set[str] | None, names: list[str]) -> None:
+    """Put ``folder``'s marker back to ``written`` and the ``names`` that are there now."""
+    made = {n for n in names if os.path.lexists(folder / n)}
+    with contextlib.suppress(OSError, OutputError):
+        if written is None and not made:
+            (folder / OUTPUT_MARKER).unlink(missing_ok=True)
+        else:
+            atomic_write_text(folder / OUTPUT_MARKER, json.dumps(sorted((written or set()) | made)))
+
+
+def _remove_if_bare(folder: Path) -> None:
+    """Remove ``folder`` (which a failed or refused run created) when it holds its marker at most."""
+    with contextlib.suppress(OSError):
+        if set(os.listdir(folder)) <= {OUTPUT_MARKER}:
+            (folder / OUTPUT_MARKER).unlink(missing_ok=True)
+            folder.rmdir()
+
+
+def check_names(folder: str | Path, names: Iterable[str]) -> set[str] | None:
+    """Refuse (:func:`check_may_write`) any of ``names`` in ``folder`` that mvm may not write
+    there; returns the names the folder's marker lists (None: no marker). For a check before
+    any work; :func:`writing_into` checks again under the lock when it writes."""
+    folder = Path(folder)
+    written = _marked_names(folder)
+    for name in names:
+        check_may_write(folder / name, owned=written or set())
+    return written
+
+
+def check_may_write(path: str | Path, owned: Iterable[str] | None = None) -> None:
+    """Whether mvm may put its output at ``path``: the one decision every writer follows.
+
+    Refused in one :class:`OutputError` line (exit 2), before any write: a symbolic link, a
+    FIFO, a device or a socket at ``path`` (:func:`mvm.io.files.check_file_target`; a folder,
+    or a link to one, is let through for an output that is a folder: where it may lie is
+    :func:`check_output_location`'s to say). With ``owned`` (the names of ``path``'s folder
+    that mvm wrote, :data:`OUTPUT_MARKER`'s list; None when the user named ``path`` itself, so it
+    is theirs to replace): an existing entry not in ``owned`` and without an mvm record of its
+    inputs beside it (:func:`mvm.io.provenance.record_path`) is a user's and never replaced."""
+    path = Path(path)
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise output_error(path, e) from None
+    if not (stat.S_ISDIR(info.st_mode) or stat.S_ISLNK(info.st_mode) and path.is_dir()):
+        check_file_target(path)                        # a folder, or a link to one, is an output folder's place
+    if owned is None or path.name in set(owned) or _has_record(path):
+        return
+    raise OutputError(path, None, "exists and mvm did not write it (not listed in the folder's "
+                                  f"{OUTPUT_MARKER}): it would be replaced; move it or choose another output")
+
+
+def _has_record(path: Path) -> bool:
+    """Whether an mvm stage wrote ``path``: the record of its inputs lies beside it."""
+    from mvm.io.provenance import record_path
+
+    record = record_path(path)
+    return record != path and record.is_file() and not record.is_symlink()
 
 
 def is_mvm_output(path: str | Path) -> bool:
@@ -218,10 +334,17 @@ def output_lock(path: str | Path, timeout_s: float = LOCK_WAIT_S, poll_s: float 
     lock = lock_path(path)
     deadline = time.monotonic() + timeout_s
     while True:
+        check_file_target(lock)                        # a planted link, FIFO or device: refused
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+            fd = os.open(lock, _LOCK_FLAGS, 0o644)
         except OSError as e:
+            if e.errno == errno.ELOOP:                 # a link planted since the check
+                raise OutputError(lock, None, "refusing to write: is a symbolic link, not a regular file; "
+                                              "choose another output") from None
             raise output_error(lock, e) from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise OutputError(lock, None, "refusing to write: not a regular file; choose another output")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -33,11 +33,13 @@ import orjson
 
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_bytes
-from mvm.io.files import atomic_write_json, output_error
+from mvm.io.files import atomic_write_json, check_file_target, output_error
 
 RECORD_FORMAT = "mvm.inputs/1"
 #: The largest record read back (one holds a few hashes and the settings). [bytes]
 RECORD_MAX_BYTES = 2**20
+#: The deepest nesting of lists and objects in a record read back (one nests four or five).
+RECORD_MAX_DEPTH = 32
 #: Suffix of a record beside its output: ``poses2d.json`` -> ``poses2d.inputs.json``.
 RECORD_SUFFIX = ".inputs.json"
 #: The fingerprint of an input that is not there.
@@ -148,44 +150,107 @@ def fingerprints(inputs: Mapping[str, object]) -> dict[str, str]:
 
 def read_record(output: str | Path) -> dict | None:
     """The record of ``output``, or None when there is none or it cannot be read (an output
-    without a usable record is never up to date). A record is written in place, never as a
-    link: a link there (to another output's record, say) is no record of this output."""
+    without a usable record is never up to date; :func:`record_problem` says why)."""
+    return _load_record(output)[0]
+
+
+def record_problem(output: str | Path) -> str | None:
+    """Why the entry at ``output``'s record is no usable record (one phrase), or None when the
+    record is sound or there is nothing there."""
+    return _load_record(output)[1]
+
+
+def _load_record(output: str | Path) -> tuple[dict | None, str | None]:
+    """``(record, None)``, ``(None, None)`` when nothing is there, or ``(None, problem)``.
+
+    A record is written in place as a small regular file: a link there (to another output's
+    record, say), a FIFO, a device, a folder, a file over :data:`RECORD_MAX_BYTES`, text that
+    is not JSON, JSON nested deeper than :data:`RECORD_MAX_DEPTH` or without the record's
+    fields is no record of this output."""
     path = record_path(output)
-    if not path.exists() or path.is_symlink():
-        return None
+    if not os.path.lexists(path):
+        return None, None
+    if path.is_symlink():
+        return None, f"{path.name} is a symbolic link, not a record"
     try:
         data = orjson.loads(read_bytes(path, limit=RECORD_MAX_BYTES))   # a FIFO or a huge file: no record
-    except (InputError, orjson.JSONDecodeError):
-        return None
+    except InputError as e:
+        return None, f"{path.name}: {e.problem}"
+    except orjson.JSONDecodeError:
+        return None, f"{path.name} is not JSON"
+    if _depth(data) > RECORD_MAX_DEPTH:
+        return None, f"{path.name} is nested deeper than {RECORD_MAX_DEPTH} levels"
     if not isinstance(data, dict) or data.get("format") != RECORD_FORMAT or not isinstance(data.get("inputs"), dict):
-        return None
-    try:
-        _flat(data.get("settings"))              # nested deeper than Python recurses: no record
-    except RecursionError:
-        return None
-    return data
+        return None, f"{path.name} is not an {RECORD_FORMAT} record"
+    return data, None
+
+
+def _depth(value, limit: int = RECORD_MAX_DEPTH) -> int:
+    """How deep ``value`` nests lists and objects (a number: 0; ``[[1]]``: 2), counted level by
+    level without recursion, up to ``limit + 1``."""
+    depth, level = 0, [value]
+    while depth <= limit:
+        level = [v for item in level if isinstance(item, (dict, list))
+                 for v in (item.values() if isinstance(item, dict) else item)] if any(
+                     isinstance(item, (dict, list)) for item in level) else None
+        if level is None:
+            return depth
+        depth += 1
+    return depth
 
 
 def forget(output: str | Path) -> None:
-    """Remove the record of ``output``: call it before replacing the output. A record that
-    cannot be removed (a folder in its place) raises :class:`~mvm.io.files.OutputError`."""
+    """Remove the record of ``output``: call it before replacing the output. Whatever lies at
+    the record's name (mvm's own) is removed, a link itself and not what it points to; a
+    device or a folder there is refused in one line (:func:`mvm.io.files.check_file_target`),
+    and so is a record that cannot be removed (:class:`~mvm.io.files.OutputError`)."""
     path = record_path(output)
+    if not path.is_symlink() and not stat.S_ISFIFO(_mode(path)):
+        check_file_target(path)
     try:
         path.unlink(missing_ok=True)
     except OSError as e:
         raise output_error(path, e) from None
 
 
+def _mode(path: Path) -> int:
+    try:
+        return os.lstat(path).st_mode
+    except OSError:
+        return 0
+
+
 def write_record(output: str | Path, stage: str, inputs: Mapping[str, object], settings=None,
-                 hashed: Mapping[str, str] | None = None) -> dict:
+                 hashed: Mapping[str, str] | None = None, made: list[Path] | None = None) -> dict:
     """Write the record of ``output``, made by ``stage`` (its name in :func:`why_redo`'s
     reasons, e.g. "the reconstruction") from ``inputs`` (:func:`fingerprints`; ``hashed``: those
-    already computed) with ``settings`` (a dataclass or JSON values). Returns the record."""
+    already computed) with ``settings`` (a dataclass or JSON values). ``made``: the files the
+    output consists of besides ``output`` itself (a frame extraction's images), under the
+    record's folder; one of them gone makes the output stale. Returns the record."""
     record = {"format": RECORD_FORMAT, "stage": stage,
               "inputs": dict(hashed) if hashed is not None else fingerprints(inputs),
               "settings": _plain(settings) if settings is not None else {}}
-    atomic_write_json(record_path(output), record, pretty=True)
+    path = record_path(output)
+    if made is not None:
+        record["made"] = [Path(m).relative_to(path.parent).as_posix() for m in made]
+    if not stat.S_ISREG(_mode(path)):
+        forget(output)                             # a link or a FIFO there: removed; a device, a folder: refused
+    atomic_write_json(path, record, pretty=True)
     return record
+
+
+def _gone(output: Path, record: dict, what: str) -> str | None:
+    """Which of the files the record says the output is made of is no longer a regular file."""
+    made = record.get("made", [])
+    if not isinstance(made, list):
+        return f"{record_path(output).name}: made: not a list"
+    folder = record_path(output).parent
+    for name in made:
+        if not isinstance(name, str) or name.startswith("/") or ".." in name.split("/"):
+            return f"{record_path(output).name}: made: {str(name)[:40]!r} is not a file of the output"
+        if not stat.S_ISREG(_mode(folder / name)):
+            return f"{name} is gone since {what}"
+    return None
 
 
 def _flat(settings, prefix: str = "") -> dict:
@@ -237,22 +302,32 @@ def why_redo(output: str | Path, inputs: Mapping[str, object], settings=None, st
     output = Path(output)
     if not (output.exists() if exists is None else exists):
         return "no output yet"
-    record = read_record(output)
+    mode = _mode(output)
+    if mode and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        return f"{output.name} is not a regular file"          # a link, FIFO or device is no output of mvm
+    record, problem = _load_record(output)
+    if problem is not None:
+        return f"its record is unusable ({problem})"
     if record is None:
         return (f"{output.name} has no record of its inputs (made elsewhere, by an earlier version or an "
                 "interrupted run)")
-    return compare(record, fingerprints(inputs) if hashed is None else hashed, settings, stage)
+    return (compare(record, fingerprints(inputs) if hashed is None else hashed, settings, stage)
+            or _gone(output, record, stage))
 
 
 def stale_reason(output: str | Path, inputs: Mapping[str, object]) -> str | None:
     """For a command that reads ``output``: why it no longer matches those of its ``inputs``
-    that its record names (settings are not compared), or None when it does or when it has no
-    record (an output made elsewhere is taken as it is)."""
-    record = read_record(output)
+    that its record names (settings are not compared) or a file it lists is gone, or None when
+    it does or when it has no record (an output made elsewhere is taken as it is). A record that
+    is there but unusable (not a small regular JSON file of the record's form) makes it stale."""
+    record, problem = _load_record(output)
+    if problem is not None:
+        return f"its record is unusable ({problem})"
     if record is None:
         return None
     known = {name: value for name, value in inputs.items() if name in record["inputs"]}
-    return compare({**record, "inputs": {k: record["inputs"][k] for k in known}}, fingerprints(known))
+    return (compare({**record, "inputs": {k: record["inputs"][k] for k in known}}, fingerprints(known))
+            or _gone(Path(output), record, record.get("stage") or "the output was made"))
 
 
 def check_fresh(output: str | Path, inputs: Mapping[str, object], command: str) -> None:

@@ -21,7 +21,7 @@ import numpy as np
 
 from mvm.io.calib_toml import calib_toml_text, write_calib_toml
 from mvm.io.coco import coco_keypoints_document
-from mvm.io.files import atomic_write_json, atomic_write_text
+from mvm.io.files import atomic_write_json, atomic_write_text, check_file_target
 from mvm.io.outputs import atomic_replace_dir
 
 TRUTH_FORMAT = "mvm.rig.groundtruth/1"
@@ -73,6 +73,8 @@ def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False,
 
     truth = out.with_name(out.name + ".groundtruth.json")
     true_calibration = out.with_name(out.name + ".groundtruth.toml")
+    for path in (truth, true_calibration):           # a device, FIFO or link there: refused before any write
+        check_file_target(path)
     atomic_replace_dir(build, out)
     atomic_write_json(truth, truth_document(sim))
     write_calib_toml(true_calibration, sim.calibration)

@@ -16,7 +16,7 @@ from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, numbe
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
 from mvm.io.files import OutputError, atomic_write_json, json_number
-from mvm.io.outputs import atomic_replace_dir
+from mvm.io.outputs import atomic_replace_dir, writing_into
 from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
@@ -134,14 +134,16 @@ def output_dir(scene: str | Path, output: str = "mvm") -> Path:
 def write_scene(path: str | Path, cameras: Cameras, poses: Poses2D, binary: bool = True,
                 points3d: np.ndarray | None = None) -> None:
     """Write a scene directory: a COLMAP model of ``cameras`` and ``poses2d.json`` (keypoints in
-    the pinhole cameras' pixels). Each part is written atomically."""
+    the pinhole cameras' pixels). Each part is written atomically; a ``sparse/`` or
+    ``poses2d.json`` that mvm did not write there is refused before any write
+    (:func:`mvm.io.outputs.writing_into`)."""
     path = Path(path)
-    path.mkdir(parents=True, exist_ok=True)
-    atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras, binary=binary, points3d=points3d),
-                       path / SPARSE, replace_unmarked=True)
     document = coco_keypoints_document(cameras.names, cameras.size, poses.view, poses.keypoints,
                                        poses.score, poses.ids, poses.appearance)
-    atomic_write_json(path / POSES2D, document)
+    with writing_into(path, [SPARSE, POSES2D]):       # a user's sparse/ or poses2d.json: refused
+        atomic_replace_dir(lambda tmp: write_colmap(tmp, cameras, binary=binary, points3d=points3d),
+                           path / SPARSE, replace_unmarked=True)
+        atomic_write_json(path / POSES2D, document)
 
 
 def poses3d_document(persons: Persons3D, poses: Poses2D, metrics: dict, extra: dict | None = None) -> dict:

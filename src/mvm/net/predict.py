@@ -8,6 +8,7 @@ image's long edge, about a 53° field of view) and the principal point at the ce
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file
 from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.outputs import check_names, writing_into
 from mvm.net.checkpoints import read_checkpoint
 from mvm.net.data import load_image
 from mvm.net.decoder import DecoderConfig, normalize_depth
@@ -29,6 +31,8 @@ from mvm.net.model import ModelSpec, PoseNet
 
 LOG = logging.getLogger(__name__)
 PREDICTIONS_FORMAT = "mvm.net.predictions/1"
+#: The file of the predictions in the output folder.
+PREDICTIONS_FILE = "predictions.json"
 #: Bounds of the network input's long edge (px): the input and the backbone's first feature
 #: maps grow as its square (4096 px: about 3 GB of activations on a ResNet-50; 100,000 px
 #: would ask for 17 GB for the letterboxed image alone).
@@ -146,24 +150,33 @@ def predict(images: list[str | Path], checkpoint: str | Path, out_dir: str | Pat
         raise InputError(None, "images", "no image given")
     if input_size is not None:
         check_input_size(input_size, None, "--input-size")
+    out = Path(out_dir) if out_dir is not None else None
+    names = [PREDICTIONS_FILE, *(f"{Path(p).stem}.overlay.jpg" for p in images)]
+    if out is not None:
+        check_names(out, names)                       # a user's file there: refused before the work
     model, meta = load_model(checkpoint, device=str(select_device(device)))
     size = input_size or trained_input_size(meta, checkpoint)
     results = []
-    out = Path(out_dir) if out_dir is not None else None
-    for path in images:
-        path = Path(path)
-        image = load_image(path)
-        with torch.no_grad():
-            result = {"image": str(path), **predict_image(model, image, size, focal_px, decoder)}
-        results.append(result)
-        LOG.info("%s: %d people", path, len(result["persons"]))
+    with writing_into(out, names) if out is not None else contextlib.nullcontext():   # a user's file: refused
+        for path in images:
+            results.append(_predict_one(model, Path(path), size, focal_px, decoder, out))
         if out is not None:
-            import cv2
-
-            ok, buf = cv2.imencode(".jpg", overlay(image, result))
-            if ok:
-                atomic_write_bytes(out / f"{path.stem}.overlay.jpg", buf.tobytes())
-    if out is not None:
-        atomic_write_json(out / "predictions.json", {"format": PREDICTIONS_FORMAT, "checkpoint": str(checkpoint),
-                                                     "keypoints": list(COCO_KEYPOINTS), "images": results}, pretty=True)
+            atomic_write_json(out / PREDICTIONS_FILE, {"format": PREDICTIONS_FORMAT, "checkpoint": str(checkpoint),
+                                                       "keypoints": list(COCO_KEYPOINTS), "images": results},
+                              pretty=True)
     return results
+
+
+def _predict_one(model, path: Path, size: int, focal_px, decoder, out: Path | None) -> dict:
+    """The prediction of one image (and its overlay written into ``out`` when given)."""
+    image = load_image(path)
+    with torch.no_grad():
+        result = {"image": str(path), **predict_image(model, image, size, focal_px, decoder)}
+    LOG.info("%s: %d people", path, len(result["persons"]))
+    if out is not None:
+        import cv2
+
+        ok, buf = cv2.imencode(".jpg", overlay(image, result))
+        if ok:
+            atomic_write_bytes(out / f"{path.stem}.overlay.jpg", buf.tobytes())
+    return result

@@ -18,6 +18,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
 from mvm.io.images import count_frames, frame_count_bound, step_frames
+from mvm.io.outputs import writing_into
 from mvm.io.paths import check_name
 from mvm.io.provenance import fingerprints, forget, why_redo, write_record
 from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motion
@@ -323,6 +324,13 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
         log.info("%s is up to date (made from %s with these options)", index_path, video.name)
         return read_frame_index(scene)
     log.info("%s: extracting frames: %s", scene, why)
+    with writing_into(scene, [FRAMES_DIR, FRAMES_INDEX]):     # a user's frames.json or frames/: refused
+        return _extract(video, scene, options, progress, why, hashed)
+
+
+def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str, hashed: dict) -> FrameIndex:
+    """The body of :func:`extract_frames` once it decided to decode ``video`` (``why``)."""
+    index_path = scene / FRAMES_INDEX
     frames_dir = scene / FRAMES_DIR
     forget(index_path)
     rule = options.rule
@@ -348,7 +356,8 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     document = index.to_json()
     document["options"] = asdict(options)
     atomic_write_json(index_path, document, pretty=True)
-    write_record(index_path, FRAMES_STAGE, frame_inputs(video), _frame_settings(options), hashed)
+    write_record(index_path, FRAMES_STAGE, frame_inputs(video), _frame_settings(options), hashed,
+                 made=[frames_dir / name for name in index.names])    # a frame deleted since: redone
     return index
 
 
