@@ -286,3 +286,22 @@ def test_a_camera_name_too_long_for_its_pose_files_is_one_line(rendered, tmp_pat
     (root / "videos" / "cam_02.mkv").rename(root / "videos" / f"{long}.mkv")
     _one_line(_detect(root, model), f"{long}.mkv", "at most 200")
     assert not (root / "pose").exists()
+
+
+def test_a_video_that_ends_early_is_one_line_and_gets_no_pose_file(rendered, tmp_path):
+    """cam_02's video cut after 3 of the 8 frames its header and cam_01's announce (a damaged
+    file): one line naming it, exit 2, no pose file for it; cam_01's poses are written whole."""
+    import cv2
+
+    from helpers import write_avi
+
+    root, _, model = _copy(rendered, tmp_path)
+    capture = cv2.VideoCapture(str(root / "videos" / "cam_02.mkv"))
+    images = [capture.read()[1] for _ in range(3)]
+    capture.release()
+    (root / "videos" / "cam_02.mkv").unlink()
+    write_avi(root / "videos" / "cam_02.avi", images, RATE, announce=FRAMES, codec="FFV1")
+    _one_line(_detect(root, model), "cam_02", "ends early", f"3 of the {FRAMES} frames")
+    assert not (root / "pose" / "cam_02.json").exists()
+    info = json.loads((root / "pose" / "cam_01.json").read_text())["info"]["video"]
+    assert info["frames"] == FRAMES

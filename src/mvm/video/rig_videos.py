@@ -48,7 +48,8 @@ RIG_DETECT_STAGE = "the rig detection"
 #: its pose file's record, ``.<camera>.inputs.json.mvm-tmp-XXXXXXXX.tmp``, must fit the file
 #: systems' 255 bytes. [bytes]
 MAX_CAMERA_NAME_BYTES = 200
-#: Decoded frames fewer than the header announces by more than this share are reported. [1]
+#: A video that decodes fewer frames than its header and the other cameras' announce, by more than
+#: this share, ends early (:func:`ends_early`): a cut or damaged file, refused. [1]
 SHORT_VIDEO_SHARE = 0.01
 
 
@@ -168,6 +169,19 @@ def _inputs(video: Path, checkpoint) -> dict:
     return inputs
 
 
+def ends_early(decoded: int, announced: int, others: int, share: float = SHORT_VIDEO_SHARE) -> bool:
+    """Whether a camera's video ended before its time: fewer frames decoded than its header
+    announces, and fewer than the other cameras' videos announce, each by more than ``share``
+    (a cut or damaged file). A header that lies about the count alone (billions of frames) is no
+    such video when the frames that decode are as many as the others'; nor is a camera that
+    started late (its header counts what it holds).
+
+    >>> ends_early(50, 100, 100), ends_early(100, 4_294_967_295, 100), ends_early(950, 950, 1000)
+    (True, False, False)
+    """
+    return bool(announced) and decoded < announced * (1 - share) and decoded < others * (1 - share)
+
+
 def _detect_camera(camera: str, video: Path, info: VideoInfo, detector: FrameDetector, options: DetectOptions,
                    kind: str, progress) -> tuple[FramePoses, dict, VideoInfo]:
     """Detect every frame of ``camera``'s ``video`` -> the poses, the pose file's document and
@@ -183,9 +197,6 @@ def _detect_camera(camera: str, video: Path, info: VideoInfo, detector: FrameDet
     frames = decoded[0]
     if frames == 0:
         raise InputError(video, None, f"camera {camera}: no frame of this video decodes")
-    if info.frames and frames < info.frames * (1 - SHORT_VIDEO_SHARE):
-        log.warning("camera %s: %d of the %d frames %s announces were decoded (a damaged or cut video?); the "
-                    "poses cover those", camera, frames, info.frames, video.name)
     found.resize(frames)
     info = replace(info, frames=frames)
     names = [frame_file_name(camera, f) for f in range(frames)]
@@ -254,7 +265,7 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         log.warning("the videos' frame rates differ: %s; mvm rig reconstruct needs one rate (resample the videos, "
                     "or give it --frame-rate)", ", ".join(f"{c} {r:g} Hz" for c, r in rates.items()))
     detector = make_detector(options, checkpoint) if probed else None
-    done, empty = [], []
+    done, empty, short = [], [], []
     for camera, video, out, inputs, hashed, why in plan:
         if why is None:
             log.info("%s is up to date (made from %s with these settings)", out, video.name)
@@ -262,6 +273,10 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
             continue
         log.info("camera %s: detecting 2D poses in %s: %s", camera, video.name, why)
         poses, document, info = _detect_camera(camera, video, probed[camera], detector, options, kind, progress)
+        others = max((i.frames for c, i in probed.items() if c != camera), default=0)
+        if ends_early(info.frames, probed[camera].frames, others):
+            short.append((camera, video, info.frames, probed[camera].frames))
+            continue
         if not len(poses.keypoints):
             empty.append((camera, video, info.frames))
             continue
@@ -269,6 +284,13 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         atomic_write_json(out, document)
         write_record(out, RIG_DETECT_STAGE, inputs, settings, hashed)
         done.append(CameraPoses(camera, out, info, len(poses.keypoints), why))
+    if short:
+        camera, video, frames, announced = short[0]
+        others = f" (and cameras {', '.join(c for c, *_ in short[1:])})" if len(short) > 1 else ""
+        raise InputError(video, None, f"camera {camera}{others}: the video ends early: {frames} of the {announced} "
+                                      f"frames it announces decode, fewer than the other cameras' (a cut or damaged "
+                                      f"file); no pose file written for it (re-encode or replace it, or move it out "
+                                      f"of {VIDEOS_DIR}/ to go on without it)")
     if empty:
         camera, video, frames = empty[0]
         others = f" (and cameras {', '.join(c for c, _, _ in empty[1:])})" if len(empty) > 1 else ""
