@@ -92,3 +92,11 @@ def test_folder_where_a_file_is_wanted_is_one_line(tmp_path):
         assert r.exit_code == 2, (args, r.output)
         assert len(lines) == 1 and lines[0].startswith(f"mvm: error: {name}: "), (args, lines)
     assert not any(folder.iterdir())
+
+
+def test_a_required_path_not_given_is_one_line_that_says_so(tmp_path):
+    """A required path option left out ends in mvm's one line saying it is required (it said
+    ``mvm: error: --output:`` and nothing more)."""
+    r = CliRunner().invoke(main, ["rig", "calibrate", str(tmp_path), "--from-people"])
+    lines = r.stderr.strip().splitlines()
+    assert r.exit_code == 2 and lines == ["mvm: error: --output: required, not given"], r.output

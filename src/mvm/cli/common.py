@@ -46,7 +46,8 @@ class _OneLineErrors:
         except click.BadParameter as e:
             if e.param is None or not isinstance(e.param.type, click.Path):
                 raise
-            raise InputError(None, _option_name(e.param), e.message.rstrip(".")) from None
+            problem = "required, not given" if isinstance(e, click.MissingParameter) else e.message.rstrip(".")
+            raise InputError(None, _option_name(e.param), problem) from None
 
     def invoke(self, ctx):
         try:
