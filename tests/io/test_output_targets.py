@@ -455,3 +455,29 @@ def test_a_failed_run_leaves_no_folder_nor_name_behind(tmp_path):
             (tmp_path / "old" / "a.csv").write_text("1")
             raise RuntimeError("the work failed half-way")
     assert json.loads((tmp_path / "old" / OUTPUT_MARKER).read_text()) == ["a.csv"]
+
+
+def test_a_killed_runs_temporary_beside_a_file_output_is_removed_by_the_next_run(tmp_path):
+    """Every atomic write's temporary is named after its writer's process: one whose process is
+    gone (a run killed while writing ``-o FILE``) is deleted by the next run's output check; a
+    live writer's stays, and so does a file that only looks like one."""
+    import os
+    import subprocess
+    import sys
+
+    from mvm.io.files import atomic_output
+    from mvm.io.outputs import check_output_location
+
+    out = tmp_path / "cams.toml"
+    with atomic_output(out) as tmp:
+        assert tmp.name.startswith(f".cams.toml.mvm-tmp-{os.getpid()}-")
+        tmp.write_text("partial")
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True).stdout.strip()
+    dead = tmp_path / f".cams.toml.mvm-tmp-{gone}-abc123.tmp"
+    live = tmp_path / f".cams.toml.mvm-tmp-{os.getpid()}-def456.tmp"
+    other = tmp_path / ".cams.toml.mvm-tmp-notes.tmp"
+    for f in (dead, live, other):
+        f.write_text("x")
+    check_output_location(out, [], replaced=False)
+    assert not dead.exists() and live.exists() and other.exists() and out.read_text() == "partial"

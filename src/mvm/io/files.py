@@ -4,7 +4,8 @@ Every file is written to a temporary file in the same directory (``.NAME.mvm-tmp
 flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic on POSIX
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
-temporary file, which :func:`remove_stale_temporaries` deletes on the next run.
+temporary file, which :func:`remove_stale_temporaries` (under the output's lock) or
+:func:`remove_dead_temporaries` (its writer's process gone) deletes on the next run.
 
 The temporary file is created private (``0600``) by :func:`tempfile.mkstemp`; before it is
 renamed into place it gets the mode a plain ``open`` would have given it, ``0666`` less the
@@ -146,7 +147,8 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
     make_dir(path.parent)
     check_file_target(path)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}", suffix=suffix, dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}{os.getpid()}-", suffix=suffix,
+                                   dir=path.parent)
     except OSError as e:
         raise output_error(path, e) from None
     try:
@@ -257,6 +259,34 @@ def remove_stale_temporaries(directory: str | Path, name: str) -> int:
             tmp.unlink()
             removed += 1
     return removed
+
+
+def remove_dead_temporaries(path: str | Path) -> int:
+    """Delete the temporary files of ``path`` (``.NAME.mvm-tmp-PID-*.tmp``, regular files) whose
+    writer, the process ``PID`` of this machine, is no longer alive: what a killed run left. No
+    lock is needed: a live writer's temporary is never touched (a temporary without a process
+    number, or of a live one, stays). Returns how many were deleted."""
+    path = Path(path)
+    removed = 0
+    for tmp in path.parent.glob(f".{path.name}{TEMPORARY_INFIX}*.tmp"):
+        pid = tmp.name[len(path.name) + 1 + len(TEMPORARY_INFIX):].split("-", 1)[0]
+        if not pid.isdigit() or tmp.is_symlink() or not tmp.is_file() or _alive(int(pid)):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+            removed += 1
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs on this machine (one that cannot be signalled counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True
+    return True
 
 
 class LockTimeout(TimeoutError):
