@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.keypoints import LEFT_HIP, LEFT_SHOULDER, NUM_JOINTS, RIGHT_HIP, RIGHT_SHOULDER
+from mvm.core.geometry import similarity_transform
+from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.prior import body_frame
 
 MISSING, OBSERVED, INTERPOLATED, INFERRED = 0, 1, 2, 3
 #: The names of the flags, as written in ``poses3d.json`` / ``.jsonl`` (index = flag value).
 FLAG_NAMES = ("missing", "observed", "interpolated", "inferred")
-#: Joints that define a person's canonical frame.
-FRAME_JOINTS = np.array([LEFT_HIP, RIGHT_HIP, LEFT_SHOULDER, RIGHT_SHOULDER])
 
 
 def flag_names(flags: np.ndarray) -> list:
@@ -87,29 +86,11 @@ def interpolate_series(series: np.ndarray, max_gap: int) -> tuple[np.ndarray, np
     return out, fill
 
 
-def _align(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Similarity transforms (Umeyama) of ``source: (L, K, 3)`` onto ``target: (K, 3)``:
-    ``(s: (L,), R: (L, 3, 3), t: (L, 3))`` with ``target ≈ s R source + t``."""
-    mu_s = source.mean(1, keepdims=True)
-    mu_t = target.mean(0)
-    a, b = source - mu_s, target - mu_t
-    cov = np.einsum("ki,lkj->lij", b, a) / len(target)                            # (L, 3, 3)
-    U, S, Vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(U @ Vt))
-    D = np.ones((len(source), 3))
-    D[:, 2] = d
-    R = (U * D[:, None, :]) @ Vt
-    var = (a ** 2).sum((1, 2)) / len(target)
-    s = (S * D).sum(1) / np.maximum(var, 1e-12)
-    t = mu_t - s[:, None] * np.einsum("lij,lj->li", R, mu_s[:, 0])
-    return s, R, t
-
-
 def _frame_from_means(pose: np.ndarray, means: np.ndarray) -> np.ndarray:
     """``pose: (17, 3)`` with NaN, ``means: (L, 17, 3)`` canonical -> the pose with its missing
     joints taken from the component mean that aligns best to its present joints."""
     present = np.isfinite(pose).all(-1)
-    s, R, t = _align(means[:, present], pose[present])
+    s, R, t = similarity_transform(means[:, present], np.broadcast_to(pose[present], means[:, present].shape))
     placed = s[:, None, None] * np.einsum("lij,lkj->lki", R, means) + t[:, None]   # (L, 17, 3)
     residual = np.linalg.norm(placed[:, present] - pose[present], axis=-1).mean(1)
     best = placed[int(np.argmin(residual))]

@@ -293,3 +293,30 @@ def view_spread(points: np.ndarray, centers: np.ndarray, used: np.ndarray) -> np
     normal = n[:, None, None] * np.eye(3) - np.einsum("pmi,pmj->pij", d, d)
     smallest = np.linalg.eigvalsh(normal)[:, 0] / np.maximum(n, 1)
     return np.where((n >= 2) & np.isfinite(points).all(-1), smallest, np.nan)
+
+
+def similarity_transform(source: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None,
+                         scale: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama), batched.
+
+    ``source, target: (..., N, 3)``; ``mask: (..., N)`` the points of the fit (default: finite
+    in both) -> ``s: (...)``, ``R: (..., 3, 3)``, ``t: (..., 3)`` (``s = 1`` without ``scale``).
+    """
+    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
+    if source.shape != target.shape or source.ndim < 2 or source.shape[-1] != 3:
+        raise ValueError(f"similarity_transform: expected two (..., N, 3) arrays, got {source.shape} and "
+                         f"{target.shape}")
+    if mask is None:
+        mask = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
+    w = np.asarray(mask, dtype=float)[..., None]                                  # (..., N, 1)
+    n = np.maximum(w.sum(-2, keepdims=True), 1)
+    A, B = np.nan_to_num(source), np.nan_to_num(target)
+    mu_a, mu_b = (w * A).sum(-2, keepdims=True) / n, (w * B).sum(-2, keepdims=True) / n
+    A0, B0 = (A - mu_a) * w, (B - mu_b) * w
+    U, S, Vt = np.linalg.svd(np.einsum("...ji,...jk->...ik", B0, A0))            # B0ᵀ A0 = U S Vt
+    D = np.ones_like(S)
+    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
+    R = (U * D[..., None, :]) @ Vt
+    s = (S * D).sum(-1) / np.maximum((A0 ** 2).sum((-2, -1)), 1e-12) if scale else np.ones(S.shape[:-1])
+    t = mu_b[..., 0, :] - s[..., None] * np.einsum("...ij,...j->...i", R, mu_a[..., 0, :])
+    return s, R, t

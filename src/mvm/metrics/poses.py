@@ -1,11 +1,14 @@
 """Ground-truth metrics of 3D poses: matching precision/recall, persons found, MPJPE, PA-MPJPE
-and the similarity (Procrustes) alignment behind it. Pure numpy/scipy, no I/O. The paper's
+and the similarity (Procrustes) alignment behind it (the core's one Umeyama,
+:func:`mvm.core.geometry.similarity_transform`). Pure numpy/scipy, no I/O. The paper's
 proxies without ground truth (E_R, outliers, |G_k|) are in :mod:`mvm.core.quality`; the
 motion-capture field's PCP and AP in :mod:`mvm.metrics.mocap_scores`."""
 from __future__ import annotations
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from mvm.core.geometry import similarity_transform
 
 #: An estimated person is a true person found when their MPJPE is below this (the demo, the
 #: benchmarks and the Panoptic evaluation alike). [m]
@@ -35,33 +38,6 @@ def matching_precision_recall(groups: list[np.ndarray], true_person: np.ndarray)
     precision = correct / predicted if predicted else 1.0
     recall = correct / true_pairs if true_pairs else 1.0
     return float(precision), float(recall)
-
-
-def similarity_transform(source: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None,
-                         scale: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Least-squares similarity ``target ≈ s R source + t`` (Umeyama), batched.
-
-    ``source, target: (..., N, 3)``; ``mask: (..., N)`` the points of the fit (default: finite
-    in both) -> ``s: (...)``, ``R: (..., 3, 3)``, ``t: (..., 3)`` (``s = 1`` without ``scale``).
-    """
-    source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
-    if source.shape != target.shape or source.ndim < 2 or source.shape[-1] != 3:
-        raise ValueError(f"similarity_transform: expected two (..., N, 3) arrays, got {source.shape} and "
-                         f"{target.shape}")
-    if mask is None:
-        mask = np.isfinite(source).all(-1) & np.isfinite(target).all(-1)
-    w = np.asarray(mask, dtype=float)[..., None]                                  # (..., N, 1)
-    n = np.maximum(w.sum(-2, keepdims=True), 1)
-    A, B = np.nan_to_num(source), np.nan_to_num(target)
-    mu_a, mu_b = (w * A).sum(-2, keepdims=True) / n, (w * B).sum(-2, keepdims=True) / n
-    A0, B0 = (A - mu_a) * w, (B - mu_b) * w
-    U, S, Vt = np.linalg.svd(np.einsum("...ji,...jk->...ik", B0, A0))            # B0ᵀ A0 = U S Vt
-    D = np.ones_like(S)
-    D[..., -1] = np.sign(np.linalg.det(U @ Vt))
-    R = (U * D[..., None, :]) @ Vt
-    s = (S * D).sum(-1) / np.maximum((A0 ** 2).sum((-2, -1)), 1e-12) if scale else np.ones(S.shape[:-1])
-    t = mu_b[..., 0, :] - s[..., None] * np.einsum("...ij,...j->...i", R, mu_a[..., 0, :])
-    return s, R, t
 
 
 def procrustes_align(source: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None,

@@ -84,9 +84,3 @@ def fields_from_raw(raw: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """Activate every head's raw output (see :func:`mvm.net.heads.activate`)."""
     return {name: activate(name, value) for name, value in raw.items()}
 
-
-def normalize_images(images: torch.Tensor) -> torch.Tensor:
-    """``images: (B, 3, H, W)`` RGB in [0, 1] -> ImageNet-normalized."""
-    mean = torch.tensor(IMAGE_MEAN, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
-    std = torch.tensor(IMAGE_STD, dtype=images.dtype, device=images.device).view(1, 3, 1, 1)
-    return (images - mean) / std

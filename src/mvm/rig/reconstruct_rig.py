@@ -27,6 +27,7 @@ from mvm.core.prior import load_prior, shipped_prior
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.provenance import fingerprints, write_record
+from mvm.io.rig_poses3d import RIG_POSES3D_FORMAT
 from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
@@ -41,7 +42,6 @@ from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, tr
 
 log = logging.getLogger(__name__)
 
-POSES3D_LINES_FORMAT = "mvm.rig.poses3d/1"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RIG_STAGE = "the rig reconstruction"
 
@@ -115,7 +115,7 @@ def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, tr
                       "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
                       "views_per_joint": views[q], "reprojection_error_px": errors[q]}
                      for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start)]
-            out.append(orjson.dumps({"format": POSES3D_LINES_FORMAT, "frame": int(frames[t]), "persons": found}))
+            out.append(orjson.dumps({"format": RIG_POSES3D_FORMAT, "frame": int(frames[t]), "persons": found}))
         return b"\n".join(out) + b"\n" if out else b""
 
     return b"".join(fork_map_ranges(lines, len(frames), 100, workers))

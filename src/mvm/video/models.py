@@ -14,7 +14,6 @@ The URLs are the ones RTMLib (``rtmlib.tools.solution.body.Body``) uses.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import logging
 import os
@@ -32,7 +31,7 @@ from urllib.request import urlopen
 
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_text
-from mvm.io.files import OutputError, make_dir, new_file_mode, output_error
+from mvm.io.files import OutputError, atomic_output, make_dir, output_error
 
 log = logging.getLogger(__name__)
 
@@ -128,40 +127,31 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
     the URL and the target when the download fails or the checksum differs; no file is left at
     ``target`` or beside it then."""
     target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
-    with contextlib.suppress(OSError, AttributeError):
-        os.fchmod(fd, new_file_mode())                 # the umask's mode, not mkstemp's 0600
     digest = hashlib.sha256()
-    try:
-        with os.fdopen(fd, "wb") as out, urlopen(url, timeout=timeout_s) as response:
-            total = int(response.headers.get("Content-Length") or 0)
-            done = 0
-            for block in iter(lambda: response.read(1 << 20), b""):
-                out.write(block)
-                digest.update(block)
-                done += len(block)
-                if progress:
-                    progress(done, total)
-            if total and done != total:
-                raise InputError(url, None, f"download interrupted after {done} of {total} bytes; "
-                                            f"fetch it by hand into {target}")
-            out.flush()
-            os.fsync(out.fileno())
+    with atomic_output(target, suffix=".part") as tmp:          # renamed over target once verified
+        try:
+            with open(tmp, "wb") as out, urlopen(url, timeout=timeout_s) as response:
+                total = int(response.headers.get("Content-Length") or 0)
+                done = 0
+                for block in iter(lambda: response.read(1 << 20), b""):
+                    out.write(block)
+                    digest.update(block)
+                    done += len(block)
+                    if progress:
+                        progress(done, total)
+                if total and done != total:
+                    raise InputError(url, None, f"download interrupted after {done} of {total} bytes; "
+                                                f"fetch it by hand into {target}")
+                out.flush()
+                os.fsync(out.fileno())
+        except (URLError, OSError, ValueError) as e:
+            reason = getattr(e, "reason", None) or e
+            raise InputError(url, None, f"cannot download ({reason}): fetch this file and put it at {target}, "
+                                        f"or pass its path with {option}") from None
         if expected_sha256 and not digest.hexdigest().startswith(expected_sha256.lower()):
             raise InputError(url, None, f"checksum mismatch: SHA-256 {digest.hexdigest()[:16]}… is not "
                                         f"{expected_sha256[:16]}…; the file was not kept")
         _sidecar(target).write_text(digest.hexdigest() + "\n")
-        os.replace(tmp, target)
-    except InputError:
-        raise
-    except (URLError, OSError, ValueError) as e:
-        reason = getattr(e, "reason", None) or e
-        raise InputError(url, None, f"cannot download ({reason}): fetch this file and put it at {target}, "
-                                    f"or pass its path with {option}") from None
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return target
 
 
