@@ -5,7 +5,7 @@ frame (OKS ≥ 0.5 with the COCO sigmas, the reference's box area as scale; one 
 Hungarian method): the share of reference poses found, and the distances of their keypoints
 (those both report present) to the reference's, median and 90th percentile, in pixels.
 
-    python benchmarks/yolo_pose_reference.py [--rig /tmp/rf_yolo] [--batch-size 4]
+    python benchmarks/yolo_pose_reference.py [--rig DIR] [--batch-size 4]
 
 ONNX Runtime runs with its default threads (one per physical core).
 
@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -78,14 +79,15 @@ def compare(found: dict[int, np.ndarray], reference: dict[int, np.ndarray]) -> d
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rig", default="/tmp/rf_yolo", help="rig folder to fill (videos/ linked, pose/ written)")
+    parser.add_argument("--rig", default=None,
+                        help="rig folder to fill (videos/ linked, pose/ written; default: a temporary one)")
     parser.add_argument("--batch-size", type=int, default=4)
     args = parser.parse_args()
 
     from mvm.video.detect import DetectOptions
     from mvm.video.rig_videos import detect_rig_videos
 
-    rig = Path(args.rig)
+    rig = Path(args.rig) if args.rig else Path(tempfile.mkdtemp(prefix="mvm-yolo-"))
     (rig / "videos").mkdir(parents=True, exist_ok=True)
     for camera in CAMERAS:
         link = rig / "videos" / f"{camera}.mp4"
