@@ -147,8 +147,9 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
       their bone lengths, z up along their bodies, the origin on the floor
       under them; synchronize first, sync.toml is used).
     --checkerboard / --charuco: intrinsics, lenses and extrinsics from videos
-      of a board in RIG_DIR/calibration/ (intrinsics/ and extrinsics/, or the
-      videos right there).
+      or photos of a board in RIG_DIR/calibration/ (intrinsics/ and
+      extrinsics/, Pose2Sim's int_<cam>_img/, or the videos right there);
+      with --intrinsics-only, the lenses alone.
     --convert FILE: a calibration made by another system, converted (metres,
       OpenCV's conventions) for RIG_DIR's cameras, matched by name."""
     modes = [m for m, on in (("--from-people", from_people), ("--checkerboard", checkerboard),
