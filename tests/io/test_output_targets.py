@@ -457,27 +457,27 @@ def test_a_failed_run_leaves_no_folder_nor_name_behind(tmp_path):
     assert json.loads((tmp_path / "old" / OUTPUT_MARKER).read_text()) == ["a.csv"]
 
 
-def test_a_killed_runs_temporary_beside_a_file_output_is_removed_by_the_next_run(tmp_path):
+def test_a_killed_runs_temporary_is_removed_by_the_next_write_into_its_folder(tmp_path):
     """Every atomic write's temporary is named after its writer's process: one whose process is
-    gone (a run killed while writing ``-o FILE``) is deleted by the next run's output check; a
-    live writer's stays, and so does a file that only looks like one."""
+    gone (a run killed while writing) is deleted by the next write into that folder, whatever
+    the file; a live writer's stays, and so does a file that only looks like one."""
     import os
     import subprocess
     import sys
 
-    from mvm.io.files import atomic_output
-    from mvm.io.outputs import check_output_location
+    from mvm.io.files import atomic_output, atomic_write_text
 
-    out = tmp_path / "cams.toml"
-    with atomic_output(out) as tmp:
-        assert tmp.name.startswith(f".cams.toml.mvm-tmp-{os.getpid()}-")
-        tmp.write_text("partial")
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
     dead = tmp_path / f".cams.toml.mvm-tmp-{gone}-abc123.tmp"
+    dead_download = tmp_path / f".model.onnx.mvm-tmp-{gone}-x9.part"
     live = tmp_path / f".cams.toml.mvm-tmp-{os.getpid()}-def456.tmp"
     other = tmp_path / ".cams.toml.mvm-tmp-notes.tmp"
-    for f in (dead, live, other):
+    for f in (dead, dead_download, live, other):
         f.write_text("x")
-    check_output_location(out, [], replaced=False)
-    assert not dead.exists() and live.exists() and other.exists() and out.read_text() == "partial"
+    with atomic_output(tmp_path / "report.html") as tmp:
+        assert tmp.name.startswith(f".report.html.mvm-tmp-{os.getpid()}-")
+        tmp.write_text("page")
+    assert not dead.exists() and not dead_download.exists() and live.exists() and other.exists()
+    atomic_write_text(tmp_path / "cams.toml", "calibration")
+    assert (tmp_path / "cams.toml").read_text() == "calibration" and (tmp_path / "report.html").exists()

@@ -4,8 +4,8 @@ Every file is written to a temporary file in the same directory (``.NAME.mvm-tmp
 flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic on POSIX
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
-temporary file, which :func:`remove_stale_temporaries` (under the output's lock) or
-:func:`remove_dead_temporaries` (its writer's process gone) deletes on the next run.
+temporary file, which the next write into that folder deletes once its writer's process is gone
+(:func:`sweep_dead_temporaries`), or :func:`remove_stale_temporaries` under the output's lock.
 
 The temporary file is created private (``0600``) by :func:`tempfile.mkstemp`; before it is
 renamed into place it gets the mode a plain ``open`` would have given it, ``0666`` less the
@@ -146,6 +146,7 @@ def atomic_output(path: str | Path, suffix: str = ".tmp"):
     path = Path(path)
     make_dir(path.parent)
     check_file_target(path)
+    sweep_dead_temporaries(path.parent)                # what a killed run of this folder left
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMPORARY_INFIX}{os.getpid()}-", suffix=suffix,
                                    dir=path.parent)
@@ -261,19 +262,33 @@ def remove_stale_temporaries(directory: str | Path, name: str) -> int:
     return removed
 
 
-def remove_dead_temporaries(path: str | Path) -> int:
-    """Delete the temporary files of ``path`` (``.NAME.mvm-tmp-PID-*.tmp``, regular files) whose
-    writer, the process ``PID`` of this machine, is no longer alive: what a killed run left. No
-    lock is needed: a live writer's temporary is never touched (a temporary without a process
-    number, or of a live one, stays). Returns how many were deleted."""
-    path = Path(path)
+#: The folders this process has swept of dead writers' temporaries (:func:`sweep_dead_temporaries`).
+_SWEPT: set[str] = set()
+
+
+def sweep_dead_temporaries(directory: str | Path) -> int:
+    """Delete the temporary files in ``directory`` (``.NAME.mvm-tmp-PID-*``, regular files) whose
+    writer, the process ``PID`` of this machine, is no longer alive: what a killed run left. Once
+    per folder and process (a folder of thousands of frames is listed once, not at every write).
+    No lock is needed: a live writer's temporary is never touched, nor one without a process
+    number. Returns how many were deleted."""
+    key = os.path.abspath(directory)
+    if key in _SWEPT:
+        return 0
+    _SWEPT.add(key)
     removed = 0
-    for tmp in path.parent.glob(f".{path.name}{TEMPORARY_INFIX}*.tmp"):
-        pid = tmp.name[len(path.name) + 1 + len(TEMPORARY_INFIX):].split("-", 1)[0]
-        if not pid.isdigit() or tmp.is_symlink() or not tmp.is_file() or _alive(int(pid)):
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return 0
+    for entry in entries:
+        if not entry.name.startswith(".") or TEMPORARY_INFIX not in entry.name:
+            continue
+        pid = entry.name.split(TEMPORARY_INFIX, 1)[1].split("-", 1)[0]
+        if not pid.isdigit() or not entry.is_file(follow_symlinks=False) or _alive(int(pid)):
             continue
         with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+            os.unlink(entry.path)
             removed += 1
     return removed
 

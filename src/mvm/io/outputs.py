@@ -42,7 +42,6 @@ from mvm.io.files import (
     make_dir,
     new_dir_mode,
     output_error,
-    remove_dead_temporaries,
     remove_stale_temporaries,
 )
 
@@ -77,9 +76,8 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
     folder (symbolic links resolved); with ``replaced`` (a folder written as one set, which
     replaces what is there) also refuse an existing non-empty folder that mvm did not make
     (:func:`check_replaceable`); without, refuse a FIFO, a device, a socket or a link to a file
-    there (:func:`check_may_write`), and delete the temporaries a killed run of ``output`` left
-    (:func:`~mvm.io.files.remove_dead_temporaries`). Each refusal is one :class:`OutputError`
-    line naming ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
+    there (:func:`check_may_write`). Each refusal is one :class:`OutputError` line naming
+    ``output``. Call it before any work. Returns ``output`` as a :class:`Path`."""
     output = Path(output)
     target = _resolved(output)
     sources = [(given, _resolved(given)) for given in inputs]
@@ -97,7 +95,6 @@ def check_output_location(output: str | Path, inputs: Iterable[str | Path], repl
         check_replaceable(output)
     else:
         check_may_write(output)                        # -o /dev/null, a FIFO, a link to a file: refused now
-        remove_dead_temporaries(output)                # what a killed run of this output left
     return output
 
 
