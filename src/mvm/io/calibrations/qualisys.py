@@ -61,7 +61,7 @@ def read_qualisys(path, binning: float = 1.0) -> RigCalibration:
     ``binning``: the binning factor of the videos (1: full resolution). Returns a
     :class:`RigCalibration` in metres."""
     if not binning > 0:
-        raise InputError("--binning", str(binning), "must be > 0")
+        raise InputError(None, "--binning", f"expected a number > 0, got {binning}")
     root = parse_xml(path, "a Qualisys calibration (.qca.txt)")
     elements = root.findall("cameras/camera")
     if root.tag != "calibration" or not elements:
