@@ -30,7 +30,7 @@ from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained, pose_groups
 from mvm.core.names import natural_key
-from mvm.core.pose_distance import PAIRS_CHUNK, person_chunks, project_persons, reprojection_cost
+from mvm.core.pose_distance import person_chunks, project_persons, reprojection_cost
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -137,95 +137,21 @@ def temporal_cost(keypoints: np.ndarray, frame: np.ndarray, sequence: np.ndarray
     return out
 
 
-def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarray | None = None
-                   ) -> np.ndarray:
-    """Number of views in which each person's reprojection lies mostly inside the image, and,
-    with ``scene``, is not hidden by a nearer person of its scene.
+def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.ndarray:
+    """Number of views in which each person's reprojection lies mostly inside the image.
 
-    ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``, ``scene: (Q,)`` the scene (rig
-    instant) of each person. A person counts in a view when at least half its reconstructed
-    joints project in front of the camera and inside the image, and (with ``scene``) when no
-    person of its scene nearer the camera covers most of its image box (:func:`hidden_views`).
-    Returns ``(Q,)``; a few persons at a time (:func:`mvm.core.pose_distance.person_chunks`).
+    ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
+    at least half its reconstructed joints project in front of the camera and inside the
+    image. Returns ``(Q,)``; a few persons at a time (:func:`mvm.core.pose_distance.person_chunks`).
     """
-    return sight(X, P, image_size, scene)[0 if scene is None else 1]
-
-
-def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarray | None,
-          among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(Q,)`` the views each person is in (:func:`visible_frames` without ``scene``) and,
-    with ``scene: (Q,)``, ``(Q,)`` those of them in which it is not hidden (else None; only
-    for the persons ``among: (Q,)`` bool, the others count every view), from one projection of
-    the persons ``X: (Q, J, 3)`` into ``P: (F, 3, 4)``."""
     known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
-    inside = np.zeros((len(X), len(P)), dtype=bool)
-    box = np.full((len(X), len(P), 4), np.nan) if scene is not None else None       # u0, v0, u1, v1
+    count = np.zeros(len(X), dtype=np.int64)
     for rows in person_chunks(len(X), len(P)):
         uv, seen = project_persons(X[rows], P)                                       # (q, F, J, 2), (q, F, J)
         with np.errstate(invalid="ignore"):
-            within = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
-        inside[rows] = within.sum(-1) * 2 >= known[rows, None]
-        if box is not None:
-            box[rows, :, :2] = np.where(seen[..., None], uv, np.inf).min(2)
-            box[rows, :, 2:] = np.where(seen[..., None], uv, -np.inf).max(2)
-    if box is None:
-        return inside.sum(1), None
-    return inside.sum(1), (inside & ~hidden_views(box, *_depths(X, P), np.asarray(scene), among)).sum(1)
-
-
-#: A person is hidden in a view when a nearer person's image box covers this share of its own. [0-1]
-HIDDEN_COVER = 0.8
-
-
-def hidden_views(box: np.ndarray, depth: np.ndarray, extent: np.ndarray, scene: np.ndarray,
-                 among: np.ndarray | None = None) -> np.ndarray:
-    """``(Q, F)`` bool: the views in which a person of the same scene nearer by more than a
-    person's ``extent`` covers :data:`HIDDEN_COVER` of its image box or more (a person behind
-    another, whose detector finds few of its joints, if any; a copy of a person, triangulated
-    from a few of its poses, is not hidden by it). ``box: (Q, F, 4)`` each person's box (u0, v0,
-    u1, v1; not finite: not in front of that camera), ``depth: (Q, F)`` its distance along each
-    camera's axis, ``extent: (Q,)``, ``scene: (Q,)``; ``among: (Q,)`` bool, the persons to
-    test (None: all; the others are never hidden). Cost linear in the views: the pairs of
-    persons of one scene, a few MB of them at a time.
-
-    >>> box = np.array([[[0, 0, 10, 20.]], [[2, 2, 9, 18.]], [[20, 0, 30, 20.]], [[1, 1, 9, 19.]]])
-    >>> depth, extent = np.array([[3.0], [5.0], [1.0], [3.2]]), np.full(4, 0.5)
-    >>> hidden_views(box, depth, extent, np.zeros(4, dtype=int))[:, 0].tolist()
-    [False, True, False, False]
-    """
-    Q, F = depth.shape
-    hidden = np.zeros((Q, F), dtype=bool)
-    order = np.argsort(scene, kind="stable")
-    bounds = np.searchsorted(scene[order], scene[order], side="left")           # (Q,) first of each scene
-    counts = np.searchsorted(scene[order], scene[order], side="right") - bounds
-    person = np.repeat(order, counts)                                            # every (person, other) pair
-    other = order[np.repeat(bounds, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
-    mine = (person != other) if among is None else (person != other) & np.asarray(among)[person]
-    person, other = person[mine], other[mine]
-    step = max(1, 8 * PAIRS_CHUNK // max(F, 1))                                 # boxes of 4 MB
-    for s in range(0, len(person), step):
-        q, r = person[s:s + step], other[s:s + step]
-        a, b = box[q], box[r]                                                   # (k, F, 4)
-        with np.errstate(invalid="ignore"):
-            width = np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0])
-            height = np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1])
-            area = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
-            covered = (np.clip(width, 0, None) * np.clip(height, 0, None) >= HIDDEN_COVER * area) & (area > 0) \
-                & (depth[r] + extent[q, None] < depth[q])                      # (k, F)
-        first = np.flatnonzero(np.r_[True, q[1:] != q[:-1]])                     # runs of one person
-        hidden[q[first]] |= np.logical_or.reduceat(covered, first, axis=0)
-    return hidden
-
-
-def _depths(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(Q, F)`` the distance of each person's centroid along the axis of each camera
-    ``P: (F, 3, 4)``, and ``(Q,)`` the person's extent, the root mean square distance of its
-    joints to that centroid (NaN: no joint)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        centroid = np.nanmean(X, axis=1)                                         # (Q, 3)
-        extent = np.sqrt(np.nanmean(((X - centroid[:, None]) ** 2).sum(-1), axis=1))
-    return centroid @ P[:, 2, :3].T + P[:, 2, 3], extent
+            inside = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
+        count[rows] = (inside.sum(-1) * 2 >= known[rows, None]).sum(1)
+    return count
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
@@ -294,6 +220,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
         raise ValueError(f"associate: expected keypoints (N, 17, 3), frame (N,); got {keypoints.shape}, {frame.shape}")
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
+    rig = pose_scene is not None                        # cameras around the people, each instant a scene
     pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
     slot = pose_scene * len(P) + frame                                   # the view (and scene) of each pose
     groups = [np.sort(np.asarray(g)) for g in groups]
@@ -312,7 +239,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             new[q] = groups[q][assignment[groups[q]] < 0]
         new = absorb_explained(new, pose, person, cost, slot, gate) or new      # a person seen twice
         keep = credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
-                        max_bone_ratio, np.array([pose_scene[g[0]] for g in groups]))
+                         max_bone_ratio, agreed=rig)
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
@@ -347,14 +274,13 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
 def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
               max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, bool]:
     """``(groups, X, seen_most, split)`` of ``groups`` triangulated as ``result``, where two people
-    triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone whose ends no view sees
-    together, over ``max_bone_ratio`` or between two parts of ``min_joints`` joints the views of
-    one of which see the other's elsewhere) are split (``split``: then
+    triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
+    whose ends no view sees together, parts of ``min_joints`` joints) are split (``split``: then
     ``result`` no longer triangulates ``groups``), each part triangulated from its own poses;
     ``seen_most: (Q,)`` as :func:`credible` reads it."""
     X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
-    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints, max_bone_ratio,
-                          result[0].conf > 0) if max_bone_ratio > 0 and groups else None
+    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
+                          max_bone_ratio) if max_bone_ratio > 0 and groups else None
     if split is None:
         return groups, X, seen, False
     groups, X, person, part = split
@@ -400,31 +326,29 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
 
 def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
-              max_proportion_deviation: float, max_bone_ratio: float = 0.0,
-              scene: np.ndarray | None = None) -> np.ndarray:
+              max_proportion_deviation: float, max_bone_ratio: float = 0.0, agreed: bool = False) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
-    they project into (with ``scene: (Q,)``, the scene of each person, those in which no nearer
-    person of its scene hides it, :func:`visible_frames`: a person behind others for most of a
-    hand-held tour is seen in few of the frames it projects into), and whose body is one (false
-    positives agreeing in a few close views triangulate to no body, unless they explain most of
-    their views, as no false cluster does).
-    A person none of whose joints three of its views agree on is refused whatever share of its
-    views it explains (``seen_most: (Q,)`` the most inlier views of any of its joints: two views
-    agree on a point whatever they saw): a cluster of false poses placed where few cameras look
-    explains half of the few views it projects into (a heavy detector on the 18-camera dome:
-    4-5 false poses, 6-9 views), while a person of three poses or more has a joint three of them
-    see. The proportions are those of the body without its stray joints (``max_bone_ratio``,
-    :func:`mvm.core.body_parts.body_deviation`)."""
+    they project into, and whose body is one (false positives agreeing in a few close views
+    triangulate to no body, unless they explain most of their views, as no false cluster does;
+    nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
+    most inlier views of any of its joints: two views agree on a point whatever they saw). The
+    proportions are those of the body without its stray joints (``max_bone_ratio``,
+    :func:`mvm.core.body_parts.body_deviation`).
+
+    ``agreed`` (a rig's instants): a group none of whose joints three views agree on is refused
+    even where it explains half of the few views it projects into: a cluster of false poses
+    placed where few cameras look (the heavy 18-camera dome: 4-5 false poses, 6-9 cameras; with
+    the unit of D grown by the detector's noise they group), while a person of three poses or more
+    has a joint three of its cameras see. A hand-held scene keeps the exemption (its frames follow
+    one another along an arc: a person of the crowd benchmark was lost without it)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
-        weak = usable & (count < min_support * visible)                 # those whom hiding could keep
-        unhidden = sight(X, P, image_size, scene, weak)[1] if scene is not None and weak.any() else visible
-    keep &= (count >= min_support * unhidden) | ~usable
+    keep &= (count >= min_support * visible) | ~usable
     keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
-    keep &= ~(seen_most < min(3, min_group_size))
+    keep &= ~((seen_most < min(3, min_group_size)) & ((2 * count < visible) | agreed))
     return keep
 
 

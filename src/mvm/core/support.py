@@ -22,6 +22,7 @@ def drop_unsupported(cameras: Cameras, groups: list[np.ndarray], tri: Triangulat
     usable = np.isfinite(tri.X).all(-1).sum(-1) >= config.min_person_joints
     seen_most = tri.inliers.sum(1).max(-1, initial=0)
     keep = credible(groups, tri.X, seen_most, cameras.P, cameras.size, usable, config.min_group_size,
-                    config.rig_min_support, config.association_max_proportion_deviation, config.max_bone_ratio)
+                    config.rig_min_support, config.association_max_proportion_deviation, config.max_bone_ratio,
+                    agreed=True)
     tri.X[~keep] = np.nan
     tri.inliers[~keep] = False                         # no point, no inliers, as RANSAC leaves them
