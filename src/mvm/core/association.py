@@ -209,7 +209,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             seed: ``seed(poses) -> groups``, the grouping, run once on the poses left over.
         gate: the largest cost (:func:`reprojection_cost`, person sizes) of an assignment;
             min_group_size, min_support, max_proportion_deviation, max_bone_ratio: :func:`credible`, :func:`_separate`.
-        eligible, pose_scene: ``(N,)`` the poses that may be assigned, the scene of each (rig instants).
+        eligible, pose_scene: ``(N,)`` the poses that may be assigned, the scene of each (a rig's instants).
         sequence: ``(F,)`` position of each view in a video, or None: the temporal cue
             (:func:`temporal_cost`, ``temporal_weight``, ``max_gap``) may lower a cost.
         triangulated: the ``triangulate(groups)`` result when already computed.
@@ -220,8 +220,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
     if keypoints.shape[1:] != (17, 3) or frame.shape != (N,):
         raise ValueError(f"associate: expected keypoints (N, 17, 3), frame (N,); got {keypoints.shape}, {frame.shape}")
     eligible = np.ones(N, dtype=bool) if eligible is None else np.asarray(eligible, dtype=bool)
-    rig = pose_scene is not None                        # cameras around the people, each instant a scene
-    pose_scene = np.zeros(N, dtype=np.int64) if pose_scene is None else np.asarray(pose_scene, dtype=np.int64)
+    rig, pose_scene = pose_scene is not None, np.asarray(np.zeros(N) if pose_scene is None else pose_scene, np.int64)
     slot = pose_scene * len(P) + frame                                   # the view (and scene) of each pose
     groups = [np.sort(np.asarray(g)) for g in groups]
     result = triangulate(groups) if triangulated is None else triangulated
