@@ -34,7 +34,7 @@ from mvm.core.matching.greedy import greedy_groups_blocks
 from mvm.core.prior import load_prior
 from mvm.core.quality import reprojection_errors
 from mvm.core.refine import refine_poses
-from mvm.core.refine_units import noise_factor, prior_weights
+from mvm.core.refine_units import noise_factor, noise_threshold, prior_weights
 from mvm.core.scene import Cameras, Poses2D
 from mvm.core.support import drop_unsupported
 from mvm.core.triangulate import GroupObservations, Triangulation, gather_groups, ransac_triangulate, residual_sigma
@@ -74,7 +74,7 @@ def match(cameras: Cameras, poses: Poses2D, config: Config) -> list[np.ndarray]:
     :func:`mvm.core.matching.greedy.greedy_groups`).
     """
     groups: list[np.ndarray] = []
-    rig = poses.instant is not None and not config.association == "3d"     # the grouping is final
+    rig = poses.instant is not None and config.association != "3d"         # the grouping is final
     for batch in _batches(poses.blocks(), MATCH_BATCH_PAIRS):
         if poses.instant is None or len(batch) == 1 and len(batch[0]) ** 2 > MATCH_BATCH_PAIRS:
             rows = batch[0]
@@ -255,14 +255,12 @@ def block_thresholds(poses: Poses2D, groups: list[np.ndarray], obs: GroupObserva
     a block without a measure keeps). None where the threshold is held (no RANSAC, or sigmas 0)."""
     if not config.ransac or config.ransac_threshold_sigmas <= 0:
         return None
-    base = config.ransac_threshold
     pose_block = np.zeros(len(poses), dtype=np.int64) if poses.instant is None else \
         np.unique(poses.instant, return_inverse=True)[1].reshape(-1)
     blocks = int(pose_block.max(initial=-1)) + 1
     group_block = pose_block[np.array([g[0] for g in groups], dtype=np.int64)]
-    sigma = residual_sigma(obs, tri, group_block, blocks)
-    scaled = np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base)
-    return np.where(np.isfinite(sigma), scaled, base)[pose_block]
+    return noise_threshold(residual_sigma(obs, tri, group_block, blocks), config)[pose_block]
+
 
 
 #: What a refinement that fails outright raises (bad numbers the fallback cannot catch person by person).

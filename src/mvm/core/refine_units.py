@@ -56,3 +56,12 @@ def prior_weights(config: Config, X: np.ndarray, centers: np.ndarray, used: np.n
     with np.errstate(invalid="ignore"):
         centroid = np.where(finite[..., None], X, 0.0).sum(1) / finite.sum(1)[:, None]
     return config.prior_weight * spread_factor(view_spread(centroid, centers, used))
+
+
+def noise_threshold(sigma: np.ndarray, config: Config) -> np.ndarray:
+    """The RANSAC threshold of noise ``sigma: (B,)`` (person sizes): ``ransac_threshold_sigmas``
+    times it, within half to twice ``ransac_threshold``, which a block without a measure (NaN)
+    keeps. ``(B,)``."""
+    base = config.ransac_threshold
+    scaled = np.clip(config.ransac_threshold_sigmas * np.asarray(sigma, dtype=float), base / 2, 2 * base)
+    return np.where(np.isfinite(sigma), scaled, base)

@@ -383,6 +383,19 @@ def residual_sigma(obs: GroupObservations, tri: Triangulation, block: np.ndarray
     m = medians_by(scaled[used], block[np.nonzero(used)[0]], blocks)
     cut = np.full(blocks, np.inf)
     np.minimum.at(cut, block, tri.threshold)                                  # the block's threshold
+    return rayleigh_sigma(m, cut)
+
+
+def rayleigh_sigma(m: np.ndarray, cut: np.ndarray) -> np.ndarray:
+    """The deviation ``σ`` per axis of a two-dimensional Gaussian error whose lengths, kept below
+    ``cut``, have the median ``m``: ``2 F(m) = F(cut)``, ``F(x) = 1 - exp(-x² / 2σ²)``, by
+    bisection. ``m, cut: (B,)`` -> ``(B,)``; NaN where ``m`` is, inf where ``2 m² >= cut²`` (no
+    Gaussian has such errors); ``cut = inf``: ``m`` over :data:`RAYLEIGH_MEDIAN`.
+
+    >>> rayleigh_sigma(np.array([RAYLEIGH_MEDIAN, 1.0]), np.array([np.inf, 1.2])).round(3).tolist()
+    [1.0, inf]
+    """
+    m, cut = np.asarray(m, dtype=float), np.asarray(cut, dtype=float)
     lo, hi = np.log(np.maximum(m, 1e-12) / RAYLEIGH_MEDIAN), np.log(np.maximum(m, 1e-12)) + 10.0
     for _ in range(50):                                                       # bisection on log σ
         mid = (lo + hi) / 2

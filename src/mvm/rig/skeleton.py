@@ -92,18 +92,18 @@ def refit(persons: InstantPersons, X: np.ndarray, detections: Poses2D, cameras: 
 def capture_noise_factor(persons: InstantPersons, detections: Poses2D, config) -> float:
     """The detector noise of a rig's capture relative to the noise the settings are set for, as
     :func:`mvm.core.refine_units.noise_factor` gives it for a scene: the threshold
-    ``ransac_threshold_sigmas`` standard deviations of the noise would have (within half to twice
-    ``ransac_threshold``, as :func:`mvm.core.pipeline.block_thresholds`), over
-    ``ransac_threshold``; 1 where the threshold is held or nothing measures the noise.
+    :func:`mvm.core.refine_units.noise_threshold` of the noise over ``ransac_threshold``; 1 where the
+    threshold is held or nothing measures the noise.
 
     The noise is measured once for the whole capture (its persons' triangulation), not per
     instant: the refinement shares tracks out among processes, and the noise is the detector's.
-    Its standard deviation per axis, in person sizes, is the median inlier reprojection error
-    over :data:`mvm.core.triangulate.RAYLEIGH_MEDIAN`, each error of a joint of ``n`` inlier
-    views scaled by ``sqrt(2n / (2n - 3))`` for the 3 coordinates it fitted; joints of three
-    inliers or more only (two views agree on a point whatever they saw)."""
-    from mvm.core.refine_units import noise_factor
-    from mvm.core.triangulate import RAYLEIGH_MEDIAN
+    As :func:`mvm.core.triangulate.residual_sigma` measures it: the median of the inliers'
+    reprojection errors in person sizes, each scaled by ``sqrt(2n / (2n - 3))`` for the 3
+    coordinates its joint's ``n`` inliers fitted (joints of three inliers or more: two views agree
+    on a point whatever they saw), taken as a Gaussian's cut at the threshold that noise gives
+    (:func:`mvm.core.triangulate.rayleigh_sigma`; the instants' own thresholds are not kept)."""
+    from mvm.core.refine_units import noise_factor, noise_threshold
+    from mvm.core.triangulate import RAYLEIGH_MEDIAN, rayleigh_sigma
 
     if not len(persons) or not config.ransac or config.ransac_threshold_sigmas <= 0:
         return 1.0
@@ -114,9 +114,9 @@ def capture_noise_factor(persons: InstantPersons, detections: Poses2D, config) -
     size = detection_sizes(persons, detections, config.keypoint_threshold)         # (Q, V)
     with np.errstate(divide="ignore", invalid="ignore"):
         scaled = persons.errors / size[..., None] * np.sqrt(2 * n / (2 * n - 3))[:, None, :]
-    sigma = float(np.median(scaled[used])) / RAYLEIGH_MEDIAN
-    base = config.ransac_threshold
-    return float(noise_factor(np.clip(config.ransac_threshold_sigmas * sigma, base / 2, 2 * base), config))
+    m = np.array([np.median(scaled[used])])
+    cut = noise_threshold(m / RAYLEIGH_MEDIAN, config)                             # the cut that noise gives
+    return float(noise_factor(noise_threshold(rayleigh_sigma(m, cut), config), config)[0])
 
 
 #: Re-linearizations of the robust loss and the prior in a rig's refinement (:func:`refine_tracks`).
