@@ -7,7 +7,7 @@ import pickle
 import numpy as np
 from click.testing import CliRunner
 
-from calibration_writers import known_cameras, write_opencap, write_qca, write_xcp
+from calibration_writers import known_cameras, write_easymocap, write_opencap, write_qca, write_xcp
 from mvm.cli.rig import rig
 from mvm.io.calib_toml import read_calib_toml
 
@@ -76,7 +76,26 @@ def test_convert_refusals(tmp_path):
     _one_line_exit_2(CliRunner().invoke(rig, ["calibrate", str(root), "--from-people", "--binning", "2", "-o",
                                               str(out)]), out, "--binning", "--convert only")
     _one_line_exit_2(_convert(root, xcp, out, "--binning", "2"), out, "--binning", "Qualisys")
-    _one_line_exit_2(_convert(root, qca, qca), qca.with_name("never"), "is an input")
+    text = qca.read_text()
+    result = _convert(root, qca, qca)
+    assert result.exit_code == 2 and "is an input" in result.output and qca.read_text() == text
+
+
+def test_convert_never_writes_over_a_file_it_reads(tmp_path):
+    """The output named as EasyMocap's other file, or as one of the rig's videos: refused in one
+    line before any write, the file untouched (both were overwritten)."""
+    cams = known_cameras(3)
+    folder = tmp_path / "calib"
+    folder.mkdir()
+    intri = write_easymocap(folder, cams)
+    extri = folder / "extri.yml"
+    root = _rig(tmp_path, ["cam01", "cam02", "cam03"])
+    video = root / "videos" / "cam02.mp4"
+    video.write_bytes(b"frames")
+    for out, original in ((extri, extri.read_bytes()), (video, b"frames")):
+        result = _convert(root, folder / "intri.yml" if intri.is_dir() else intri, out)
+        assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+        assert "is an input" in result.output and out.read_bytes() == original
 
 
 class _RunsCode:

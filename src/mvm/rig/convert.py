@@ -19,7 +19,7 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
-from mvm.io.calibrations import detect_format, read_foreign_calibration
+from mvm.io.calibrations import detect_format, read_foreign_calibration, source_files
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import videos_by_name
 from mvm.rig.rigdir import match_cameras, pose_sources, subset_calibration
@@ -70,15 +70,17 @@ def convert_rig_calibration(rig_dir: str | Path, source: str | Path, out: str | 
                             binning: float = 1.0) -> RigConversion:
     """Convert the calibration ``source`` (``fmt``: a name of :data:`mvm.io.calibrations.FORMATS`,
     None: told from the file) for the cameras of ``rig_dir`` (module docstring) and write it as
-    Calib.toml at ``out``; ``binning``: Qualisys's binning factor. ``out`` being ``source`` or
-    lying inside it is refused before any work."""
+    Calib.toml at ``out``; ``binning``: Qualisys's binning factor. ``out`` being one of the files
+    read (the calibration's, the rig's videos and pose files) or lying inside one is refused before
+    any work."""
     rig_dir, source = Path(rig_dir), Path(source)
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a folder (the rig folder whose cameras the calibration is for)")
-    check_output_location(out, [source], replaced=False)
     fmt = fmt or detect_format(source)
-    calibration = read_foreign_calibration(source, fmt, binning)
     groups = rig_camera_sources(rig_dir)
+    inputs = [source, *source_files(source, fmt)] + [p for entries in groups.values() for p in entries.values()]
+    check_output_location(out, inputs, replaced=False)
+    calibration = read_foreign_calibration(source, fmt, binning)
     left_out: tuple[str, ...] = ()
     if groups:
         index = keep_rig_cameras(calibration, groups, source)

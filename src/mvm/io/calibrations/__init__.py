@@ -42,7 +42,7 @@ _HEAD_BYTES = 4096
 def reader(fmt: str):
     """The reader function of the format ``fmt`` (a key of :data:`FORMATS`)."""
     if fmt not in FORMATS:
-        raise InputError("--format", fmt, f"unknown calibration format; known: {', '.join(FORMATS)}")
+        raise InputError(None, "--format", f"unknown calibration format {fmt!r}; known: {', '.join(FORMATS)}")
     module, name = FORMATS[fmt]
     return getattr(importlib.import_module(f"{__name__}.{module}"), name)
 
@@ -88,6 +88,19 @@ def detect_format(path: str | Path) -> str:
                                  f"({', '.join(FORMATS)})")
 
 
+def source_files(path: str | Path, fmt: str) -> list[Path]:
+    """Every file the reader of ``fmt`` reads for the calibration at ``path``: EasyMocap's two
+    files, bioCV's and OpenCap's file per camera, else ``path`` itself (what an output must not
+    replace)."""
+    if fmt == "easymocap":
+        from mvm.io.calibrations.easymocap import easymocap_files
+        return list(easymocap_files(path))
+    if fmt in ("biocv", "opencap"):
+        module = importlib.import_module(f"{__name__}.{fmt}")
+        return list(getattr(module, f"{fmt}_files")(path).values())
+    return [Path(path)]
+
+
 def read_foreign_calibration(path: str | Path, fmt: str | None = None, binning: float = 1.0):
     """The :class:`~mvm.io.calib_toml.RigCalibration` at ``path`` in the format ``fmt`` (None:
     :func:`detect_format`), converted to mvm's conventions; ``binning``: Qualisys's binning
@@ -96,5 +109,5 @@ def read_foreign_calibration(path: str | Path, fmt: str | None = None, binning: 
     fmt = fmt or detect_format(path)
     read = reader(fmt)
     if binning != 1 and fmt != "qualisys":
-        raise InputError("--binning", f"{binning:g}", f"applies to Qualisys calibrations, not {fmt}")
+        raise InputError(None, "--binning", f"applies to Qualisys calibrations, not {fmt} (got {binning:g})")
     return read(path, binning=binning)
