@@ -305,3 +305,6 @@ def test_a_video_that_ends_early_is_one_line_and_gets_no_pose_file(rendered, tmp
     assert not (root / "pose" / "cam_02.json").exists()
     info = json.loads((root / "pose" / "cam_01.json").read_text())["info"]["video"]
     assert info["frames"] == FRAMES
+    # Again, cam_01 kept (up to date): its recorded length is the reference, the cut one refused.
+    _one_line(_detect(root, model), "cam_02", "ends early")
+    assert not (root / "pose" / "cam_02.json").exists()

@@ -264,16 +264,18 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
     if rates and max(rates.values()) > min(rates.values()) * (1 + 1e-3):
         log.warning("the videos' frame rates differ: %s; mvm rig reconstruct needs one rate (resample the videos, "
                     "or give it --frame-rate)", ", ".join(f"{c} {r:g} Hz" for c, r in rates.items()))
+    kept = {camera: _kept(camera, out, rig_dir) for camera, _, out, _, _, why in plan if why is None}
+    lengths = {**{c: k.video.frames for c, k in kept.items() if k.video}, **{c: i.frames for c, i in probed.items()}}
     detector = make_detector(options, checkpoint) if probed else None
     done, empty, short = [], [], []
     for camera, video, out, inputs, hashed, why in plan:
         if why is None:
             log.info("%s is up to date (made from %s with these settings)", out, video.name)
-            done.append(_kept(camera, out, rig_dir))
+            done.append(kept[camera])
             continue
         log.info("camera %s: detecting 2D poses in %s: %s", camera, video.name, why)
         poses, document, info = _detect_camera(camera, video, probed[camera], detector, options, kind, progress)
-        others = max((i.frames for c, i in probed.items() if c != camera), default=0)
+        others = max((n for c, n in lengths.items() if c != camera), default=0)   # kept cameras' too
         if ends_early(info.frames, probed[camera].frames, others):
             short.append((camera, video, info.frames, probed[camera].frames))
             continue
