@@ -205,8 +205,7 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     document, scene, hashed = made
     try:
         with exclusive_lock(out_dir, config.lock_timeout_s):
-            for name in ("poses3d.json", record_path(out_dir / "poses3d.json").name):   # the output's and its record's
-                remove_stale_temporaries(out_dir, name)
+            remove_stale_temporaries(out_dir, "poses3d.json", record_path(out_dir / "poses3d.json").name)
             forget(out_dir / "poses3d.json")
             write_poses3d(out_dir / "poses3d.json", document)
             if hashed is not None:

@@ -248,16 +248,25 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
     atomic_write_bytes(path, data)
 
 
-def remove_stale_temporaries(directory: str | Path, name: str) -> int:
-    """Delete the temporary files that a killed writer of ``directory/name`` left behind
-    (``.NAME.mvm-tmp-*.tmp``, regular files). Call it while holding :func:`exclusive_lock` on
-    ``directory``, so that no live writer's temporary file is removed. Returns how many were deleted."""
+def remove_stale_temporaries(directory: str | Path, *names: str) -> int:
+    """Delete the temporary files that a killed writer of ``directory/NAME`` left behind, for
+    each of ``names`` (``.NAME.mvm-tmp-*.tmp``, regular files), the folder listed once whatever
+    the number of names. Call it while holding :func:`exclusive_lock` on ``directory``, so
+    that no live writer's temporary file is removed. Returns how many were deleted."""
+    wanted = set(names)
     removed = 0
-    for tmp in Path(directory).glob(f".{name}{TEMPORARY_INFIX}*.tmp"):
-        if tmp.is_symlink() or not tmp.is_file():
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return 0
+    for entry in entries:
+        name = entry.name
+        if not (name.startswith(".") and name.endswith(".tmp") and TEMPORARY_INFIX in name):
+            continue
+        if name[1:name.rindex(TEMPORARY_INFIX)] not in wanted or not entry.is_file(follow_symlinks=False):
             continue
         with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+            os.unlink(entry.path)
             removed += 1
     return removed
 

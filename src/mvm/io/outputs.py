@@ -167,8 +167,7 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
         with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
             written = check_names(folder, names)
             _list_names(folder, written, names)
-            for name in names:                        # a killed writer's temporaries of these names
-                remove_stale_temporaries(folder, name)
+            remove_stale_temporaries(folder, *names)  # a killed writer's temporaries of these names
             try:
                 yield folder
             except BaseException:                     # a failed run lists only what it left
