@@ -323,6 +323,7 @@ BAD_RECORDS = ["garbage", "fifo", "1 GB", "folder", "nested 1020 deep", "link"]
 
 
 def _spoil(record: Path, how: str) -> None:
+    sound = json.loads(record.read_text())
     record.unlink()
     if how == "garbage":
         record.write_bytes(b"\x00\xffnot json{")
@@ -333,8 +334,11 @@ def _spoil(record: Path, how: str) -> None:
             f.truncate(2**30)                                 # sparse: no disk used
     elif how == "folder":
         record.mkdir()
-    elif how == "nested 1020 deep":
-        record.write_text("[" * 1020 + "]" * 1020)
+    elif how == "nested 1020 deep":                            # a sound record but for its depth
+        text = json.dumps(sound)
+        assert '"settings": {' in text
+        record.write_text(text.replace('"settings": {', '"settings": {"deep": ' + '{"a": ' * 1020 + "1"
+                                       + "}" * 1020 + ", ", 1))
     else:
         record.with_name("elsewhere.json").write_text("{}")
         record.symlink_to(record.with_name("elsewhere.json"))
