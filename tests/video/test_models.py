@@ -119,3 +119,28 @@ def test_local_model_zip_or_onnx(published, tmp_path, monkeypatch):
     assert resolve_model(spec, onnx) == onnx
     with pytest.raises(InputError, match="not found"):
         resolve_model(spec, tmp_path / "missing.onnx")
+
+
+def test_a_model_url_names_one_cache_file_of_its_own():
+    """A URL's cached file is its path's name plus a digest of the whole URL: a query string is no
+    part of the suffix, two URLs ending in the same name are two files, and a URL whose path names
+    no .onnx or .zip (a folder, ``..``) is refused in one line."""
+    from mvm.video.models import url_spec
+
+    a = url_spec("https://one.example/m/yolo.onnx?download=true")
+    b = url_spec("https://two.example/x/yolo.onnx")
+    assert a.name.startswith("yolo-") and a.name.endswith(".onnx") and "?" not in a.name
+    assert b.name.startswith("yolo-") and a.name != b.name
+    assert url_spec("https://one.example/m/Pose.ZIP").name.endswith(".zip")
+    for bad in ("https://one.example/m/", "https://one.example/m/..", "https://one.example/m/model.pt"):
+        with pytest.raises(InputError, match="--model|onnx"):
+            url_spec(bad)
+
+
+def test_a_download_past_the_model_size_is_refused_and_not_kept(published, tmp_path, monkeypatch):
+    _, url, _ = published
+    monkeypatch.setattr(models, "MAX_MODEL_BYTES", 1000)
+    target = tmp_path / "cache" / "model.zip"
+    with pytest.raises(InputError, match="more than 1000 bytes"):
+        download(url, target)
+    assert _leftovers(target.parent) == []

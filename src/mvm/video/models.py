@@ -95,8 +95,22 @@ def is_url(model: str | Path | None) -> bool:
 def url_spec(url: str, size: tuple[int, int] = (640, 640)) -> ModelSpec:
     """A model given by its URL (an ``.onnx`` or a ``.zip`` holding one) as a :class:`ModelSpec`:
     downloaded into the cache on first use like a published model, its SHA-256 recorded then
-    and checked at every later use."""
-    return ModelSpec(url.rsplit("/", 1)[-1], url, size)
+    and checked at every later use. The cached file is named after the URL's path and a digest of
+    the whole URL (``yolo11n-pose-1a2b3c4d5e6f.onnx``): two URLs ending in the same name are two
+    files, and a query or a path ending in ``/`` or ``..`` names no file outside the cache. A URL
+    whose path names no ``.onnx`` or ``.zip`` file is refused in one line.
+
+    >>> url_spec("https://example.org/m/yolo.onnx?download=true").name.startswith("yolo-")
+    True
+    """
+    from urllib.parse import unquote, urlsplit
+
+    name = unquote(urlsplit(url).path).rsplit("/", 1)[-1]
+    stem, dot, suffix = name.rpartition(".")
+    if not dot or suffix.lower() not in ("onnx", "zip") or not stem.strip(". ") or "\\" in name:
+        raise InputError(None, "--model", f"{url}: expected the URL of an .onnx model or a .zip holding one")
+    digest = hashlib.sha256(url.encode()).hexdigest()[:12]
+    return ModelSpec(f"{stem}-{digest}.{suffix.lower()}", url, size)
 
 
 def cache_dir() -> Path:
@@ -137,6 +151,9 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
                     out.write(block)
                     digest.update(block)
                     done += len(block)
+                    if done > MAX_MODEL_BYTES:
+                        raise InputError(url, None, f"more than {MAX_MODEL_BYTES} bytes: not a model; the file was "
+                                                    "not kept")
                     if progress:
                         progress(done, total)
                 if total and done != total:
@@ -144,6 +161,8 @@ def download(url: str, target: str | Path, expected_sha256: str | None = None,
                                                 f"fetch it by hand into {target}")
                 out.flush()
                 os.fsync(out.fileno())
+        except InputError:
+            raise
         except (URLError, OSError, ValueError) as e:
             reason = getattr(e, "reason", None) or e
             raise InputError(url, None, f"cannot download ({reason}): fetch this file and put it at {target}, "
