@@ -224,3 +224,23 @@ def test_intrinsics_only_options_and_layout_one_line(photo_rig, tmp_path):
     inside = root / "calibration" / "Calib.toml"
     _one_line_exit_2(_calibrate(root, CHECKERBOARD, inside), str(inside), "inside the input")
     assert not out.exists() and not inside.exists()
+
+
+def test_an_output_inside_a_linked_photo_folder_is_refused(photo_rig, tmp_path):
+    """A camera's photo folder linked from elsewhere is an input too: ``-o`` naming a file in it
+    (a photo) is refused in one line, the photo untouched (it was checked against
+    ``calibration/`` only, whose link leads out)."""
+    import shutil
+
+    src, _ = photo_rig
+    photos = tmp_path / "elsewhere" / "photos"
+    shutil.copytree(src / "calibration" / "intrinsics" / "int_cam01_img", photos)
+    root = tmp_path / "rig"
+    (root / "calibration" / "intrinsics").mkdir(parents=True)
+    (root / "calibration" / "intrinsics" / "int_cam01_img").symlink_to(photos)
+    shutil.copytree(src / "calibration" / "intrinsics" / "int_cam02_img",
+                    root / "calibration" / "intrinsics" / "int_cam02_img")
+    victim = sorted(photos.iterdir())[0]
+    before = victim.read_bytes()
+    _one_line_exit_2(_calibrate(root, CHECKERBOARD, victim), str(victim))
+    assert victim.read_bytes() == before

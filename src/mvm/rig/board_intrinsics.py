@@ -70,11 +70,11 @@ def calibrate_intrinsics_from_board(rig_dir: str | Path, out: str | Path, board:
     (module docstring); a Calib.toml of intrinsics only is written at ``out``, each camera's
     reprojection RMS and board count in ``[metadata]``. ``workers``: sources read at once
     (default: one per core); ``progress(camera, frames done, total)``; ``fisheye``: OpenCV's
-    fisheye lens. ``out`` being or lying inside ``rig_dir/calibration`` is refused before any
-    work (:func:`mvm.io.outputs.check_output_location`)."""
+    fisheye lens. ``out`` being or lying inside ``rig_dir/calibration`` or a source (a linked
+    folder of photos too) is refused before any work (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
-    check_output_location(out, [rig_dir / "calibration"], replaced=False)
     sources = intrinsic_sources(rig_dir)
+    check_output_location(out, [rig_dir / "calibration", *sources.values()], replaced=False)   # linked ones too
     names = list(sources)
     counts = {n: frame_count(sources[n]) for n in names}
     scans = scan_all([(n, sources[n], scan_stride([counts[n]]), counts[n]) for n in names], board, workers, progress)

@@ -335,6 +335,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     rig_dir = Path(rig_dir)
     check_output_location(out, [rig_dir / "calibration"] + ([intrinsics] if intrinsics else []), replaced=False)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
+    check_output_location(out, [*intrinsic_sources.values(), *ext_sources.values()], replaced=False)  # linked in
     names = list(ext_sources)
     if len(names) < 2:
         raise InputError(rig_dir / "calibration", None, f"one camera ({names[0]}): a rig needs at least two")
