@@ -234,3 +234,31 @@ def test_a_pickle_that_would_run_code_is_refused(tmp_path):
     bad.write_bytes(pickle.dumps({"intrinsicMat": _RunsCode(marker)}))
     _refused(lambda: read_foreign_calibration(bad), "refusing to load", "system")
     assert not marker.exists()
+
+
+def test_per_camera_sets_read_only_their_own_files(tmp_path):
+    """Another session's pickles further down an OpenCap folder are not taken for this set's
+    cameras (a broken one there was read), and a camera file of an OpenCap or bioCV set that is a
+    link leading out of the set's folder is refused in one line."""
+    from calibration_writers import write_biocv, write_opencap
+
+    cams = known_cameras(2)
+    first = write_opencap(tmp_path / "Videos", cams)
+    (tmp_path / "Videos" / "old" / "Cam1").mkdir(parents=True)
+    (tmp_path / "Videos" / "old" / "Cam1" / first.name).write_bytes(b"not a pickle at all")
+    assert len(read_foreign_calibration(tmp_path / "Videos", "opencap").cameras) == 2
+    second = tmp_path / "Videos" / "Cam1" / first.name
+    outside = tmp_path / "elsewhere.pickle"
+    outside.write_bytes(second.read_bytes())
+    second.unlink()
+    second.symlink_to(outside)
+    with pytest.raises(InputError, match="outside"):
+        read_foreign_calibration(tmp_path / "Videos", "opencap")
+    write_biocv(tmp_path / "bio", cams)
+    files = sorted((tmp_path / "bio").glob("*.calib"))
+    away = tmp_path / "away.calib"
+    away.write_text(files[1].read_text())
+    files[1].unlink()
+    files[1].symlink_to(away)
+    with pytest.raises(InputError, match="outside"):
+        read_foreign_calibration(files[0], "biocv")

@@ -50,7 +50,7 @@ def reader(fmt: str):
 def _detect_folder(folder: Path) -> str:
     if any((folder / name).is_file() for name in EASYMOCAP_FILES):
         return "easymocap"
-    if any(folder.rglob("*.pickle")):
+    if any(folder.glob("*.pickle")) or any(folder.glob("*/*.pickle")):
         return "opencap"
     if any(folder.glob(f"*{BIOCV_SUFFIX}")):
         return "biocv"

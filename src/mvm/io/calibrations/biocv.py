@@ -42,9 +42,9 @@ def biocv_files(path) -> dict[str, Path]:
     return {p.stem: p for p in sorted(files, key=lambda p: natural_key(p.name))}
 
 
-def _rows(path: Path) -> list[np.ndarray]:
+def _rows(path: Path, root: Path | None = None) -> list[np.ndarray]:
     rows = []
-    for number, line in enumerate(read_text(path).splitlines(), 1):
+    for number, line in enumerate(read_text(path, root).splitlines(), 1):
         if not line.strip():
             continue
         try:
@@ -57,9 +57,10 @@ def _rows(path: Path) -> list[np.ndarray]:
     return rows
 
 
-def read_biocv_camera(path: Path, name: str) -> ForeignCamera:
-    """One bioCV camera file (module docstring)."""
-    rows = _rows(path)
+def read_biocv_camera(path: Path, name: str, root: Path | None = None) -> ForeignCamera:
+    """One bioCV camera file (module docstring), inside ``root`` when given (a link leading out
+    of the set's folder is refused)."""
+    rows = _rows(path, root)
     expected = "width, height, 3 rows of K, 3 rows of [R | t], the distortion"
     if len(rows) != 9:
         raise InputError(path, None, f"not a bioCV calibration: {len(rows)} lines of numbers, expected 9 ({expected})")
@@ -76,7 +77,8 @@ def read_biocv(path, binning: float = 1.0) -> RigCalibration:
     """The cameras of a set of bioCV calibration files (module docstring), in metres.
     ``binning`` is not used."""
     cameras = []
+    folder = Path(path) if Path(path).is_dir() else Path(path).parent
     for name, file in biocv_files(path).items():
-        cameras.append(read_biocv_camera(file, name))
+        cameras.append(read_biocv_camera(file, name, folder))
     return assemble(cameras, path, {"method": "converted from bioCV (per-camera calibration files)", "units": "m",
                                     "source": str(path)})

@@ -36,17 +36,24 @@ OPENCAP_FILE = "cameraIntrinsicsExtrinsics.pickle"
 BOARD_TO_Z_UP = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
 
 
-def opencap_files(path) -> dict[str, Path]:
-    """``{camera: pickle}`` of the set ``path`` belongs to (module docstring), in natural order."""
+def opencap_folder(path) -> Path:
+    """The folder of the set ``path`` belongs to: ``path`` itself, the parent of a camera's
+    folder (``Cam1/cameraIntrinsicsExtrinsics.pickle``), or a flat file's folder. The set's files
+    lie inside it (a link leading out is refused when read)."""
     path = Path(path)
     if path.is_dir():
-        files = {p.parent.name if p.name == OPENCAP_FILE else p.stem: p for p in path.rglob("*.pickle")}
-    elif path.name == OPENCAP_FILE:
-        files = {p.parent.name: p for p in path.parent.parent.glob(f"*/{OPENCAP_FILE}")}
-        files.setdefault(path.parent.name, path)
-    else:
-        files = {p.stem: p for p in path.parent.glob("*.pickle")}
-        files.setdefault(path.stem, path)
+        return path
+    return path.parent.parent if path.name == OPENCAP_FILE else path.parent
+
+
+def opencap_files(path) -> dict[str, Path]:
+    """``{camera: pickle}`` of the set ``path`` belongs to (module docstring), in natural order:
+    the ``<camera>/cameraIntrinsicsExtrinsics.pickle`` of its folder where there are any, else its
+    ``<camera>.pickle`` files (one level only: another session's pickles further down are not
+    this set's)."""
+    path, folder = Path(path), opencap_folder(path)
+    files = {p.parent.name: p for p in folder.glob(f"*/{OPENCAP_FILE}")} or \
+        {p.stem: p for p in folder.glob("*.pickle")}
     if not files:
         raise InputError(path, None, "no OpenCap calibration pickle (*.pickle) found")
     return dict(sorted(files.items(), key=lambda item: natural_key(item[0])))
@@ -69,7 +76,7 @@ def read_opencap(path, binning: float = 1.0) -> RigCalibration:
     turned to have z up. ``binning`` is not used."""
     cameras = []
     for name, file in opencap_files(path).items():
-        data = load_pickle(file)
+        data = load_pickle(file, root=opencap_folder(path))
         if not isinstance(data, dict):
             raise InputError(file, None, f"not an OpenCap calibration: expected a dict, got {type(data).__name__}")
         K = _array(data, "intrinsicMat", (9,), file).reshape(3, 3)
