@@ -280,7 +280,9 @@ def sweep_dead_temporaries(directory: str | Path) -> int:
     writer, the process ``PID`` of this machine, is no longer alive: what a killed run left. Once
     per folder and process (a folder of thousands of frames is listed once, not at every write).
     No lock is needed: a live writer's temporary is never touched, nor one without a process
-    number. Returns how many were deleted."""
+    number. The process numbers are this machine's: a folder that processes of several machines
+    write at once (a network file system) must not be swept, and is not one mvm writes that way
+    (each output is under one run's lock). Returns how many were deleted."""
     key = os.path.abspath(directory)
     if key in _SWEPT:
         return 0

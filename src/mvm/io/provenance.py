@@ -150,14 +150,8 @@ def fingerprints(inputs: Mapping[str, object]) -> dict[str, str]:
 
 def read_record(output: str | Path) -> dict | None:
     """The record of ``output``, or None when there is none or it cannot be read (an output
-    without a usable record is never up to date; :func:`record_problem` says why)."""
+    without a usable record is never up to date, and a rerun says why)."""
     return _load_record(output)[0]
-
-
-def record_problem(output: str | Path) -> str | None:
-    """Why the entry at ``output``'s record is no usable record (one phrase), or None when the
-    record is sound or there is nothing there."""
-    return _load_record(output)[1]
 
 
 def _load_record(output: str | Path) -> tuple[dict | None, str | None]:
