@@ -1,6 +1,6 @@
 """The settings of every command: the settings dataclass of each table of a settings file
-(:data:`SETTINGS`), the reference file (``mvm config``), one TOML table per settings object
-(:data:`mvm.io.settings_file.TABLES`), each key with its default and a comment
+(:data:`mvm.io.settings_file.TABLES`), the reference file (``mvm config``), one TOML table per settings object,
+each key with its default and a comment
 giving what it does, its unit and its allowed values; and the check of such a file.
 
 Everything is generated from the settings dataclasses: the fields, their defaults and their
@@ -23,18 +23,12 @@ from mvm.core.config import Bounds, setting_kind, settings_from
 from mvm.errors import InputError
 from mvm.io.settings_file import TABLES, read_tables
 
-#: The settings dataclass of each table of :data:`mvm.io.settings_file.TABLES`, as ``module:class``
-#: (imported when the table is read or printed: the video stages import OpenCV, training torch).
-SETTINGS = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
-            "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",
-            "sfm": "mvm.video.sfm:SfmOptions", "detect": "mvm.video.detect:DetectOptions",
-            "batch": "mvm.batch.stages:BatchOptions", "train": "mvm.net.train_config:TrainConfig"}
 _WIDTH = 96
 
 
 def table_class(table: str) -> type:
-    """The settings dataclass of ``table`` (:data:`SETTINGS`)."""
-    module, name = SETTINGS[table].split(":")
+    """The settings dataclass of ``table`` (:data:`mvm.io.settings_file.TABLES`)."""
+    module, name = TABLES[table][0].split(":")
     return getattr(importlib.import_module(module), name)
 
 
@@ -111,7 +105,7 @@ def table_lines(name: str, cls, values=None) -> list[str]:
     """The lines of the table ``name`` of the settings dataclass ``cls`` (sub-tables of nested
     settings after its keys); ``values``: the instance whose values are written (default: the
     defaults)."""
-    tables = {SETTINGS[t].split(":")[1]: t for t in SETTINGS}
+    tables = {settings.split(":")[1]: t for t, (settings, _) in TABLES.items()}
     docs = field_docs(cls)
     lines, nested = [f"[{name}]"], []
     for field in dataclasses.fields(cls):
@@ -146,7 +140,7 @@ def reference_toml(tables: tuple[str, ...] | None = None) -> str:
            "# Copy it, keep what you change, pass it with --config; `mvm config --check FILE` checks it.",
            "# A key left out keeps its default; a key shown as `# key =    (unset)` has none."]
     for name in tables or TABLES:
-        out += ["", ""] + _comment(TABLES[name]) + table_lines(name, table_class(name))
+        out += ["", ""] + _comment(TABLES[name][1]) + table_lines(name, table_class(name))
     return "\n".join(out) + "\n"
 
 

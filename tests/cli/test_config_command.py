@@ -14,7 +14,7 @@ from mvm.cli.main import main
 from mvm.core.config import Config
 from mvm.io.settings_file import TABLES, load_config, load_settings
 from mvm.rig.options import RigOptions
-from mvm.settings import SETTINGS, check_settings_file, field_docs, reference_toml, split_unit, table_class
+from mvm.settings import check_settings_file, field_docs, reference_toml, split_unit, table_class
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def reference(tmp_path_factory):
 
 
 def test_every_table_and_key_is_printed_with_its_default(reference):
-    assert list(SETTINGS) == list(TABLES)
+    assert all(dataclasses.is_dataclass(table_class(name)) for name in TABLES)
     text = reference.read_text()
     for name in TABLES:
         assert f"\n[{name}]\n" in text

@@ -370,6 +370,10 @@ class Config:
         return self.replace(**changes) if changes else self
 
 
+#: The frame rate of footage that gives none (a rig's pose files, a video header without one,
+#: a simulated rig). [Hz]
+DEFAULT_FRAME_RATE_HZ = 30.0
+
 #: The value of a setting that leaves it to the driver.
 _LEFT_TO_DRIVER = {"association": "auto", "complete": None}
 #: Each driver's default of the settings left to it: static scenes (``mvm reconstruct``,

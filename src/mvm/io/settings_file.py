@@ -13,18 +13,25 @@ from mvm.core.config import Config, settings_from
 from mvm.errors import InputError
 from mvm.io.checks import load_toml
 
-#: The tables of a settings file, one per settings object, and the commands that read each
-#: (the settings dataclass of each: :data:`mvm.settings.SETTINGS`). A nested settings
-#: dataclass is a sub-table (``[detect.rtm]``).
+#: The tables of a settings file, one per settings object: ``{table: (settings, readers)}``, the
+#: settings dataclass as ``module:class`` (imported when the table is read or printed, by
+#: :func:`mvm.settings.table_class`: the video stages import OpenCV, training torch) and the
+#: commands that read it. A nested settings dataclass is a sub-table (``[detect.rtm]``).
 TABLES = {
-    "reconstruct": "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set).",
-    "rig": "The rig driver: mvm rig reconstruct (--config, --rig-set).",
-    "simulate": "The simulated scene: mvm simulate (over its --preset) and demo (--config; their options win).",
-    "frames": "Frame sampling: mvm frames, run and batch (--config; their options win).",
-    "sfm": "Structure from motion: mvm sfm, run and batch (--config; their options win).",
-    "detect": "2D detection: mvm detect, run and batch (--config; their options win).",
-    "batch": "mvm batch's own settings (--config; each stage's are in its own table).",
-    "train": "Training: mvm train CONFIG reads these keys at the top level of its file.",
+    "reconstruct": ("mvm.core.config:Config",
+                    "The reconstruction: mvm reconstruct, run, batch, demo and rig reconstruct (--config, --set)."),
+    "rig": ("mvm.rig.options:RigOptions", "The rig driver: mvm rig reconstruct (--config, --rig-set)."),
+    "simulate": ("mvm.sim.simulate:SimConfig",
+                 "The simulated scene: mvm simulate (over its --preset) and demo (--config; their options win)."),
+    "frames": ("mvm.video.frames:FrameOptions",
+               "Frame sampling: mvm frames, run and batch (--config; their options win)."),
+    "sfm": ("mvm.video.sfm:SfmOptions", "Structure from motion: mvm sfm, run and batch (--config; their options win)."),
+    "detect": ("mvm.video.detect:DetectOptions",
+               "2D detection: mvm detect, run and batch (--config; their options win)."),
+    "batch": ("mvm.batch.stages:BatchOptions",
+              "mvm batch's own settings (--config; each stage's are in its own table)."),
+    "train": ("mvm.net.train_config:TrainConfig",
+              "Training: mvm train CONFIG reads these keys at the top level of its file."),
 }
 
 

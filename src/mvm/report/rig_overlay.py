@@ -18,6 +18,7 @@ import numpy as np
 
 from mvm.core.camera import distort, project
 from mvm.core.completion import MISSING
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.errors import InputError
 from mvm.io.images import step_frames
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
@@ -179,7 +180,7 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
             counter = [0]
             path = folder / f"{name}.mp4"
             _write_video(path, _frames(capture, CameraDrawer(data, data.names.index(name)), step, max_width, counter),
-                         fps if 0 < fps < 1000 else 30.0)
+                         fps if 0 < fps < 1000 else DEFAULT_FRAME_RATE_HZ)
             summary.videos[name] = (target / path.name, counter[0])
 
     try:

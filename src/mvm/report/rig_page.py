@@ -16,6 +16,7 @@ import numpy as np
 
 from mvm import __version__
 from mvm.core.completion import FLAG_NAMES, INFERRED, INTERPOLATED, OBSERVED
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.core.joint_angles import JOINT_ANGLES
 from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
 from mvm.io.files import atomic_write_text
@@ -153,7 +154,8 @@ def rig_view_payload(fig: RigFigures) -> dict:
 
 def _frame_rate(recap: dict) -> float:
     rate = (recap.get("options") or {}).get("frame_rate") if isinstance(recap.get("options"), dict) else None
-    return float(rate) if isinstance(rate, (int, float)) and not isinstance(rate, bool) and 0 < rate < 1e4 else 30.0
+    usable = isinstance(rate, (int, float)) and not isinstance(rate, bool) and 0 < rate < 1e4
+    return float(rate) if usable else DEFAULT_FRAME_RATE_HZ
 
 
 def _cards(items) -> str:

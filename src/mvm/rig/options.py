@@ -5,10 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from mvm.core.config import check_settings, setting
-
-#: The frame rate of a rig when neither the settings nor its pose files give one. [Hz]
-DEFAULT_FRAME_RATE_HZ = 30.0
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ, check_settings, setting
 
 
 @dataclass(frozen=True)
@@ -74,7 +71,7 @@ class RigOptions:
 
     @property
     def rate(self) -> float:
-        """The frame rate in use: ``frame_rate``, else :data:`DEFAULT_FRAME_RATE_HZ`. [Hz]"""
+        """The frame rate in use: ``frame_rate``, else :data:`mvm.core.config.DEFAULT_FRAME_RATE_HZ`. [Hz]"""
         return self.frame_rate if self.frame_rate is not None else DEFAULT_FRAME_RATE_HZ
 
     @property

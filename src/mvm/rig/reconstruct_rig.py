@@ -21,7 +21,7 @@ from mvm.core.completion import (
     infer_missing,
     interpolate_series,
 )
-from mvm.core.config import Config
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ, Config
 from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.errors import InputError
@@ -33,7 +33,7 @@ from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
-from mvm.rig.options import DEFAULT_FRAME_RATE_HZ, RigOptions
+from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
@@ -298,7 +298,7 @@ def with_frame_rate(options: RigOptions, rig: RigData) -> tuple[RigOptions, str]
     """``options`` with the rig's frame rate, and where it comes from: ``"setting"`` (given; a
     warning when the videos recorded another), ``"videos"`` (the rate ``mvm rig detect``
     recorded in the pose files: :func:`mvm.rig.rigdir.recorded_frame_rate`) or ``"default"``
-    (:data:`mvm.rig.options.DEFAULT_FRAME_RATE_HZ`)."""
+    (:data:`mvm.core.config.DEFAULT_FRAME_RATE_HZ`)."""
     if options.frame_rate is not None:
         try:
             recorded = recorded_frame_rate(rig)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.rig.filters import butter_lowpass, filtfilt_many
 
 
@@ -157,7 +158,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
-def smooth_series(points: np.ndarray, method: str, rate: float = 30.0, cutoff_hz: float = 6.0,
+def smooth_series(points: np.ndarray, method: str, rate: float = DEFAULT_FRAME_RATE_HZ, cutoff_hz: float = 6.0,
                   order: int = 4, window: int = 9) -> np.ndarray:
     """Smooth one track along time. ``points: (L, J, 3)`` consecutive instants (NaN: missing) ->
     ``(L, J, 3)``. Each joint's finite runs are filtered separately (zero-phase Butterworth
@@ -170,7 +171,7 @@ def butterworth_order(order: int) -> int:
     return order // 2 if order > 1 else 1
 
 
-def _smooth_many(series: list, method: str, rate: float = 30.0, cutoff_hz: float = 6.0,
+def _smooth_many(series: list, method: str, rate: float = DEFAULT_FRAME_RATE_HZ, cutoff_hz: float = 6.0,
                  order: int = 4, window: int = 9) -> list:
     """:func:`smooth_series` of every ``(L_i, J, 3)`` array of ``series``; the Butterworth
     filters every run (of any joint, any series) in one pass (:func:`mvm.rig.filters.filtfilt_many`)."""

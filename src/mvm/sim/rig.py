@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvm.core.camera import distort, project_views
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
 from mvm.sim.detector import DetectorErrors, detect_people, pose_scores
@@ -26,7 +27,7 @@ def ring_cameras(n: int, radius: float = 4.5, height: float = 2.5, focal: float 
 
 
 def walking_people(people: int, instants: int, rng: np.random.Generator, area: float = 1.8,
-                   speed: float = 1.2, rate: float = 30.0) -> np.ndarray:
+                   speed: float = 1.2, rate: float = DEFAULT_FRAME_RATE_HZ) -> np.ndarray:
     """``(T, G, 17, 3)`` people walking in straight lines (bouncing inside a square of half-side
     ``area``), swinging arms and legs."""
     start = rng.uniform(-area, area, (people, 2))

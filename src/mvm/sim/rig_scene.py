@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvm.core.config import check_settings, setting
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ, check_settings, setting
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.posebank import load_pose_bank
 from mvm.io.calib_toml import RigCalibration
@@ -45,7 +45,7 @@ class RigSimConfig:
     #: Frame offset of every camera (``cameras`` numbers, see the module docstring); empty: 0. [frames]
     offsets: tuple[int, ...] = ()
     #: Frame rate of every camera. [Hz]
-    frame_rate: float = setting(30.0, gt=0)
+    frame_rate: float = setting(DEFAULT_FRAME_RATE_HZ, gt=0)
     #: Radius of the camera ring. [m]
     radius: float = setting(4.5, gt=0)
     #: Height of the cameras above the floor. [m]
@@ -145,7 +145,7 @@ def play_motion(frames: np.ndarray, poses: np.ndarray, times_s: np.ndarray) -> n
     return np.stack(columns, -1).reshape(len(t), NUM_JOINTS, 3)
 
 
-def moving_people(people: int, instants: int, rng: np.random.Generator, rate: float = 30.0,
+def moving_people(people: int, instants: int, rng: np.random.Generator, rate: float = DEFAULT_FRAME_RATE_HZ,
                   area: float = 1.5, speed: float = 0.8) -> np.ndarray:
     """``(T, G, 17, 3)`` people playing real motions of the pose bank (each from a random
     moment of a random motion) while drifting in straight lines (bouncing inside a square of

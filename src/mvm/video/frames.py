@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mvm.core.config import check_settings, setting
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ, check_settings, setting
 from mvm.core.names import natural_key
 from mvm.errors import InputError
 from mvm.io.checks import load_json
@@ -265,7 +265,7 @@ def _select(video: Path, frames_dir: Path, options: FrameOptions, progress):
     tracks = FeatureTracks()
     numbers, sharp, size, fps = _decode_sampled(video, options, progress, tracks=tracks)
     usable = sharp_mask(sharp, options.blur_ratio)
-    chosen = select_by_motion(tracks, usable, numbers / (fps if fps > 0 else 30.0), options.min_motion,
+    chosen = select_by_motion(tracks, usable, numbers / (fps if fps > 0 else DEFAULT_FRAME_RATE_HZ), options.min_motion,
                               options.max_gap_s, options.min_frames)
     _write_kept(video, frames_dir, numbers[chosen.kept], options, progress, len(numbers))
     return numbers[chosen.kept], sharp[chosen.kept], chosen, tuple(int(k) for k in numbers[~usable]), size, fps, \
