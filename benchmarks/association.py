@@ -85,7 +85,7 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", help="methods to run (default all)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="Config overrides")
     args = parser.parse_args()
-    from mvm.io.settings_file import load_config
+    from mvm.settings.tables import load_config
 
     config = load_config(None, dict(kv.split("=", 1) for kv in args.set)).replace(use_appearance=False)
     import logging

@@ -26,7 +26,7 @@ _EXPORTS = {
     "Poses2D": "mvm.core.scene",
     "Scene": "mvm.core.scene",
     "Config": "mvm.core.config",
-    "load_config": "mvm.io.settings_file",
+    "load_config": "mvm.settings.tables",
     "InputError": "mvm.errors",
     "Result": "mvm.core.reconstruct",
     "reconstruct": "mvm.core.reconstruct",

@@ -12,9 +12,9 @@ from click.testing import CliRunner
 
 from mvm.cli.main import main
 from mvm.core.config import Config
-from mvm.io.settings_file import TABLES, load_config, load_settings
 from mvm.rig.options import RigOptions
-from mvm.settings import check_settings_file, field_docs, reference_toml, split_unit, table_class
+from mvm.settings.reference import check_settings_file, field_docs, reference_toml, split_unit, table_class
+from mvm.settings.tables import TABLES, load_config, load_settings
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +125,7 @@ def test_every_setting_has_a_comment_ending_in_its_unit():
 def test_config_check_without_train_does_not_import_torch(reference, tmp_path):
     path = tmp_path / "small.toml"
     path.write_text("[reconstruct]\ntau = 0.3\n[rig]\nmax_gap = 3\n")
-    code = ("import sys; from mvm.settings import check_settings_file; "
+    code = ("import sys; from mvm.settings.reference import check_settings_file; "
             f"check_settings_file({str(path)!r}); print('torch' in sys.modules)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert run.stdout.strip() == "False"

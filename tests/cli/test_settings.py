@@ -12,8 +12,8 @@ from click.testing import CliRunner
 from mvm.cli.main import main
 from mvm.core.config import Bounds, Config, check_settings, setting, settings_from
 from mvm.errors import InputError
-from mvm.io.settings_file import load_config
 from mvm.rig.options import RigOptions
+from mvm.settings.tables import load_config
 
 #: (arguments after ``mvm``, with ``{d}`` for a fresh folder; the exact line on stderr).
 BAD = [

@@ -242,7 +242,7 @@ def test_the_row_median_is_numpys_nanmedian_to_the_bit():
 
 def test_the_method_is_a_setting_with_its_choices_listed():
     from mvm.errors import InputError
-    from mvm.io.settings_file import load_config
+    from mvm.settings.tables import load_config
 
     assert load_config(None, {"association": "paper"}).association == "paper"
     with pytest.raises(InputError, match="'paper', '3d'"):

@@ -5,7 +5,7 @@ import pytest
 
 from mvm.core.config import Config
 from mvm.errors import InputError
-from mvm.io.settings_file import load_config
+from mvm.settings.tables import load_config
 
 
 def test_toml_and_overrides(tmp_path):

@@ -28,9 +28,9 @@ def _readers():
     from mvm.io.openpose import read_openpose_frame
     from mvm.io.panoptic_calib import read_panoptic_calibration
     from mvm.io.scene_dir import read_poses3d, read_scene
-    from mvm.io.settings_file import load_config
     from mvm.io.trajectory import read_trajectory
     from mvm.io.trc import read_trc
+    from mvm.settings.tables import load_config
 
     return {"coco": read_coco_keypoints, "colmap_bin": read_colmap, "colmap_txt": read_colmap,
             "scene": read_scene, "openpose": read_openpose_frame, "openpifpaf": read_openpifpaf_frame,

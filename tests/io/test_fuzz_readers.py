@@ -323,7 +323,7 @@ def _poses3d(root: Path):
 
 def _config(root: Path):
     from mvm.core.config import Config
-    from mvm.io.settings_file import load_config
+    from mvm.settings.tables import load_config
 
     config = load_config(root / "config.toml")
     assert isinstance(config, Config)

@@ -123,8 +123,8 @@ def test_select_by_motion_on_known_tracks():
 
 def test_settings_round_trip_through_config_and_the_rerun_record(tmp_path):
     from mvm.cli.video import frames_cmd
-    from mvm.io.settings_file import load_settings
-    from mvm.settings import reference_toml
+    from mvm.settings.reference import reference_toml
+    from mvm.settings.tables import load_settings
 
     printed = reference_toml(("frames",))                                # what `mvm config` prints
     for key, value in (("select", '"auto"'), ("min_motion", "0.03"), ("max_gap_s", "1.0"), ("min_frames", "24")):

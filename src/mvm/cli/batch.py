@@ -37,7 +37,7 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
     ``[frames]``, ``[sfm]``, ``[detect]`` and ``[batch]`` tables), ``--set`` pairs and the
     command's own options (an option left at None keeps the file's value)."""
     from mvm.batch import BatchOptions
-    from mvm.io.settings_file import load_settings
+    from mvm.settings.tables import load_settings
     from mvm.video.detect import DetectOptions
     from mvm.video.frames import FrameOptions
     from mvm.video.sfm import SfmOptions

@@ -448,7 +448,7 @@ def read_config(config_path: str | None, sets: tuple[str, ...], driver: str = "s
     setting is checked here, and a ``--set`` key the command (its ``driver``, ``"scene"`` or
     ``"rig"``) would not use is refused (:func:`refuse_unused`)."""
     from mvm.core.config import UNUSED_BY_DRIVER, Config
-    from mvm.io.settings_file import load_config
+    from mvm.settings.tables import load_config
 
     pairs = parse_sets(sets)
     if driver == "rig":

@@ -13,11 +13,11 @@ def config_cmd(check: str | None) -> None:
     """Print every setting of every command with its default, unit and allowed values, as a
     commented TOML file to copy and edit (pass it with --config); or check such a file."""
     if check is None:
-        from mvm.settings import reference_toml
+        from mvm.settings.reference import reference_toml
 
         click.echo(reference_toml(), nl=False)
         return
-    from mvm.settings import check_settings_file
+    from mvm.settings.reference import check_settings_file
 
     tables = check_settings_file(check)
     click.echo(f"{check}: OK ({', '.join(f'[{t}]' for t in tables) or 'no settings'})")

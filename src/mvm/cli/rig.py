@@ -31,8 +31,8 @@ def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
     pairs and the command's own options (``--smoothing``, ``--frame-rate``), every setting
     checked before any work; a ``--rig-set`` key that is not a rig setting is refused."""
     from mvm.core.config import Config
-    from mvm.io.settings_file import load_settings
     from mvm.rig.options import RigOptions
+    from mvm.settings.tables import load_settings
 
     values = parse_sets(pairs, "--rig-set")
     refuse_unused(values, RigOptions, "--rig-set", other=(Config, "--set"))

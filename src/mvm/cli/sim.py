@@ -41,7 +41,7 @@ def read_sim(config_path: str | None, preset: str | None = None, **flags):
     """The simulated scene's :class:`~mvm.sim.simulate.SimConfig`: the ``preset`` (none: the
     defaults), the ``[simulate]`` table of the settings file over it, the command's options
     (``flags``; one left at None keeps the file's value) over both."""
-    from mvm.io.settings_file import load_settings
+    from mvm.settings.tables import load_settings
     from mvm.sim.simulate import SimConfig
 
     flags = {k: v for k, v in flags.items() if v is not None}

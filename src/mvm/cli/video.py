@@ -74,7 +74,7 @@ def _table(cls, table: str, config_path, names: dict | None = None, **flags):
     """The settings ``cls`` of ``table`` of the settings file ``config_path`` with the command's
     options ``flags`` over it (one left at None keeps the file's value, or the default); a bad
     value names the option (``names``: the options not spelt as their setting)."""
-    from mvm.io.settings_file import load_settings
+    from mvm.settings.tables import load_settings
 
     flags = {k: v for k, v in flags.items() if v is not None}
     return load_settings(cls, table, config_path, flags,

@@ -3,7 +3,7 @@
 A settings file holds one table per settings object (:data:`TABLES`: ``[reconstruct]``,
 ``[rig]``, ``[simulate]``, ...), each read by the commands that use it; keys outside any table
 are the reconstruction's (``[reconstruct]``). ``mvm config`` prints the file of every setting
-with its default (:mod:`mvm.settings`).
+with its default (:mod:`mvm.settings.reference`).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from mvm.io.checks import load_toml
 
 #: The tables of a settings file, one per settings object: ``{table: (settings, readers)}``, the
 #: settings dataclass as ``module:class`` (imported when the table is read or printed, by
-#: :func:`mvm.settings.table_class`: the video stages import OpenCV, training torch) and the
+#: :func:`mvm.settings.reference.table_class`: the video stages import OpenCV, training torch) and the
 #: commands that read it. A nested settings dataclass is a sub-table (``[detect.rtm]``).
 TABLES = {
     "reconstruct": ("mvm.core.config:Config",

@@ -1,5 +1,5 @@
 """The settings of every command: the settings dataclass of each table of a settings file
-(:data:`mvm.io.settings_file.TABLES`), the reference file (``mvm config``), one TOML table per settings object,
+(:data:`mvm.settings.tables.TABLES`), the reference file (``mvm config``), one TOML table per settings object,
 each key with its default and a comment
 giving what it does, its unit and its allowed values; and the check of such a file.
 
@@ -21,13 +21,13 @@ from pathlib import Path
 
 from mvm.core.config import Bounds, setting_kind, settings_from
 from mvm.errors import InputError
-from mvm.io.settings_file import TABLES, read_tables
+from mvm.settings.tables import TABLES, read_tables
 
 _WIDTH = 96
 
 
 def table_class(table: str) -> type:
-    """The settings dataclass of ``table`` (:data:`mvm.io.settings_file.TABLES`)."""
+    """The settings dataclass of ``table`` (:data:`mvm.settings.tables.TABLES`)."""
     module, name = TABLES[table][0].split(":")
     return getattr(importlib.import_module(module), name)
 
