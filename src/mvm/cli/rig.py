@@ -22,8 +22,13 @@ from mvm.cli.common import (
     stage_progress,
     with_options,
 )
+from mvm.cli.setting_options import setting_option
+from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.errors import InputError
 from mvm.io.calibrations import FORMATS as CALIBRATION_FORMATS
+
+#: The rig driver's settings, whose options take their type, bounds and help from it.
+RIG = "mvm.rig.options:RigOptions"
 
 
 def read_rig_options(config_path: str | None, pairs: tuple[str, ...], **flags):
@@ -306,19 +311,18 @@ def _board_intrinsics(rig_dir, output, board, fisheye):
 @click.option("--output", "-o", type=OutputPath(product="a folder (poses3d.jsonl, .trc files, recap.json)"),
               default=None,
               help="Output folder (default RIG_DIR/mvm).")
-@click.option("--smoothing", type=click.Choice(["none", "butterworth", "savgol"]), default=None,
-              help="Temporal smoothing of each track (default butterworth, cut-off 6 Hz or a fifth "
-                   "of the frame rate).")
+@setting_option(RIG, "smoothing")
 @click.option("--no-complete", "no_complete", is_flag=True,
               help="Leave joints that were not reconstructed empty (null) instead of interpolating "
                    "them along the track and inferring the rest from the pose prior.")
 @click.option("--trc-inferred", is_flag=True,
               help="Write inferred joints into the .trc files too (default: observed and interpolated only).")
-@click.option("--frame-rate", type=float, default=None,
-              help="Rig frame rate in Hz (default: the videos' rate that mvm rig detect recorded, else 30).")
-@click.option("--workers", type=int, default=None,
-              help="Processes to read, reconstruct and refine with (default: $MVM_WORKERS, else one per core; "
-                   "1: this process only).")
+@setting_option(RIG, "frame_rate",
+                help="Rig frame rate in Hz (default: the videos' rate that mvm rig detect recorded, else "
+                     f"{DEFAULT_FRAME_RATE_HZ:g}).")
+@setting_option(RIG, "workers",
+                help="Processes to read, reconstruct and refine with (default: $MVM_WORKERS, else one per core; "
+                     "1: this process only).")
 @click.option("--rig-set", "rig_sets", multiple=True, metavar="KEY=VALUE",
               help="Override one rig setting (batch_size, max_link_distance_m, max_gap, up, ...).")
 @click.option("--force", is_flag=True, help="Reconstruct even if the output set is up to date.")

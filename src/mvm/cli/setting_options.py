@@ -1,0 +1,88 @@
+"""Command-line options of settings: an option that sets one field of a settings dataclass takes
+its type, its bounds, its help text and the default it shows from the field's declaration
+(:func:`mvm.core.config.setting` and the ``#:`` comment above it), the one place they are written.
+
+The dataclass is named ``module:class`` and imported only when the option is read or its help is
+printed, so that ``mvm --help`` does not import the video stages (OpenCV) or the simulator.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+
+import click
+
+from mvm.cli.common import Number
+
+
+@functools.cache
+def declaration(settings: str, name: str) -> tuple[dataclasses.Field, str]:
+    """The field ``name`` of the settings dataclass ``settings`` (``module:class``) and its
+    comment, without its unit."""
+    from mvm.settings.reference import field_docs, split_unit
+
+    module, cls_name = settings.split(":")
+    cls = getattr(importlib.import_module(module), cls_name)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    return fields[name], split_unit(field_docs(cls).get(name, ""))[0]
+
+
+def _default(field: dataclasses.Field):
+    return field.default if field.default is not dataclasses.MISSING else field.default_factory()
+
+
+class SettingType(click.ParamType):
+    """The type of the setting ``name`` of ``settings``: one of its choices, or a number within
+    its bounds (:class:`mvm.cli.common.Number`), or text."""
+
+    def __init__(self, settings: str, name: str):
+        self.settings, self.setting = settings, name
+        self.name = name
+
+    @functools.cached_property
+    def _inner(self) -> click.ParamType:
+        from mvm.core.config import setting_kind
+
+        field, _ = declaration(self.settings, self.setting)
+        bounds = field.metadata.get("bounds")
+        if bounds is not None and bounds.choices is not None and all(isinstance(c, str) for c in bounds.choices):
+            return click.Choice([str(c) for c in bounds.choices])
+        kind, _ = setting_kind(field)
+        if kind in ("int", "float"):
+            number = Number(int if kind == "int" else float)
+            number.bounds = bounds if bounds is not None else number.bounds
+            return number
+        return click.STRING
+
+    def convert(self, value, param, ctx):
+        return self._inner.convert(value, param, ctx)
+
+    def get_metavar(self, param, ctx=None):
+        return self._inner.get_metavar(param, ctx) or self.name.upper()
+
+
+class SettingOption(click.Option):
+    """An option of one setting; its help is the field's comment and its default, read when
+    the help is printed. The option's own default is None: the settings file's value, else the
+    field's default, applies where it is not given."""
+
+    def __init__(self, param_decls, settings: str, setting: str, **kwargs):
+        kwargs.setdefault("default", None)
+        super().__init__(param_decls, type=SettingType(settings, setting), **kwargs)
+        self.settings, self.setting = settings, setting
+
+    def get_help_record(self, ctx):
+        if self.help is None:
+            field, text = declaration(self.settings, self.setting)
+            default = _default(field)
+            self.help = f"{text.rstrip('.')} (default: {default})." if default is not None else text
+        return super().get_help_record(ctx)
+
+
+def setting_option(settings: str, name: str, *param_decls: str, **kwargs):
+    """The ``click.option`` of the setting ``name`` of the settings dataclass ``settings``
+    (``module:class``): ``setting_option("mvm.rig.options:RigOptions", "smoothing", "--smoothing")``.
+    ``help=`` replaces the field's comment where the command says it better."""
+    decls = param_decls or ("--" + name.replace("_", "-"),)
+    return click.option(*decls, name, cls=SettingOption, settings=settings, setting=name, **kwargs)
