@@ -3,13 +3,14 @@
 view spread) scaled by a multiplier, on every geometry the project benchmarks:
 
     python benchmarks/prior_weight.py [--quick] [--multipliers 0.25,0.5,1,2,4]
-        [--cases demo,dome31,dome18,crowd,rig] [--seeds 2] [--crowd-seeds 2] [--no-oracle]
+        [--cases demo,arcs,dome31,dome18,crowd,rig] [--seeds 2] [--crowd-seeds 2] [--arcs 30,60,90]
+        [--no-oracle]
 
 - ``demo``: ``mvm demo --seed 0`` (six people, a 60° hand-held tour; :mod:`mvm.eval.demo`).
 - ``dome31``, ``dome18``: the CMU Panoptic dome, 31 cameras with the default detector and 18
   with heavy detector errors, each instant on its own (``benchmarks/thresholds.py``).
-- ``arcs``: the demo's scene (seeds 0, 1, ... as many as ``--seeds``) on tours of 30°, 120°,
-  180° and 360° (the views' spread between a narrow arc and all round).
+- ``arcs``: the demo's scene (seeds 0, 1, ... as many as ``--seeds``) on tours of 30° to 180°
+  (``--arcs``: the views' spread from a narrow arc to all round).
 - ``crowd``: frozen crowds of 8-15 people, one hand-held 1080p camera (``benchmarks/thresholds.py``).
 - ``rig``: the rig driver's instants, 5 cameras, the crowd benchmark's detector
   (``benchmarks/rig_panoptic.py``'s second table): refined per instant ("before") and refined
@@ -44,7 +45,8 @@ from mvm.sim.simulate import SimConfig, simulate  # noqa: E402
 
 MULTIPLIERS = (0.25, 0.5, 1.0, 2.0, 4.0)
 #: The tours of the ``arcs`` case (deg): from narrower than the demo's to all round.
-ARCS = (30.0, 120.0, 180.0, 360.0)
+ARCS = (30.0, 60.0, 90.0, 120.0, 180.0)
+CASES = ("demo", "arcs", "dome31", "dome18", "crowd", "rig")
 
 
 class SpreadLog:
@@ -132,7 +134,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one detector draw, one crowd scene")
     parser.add_argument("--multipliers", default=",".join(f"{m:g}" for m in MULTIPLIERS))
-    parser.add_argument("--cases", default="demo,arcs,dome31,dome18,crowd,rig")
+    parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--seeds", type=int, default=2, help="detector draws per dome and rig case, scenes per arc")
     parser.add_argument("--crowd-seeds", type=int, default=2, help="crowd scenes")
     parser.add_argument("--no-oracle", action="store_true", help="leave the oracle out (the crowd's is slow)")
@@ -144,6 +146,8 @@ def main() -> int:
     configs = scaled(float(m) for m in args.multipliers.split(","))
     names = [name for name, _ in configs]
     cases, oracle = args.cases.split(","), not args.no_oracle
+    if set(cases) - set(CASES):
+        parser.error(f"--cases: {','.join(sorted(set(cases) - set(CASES)))}: not one of {','.join(CASES)}")
     if {"dome31", "dome18", "rig"} & set(cases) and not args.sequence.is_dir():
         print(f"Panoptic sample absent: {args.sequence}", file=sys.stderr)
         return 2
