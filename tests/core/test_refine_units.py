@@ -54,6 +54,25 @@ def test_a_narrow_arc_gets_more_prior_weight_than_a_dome():
     assert units.prior_weights(config, np.full_like(X, np.nan), ring, half)[0] == config.prior_weight
 
 
+
+@pytest.mark.parametrize("half_arc_deg", [15.0, 45.0, 60.0, 75.0, 90.0, 180.0])
+def test_the_weight_of_a_tour_follows_its_arc(half_arc_deg):
+    """Cameras evenly along a horizontal arc of ±θ around a person at their height: the view
+    spread is the mean of sin² over the arc, 1/2 − sin 2θ / (4θ) (the vertical, across every
+    ray, is constrained fully); the weight is ``prior_weight`` times 1/2 over it, within 1 and
+    ``MAX_SPREAD_FACTOR``: the setting from a half circle on, more the narrower the arc."""
+    config = Config()
+    theta = np.radians(half_arc_deg)
+    cameras = _cameras(np.linspace(-half_arc_deg, half_arc_deg, 721))
+    spread = 0.5 - np.sin(2 * theta) / (4 * theta)
+    expected = config.prior_weight * np.clip(units.ALL_ROUND_SPREAD / spread, 1.0, units.MAX_SPREAD_FACTOR)
+    weight = units.prior_weights(config, _person(np.zeros(3)), cameras, np.ones(cameras.shape[:2], bool))[0]
+    assert weight == pytest.approx(expected, rel=0.01)
+    narrower = _cameras(np.linspace(-half_arc_deg / 2, half_arc_deg / 2, 721))
+    assert units.prior_weights(config, _person(np.zeros(3)), narrower, np.ones(narrower.shape[:2], bool))[0] >= weight
+    if half_arc_deg >= 90:
+        assert weight == pytest.approx(config.prior_weight, rel=0.01)
+
 def _mpjpe(result, truth) -> float:
     pairs = match_persons(result.persons.keypoints3d, truth.poses3d, MATCH_DISTANCE_M)
     assert len(pairs) == len(truth.poses3d)
