@@ -278,8 +278,8 @@ def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joint
     ``result`` no longer triangulates ``groups``), each part triangulated from its own poses;
     ``seen_most: (Q,)`` as :func:`credible` reads it."""
     X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
-    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
-                          max_bone_ratio) if max_bone_ratio > 0 and groups else None
+    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints, max_bone_ratio,
+                          result[0].conf > 0) if max_bone_ratio > 0 and groups else None
     if split is None:
         return groups, X, seen, False
     groups, X, person, part = split
