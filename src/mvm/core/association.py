@@ -272,12 +272,12 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
 
 def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
               max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, bool]:
-    """``(groups, X, seen_most, split)`` of ``groups`` triangulated as ``result``, where two people
+    """``(groups, X, seen, split)`` of ``groups`` triangulated as ``result``, where two people
     triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
     whose ends no view sees together, parts of ``min_joints`` joints) are split (``split``: then
     ``result`` no longer triangulates ``groups``), each part triangulated from its own poses;
-    ``seen_most: (Q,)`` as :func:`credible` reads it."""
-    X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
+    ``seen: (Q, J)`` as :func:`credible` reads it."""
+    X, seen = result[1].X, result[1].inliers.sum(1)
     split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints, max_bone_ratio,
                           result[0].conf > 0) if max_bone_ratio > 0 and groups else None
     if split is None:
@@ -285,21 +285,21 @@ def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joint
     groups, X, person, part = split
     parts, seen = np.flatnonzero(part >= 0), seen[person]
     again = triangulate([groups[q] for q in parts])[1]
-    X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
+    X[parts], seen[parts] = again.X, again.inliers.sum(1)
     return groups, X, seen, True
 
 
-def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
-    """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen_most, stale)``. Each
-    merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`credible`) of the
+def _merge_persons(merge: Callable | None, X: np.ndarray, seen: np.ndarray, groups: list[np.ndarray], N: int):
+    """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen, stale)``. Each
+    merged person keeps the 3D pose (and ``seen: (Q, J)``, see :func:`credible`) of the
     group it has most poses from until it is re-triangulated (``stale``: ``X`` no longer
     triangulates ``groups``)."""
     merged = merge(X, groups) if merge is not None and len(groups) > 1 else None
     if merged is None:
-        return groups, X, seen_most, False
+        return groups, X, seen, False
     owner = pose_groups(groups, N)
     survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
-    return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen_most[survivor], True
+    return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen[survivor], True
 
 
 def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, keypoint_threshold,
@@ -323,16 +323,16 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     return pose, person, cost
 
 
-def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+def credible(groups: list[np.ndarray], X: np.ndarray, seen: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
               max_proportion_deviation: float, max_bone_ratio: float = 0.0, agreed: bool = False) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
     triangulate to no body, unless they explain most of their views, as no false cluster does;
-    nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
-    most inlier views of any of its joints: two views agree on a point whatever they saw). The
-    proportions are those of the body without its stray joints (``max_bone_ratio``,
-    :func:`mvm.core.body_parts.body_deviation`).
+    nor does a person none of whose joints three of its views agree on, ``seen: (Q, J)`` the
+    inlier views of each of its joints: two views agree on a point whatever they saw). The
+    proportions are those of the body without its stray joints (``max_bone_ratio``) and without
+    the joints few of its views agree on (:func:`mvm.core.body_parts.body_deviation`).
 
     ``agreed`` (a rig's instants): a group none of whose joints three views agree on is refused
     even where it explains half of the few views it projects into: a cluster of false poses
@@ -346,8 +346,8 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: 
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
     keep &= (count >= min_support * visible) | ~usable
-    keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
-    keep &= ~((seen_most < min(3, min_group_size)) & ((2 * count < visible) | agreed))
+    keep &= ~((body_deviation(X, max_bone_ratio, seen) > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~((seen.max(-1, initial=0) < min(3, min_group_size)) & ((2 * count < visible) | agreed))
     return keep
 
 
