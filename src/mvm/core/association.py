@@ -342,8 +342,9 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen: np.ndarray, P: np.nd
     kept when it explains enough of those where no nearer person of its scene hides it
     (:func:`mvm.core.hiding.sight`; a person behind others for most of a hand-held tour). The
     persons that pass without it are judged as they were; a group of too few bones to judge, or
-    of no human body, is never kept so (a cluster of four false poses 24 m away, or a person's
-    first few poses triangulated 1.5 m off, kept so, took poses from others)."""
+    of no human body, is never kept so (kept so in a crowd, a cluster of four false poses 24 m
+    away and a person's first poses triangulated 1.5 m off changed the rounds that followed, and
+    two mixed neighbours were never split)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
