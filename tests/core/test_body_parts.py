@@ -176,3 +176,110 @@ def test_a_body_is_judged_without_its_stray_joints(pair):
     X[0, 9] += [0.0, 1.2, 0.0]
     X[0, 5] += [0.5, 0.0, 0.0]
     assert proportion_deviation(X)[0] > 0.4 > body_deviation(X, 2.0)[0]           # refused, kept
+
+
+#: Joints of the person whose head and left arm a mixed body takes (with the rest of its
+#: neighbour, these make a body of human proportions: no bone over 1.2 times its proportion).
+HEAD_AND_LEFT_ARM = [0, 1, 2, 3, 4, 5, 7, 9]
+
+
+def mixed_pair(scene, truth):
+    """The scene of :data:`PAIR` where the first person shows only its head and left arm, in
+    frames 0-17, and the second its body in frames 12-29, its head and left arm in every third
+    of them only (each hidden behind others): the grouping of two half-hidden neighbours as one
+    group (the first's poses and the second's of the other frames), the true person of each
+    pose."""
+    person = truth.person[scene.poses.ids - 1]
+    view, kp = scene.poses.view, scene.poses.keypoints.copy()
+    first = person == 0
+    head = np.isin(np.arange(17), HEAD_AND_LEFT_ARM)
+    kp[np.ix_(first, ~head)] = 0.0
+    kp[np.ix_(~first & (view % 3 > 0), head)] = 0.0
+    keep = (first & (view < 18)) | ((person == 1) & (view >= 12) & (view < 30))
+    rows = np.flatnonzero(keep)
+    scene = dataclasses.replace(scene, poses=dataclasses.replace(scene.poses, keypoints=kp).subset(rows))
+    person, view = person[rows], view[rows]
+    one = np.flatnonzero((person == 0) | (view >= 18))
+    return scene, person, one
+
+
+def test_neighbours_whose_mixed_body_has_human_proportions_are_split_by_their_views(pair):
+    """Two people 0.45 m apart grouped as one: the head and left arm of one with the rest of the
+    other make a body of human proportions (no bone says it is two), but the views of the
+    second see their own head and arm 0.45 m from where the body puts them: the views split
+    into two consistent halves, and the association splits the person."""
+    from mvm.core.keypoints import bone_ratios
+
+    _, truth = pair
+    mixed = truth.poses3d[1].copy()
+    mixed[HEAD_AND_LEFT_ARM] = truth.poses3d[0][HEAD_AND_LEFT_ARM]
+    assert np.nanmax(bone_ratios(mixed[None])) < 1.2 < Config().max_bone_ratio
+    scene, person, one = mixed_pair(*pair)
+    config = Config(refine=False).for_driver("scene")
+    triangulated = triangulate_groups(scene.cameras, scene.poses, [one], config)
+    merged = triangulated[1].X[0]
+    assert np.nanmax(np.linalg.norm(merged[HEAD_AND_LEFT_ARM] - truth.poses3d[0][HEAD_AND_LEFT_ARM], axis=-1)) < 0.1
+    groups, (_, tri) = associate_poses(scene.cameras, scene.poses, [one], triangulated, config)
+    assert sorted(np.unique(person[g]).tolist() for g in groups) == [[0], [1]]
+    precision, recall = matching_precision_recall(groups, person)
+    assert precision == 1.0 and recall >= 0.9
+    for g, X in zip(groups, tri.X):                                  # each body is its own person's
+        error = np.linalg.norm(X - truth.poses3d[person[g[0]]], axis=-1)
+        assert np.isfinite(error).sum() >= 5 and np.nanmax(error) < 0.1
+
+
+def test_a_real_person_whose_views_see_it_whole_is_not_split(pair):
+    """One true person whose inlier views fall into two sets of joints, each set's views having
+    the other's keypoints too, as inliers: its views do not contradict it, one body."""
+    _, truth = pair
+    _, inliers = two_bodies(truth)
+    X = truth.poses3d[1][None]
+    observed = np.ones_like(inliers)
+    assert (body_parts(X, inliers | observed, 5, 2.0, observed) == -1).all()    # seen whole
+    assert (body_parts(X, inliers, 5, 2.0, inliers) == -1).all()      # each set's views see nothing else
+
+
+def test_a_joint_few_of_its_views_agree_on_is_left_out_of_the_proportions(pair):
+    """A person half hidden for a whole video (the 20-person crowd over a 90° arc, 3,600 frames):
+    its head, right arm, a hip and its ankles; 44 of its poses put its left shoulder 0.5 m off
+    (the others hide it), while 1,029 agree on its nose. With so few bones that shoulder makes
+    the body look inhuman; left out, the rest is the person's own. A body whose joints its views
+    agree on alike is judged whole, and so is a cluster of a few false poses."""
+    from mvm.core.body_parts import body_deviation
+
+    _, truth = pair
+    kept = [0, 1, 2, 3, 4, 5, 6, 7, 8, 10, 11, 15, 16]
+    X = np.full((1, 17, 3), np.nan)
+    X[0, kept] = truth.poses3d[0, kept]
+    X[0, 5] += [0.0, -0.3, -0.4]                                          # 0.5 m off
+    X[0, 11] += [0.05, 0.0, 0.03]
+    seen = np.zeros((1, 17))
+    seen[0, kept] = [984, 1029, 961, 796, 1017, 44, 810, 146, 606, 733, 29, 282, 152]
+    limit = Config().association_max_proportion_deviation
+    assert body_deviation(X, 2.0)[0] > limit                              # refused as it was
+    assert not body_deviation(X, 2.0, seen)[0] > limit                    # kept: its shoulder left out
+    even = np.where(np.isfinite(X).all(-1), 500.0, 0.0)
+    assert body_deviation(X, 2.0, even)[0] == body_deviation(X, 2.0)[0]
+    rng = np.random.default_rng(0)                                        # a few false poses agreeing
+    cluster = truth.poses3d[0][None] + rng.normal(0.0, 1.0, (1, 17, 3))
+    few = rng.integers(2, 6, (1, 17)).astype(float)                       # 2-5 views each: none left out
+    assert body_deviation(cluster, 2.0, few)[0] == body_deviation(cluster, 2.0)[0]
+
+
+@pytest.mark.slow
+def test_the_crowd_of_twenty_over_a_90_degree_arc_is_twenty():
+    """The same crowd over a 90° arc, 600 frames: two seated neighbours 0.87 m apart made one
+    body of human proportions (the head and right arm of one, the rest of the other: 19 of 20,
+    19.6 mm); their views contradict it, and each is found where the truth puts it."""
+    from mvm.core.reconstruct import reconstruct
+    from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, person_errors
+
+    scene, truth = simulate(SimConfig.preset("realistic", people=20, frames=600, arc_deg=90, seed=2))
+    person = truth.person[scene.poses.ids - 1]
+    result = reconstruct(scene, Config(refine=False))
+    precision, recall = matching_precision_recall(result.persons.members, person)
+    assert len(result.persons) == 20 and precision >= 0.995 and recall >= 0.995
+    pairs = match_persons(result.persons.keypoints3d, truth.poses3d, MATCH_DISTANCE_M)
+    assert sorted(int(t) for _, t in pairs) == list(range(20))
+    mpjpe, _ = person_errors(result.persons.keypoints3d, truth.poses3d, pairs)
+    assert np.max(mpjpe) < 0.05                                   # the mixed body was 0.2 m off and more

@@ -29,8 +29,9 @@ import numpy as np
 from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained, pose_groups
+from mvm.core.hiding import sight
 from mvm.core.names import natural_key
-from mvm.core.pose_distance import person_chunks, project_persons, reprojection_cost
+from mvm.core.pose_distance import reprojection_cost
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -142,16 +143,9 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
 
     ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
     at least half its reconstructed joints project in front of the camera and inside the
-    image. Returns ``(Q,)``; a few persons at a time (:func:`mvm.core.pose_distance.person_chunks`).
+    image. Returns ``(Q,)`` (:func:`mvm.core.hiding.sight`).
     """
-    known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
-    count = np.zeros(len(X), dtype=np.int64)
-    for rows in person_chunks(len(X), len(P)):
-        uv, seen = project_persons(X[rows], P)                                       # (q, F, J, 2), (q, F, J)
-        with np.errstate(invalid="ignore"):
-            inside = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
-        count[rows] = (inside.sum(-1) * 2 >= known[rows, None]).sum(1)
-    return count
+    return sight(X, P, image_size)[0]
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
@@ -238,7 +232,7 @@ def associate(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, image_siz
             new[q] = groups[q][assignment[groups[q]] < 0]
         new = absorb_explained(new, pose, person, cost, slot, gate) or new      # a person seen twice
         keep = credible(new, X, seen, P, image_size, usable, min_group_size, min_support, max_proportion_deviation,
-                         max_bone_ratio, agreed=rig)
+                         max_bone_ratio, agreed=rig, scene=None if rig else np.zeros(len(new), np.int64))
         new, initial = [g for g, k in zip(new, keep) if k], X[keep]
         if seed is not None and iteration == 0:
             new, initial = _add_missed(new, initial, seed, eligible, pose_scene)
@@ -272,34 +266,34 @@ def assign_poses(keypoints: np.ndarray, frame: np.ndarray, P: np.ndarray, X: np.
 
 def _separate(triangulate: Callable, groups: list[np.ndarray], result, min_joints: int,
               max_bone_ratio: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, bool]:
-    """``(groups, X, seen_most, split)`` of ``groups`` triangulated as ``result``, where two people
+    """``(groups, X, seen, split)`` of ``groups`` triangulated as ``result``, where two people
     triangulated as one (:func:`mvm.core.body_parts.body_parts`: a bone over ``max_bone_ratio``
     whose ends no view sees together, parts of ``min_joints`` joints) are split (``split``: then
     ``result`` no longer triangulates ``groups``), each part triangulated from its own poses;
-    ``seen_most: (Q,)`` as :func:`credible` reads it."""
-    X, seen = result[1].X, result[1].inliers.sum(1).max(-1, initial=0)
-    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints,
-                          max_bone_ratio) if max_bone_ratio > 0 and groups else None
+    ``seen: (Q, J)`` as :func:`credible` reads it."""
+    X, seen = result[1].X, result[1].inliers.sum(1)
+    split = split_persons(groups, X, result[1].inliers, result[0].members, min_joints, max_bone_ratio,
+                          result[0].conf > 0) if max_bone_ratio > 0 and groups else None
     if split is None:
         return groups, X, seen, False
     groups, X, person, part = split
     parts, seen = np.flatnonzero(part >= 0), seen[person]
     again = triangulate([groups[q] for q in parts])[1]
-    X[parts], seen[parts] = again.X, again.inliers.sum(1).max(-1, initial=0)
+    X[parts], seen[parts] = again.X, again.inliers.sum(1)
     return groups, X, seen, True
 
 
-def _merge_persons(merge: Callable | None, X: np.ndarray, seen_most: np.ndarray, groups: list[np.ndarray], N: int):
-    """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen_most, stale)``. Each
-    merged person keeps the 3D pose (and ``seen_most: (Q,)``, see :func:`credible`) of the
+def _merge_persons(merge: Callable | None, X: np.ndarray, seen: np.ndarray, groups: list[np.ndarray], N: int):
+    """``merge`` the persons whose 3D poses coincide: ``(groups, X, seen, stale)``. Each
+    merged person keeps the 3D pose (and ``seen: (Q, J)``, see :func:`credible`) of the
     group it has most poses from until it is re-triangulated (``stale``: ``X`` no longer
     triangulates ``groups``)."""
     merged = merge(X, groups) if merge is not None and len(groups) > 1 else None
     if merged is None:
-        return groups, X, seen_most, False
+        return groups, X, seen, False
     owner = pose_groups(groups, N)
     survivor = [int(np.bincount(owner[np.asarray(g)][owner[np.asarray(g)] >= 0]).argmax()) for g in merged]
-    return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen_most[survivor], True
+    return [np.sort(np.asarray(g)) for g in merged], X[survivor], seen[survivor], True
 
 
 def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, keypoint_threshold,
@@ -323,31 +317,45 @@ def _costs(keypoints, frame, P, X, groups, pose_scene, eligible, usable, gate, k
     return pose, person, cost
 
 
-def credible(groups: list[np.ndarray], X: np.ndarray, seen_most: np.ndarray, P: np.ndarray, image_size: np.ndarray,
+def credible(groups: list[np.ndarray], X: np.ndarray, seen: np.ndarray, P: np.ndarray, image_size: np.ndarray,
               usable: np.ndarray, min_group_size: int, min_support: float,
-              max_proportion_deviation: float, max_bone_ratio: float = 0.0, agreed: bool = False) -> np.ndarray:
+              max_proportion_deviation: float, max_bone_ratio: float = 0.0, agreed: bool = False,
+              scene: np.ndarray | None = None) -> np.ndarray:
     """``(Q,)`` bool, the persons kept: those explaining enough poses and enough of the views
     they project into, and whose body is one (false positives agreeing in a few close views
     triangulate to no body, unless they explain most of their views, as no false cluster does;
-    nor does a person none of whose joints three of its views agree on, ``seen_most: (Q,)`` the
-    most inlier views of any of its joints: two views agree on a point whatever they saw). The
-    proportions are those of the body without its stray joints (``max_bone_ratio``,
-    :func:`mvm.core.body_parts.body_deviation`).
+    nor does a person none of whose joints three of its views agree on, ``seen: (Q, J)`` the
+    inlier views of each of its joints: two views agree on a point whatever they saw). The
+    proportions are those of the body without its stray joints (``max_bone_ratio``) and without
+    the joints few of its views agree on (:func:`mvm.core.body_parts.body_deviation`).
 
     ``agreed`` (a rig's instants): a group none of whose joints three views agree on is refused
     even where it explains half of the few views it projects into: a cluster of false poses
     placed where few cameras look (the heavy 18-camera dome: 4-5 false poses, 6-9 cameras; with
     the unit of D grown by the detector's noise they group), while a person of three poses or more
     has a joint three of its cameras see. A hand-held scene keeps the exemption (its frames follow
-    one another along an arc: a person of the crowd benchmark was lost without it)."""
+    one another along an arc: a person of the crowd benchmark was lost without it).
+
+    ``scene: (Q,)`` the scene of each person (a hand-held scene's: a rig's cameras see every
+    person from some side): one that explains too few of the views it projects into but has a
+    human body (its proportions judged, within ``max_proportion_deviation``) is
+    kept when it explains enough of those where no nearer person of its scene hides it
+    (:func:`mvm.core.hiding.sight`; a person behind others for most of a hand-held tour). The
+    persons that pass without it are judged as they were; a group of too few bones to judge, or
+    of no human body, is never kept so (kept so in a crowd, a cluster of four false poses 24 m
+    away and a person's first poses triangulated 1.5 m off changed the rounds that followed, and
+    two mixed neighbours were never split)."""
     count = np.array([len(g) for g in groups])
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         visible = visible_frames(X, P, image_size)
-    keep &= (count >= min_support * visible) | ~usable
-    keep &= ~((body_deviation(X, max_bone_ratio) > max_proportion_deviation) & (2 * count < visible))
-    keep &= ~((seen_most < min(3, min_group_size)) & ((2 * count < visible) | agreed))
+        deviation = body_deviation(X, max_bone_ratio, seen)
+        weak = usable & (count < min_support * visible) & (deviation <= max_proportion_deviation)
+        unhidden = sight(X, P, image_size, scene, weak)[1] if scene is not None and weak.any() else visible
+    keep &= (count >= min_support * unhidden) | ~usable
+    keep &= ~((deviation > max_proportion_deviation) & (2 * count < visible))
+    keep &= ~((seen.max(-1, initial=0) < min(3, min_group_size)) & ((2 * count < visible) | agreed))
     return keep
 
 

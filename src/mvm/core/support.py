@@ -20,8 +20,7 @@ def drop_unsupported(cameras: Cameras, groups: list[np.ndarray], tri: Triangulat
     if not len(tri.X):
         return
     usable = np.isfinite(tri.X).all(-1).sum(-1) >= config.min_person_joints
-    seen_most = tri.inliers.sum(1).max(-1, initial=0)
-    keep = credible(groups, tri.X, seen_most, cameras.P, cameras.size, usable, config.min_group_size,
+    keep = credible(groups, tri.X, tri.inliers.sum(1), cameras.P, cameras.size, usable, config.min_group_size,
                     config.rig_min_support, config.association_max_proportion_deviation, config.max_bone_ratio,
                     agreed=True)
     tri.X[~keep] = np.nan
