@@ -28,7 +28,7 @@ from mvm.io.settings_file import TABLES, read_tables
 SETTINGS = {"reconstruct": "mvm.core.config:Config", "rig": "mvm.rig.options:RigOptions",
             "simulate": "mvm.sim.simulate:SimConfig", "frames": "mvm.video.frames:FrameOptions",
             "sfm": "mvm.video.sfm:SfmOptions", "detect": "mvm.video.detect:DetectOptions",
-            "batch": "mvm.batch.stages:BatchOptions", "train": "mvm.net.train_config:TrainConfig"}
+            "batch": "mvm.stages.scene_options:SceneOptions", "train": "mvm.net.train_config:TrainConfig"}
 _WIDTH = 96
 
 

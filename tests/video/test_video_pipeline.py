@@ -83,8 +83,8 @@ def test_camera_centres_and_poses_match_truth(run_result, capsys):
 
 
 def test_rerun_skips_done_stages(run_result, tmp_path):
+    from mvm.stages.run import run_video
     from mvm.video.frames import FrameOptions
-    from mvm.video.run import run_video
     from mvm.video.sfm import SfmOptions
 
     truth, scene, _ = run_result

@@ -277,9 +277,9 @@ def frame_inputs(video: str | Path) -> dict[str, Path]:
     return {Path(video).name: Path(video)}
 
 
-def _frame_settings(options: FrameOptions) -> dict:
-    """The settings that shape the frames: ``select`` as the rule applied, and the motion rule's
-    settings only when it is."""
+def frame_settings(options: FrameOptions) -> dict:
+    """The settings that shape the frames (:mod:`mvm.io.provenance`): ``select`` as the rule
+    applied, and the motion rule's settings only when it is."""
     settings = asdict(options) | {"select": options.rule}
     if options.rule == "all":
         for name in ("min_motion", "max_gap_s", "min_frames"):
@@ -294,7 +294,7 @@ def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = 
     fingerprint when already computed)."""
     if force:
         return "forced"
-    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), _frame_settings(options), FRAMES_STAGE,
+    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), frame_settings(options), FRAMES_STAGE,
                     hashed=hashed)
 
 
@@ -356,7 +356,7 @@ def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str
     document = index.to_json()
     document["options"] = asdict(options)
     atomic_write_json(index_path, document, pretty=True)
-    write_record(index_path, FRAMES_STAGE, frame_inputs(video), _frame_settings(options), hashed,
+    write_record(index_path, FRAMES_STAGE, frame_inputs(video), frame_settings(options), hashed,
                  made=[frames_dir / name for name in index.names])    # a frame deleted since: redone
     return index
 

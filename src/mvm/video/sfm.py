@@ -205,6 +205,27 @@ def sfm_settings(options: SfmOptions) -> dict:
     return {"source": "sfm", **settings}
 
 
+def camera_inputs(scene: str | Path, cameras: str | Path | None = None,
+                  options: SfmOptions | None = None) -> tuple[dict, dict]:
+    """``(inputs, settings)`` of ``scene/sparse`` (:mod:`mvm.io.provenance`): made by SfM from
+    the frames with ``options`` (``cameras`` None), imported from the COLMAP model ``cameras``
+    (a folder; with the scene's ``frames.json``, which selects its images; nothing when it is
+    ``scene/sparse`` itself), or from the camera file ``cameras`` and ``frames.json``."""
+    scene = Path(scene)
+    if cameras is None:
+        return sfm_inputs(scene), sfm_settings(options or SfmOptions())
+    if not Path(cameras).is_dir():
+        return {"cameras": Path(cameras), FRAMES_INDEX: scene / FRAMES_INDEX}, {"source": "trajectory"}
+    from mvm.io.colmap import find_model_dir
+
+    if Path(cameras).resolve() == (scene / "sparse").resolve():
+        return {}, {"source": "colmap"}
+    inputs = {"cameras": find_model_dir(Path(cameras))}
+    if (scene / FRAMES_INDEX).is_file():
+        inputs[FRAMES_INDEX] = scene / FRAMES_INDEX
+    return inputs, {"source": "colmap"}
+
+
 def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
     """Refuse to replace ``scene/sparse`` without ``force`` when mvm did not make it (a model
     imported by hand, a simulated scene's cameras), or when it holds imported cameras and
@@ -345,10 +366,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
     in_place = Path(model).resolve() == (scene / "sparse").resolve()
-    inputs = {"cameras": model_dir} if not in_place else {}
-    if not in_place and (scene / FRAMES_INDEX).is_file():
-        inputs[FRAMES_INDEX] = scene / FRAMES_INDEX
-    settings = {"source": "colmap"}
+    inputs, settings = camera_inputs(scene, model)
     if not in_place:
         _check_replaceable(scene, settings, force)
     report_path = scene / SFM_DIR / SFM_REPORT
@@ -395,8 +413,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     from mvm.video.frames import read_frame_index
 
     scene = Path(scene)
-    inputs = {"cameras": Path(path), FRAMES_INDEX: scene / FRAMES_INDEX}
-    settings = {"source": "trajectory"}
+    inputs, settings = camera_inputs(scene, path)
     _check_replaceable(scene, settings, force)
     report_path = scene / SFM_DIR / SFM_REPORT
     hashed = fingerprints(inputs)
