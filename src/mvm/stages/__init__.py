@@ -7,9 +7,17 @@ out of date. A new stage is one module declaring its ``STAGE`` and one line in t
 """
 from __future__ import annotations
 
-from mvm.stages import scene_detect, scene_export, scene_frames, scene_reconstruct, scene_sfm
+from mvm.stages import (
+    rig_detect,
+    rig_reconstruct,
+    scene_detect,
+    scene_export,
+    scene_frames,
+    scene_reconstruct,
+    scene_sfm,
+)
 from mvm.stages.scene_options import SceneOptions
-from mvm.stages.stage import Done, Job, Stage
+from mvm.stages.stage import Done, Job, RigJob, Stage
 from mvm.stages.stage_runner import run_stage, run_stages
 
 #: The scene stages in pipeline order: a video's frames, its cameras, its 2D poses, the 3D
@@ -23,6 +31,12 @@ SCENE_STAGES: tuple[Stage, ...] = (
 )
 #: The stages ``mvm run`` runs (the export is ``mvm batch``'s, for the merged training set).
 RUN_STAGES = SCENE_STAGES[:4]
+#: The stages of a rig folder (:class:`RigJob`) that run through the runner: its videos' 2D
+#: poses (``mvm rig detect``) and its reconstruction (``mvm rig reconstruct``).
+RIG_STAGES: tuple[Stage, ...] = (
+    rig_detect.STAGE,
+    rig_reconstruct.STAGE,
+)
 
 
 def scene_stage(name: str) -> Stage:
@@ -33,5 +47,5 @@ def scene_stage(name: str) -> Stage:
     raise ValueError(f"unknown stage {name!r}: expected one of {', '.join(s.name for s in SCENE_STAGES)}")
 
 
-__all__ = ["SCENE_STAGES", "RUN_STAGES", "Done", "Job", "SceneOptions", "Stage", "run_stage", "run_stages",
-           "scene_stage"]
+__all__ = ["SCENE_STAGES", "RUN_STAGES", "RIG_STAGES", "Done", "Job", "RigJob", "SceneOptions", "Stage", "run_stage",
+           "run_stages", "scene_stage"]

@@ -1,5 +1,5 @@
-"""What a stage is: its declaration (:class:`Stage`), the clip it runs on (:class:`Job`) and what
-it gives back (:class:`Done`).
+"""What a stage is: its declaration (:class:`Stage`), what it runs on (:class:`Job`, a clip;
+:class:`RigJob`, a rig folder) and what it gives back (:class:`Done`).
 
 A stage declares its name, the settings tables that configure it, the output whose record says
 what it was made from (:mod:`mvm.io.provenance`), its inputs, the settings that record keeps,
@@ -31,6 +31,11 @@ class Job:
     cameras: Path | None = None
     progress: Callable[[str, int, int | None], None] | None = field(default=None, compare=False)
 
+    @property
+    def folder(self) -> Path:
+        """The folder the stages write in."""
+        return self.scene
+
     def tick(self, stage: str) -> Callable[[int, int], None] | None:
         """``progress`` of ``stage`` as ``(done, total)``, or None."""
         if self.progress is None:
@@ -54,7 +59,8 @@ def _applies(job: Job) -> str | None:
 
 @dataclass(frozen=True)
 class Stage:
-    """The declaration of one stage.
+    """The declaration of one stage. Its callables take the job the stage runs on: a
+    :class:`Job` (a clip, for the scene stages) or a :class:`RigJob` (a rig folder).
 
     Attributes:
         name: as ``--force``, ``--stages`` and the batch manifest name it (``"reconstruct"``).
@@ -97,3 +103,27 @@ class Stage:
 def present(*paths: Path) -> list[Path]:
     """The regular files of ``paths``, in order."""
     return [p for p in paths if p.is_file()]
+
+
+@dataclass(frozen=True)
+class RigJob:
+    """One rig folder through the rig stages: ``rig_dir``; ``detect`` and ``checkpoint``: the
+    2D detector of its videos; ``config`` and ``options``: the reconstruction's settings (the
+    ``[reconstruct]`` and ``[rig]`` tables; None: the defaults); ``calib`` (None: found in the
+    folder), ``frames`` (``START:STOP``) and ``output`` (None: ``RIG_DIR/mvm``) of the
+    reconstruction. ``progress(what, done, total)`` hears each stage advance."""
+
+    rig_dir: Path
+    detect: object = None
+    checkpoint: Path | None = None
+    config: object = None
+    options: object = None
+    calib: Path | None = None
+    frames: str | None = None
+    output: Path | None = None
+    progress: Callable[[str, int, int | None], None] | None = field(default=None, compare=False)
+
+    @property
+    def folder(self) -> Path:
+        """The folder the stages write in."""
+        return self.rig_dir

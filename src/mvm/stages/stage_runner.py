@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterable
 
 from mvm.errors import InputError
-from mvm.stages.stage import Done, Job, Stage
+from mvm.stages.stage import Done, Job, RigJob, Stage
 
 log = logging.getLogger(__name__)
 
@@ -23,12 +23,13 @@ def forced(force, name: str) -> bool:
     return bool(force) and not isinstance(force, str) and name in force
 
 
-def run_stage(stage: Stage, job: Job, force: bool = False) -> Done:
-    """Run ``stage`` on ``job``: its outputs kept when up to date, else made (or ``force``)."""
+def run_stage(stage: Stage, job: Job | RigJob, force: bool = False) -> Done:
+    """Run ``stage`` on ``job`` (a clip, or a rig folder for the rig's stages): its outputs kept
+    when up to date, else made (or ``force``)."""
     t = time.perf_counter()
     done = stage.run(job, force)
     done.seconds = time.perf_counter() - t
-    log.info("%s: %s: %s", job.scene, stage.name, "kept: up to date" if done.why is None else f"made: {done.why}")
+    log.info("%s: %s: %s", job.folder, stage.name, "kept: up to date" if done.why is None else f"made: {done.why}")
     return done
 
 
