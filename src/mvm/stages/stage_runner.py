@@ -17,10 +17,10 @@ log = logging.getLogger(__name__)
 
 
 def forced(force, name: str) -> bool:
-    """Whether ``force`` (True, ``"all"``, or stage names) names the stage ``name``."""
-    if force is True or force == "all":
-        return True
-    return bool(force) and not isinstance(force, str) and name in force
+    """Whether ``force`` (True, ``"all"``, a stage's name or names) names the stage ``name``."""
+    if isinstance(force, str):
+        return force in ("all", name)
+    return force is True or (bool(force) and name in force)
 
 
 def run_stage(stage: Stage, job: Job | RigJob, force: bool = False) -> Done:
@@ -39,7 +39,8 @@ def run_stages(job: Job, stages: Iterable[Stage], force=()) -> dict[str, Done]:
     ``force``: stage names to redo whatever their records say (True or ``"all"``: every one);
     a forced stage forces the ones after it."""
     stages = list(stages)
-    unknown = [n for n in (force if not isinstance(force, (bool, str)) else ()) if n not in {s.name for s in stages}]
+    named = (force,) if isinstance(force, str) else () if isinstance(force, bool) else tuple(force)
+    unknown = [n for n in named if n != "all" and n not in {s.name for s in stages}]
     if unknown:
         raise InputError(None, "--force", f"unknown stage {unknown[0]!r}: expected one of "
                                           f"{', '.join(s.name for s in stages)}")
