@@ -182,8 +182,9 @@ def _read(path: Path, config: Config, output: str) -> tuple:
 
 def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
     """``(path, result, output folder, what to write)`` of each scene :func:`_read` in
-    ``batch``, reconstructed together (what to write: the ``poses3d.json`` document, the scene
-    and the fingerprints of its inputs, for :func:`_write`), or ``(path, exception, None, None)``."""
+    ``batch``, reconstructed together (what to write: the ``poses3d.json`` document, the seconds,
+    the scene and the fingerprints of its inputs, for :func:`_write`), or ``(path, exception,
+    None, None)``."""
     scenes = [scene for _, scene, _, _, _ in batch if not isinstance(scene, Exception)]
     results = iter(reconstruct_many(scenes, config, prior))
     out = []
