@@ -130,9 +130,9 @@ def evaluate(scene_dir: Path, sim_scene, truth, aligned_by_cameras: bool) -> dic
 def run(video: Path, detections: Path, scene_dir: Path, options, cameras: Path | None) -> dict:
     """The stages of ``mvm run`` one by one, timed: frames, SfM (or the true cameras), import,
     reconstruction (no metric scale: the world stays SfM's, aligned afterwards)."""
+    from mvm.stages import Job, SceneOptions, run_stage, scene_stage
     from mvm.video.detect import DetectOptions, detect_scene
     from mvm.video.frames import extract_frames
-    from mvm.video.run import reconstruct_scene
     from mvm.video.sfm import SfmOptions, import_colmap, run_sfm
 
     timing = {}
@@ -150,7 +150,8 @@ def run(video: Path, detections: Path, scene_dir: Path, options, cameras: Path |
         timed("sfm", lambda: import_colmap(cameras, scene_dir))
     timed("detect", lambda: detect_scene(scene_dir, detections, None, "coco-results",
                                          DetectOptions(detector="import", appearance="colour")))
-    timed("reconstruct", lambda: reconstruct_scene(scene_dir, metric_scale=False))
+    timed("reconstruct", lambda: run_stage(scene_stage("reconstruct"),
+                                                Job(scene_dir, SceneOptions(metric_scale=False))))
     return {"kept": len(index.names), "candidates": index.selection.get("candidates"), "timing": timing}
 
 

@@ -20,8 +20,8 @@ import numpy as np
 from mvm.io.colmap import write_colmap
 from mvm.io.provenance import clear_hash_cache, fingerprint
 from mvm.sim.mannequin_video import RenderConfig, render_video
+from mvm.stages.run import run_video
 from mvm.video.frames import FrameOptions
-from mvm.video.run import run_video
 
 
 def coco_results(truth) -> list[dict]:

@@ -15,9 +15,9 @@ import numpy as np
 
 from mvm.metrics.poses import similarity_transform
 from mvm.sim.mannequin_video import RenderConfig, default_people, render_video
+from mvm.stages import Job, run_stage, scene_stage
 from mvm.video.detect import detect_scene
 from mvm.video.frames import FrameOptions, extract_frames
-from mvm.video.run import reconstruct_scene
 from mvm.video.sfm import SfmOptions, run_sfm
 
 
@@ -80,7 +80,7 @@ def main() -> None:
     if per_frame is not None:
         seconds["detect_network_resnet50_641_estimate"] = per_frame * args.frames
     t = time.perf_counter()
-    rec = reconstruct_scene(scene, force=True)
+    rec = run_stage(scene_stage("reconstruct"), Job(scene), force=True).result
     seconds["reconstruct"] = time.perf_counter() - t
 
     from mvm.io.colmap import read_colmap

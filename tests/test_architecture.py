@@ -24,9 +24,10 @@ ALLOWED: dict[str, set[str]] = {
     "rig": {"core", "io", "metrics", "parallel", "errors"},
     "video": {"core", "io", "scenes", "metrics", "net", "errors"},
     "report": {"core", "io", "metrics", "sim", "rig", "errors"},
-    "batch": {"core", "io", "scenes", "metrics", "eval", "sim", "rig", "net", "video", "report", "parallel",
-              "errors"},
-    "settings": {"core", "io", "rig", "sim", "video", "batch", "net", "errors"},
+    "stages": {"core", "io", "scenes", "metrics", "net", "video", "rig", "report", "errors"},
+    "batch": {"core", "io", "scenes", "metrics", "eval", "sim", "rig", "net", "video", "report", "stages",
+              "parallel", "errors"},
+    "settings": {"core", "io", "rig", "sim", "video", "stages", "batch", "net", "errors"},
 }
 
 def _imports(path) -> set[str]:

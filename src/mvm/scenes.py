@@ -18,14 +18,15 @@ from pathlib import Path
 
 from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
-from mvm.errors import InputError
-from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
-from mvm.io.provenance import fingerprints, forget, record_path, write_record
+from mvm.io.files import atomic_write_json, remove_stale_temporaries
+from mvm.io.provenance import fingerprints, produce, record_path
 from mvm.io.scene_dir import (
     RECONSTRUCT_STAGE,
+    TIMINGS,
     output_dir,
     poses3d_document,
     read_scene,
+    reconstruct_settings,
     reconstruction_inputs,
     write_poses3d,
 )
@@ -53,6 +54,37 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
         raise outcome
     _write(out_dir, document, config)
     return outcome
+
+
+def reconstruct_read(path: str | Path, config: Config, output: str = "mvm", prior=None) -> tuple[Result, object]:
+    """Read the scene directory ``path`` and reconstruct it, writing nothing: ``(result, scene)``
+    (``config`` already the scene driver's, :meth:`~mvm.core.config.Config.for_driver`). The
+    scene stage of :mod:`mvm.stages` writes the result itself (:func:`result_document`)."""
+    read = _read(Path(path), config, output)
+    if isinstance(read[1], Exception):
+        raise read[1]
+    [outcome] = reconstruct_many([read[1]], config, prior)
+    if isinstance(outcome, Exception):
+        raise outcome
+    outcome.timings = {"read_s": read[3], **outcome.timings}
+    return outcome, read[1]
+
+
+def result_document(result: Result, scene, config: Config, extra: dict | None = None) -> dict:
+    """The ``poses3d.json`` document of ``result`` (of ``scene``, reconstructed with ``config``):
+    the persons, the metrics, the warnings, the settings and ``extra`` (the metric scale).
+    Nothing in it depends on the run (its seconds go to ``timings.json``, :func:`write_result`),
+    so that the same scene gives the same bytes."""
+    return poses3d_document(result.persons, scene.poses, result.metrics,
+                            {"warnings": list(result.warnings), "config": asdict(config), **(extra or {})})
+
+
+def write_result(out_dir: Path, document: dict, timings: dict) -> None:
+    """Write ``out_dir/poses3d.json`` and the seconds its reconstruction took
+    (``out_dir/timings.json``), each atomically; the caller holds the folder's lock."""
+    remove_stale_temporaries(out_dir, "poses3d.json", record_path(out_dir / "poses3d.json").name, TIMINGS)
+    write_poses3d(out_dir / "poses3d.json", document)
+    atomic_write_json(out_dir / TIMINGS, {k: round(v, 4) for k, v in timings.items()}, pretty=True)
 
 
 def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, output: str = "mvm",
@@ -150,8 +182,9 @@ def _read(path: Path, config: Config, output: str) -> tuple:
 
 def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
     """``(path, result, output folder, what to write)`` of each scene :func:`_read` in
-    ``batch``, reconstructed together (what to write: the ``poses3d.json`` document, the scene
-    and the fingerprints of its inputs, for :func:`_write`), or ``(path, exception, None, None)``."""
+    ``batch``, reconstructed together (what to write: the ``poses3d.json`` document, the seconds,
+    the scene and the fingerprints of its inputs, for :func:`_write`), or ``(path, exception,
+    None, None)``."""
     scenes = [scene for _, scene, _, _, _ in batch if not isinstance(scene, Exception)]
     results = iter(reconstruct_many(scenes, config, prior))
     out = []
@@ -162,11 +195,8 @@ def _reconstructed(batch: list[tuple], config: Config, prior) -> list[tuple]:
             continue
         try:
             outcome.timings = {"read_s": read_s, **outcome.timings}
-            document = poses3d_document(outcome.persons, scene.poses, outcome.metrics,
-                                        {"warnings": list(outcome.warnings),
-                                         "timings_s": {k: round(v, 4) for k, v in outcome.timings.items()},
-                                         "config": asdict(config)})
-            out.append((path, outcome, out_dir, (document, path, hashed)))
+            document = result_document(outcome, scene, config)
+            out.append((path, outcome, out_dir, (document, outcome.timings, path, hashed)))
         except Exception as e:                            # noqa: BLE001 - this scene's failure, reported in order
             out.append((path, e, None, None))
     return out
@@ -199,18 +229,11 @@ def _finished(path, outcome, write: Future | None) -> tuple:
 
 
 def _write(out_dir: Path, made: tuple, config: Config) -> None:
-    """Write ``out_dir/poses3d.json`` and its record (``made``: the document, the scene and its
-    fingerprints). Runs on the same scene may compute at once; writing is one at a time, and
-    the temporary files of a killed run are removed by the next one."""
-    document, scene, hashed = made
-    try:
-        with exclusive_lock(out_dir, config.lock_timeout_s):
-            remove_stale_temporaries(out_dir, "poses3d.json", record_path(out_dir / "poses3d.json").name)
-            forget(out_dir / "poses3d.json")
-            write_poses3d(out_dir / "poses3d.json", document)
-            if hashed is not None:
-                write_record(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
-                             {"config": asdict(config), "metric_scale": False}, hashed)
-    except LockTimeout:
-        raise InputError(out_dir, None, f"another mvm run has been writing here for more than "
-                                        f"{config.lock_timeout_s:g} s (lock_timeout_s)") from None
+    """Write ``out_dir/poses3d.json`` and its record (``made``: the document, the seconds, the
+    scene and its fingerprints). Runs on the same scene may compute at once; writing is one at
+    a time (:func:`mvm.io.provenance.produce`'s lock), and the temporary files of a killed run
+    are removed by the next one."""
+    document, timings, scene, hashed = made
+    produce(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
+            reconstruct_settings(config, metric_scale=False), lambda why, _: write_result(out_dir, document, timings),
+            None, force=True, lock=out_dir, lock_timeout_s=config.lock_timeout_s, hashed=hashed)

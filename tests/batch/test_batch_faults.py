@@ -190,7 +190,7 @@ def test_a_pool_broken_between_polls_is_restarted_when_the_next_stage_is_submitt
             pass
 
     class FreshPool(BrokenPool):
-        def submit(self, fn, clip, stage, options):
+        def submit(self, fn, clip, stage, options, force=False):
             future = Future()
             future.set_result(StageResult(clip.id, stage, ok=True))
             return future

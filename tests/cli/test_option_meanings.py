@@ -104,7 +104,7 @@ def test_output_name_and_its_deprecated_spellings(tmp_path):
 
 def test_run_and_batch_read_set_and_refine(tmp_path, monkeypatch):
     """``mvm run --set`` and ``mvm batch --refine`` reach the reconstruction settings."""
-    import mvm.video.run as run
+    import mvm.stages.run as run
     from mvm.cli.batch import read_batch_options
 
     assert read_batch_options(None, ("tau=0.3",), refine=False).config.refine is False

@@ -50,7 +50,7 @@ def scene(clip, tmp_path):
 
 
 def test_rerun_with_nothing_changed_keeps_every_stage(clip, scene):
-    from mvm.video.run import run_video
+    from mvm.stages.run import run_video
 
     root, _ = clip
     before = {p: p.stat().st_mtime_ns for p in (scene / "frames.json", scene / "poses2d.json",

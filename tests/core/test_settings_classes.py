@@ -12,7 +12,7 @@ from mvm.errors import InputError
 
 CLASSES = ["mvm.core.config:Config", "mvm.rig.options:RigOptions", "mvm.sim.simulate:SimConfig",
            "mvm.sim.mannequin_video:RenderConfig", "mvm.sim.detector:DetectorErrors", "mvm.video.frames:FrameOptions",
-           "mvm.video.sfm:SfmOptions", "mvm.batch.stages:BatchOptions", "mvm.video.detect:DetectOptions",
+           "mvm.video.sfm:SfmOptions", "mvm.stages.scene_options:SceneOptions", "mvm.video.detect:DetectOptions",
            "mvm.video.rtm:RtmOptions", "mvm.core.matching.baselines:BaselineConfig", "mvm.net.decoder:DecoderConfig",
            "mvm.net.encoder:EncoderConfig", "mvm.net.data:AugmentConfig", "mvm.net.losses:LossWeights"]
 

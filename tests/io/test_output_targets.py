@@ -399,7 +399,7 @@ def test_a_leftover_record_temporary_is_removed(inputs, tmp_path):
     for name in ("poses3d.json", "poses3d.inputs.json"):
         (scene / "mvm" / f".{name}.mvm-tmp-k2j4h_x.tmp").write_text("{half")
     assert invoke("reconstruct", scene, "--workers", "1", "--no-refine").exit_code == 0
-    assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.inputs.json", "poses3d.json"]
+    assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.inputs.json", "poses3d.json", "timings.json"]
 
 
 def test_writing_into_a_folder_knows_its_own_names(tmp_path):

@@ -169,7 +169,7 @@ def test_a_selected_video_reconstructs_and_its_supervision_covers_every_kept_fra
     from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
     from mvm.sim.mannequin_video import RenderConfig, render_video
-    from mvm.video.run import run_video
+    from mvm.stages.run import run_video
     from mvm.video.sfm import SfmOptions
 
     from helpers import coco_results

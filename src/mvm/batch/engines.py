@@ -66,12 +66,12 @@ class LocalEngine:
     def worker_pids(self) -> list[int]:
         return [p.pid for p in (self._pool._processes or {}).values()]
 
-    def submit(self, clip: Clip, stage: str) -> None:
+    def submit(self, clip: Clip, stage: str, force: bool = False) -> None:
         try:
-            future = self._pool.submit(run_stage, clip, stage, self.options)
+            future = self._pool.submit(run_stage, clip, stage, self.options, force)
         except BrokenProcessPool:                       # a worker ended since the last poll
             self._restart()
-            future = self._pool.submit(run_stage, clip, stage, self.options)
+            future = self._pool.submit(run_stage, clip, stage, self.options, force)
         self._running[future] = (clip, stage)
 
     def poll(self, timeout: float) -> list[StageResult]:
@@ -143,10 +143,10 @@ class RayEngine:
         self._task = ray.remote(run_stage)
         self._running: dict = {}
 
-    def submit(self, clip: Clip, stage: str) -> None:
+    def submit(self, clip: Clip, stage: str, force: bool = False) -> None:
         gpu = 1 if (stage in GPU_STAGES and self.gpus >= 1 and self.options.checkpoint) else 0
         options = self.options if not gpu else _with_device(self.options, "cuda")
-        ref = self._task.options(num_cpus=1, num_gpus=gpu, max_retries=0).remote(clip, stage, options)
+        ref = self._task.options(num_cpus=1, num_gpus=gpu, max_retries=0).remote(clip, stage, options, force)
         self._running[ref] = (clip, stage)
 
     def poll(self, timeout: float) -> list[StageResult]:

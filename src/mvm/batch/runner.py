@@ -118,7 +118,7 @@ class _Driver:
         self.redone: list[tuple[str, str, str]] = []
 
     def _skip_present(self, clip: Clip, stage: str) -> None:
-        files = output_files(clip.scene, stage, self.options.output)
+        files = output_files(clip, stage, self.options)
         stats = clip_stats(clip.scene, self.options.output) if stage in ("reconstruct", "export") else None
         self.manifest.skip(self.run, clip.id, stage, "present: outputs up to date", stats,
                            checksum(clip.scene, files) if files else None, len(files))
@@ -189,7 +189,7 @@ class _Driver:
             cid = self.queue.popleft()
             stage = self.next_stage(cid)
             if stage is not None:
-                self.engine.submit(self.clips[cid], stage)
+                self.engine.submit(self.clips[cid], stage, self.force)
                 self.in_flight += 1
                 self.attempts[cid, stage] = self.attempts.get((cid, stage), 0) + 1
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from mvm.batch.clips import Clip, discover_clips
 from mvm.batch.manifest import STATES, Manifest
 from mvm.batch.runner import TRAINING_SET
-from mvm.batch.stages import STAGES, checksum, output_files, record_of, stage_inputs
+from mvm.batch.stages import STAGES, checksum, job_of, output_files
 from mvm.errors import InputError
 
 
@@ -81,23 +81,31 @@ def clip_state(states: list[str]) -> str:
     return "pending"
 
 
-def _matches(scene: str, row: dict) -> bool:
+def _matches(clip: Clip, row: dict, output: str) -> bool:
     """Whether the committed files of a stage row still hash to its checksum (unreadable or
     missing files do not)."""
+    from mvm.stages import SceneOptions
+
     try:
-        files = output_files(scene, row["stage"])
-        return bool(files) and checksum(scene, files) == row["checksum"]
+        files = output_files(clip, row["stage"], SceneOptions(output=output))
+        return bool(files) and checksum(clip.scene, files) == row["checksum"]
     except OSError:
         return False
 
 
 def _stale(clip: Clip, stage: str, output: str) -> str | None:
     """Why the outputs of a done ``stage`` of ``clip`` are out of date (None: they are, as far
-    as their record tells, or they have none)."""
+    as their record tells, or they have none): the stage's declaration (:mod:`mvm.stages`)
+    names its record and its inputs."""
     from mvm.io.provenance import stale_reason
+    from mvm.stages import SceneOptions, scene_stage
 
+    declared = scene_stage(stage)
     try:
-        return stale_reason(record_of(clip.scene, stage, output), stage_inputs(clip, stage, output))
+        job = job_of(clip, SceneOptions(output=output))
+        if declared.applies(job) is not None:
+            return None
+        return stale_reason(declared.record(job), declared.inputs(job))
     except InputError as e:
         return str(e)
 
@@ -136,11 +144,12 @@ def batch_status(root: str | Path, verify: bool = False, output: str = "mvm") ->
             raise InputError(manifest.path, f"stages[{r['clip']!r}, {r['stage']!r}].clip", "not in the clips table")
         if r["stage"] == "reconstruct" and r["state"] in ("done", "skipped") and r["stats"]:
             stats_rows.append((clips[r["clip"]]["sequence"], r["stats"]))
-        if verify and r["state"] == "done" and r["checksum"] and not _matches(clips[r["clip"]]["scene"], r):
+        known = clips[r["clip"]]
+        clip = Clip(r["clip"], known["sequence"], known["scene"], known["video"])
+        if verify and r["state"] == "done" and r["checksum"] and not _matches(clip, r, output):
             mismatched.append((r["clip"], r["stage"]))
-        if r["state"] in ("done", "skipped") and clips[r["clip"]]["scene"]:
-            known = clips[r["clip"]]
-            clip = found.get(r["clip"]) or Clip(r["clip"], known["sequence"], known["scene"], known["video"])
+        if r["state"] in ("done", "skipped") and known["scene"]:
+            clip = found.get(r["clip"]) or clip
             why = _stale(clip, r["stage"], output)
             if why is not None:
                 stale.append((r["clip"], r["stage"], why))

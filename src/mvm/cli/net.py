@@ -39,13 +39,18 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     from mvm.io.outputs import check_output_location
     from mvm.io.provenance import fingerprints, why_redo, write_record
     from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
-    from mvm.net.supervision import ANNOTATIONS_FILE, EXPORT_STAGE, export_inputs, export_supervision
+    from mvm.net.supervision import (
+        ANNOTATIONS_FILE,
+        EXPORT_STAGE,
+        export_inputs,
+        export_settings,
+        export_supervision,
+    )
 
     out_dir = Path(out_dir)
     check_output_location(out_dir, [p for scene in scenes for p in scene_inputs(scene, output_name)])
     inputs = export_inputs(scenes, output_name, frames=link == "copy", located=True)
-    # Where the data set is: the relative links and file names of its images depend on it.
-    settings = {"link": link, "min_keypoints": min_keypoints, "complete": complete, "out": out_dir.resolve().as_posix()}
+    settings = export_settings(link, min_keypoints, complete, out_dir.resolve().as_posix())
     try:
         hashed = fingerprints(inputs)
     except InputError:               # an unreadable input: its scene fails on its own below

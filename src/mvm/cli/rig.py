@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import click
 
@@ -331,20 +332,18 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
                     rig_sets, force, config_path, sets, refine):
     """Reconstruct every instant of RIG_DIR, link persons over time, write poses3d.jsonl, one
     .trc per track and recap.json."""
-    from mvm.rig.reconstruct_rig import kept_set, reconstruct_rig, rig_reason
+    from mvm.stages import RigJob, run_stage
+    from mvm.stages.rig_reconstruct import STAGE
 
     config = read_config(config_path, sets, "rig", refine=refine, complete=False if no_complete else None)
     options = read_rig_options(config_path, rig_sets, smoothing=smoothing, frame_rate=frame_rate, workers=workers,
                                trc_inferred=True if trc_inferred else None)
-    why = "forced" if force else rig_reason(rig_dir, config, options, calib, frames, output)
-    if why is None:
-        recap_dict, outputs = kept_set(rig_dir, calib, output)
-    else:
-        with progress() as bar:
-            task = bar.add_task("instants", total=None)
-            result = reconstruct_rig(rig_dir, config, options, calib, frames, output,
-                                     progress=lambda done, total: bar.update(task, completed=done, total=total))
-        recap_dict, outputs = result.recap, result.outputs
+    with progress() as bar:
+        task = bar.add_task("instants", total=None)
+        job = RigJob(Path(rig_dir), config=config, options=options, calib=calib, frames=frames, output=output,
+                     progress=lambda _, done, total: bar.update(task, completed=done, total=total))
+        done = run_stage(STAGE, job, force)
+    why, recap_dict, outputs = done.why, done.result.recap, done.result.outputs
     print_line("output set: " + ("kept (up to date)" if why is None else f"made: {why}"))
     r = recap_dict
     flags = r["joint_flags"]
@@ -423,13 +422,14 @@ def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size,
     frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
     from mvm.cli.common import rate_column, refused, stage_progress
     from mvm.cli.video import _detect_options
-    from mvm.video.rig_videos import detect_rig_videos
+    from mvm.stages import RigJob, run_stage
+    from mvm.stages.rig_detect import STAGE
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
                                   None, None, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
-        found = detect_rig_videos(rig_dir, checkpoint, options, force, update)
+        found = run_stage(STAGE, RigJob(Path(rig_dir), options, checkpoint, progress=update), force).result
     print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",
                 ("camera", "video", "frames", "frame rate Hz", "2D poses", "pose file"),
                 [(c.camera, c.video.file if c.video else "–", str(c.video.frames) if c.video else "–",

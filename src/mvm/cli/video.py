@@ -242,7 +242,7 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_
             focal_px, fix_focal, max_features, vocab_tree, detector, model, person_model, mode, device, batch_size,
             checkpoint, input_size, source, fmt, appearance, cameras, config_path, sets, refine, metric, force):
     """VIDEO -> frames -> cameras -> 2D poses -> appearance -> 3D poses in SCENE/mvm/poses3d.json."""
-    from mvm.video.run import run_video
+    from mvm.stages.run import run_video
 
     with refused(ValueError):
         options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,

@@ -91,6 +91,18 @@ def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
 
 #: The reconstruction's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RECONSTRUCT_STAGE = "the reconstruction"
+#: The seconds each step of a scene's reconstruction took, beside its ``poses3d.json`` (which
+#: holds nothing that depends on the run).
+TIMINGS = "timings.json"
+
+
+def reconstruct_settings(config, metric_scale: bool) -> dict:
+    """The settings the record of a scene's ``poses3d.json`` keeps (:mod:`mvm.io.provenance`):
+    the reconstruction's (``config``, a :class:`~mvm.core.config.Config` as the scene driver
+    uses it) and whether the world was scaled to metres."""
+    from dataclasses import asdict
+
+    return {"config": asdict(config), "metric_scale": bool(metric_scale)}
 
 
 def reconstruction_inputs(scene: str | Path) -> dict[str, Path]:

@@ -61,6 +61,15 @@ def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames:
     return inputs
 
 
+def export_settings(link: str, min_keypoints: int, complete: bool, out: str) -> dict:
+    """The settings the record of an exported data set keeps (:mod:`mvm.io.provenance`): how
+    the frames get in, the fewest labelled joints of an annotation, whether unseen joints are
+    completed, and where the data set is (its relative links and file names depend on it):
+    ``out``, its absolute path, or for a data set inside its one scene (``mvm batch``'s), its
+    path in the scene (the two move together)."""
+    return {"link": link, "min_keypoints": int(min_keypoints), "complete": bool(complete), "out": out}
+
+
 def unreconstructed_boxes(scene: Scene, persons: Persons3D, view: int) -> np.ndarray:
     """Boxes ``(M, 4)`` (``x0, y0, x1, y1``) of the 2D poses of ``view`` that no reconstructed
     person holds (``persons.members``: annotation ids): people MVM saw but did not reconstruct,

@@ -14,6 +14,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.ground_truth import GroundTruth
 from mvm.io.scene_dir import (
+    TIMINGS,
     check_reconstruction_fresh,
     load_poses3d_document,
     output_dir,
@@ -33,7 +34,7 @@ class SceneResult:
     Attributes:
         path: the scene directory; output: its output folder name (``mvm``).
         scene, persons: as read (``persons.members`` index ``scene.poses``).
-        metrics, timings: ``metrics`` and ``timings_s`` of ``poses3d.json`` (may be empty).
+        metrics, timings: ``metrics`` of ``poses3d.json`` and the seconds of ``timings.json`` (may be empty).
         truth: the ground truth of a simulated scene, or None.
         true_person: ``(N,)`` the true person of every 2D pose (-1: false), or None.
     """
@@ -88,6 +89,15 @@ def _object(document: dict, key: str, path: Path) -> dict:
     return value
 
 
+def _timings(document: dict, poses3d: Path, scene_dir: Path) -> dict:
+    """The seconds of the reconstruction's steps: ``timings.json`` beside ``poses3d.json``, or
+    the ``timings_s`` of a ``poses3d.json`` an earlier version wrote."""
+    path = poses3d.parent / TIMINGS
+    if path.is_file():
+        return load_json_object(path, root=scene_dir, what="an object of seconds")
+    return _object(document, "timings_s", poses3d)
+
+
 def _seconds(value) -> float | None:
     """A duration of ``timings_s`` as a finite float, or None for anything else (not shown)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -112,7 +122,7 @@ def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
     document = load_poses3d_document(poses3d, root=path)
     persons = parse_poses3d(document, poses3d, scene.poses)
     metrics = _object(document, "metrics", poses3d)
-    timings = {k: t for k, t in ((k, _seconds(v)) for k, v in _object(document, "timings_s", poses3d).items())
+    timings = {k: t for k, t in ((k, _seconds(v)) for k, v in _timings(document, poses3d, path).items())
                if t is not None}
     truth = true_person = None
     gt = truth_path(path)

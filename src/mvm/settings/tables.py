@@ -28,7 +28,7 @@ TABLES = {
     "sfm": ("mvm.video.sfm:SfmOptions", "Structure from motion: mvm sfm, run and batch (--config; their options win)."),
     "detect": ("mvm.video.detect:DetectOptions",
                "2D detection: mvm detect, run and batch (--config; their options win)."),
-    "batch": ("mvm.batch.stages:BatchOptions",
+    "batch": ("mvm.stages.scene_options:SceneOptions",
               "mvm batch's own settings (--config; each stage's are in its own table)."),
     "train": ("mvm.net.train_config:TrainConfig",
               "Training: mvm train CONFIG reads these keys at the top level of its file."),

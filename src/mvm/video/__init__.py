@@ -2,6 +2,6 @@
 
 Stages (each resumable): :func:`frames.extract_frames`, :func:`sfm.run_sfm` (or
 :func:`sfm.import_colmap` / :func:`sfm.import_trajectory`), :func:`detect.detect_scene`,
-:func:`run.reconstruct_scene`; :func:`run.run_video` runs them all. The RTMO /
+the metric scale of a reconstruction (:mod:`metric_scale`); :mod:`mvm.stages` runs them. The RTMO /
 RTMPose detectors are in :mod:`rtm`, their published models and cache in :mod:`models`.
 """

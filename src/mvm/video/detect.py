@@ -27,7 +27,7 @@ from mvm.io.files import atomic_write_json
 from mvm.io.images import UndecodableImage, read_image
 from mvm.io.paths import resolve_in
 from mvm.io.pose_format import pose_format
-from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
+from mvm.io.provenance import produce, read_record
 from mvm.video.appearance import colour_descriptor
 from mvm.video.detectors import FrameDetector, check_models, make_detector
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
@@ -332,15 +332,23 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
         raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to replace "
                                     "them")
     registered = registered_names(scene)
-    inputs = detect_inputs(scene, registered, source, checkpoint)
-    settings = detect_settings(kind, fmt, options)
-    hashed = fingerprints(inputs)
-    why = "forced" if force else why_redo(out, inputs, settings, DETECT_STAGE, hashed=hashed)
-    if why is None:
-        log.info("%s is up to date (made from these frames and detections with these settings)", out)
+
+    def keep() -> FramePoses:
         coco = read_coco_keypoints(out)
-        return FramePoses(coco.file_names, coco.sizes, coco.keypoints, coco.ann_image, coco.score,
-                          coco.appearance, "existing")
+        return FramePoses(coco.file_names, coco.sizes, coco.keypoints, coco.ann_image, coco.score, coco.appearance,
+                          "existing")
+
+    poses, _ = produce(out, DETECT_STAGE, detect_inputs(scene, registered, source, checkpoint),
+                       detect_settings(kind, fmt, options),
+                       lambda why, hashed: _detect(scene, registered, kind, source, checkpoint, fmt, options, why,
+                                                   progress), keep, force=force)
+    return poses
+
+
+def _detect(scene: Path, registered: set[str] | None, kind: str, source, checkpoint, fmt: str | None,
+            options: DetectOptions, why: str, progress) -> FramePoses:
+    """The body of :func:`detect_scene` once it decided to detect (``why``): ``poses2d.json``
+    written (the record is :func:`~mvm.io.provenance.produce`'s)."""
     log.info("%s: detecting 2D poses: %s", scene, why)
     names = _frame_names(scene, registered)
     if kind == "import":
@@ -360,9 +368,7 @@ def detect_scene(scene: str | Path, source: str | Path | None = None, checkpoint
     if skipped:
         log.warning("%s: %d frames could not be read and were skipped (e.g. %s)", scene, len(skipped), skipped[0])
     poses, document = poses_document(found, names, registered, options, kind, info, skipped, scene)
-    forget(out)
-    atomic_write_json(out, document)
-    write_record(out, DETECT_STAGE, inputs, settings, hashed)
+    atomic_write_json(scene / POSES2D, document)
     return replace(poses, why=why)
 
 

@@ -20,7 +20,7 @@ from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
 from mvm.io.images import count_frames, frame_count_bound, step_frames
 from mvm.io.outputs import writing_into
 from mvm.io.paths import check_name
-from mvm.io.provenance import fingerprints, forget, why_redo, write_record
+from mvm.io.provenance import produce
 from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motion
 
 log = logging.getLogger(__name__)
@@ -277,25 +277,14 @@ def frame_inputs(video: str | Path) -> dict[str, Path]:
     return {Path(video).name: Path(video)}
 
 
-def _frame_settings(options: FrameOptions) -> dict:
-    """The settings that shape the frames: ``select`` as the rule applied, and the motion rule's
-    settings only when it is."""
+def frame_settings(options: FrameOptions) -> dict:
+    """The settings that shape the frames (:mod:`mvm.io.provenance`): ``select`` as the rule
+    applied, and the motion rule's settings only when it is."""
     settings = asdict(options) | {"select": options.rule}
     if options.rule == "all":
         for name in ("min_motion", "max_gap_s", "min_frames"):
             settings.pop(name)
     return settings
-
-
-def frames_reason(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
-                  force: bool = False, hashed: dict | None = None) -> str | None:
-    """Why :func:`extract_frames` would decode ``video`` again (None: ``frames.json`` is up to
-    date: made from this video's bytes with these options; ``hashed``: the video's
-    fingerprint when already computed)."""
-    if force:
-        return "forced"
-    return why_redo(Path(scene) / FRAMES_INDEX, frame_inputs(video), _frame_settings(options), FRAMES_STAGE,
-                    hashed=hashed)
 
 
 def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions = FrameOptions(),
@@ -314,25 +303,26 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
     ``progress(done, total)`` is called after each decoded frame.
     """
     video, scene = Path(video), Path(scene)
-    index_path = scene / FRAMES_INDEX
     if not video.is_file():
         raise InputError(video, None, "video file not found")
     make_dir(scene)                                         # a file in the way: one line, before anything
-    hashed = fingerprints(frame_inputs(video))
-    why = frames_reason(video, scene, options, force, hashed)
-    if why is None:
-        log.info("%s is up to date (made from %s with these options)", index_path, video.name)
-        return read_frame_index(scene)
-    log.info("%s: extracting frames: %s", scene, why)
-    with writing_into(scene, [FRAMES_DIR, FRAMES_INDEX]):     # a user's frames.json or frames/: refused
-        return _extract(video, scene, options, progress, why, hashed)
+
+    def make(why: str, hashed: dict) -> FrameIndex:
+        log.info("%s: extracting frames: %s", scene, why)
+        with writing_into(scene, [FRAMES_DIR, FRAMES_INDEX]):     # a user's frames.json or frames/: refused
+            return _extract(video, scene, options, progress, why)
+
+    index, _ = produce(scene / FRAMES_INDEX, FRAMES_STAGE, frame_inputs(video), frame_settings(options), make,
+                       lambda: read_frame_index(scene), force=force,
+                       made=lambda index: [scene / FRAMES_DIR / name for name in index.names])  # one deleted: redone
+    return index
 
 
-def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str, hashed: dict) -> FrameIndex:
-    """The body of :func:`extract_frames` once it decided to decode ``video`` (``why``)."""
+def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str) -> FrameIndex:
+    """The body of :func:`extract_frames` once it decided to decode ``video`` (``why``): the
+    frames and ``frames.json`` written (the record is :func:`~mvm.io.provenance.produce`'s)."""
     index_path = scene / FRAMES_INDEX
     frames_dir = scene / FRAMES_DIR
-    forget(index_path)
     rule = options.rule
     if rule == "all":
         numbers, sharp, size, fps = _decode_sampled(video, options, progress, frames_dir=frames_dir)
@@ -356,8 +346,6 @@ def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str
     document = index.to_json()
     document["options"] = asdict(options)
     atomic_write_json(index_path, document, pretty=True)
-    write_record(index_path, FRAMES_STAGE, frame_inputs(video), _frame_settings(options), hashed,
-                 made=[frames_dir / name for name in index.names])    # a frame deleted since: redone
     return index
 
 

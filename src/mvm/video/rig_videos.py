@@ -33,7 +33,7 @@ from mvm.io.checks import integer, load_json
 from mvm.io.files import OutputError, atomic_write_json
 from mvm.io.images import frame_count_bound, over_frame_limit
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
-from mvm.io.provenance import RECORD_SUFFIX, fingerprints, forget, read_record, why_redo, write_record
+from mvm.io.provenance import RECORD_SUFFIX, fingerprints, produce, read_record, why_redo
 from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
 from mvm.video.detectors import FrameDetector, check_models, make_detector
 
@@ -220,6 +220,36 @@ def _kept(camera: str, path: Path, rig_dir: Path) -> CameraPoses:
     return CameraPoses(camera, path, video, poses, None)
 
 
+def _plan(rig_dir: Path, videos: dict[str, Path], checkpoint, settings: dict, force: bool) -> list[tuple]:
+    """``(camera, video, pose file, inputs, their fingerprints, why)`` of every camera (why None:
+    its pose file is up to date); a pose folder in the way, or a pose file mvm did not make
+    (unless ``force``), refused in one line."""
+    plan = []
+    for camera, video in videos.items():
+        out = rig_dir / POSE_DIR / f"{camera}.json"
+        if (rig_dir / POSE_DIR / camera).is_dir():
+            raise InputError(rig_dir / POSE_DIR / camera, None, f"camera {camera} already has a pose folder here; "
+                                                              f"move it away to detect {video.name}")
+        if out.is_file() and not force and read_record(out) is None:
+            raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to "
+                                        "replace them")
+        inputs = _inputs(video, checkpoint)
+        hashed = fingerprints(inputs)
+        why = "forced" if force else why_redo(out, inputs, settings, RIG_DETECT_STAGE, hashed=hashed)
+        plan.append((camera, video, out, inputs, hashed, why))
+    return plan
+
+
+def rig_detect_reason(rig_dir: str | Path, checkpoint: str | Path | None = None,
+                      options: DetectOptions = DetectOptions(detector="rtmo")) -> str | None:
+    """Why :func:`detect_rig_videos` would detect a camera again, ``camera NAME: WHY`` of the
+    first (None: every pose file is up to date)."""
+    rig_dir = Path(rig_dir)
+    plan = _plan(rig_dir, rig_videos(rig_dir), checkpoint, detect_settings(options.detector, None,
+                                                                           replace(options, appearance="none")), False)
+    return next((f"camera {camera}: {why}" for camera, *_, why in plan if why is not None), None)
+
+
 def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
                       options: DetectOptions = DetectOptions(detector="rtmo"), force: bool = False,
                       progress: Callable[[str, int, int], None] | None = None) -> list[CameraPoses]:
@@ -246,19 +276,7 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         raise OutputError(rig_dir / POSE_DIR, None, "cannot write: exists and is not a folder (the cameras' pose "
                                                     "files go in it): move it away")
     settings = detect_settings(kind, None, options)
-    plan = []
-    for camera, video in videos.items():
-        out = rig_dir / POSE_DIR / f"{camera}.json"
-        if (rig_dir / POSE_DIR / camera).is_dir():
-            raise InputError(rig_dir / POSE_DIR / camera, None, f"camera {camera} already has a pose folder here; "
-                                                              f"move it away to detect {video.name}")
-        if out.is_file() and not force and read_record(out) is None:
-            raise InputError(out, None, "2D poses mvm did not make (no record of their inputs): give --force to "
-                                        "replace them")
-        inputs = _inputs(video, checkpoint)
-        hashed = fingerprints(inputs)
-        why = "forced" if force else why_redo(out, inputs, settings, RIG_DETECT_STAGE, hashed=hashed)
-        plan.append((camera, video, out, inputs, hashed, why))
+    plan = _plan(rig_dir, videos, checkpoint, settings, force)
     probed = {camera: probe_video(video, camera, rig_dir) for camera, video, _, _, _, why in plan if why is not None}
     rates = {c: i.frame_rate for c, i in probed.items() if i.frame_rate is not None}
     if rates and max(rates.values()) > min(rates.values()) * (1 + 1e-3):
@@ -282,9 +300,9 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         if not len(poses.keypoints):
             empty.append((camera, video, info.frames))
             continue
-        forget(out)
-        atomic_write_json(out, document)
-        write_record(out, RIG_DETECT_STAGE, inputs, settings, hashed)
+        produce(out, RIG_DETECT_STAGE, inputs, settings,                 # decided above, with the other cameras
+                lambda why, _, out=out, document=document: atomic_write_json(out, document), None, force=True,
+                hashed=hashed)
         done.append(CameraPoses(camera, out, info, len(poses.keypoints), why))
     if short:
         camera, video, frames, announced = short[0]

@@ -20,7 +20,7 @@ from mvm.io.checks import load_json_object
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
 from mvm.io.outputs import atomic_replace_dir
-from mvm.io.provenance import fingerprints, forget, read_record, why_redo, write_record
+from mvm.io.provenance import produce, read_record
 from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
 
 log = logging.getLogger(__name__)
@@ -205,6 +205,27 @@ def sfm_settings(options: SfmOptions) -> dict:
     return {"source": "sfm", **settings}
 
 
+def camera_inputs(scene: str | Path, cameras: str | Path | None = None,
+                  options: SfmOptions | None = None) -> tuple[dict, dict]:
+    """``(inputs, settings)`` of ``scene/sparse`` (:mod:`mvm.io.provenance`): made by SfM from
+    the frames with ``options`` (``cameras`` None), imported from the COLMAP model ``cameras``
+    (a folder; with the scene's ``frames.json``, which selects its images; nothing when it is
+    ``scene/sparse`` itself), or from the camera file ``cameras`` and ``frames.json``."""
+    scene = Path(scene)
+    if cameras is None:
+        return sfm_inputs(scene), sfm_settings(options or SfmOptions())
+    if not Path(cameras).is_dir():
+        return {"cameras": Path(cameras), FRAMES_INDEX: scene / FRAMES_INDEX}, {"source": "trajectory"}
+    from mvm.io.colmap import find_model_dir
+
+    if Path(cameras).resolve() == (scene / "sparse").resolve():
+        return {}, {"source": "colmap"}
+    inputs = {"cameras": find_model_dir(Path(cameras))}
+    if (scene / FRAMES_INDEX).is_file():
+        inputs[FRAMES_INDEX] = scene / FRAMES_INDEX
+    return inputs, {"source": "colmap"}
+
+
 def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
     """Refuse to replace ``scene/sparse`` without ``force`` when mvm did not make it (a model
     imported by hand, a simulated scene's cameras), or when it holds imported cameras and
@@ -223,10 +244,15 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
 
 
 def _replace_model(scene: Path, write) -> None:
-    """Put the model ``write(folder)`` makes in place of ``scene/sparse``; its scale is SfM's again."""
-    forget(scene / SFM_DIR / SFM_REPORT)
+    """Put the model ``write(folder)`` makes in place of ``scene/sparse`` (the report's record
+    already removed); its scale is SfM's again."""
     atomic_replace_dir(write, scene / "sparse", replace_unmarked=True)
     (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+
+
+def _model_made(scene: Path) -> bool:
+    """Whether the cameras are there: the model and its report."""
+    return (scene / SFM_DIR / SFM_REPORT).is_file() and (scene / "sparse").is_dir()
 
 
 #: The stages of :func:`run_sfm` as its ``progress`` names them.
@@ -246,8 +272,6 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     (total done; features and matching have no count in between), and the mapping counts
     every frame it registers out of the frames.
     """
-    import time
-
     import pycolmap
 
     # COLMAP's own log follows this module's level: its INFO lines only with debug output
@@ -256,12 +280,17 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     report_path = scene / SFM_DIR / SFM_REPORT
     settings = sfm_settings(options)
     _check_replaceable(scene, settings, force)
-    hashed = fingerprints(sfm_inputs(scene))
-    why = "forced" if force else why_redo(report_path, sfm_inputs(scene), settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
-    if why is None:
-        log.info("%s is up to date (made from these frames with these options)", report_path)
-        return read_sfm_report(scene)
+    report, _ = produce(report_path, SFM_STAGE, sfm_inputs(scene), settings,
+                        lambda why, hashed: _estimate(scene, options, why, progress), lambda: read_sfm_report(scene),
+                        force=force, exists=_model_made(scene))
+    return report
+
+
+def _estimate(scene: Path, options: SfmOptions, why: str, progress) -> SfmReport:
+    """The body of :func:`run_sfm` once it decided to estimate the cameras (``why``): the model
+    and the report written (the record is :func:`~mvm.io.provenance.produce`'s)."""
+    import time
+
     log.info("%s: estimating the cameras: %s", scene, why)
     names = list_frames(scene)
     frames_dir = scene / FRAMES_DIR
@@ -294,8 +323,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     _warn_unregistered(report, scene)
     document = report.to_json()
     document["options"] = asdict(options)
-    atomic_write_json(report_path, document, pretty=True)
-    write_record(report_path, SFM_STAGE, sfm_inputs(scene), settings, hashed)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, document, pretty=True)
     return report
 
 
@@ -338,26 +366,25 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     bytes (and the scene's ``frames.json``); a model in ``scene/sparse`` that mvm did not make is
     not replaced without ``force``. With a ``frames.json``, the images of the model that are not
     among its frames (left out by the frame selection) are left out of the scene."""
-    import pycolmap
-
     from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
     in_place = Path(model).resolve() == (scene / "sparse").resolve()
-    inputs = {"cameras": model_dir} if not in_place else {}
-    if not in_place and (scene / FRAMES_INDEX).is_file():
-        inputs[FRAMES_INDEX] = scene / FRAMES_INDEX
-    settings = {"source": "colmap"}
+    inputs, settings = camera_inputs(scene, model)
     if not in_place:
         _check_replaceable(scene, settings, force)
     report_path = scene / SFM_DIR / SFM_REPORT
-    hashed = fingerprints(inputs)
-    why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
-    if why is None and not in_place:
-        log.info("%s is up to date (imported from %s)", report_path, model_dir)
-        return read_sfm_report(scene)
+    report, _ = produce(report_path, SFM_STAGE, inputs, settings,
+                        lambda why, hashed: _import_model(model_dir, scene, in_place, why),
+                        lambda: read_sfm_report(scene), force=force, exists=_model_made(scene))
+    return report
+
+
+def _import_model(model_dir: Path, scene: Path, in_place: bool, why: str) -> SfmReport:
+    """The body of :func:`import_colmap` once it decided to import ``model_dir`` (``why``)."""
+    import pycolmap
+
     try:
         rec = pycolmap.Reconstruction(str(model_dir))
     except Exception as e:  # pycolmap raises several types with C++ context
@@ -370,8 +397,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     report = _report(rec, names, f"colmap:{model_dir}")
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(report_path, report.to_json(), pretty=True)
-    write_record(report_path, SFM_STAGE, inputs, settings, hashed)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
     return report
 
 
@@ -389,22 +415,23 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     matched to the frames of ``scene`` by timestamp (within half a frame), written to
     ``scene/sparse``. Frames without a line are excluded with a warning. Kept when already
     made from these bytes and frames; a model mvm did not make is not replaced without ``force``."""
+    scene = Path(scene)
+    inputs, settings = camera_inputs(scene, path)
+    _check_replaceable(scene, settings, force)
+    report_path = scene / SFM_DIR / SFM_REPORT
+    report, _ = produce(report_path, SFM_STAGE, inputs, settings,
+                        lambda why, hashed: _trajectory_model(Path(path), scene, why), lambda: read_sfm_report(scene),
+                        force=force, exists=_model_made(scene))
+    return report
+
+
+def _trajectory_model(path: Path, scene: Path, why: str) -> SfmReport:
+    """The body of :func:`import_trajectory` once it decided to match ``path``'s cameras (``why``)."""
     from mvm.core.scene import Cameras
     from mvm.io.colmap import write_colmap
     from mvm.io.trajectory import read_trajectory
     from mvm.video.frames import read_frame_index
 
-    scene = Path(scene)
-    inputs = {"cameras": Path(path), FRAMES_INDEX: scene / FRAMES_INDEX}
-    settings = {"source": "trajectory"}
-    _check_replaceable(scene, settings, force)
-    report_path = scene / SFM_DIR / SFM_REPORT
-    hashed = fingerprints(inputs)
-    why = "forced" if force else why_redo(report_path, inputs, settings, SFM_STAGE,
-                                          exists=report_path.is_file() and (scene / "sparse").is_dir(), hashed=hashed)
-    if why is None:
-        log.info("%s is up to date (imported from %s)", report_path, path)
-        return read_sfm_report(scene)
     traj = read_trajectory(path)
     index = read_frame_index(scene)
     tolerance = 0.5 / index.fps if index.fps > 0 else 0.02
@@ -425,8 +452,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
                        float(np.mean(cameras.focal)), 0, cameras.centers)
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(report_path, report.to_json(), pretty=True)
-    write_record(report_path, SFM_STAGE, inputs, settings, hashed)
+    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
     return report
 
 

@@ -1,0 +1,87 @@
+"""``reconstruct``: the 3D poses of the scene (:func:`mvm.scenes.reconstruct_read`), its world
+scaled to metres from the people's bone lengths (:func:`mvm.video.metric_scale.apply_metric_scale`)
+before ``poses3d.json`` is written, once, under the output folder's lock."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mvm.stages.stage import Done, Job, Stage, present
+
+POSES3D = "poses3d.json"
+
+
+@dataclass
+class Reconstruction:
+    """What ``reconstruct`` made or kept: the number of ``persons``, the scene's ``metrics``,
+    the ``scale`` record (:class:`mvm.video.metric_scale.ScaleRecord`) and the file's ``path``."""
+
+    persons: int
+    metrics: dict
+    scale: object
+    path: Path
+
+
+def _poses3d(job: Job) -> Path:
+    return job.scene / job.options.output / POSES3D
+
+
+def _config(job: Job):
+    return job.options.config.for_driver("scene")
+
+
+def _inputs(job: Job) -> dict:
+    from mvm.io.scene_dir import reconstruction_inputs
+
+    return reconstruction_inputs(job.scene)
+
+
+def _settings(job: Job) -> dict:
+    from mvm.io.scene_dir import reconstruct_settings
+
+    return reconstruct_settings(_config(job), job.options.metric_scale)
+
+
+def _files(job: Job) -> list[Path]:
+    """``poses3d.json`` and the camera model as scaled with it (``sparse/``, ``sfm/scale.json``)."""
+    from mvm.video.metric_scale import SCALE_FILE, SFM_DIR
+
+    sparse = job.scene / "sparse"
+    model = sorted(p for p in sparse.rglob("*") if p.is_file()) if sparse.is_dir() else []
+    return present(_poses3d(job)) + model + present(job.scene / SFM_DIR / SCALE_FILE) if present(_poses3d(job)) \
+        else []
+
+
+def _kept(job: Job) -> Reconstruction:
+    from mvm.io.scene_dir import load_poses3d_document
+    from mvm.video.metric_scale import ScaleRecord
+
+    doc = load_poses3d_document(_poses3d(job), root=job.scene)
+    scale = (ScaleRecord(**doc["scale"]) if isinstance(doc.get("scale"), dict)
+             else ScaleRecord("none", None, None, False))
+    return Reconstruction(len(doc.get("persons", [])), doc.get("metrics", {}), scale, _poses3d(job))
+
+
+def _run(job: Job, force: bool) -> Done:
+    from mvm.io.provenance import fingerprint, produce
+    from mvm.io.scene_dir import RECONSTRUCT_STAGE, output_dir
+    from mvm.scenes import reconstruct_read, result_document, write_result
+    from mvm.video.metric_scale import apply_metric_scale
+
+    config = _config(job)
+    out_dir = output_dir(job.scene, job.options.output)
+
+    def make(why: str, hashed: dict) -> Reconstruction:
+        result, scene = reconstruct_read(job.scene, config, job.options.output)
+        scale = apply_metric_scale(job.scene, result.persons, job.options.metric_scale)
+        if scale.applied_to_model:
+            hashed["sparse"] = fingerprint(job.scene / "sparse")          # the model as scaled
+        write_result(out_dir, result_document(result, scene, config, {"scale": scale.to_json()}), result.timings)
+        return Reconstruction(len(result.persons), result.metrics, scale, _poses3d(job))
+
+    made, why = produce(_poses3d(job), RECONSTRUCT_STAGE, _inputs(job), _settings(job), make, lambda: _kept(job),
+                        force=force, lock=out_dir, lock_timeout_s=config.lock_timeout_s)
+    return Done(made, why)
+
+
+STAGE = Stage("reconstruct", "the reconstruction", ("reconstruct",), _poses3d, _inputs, _settings, _files, _run)
