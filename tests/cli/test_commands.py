@@ -85,7 +85,7 @@ def test_a_subcommand_imports_only_its_own_module():
              "finally:\n    print(json.dumps(sorted(m for m in sys.modules if m.startswith('mvm.cli.'))))\n")
     proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == ["mvm.cli.common", "mvm.cli.main", "mvm.cli.process",
-                                                              "mvm.cli.rig"]
+                                                              "mvm.cli.rig", "mvm.cli.setting_options"]
 
 
 def test_simulate_reaches_the_crowd_preset_and_real_lengths(tmp_path):

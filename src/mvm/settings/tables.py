@@ -11,7 +11,6 @@ from pathlib import Path
 
 from mvm.core.config import Config, settings_from
 from mvm.errors import InputError
-from mvm.io.checks import load_toml
 
 #: The tables of a settings file, one per settings object: ``{table: (settings, readers)}``, the
 #: settings dataclass as ``module:class`` (imported when the table is read or printed, by
@@ -38,6 +37,8 @@ TABLES = {
 def read_tables(path: str | Path) -> dict[str, dict]:
     """The tables of the settings file ``path``: ``{table: values}``, keys outside any table
     under ``"reconstruct"``; an unknown table raises an InputError naming the file."""
+    from mvm.io.checks import load_toml  # numpy: not for the help of the options of settings
+
     path = Path(path)
     tables: dict[str, dict] = {}
     flat: dict = {}
