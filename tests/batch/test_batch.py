@@ -57,19 +57,15 @@ def make_root(root: Path, n: int = 9, people=(2, 3), frames=(12, 16), broken: bo
 
 def truth_error_mm(root: Path, cid: str) -> tuple[int, int, float]:
     """(persons found within 0.5 m, true persons, MPJPE mm) of a clip's result against its truth.
-
-    The truth is in the world of the clip's cameras as simulated; the batch scaled that world
-    to metres from the people's bones (s*, recorded in ``poses3d.json``), so the result is
-    taken back to it first. That s* is itself within 15 % of 1 (the simulation is in metres;
-    its people are not all of the mean adult build)."""
+    A scene directory's cameras are its owner's: the batch records their scale from the people's
+    bones but never rewrites them, so the result is in the simulation's metres."""
     truth = read_ground_truth(root / f"{cid}.groundtruth.json")
     path = root / cid / "mvm" / "poses3d.json"
     scale = json.loads(path.read_text())["scale"]
-    s = scale["sfm_metres_per_unit"] if scale["applied_to_model"] else 1.0
-    assert abs(s - 1) < 0.15, (cid, scale)
-    keypoints3d = read_poses3d(path).keypoints3d / s
-    pairs = match_persons(keypoints3d, truth.poses3d, 0.5)
-    return len(pairs), len(truth.poses3d), 1000 * pose_errors(keypoints3d, truth.poses3d, pairs)["mpjpe"]
+    assert not scale["applied_to_model"] and abs(scale["sfm_metres_per_unit"] - 1) < 0.15, (cid, scale)
+    persons = read_poses3d(path)
+    pairs = match_persons(persons.keypoints3d, truth.poses3d, 0.5)
+    return len(pairs), len(truth.poses3d), 1000 * pose_errors(persons.keypoints3d, truth.poses3d, pairs)["mpjpe"]
 
 
 def states(root: Path) -> dict:

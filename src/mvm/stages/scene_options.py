@@ -46,7 +46,9 @@ class SceneOptions:
     #: The pose network's checkpoint for ``detect``; None: a detector, or imported detections. [path]
     checkpoint: str | None = None
     #: ``reconstruct``: scale the world (``sparse/`` and the 3D poses) to metres from the
-    #: people's bone lengths; false: the scale is only recorded in ``poses3d.json``. [-]
+    #: people's bone lengths; false: the scale is only recorded in ``poses3d.json``. A clip
+    #: without a video is a scene directory whose cameras are its owner's: they are never
+    #: rewritten, its scale only recorded. [-]
     metric_scale: bool = True
     #: ``export``: persons with fewer labelled joints in a frame get no annotation. [joints]
     min_keypoints: int = setting(3, ge=1, le=17)

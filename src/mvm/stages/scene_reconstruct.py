@@ -36,10 +36,16 @@ def _inputs(job: Job) -> dict:
     return reconstruction_inputs(job.scene)
 
 
+def _metric_scale(job: Job) -> bool:
+    """Whether the world is scaled to metres: asked for, and the cameras are the clip's own
+    (made from its video); a scene directory's cameras are its owner's, and stay as they are."""
+    return job.options.metric_scale and job.video is not None
+
+
 def _settings(job: Job) -> dict:
     from mvm.io.scene_dir import reconstruct_settings
 
-    return reconstruct_settings(_config(job), job.options.metric_scale)
+    return reconstruct_settings(_config(job), _metric_scale(job))
 
 
 def _files(job: Job) -> list[Path]:
@@ -73,7 +79,7 @@ def _run(job: Job, force: bool) -> Done:
 
     def make(why: str, hashed: dict) -> Reconstruction:
         result, scene = reconstruct_read(job.scene, config, job.options.output)
-        scale = apply_metric_scale(job.scene, result.persons, job.options.metric_scale)
+        scale = apply_metric_scale(job.scene, result.persons, _metric_scale(job))
         if scale.applied_to_model:
             hashed["sparse"] = fingerprint(job.scene / "sparse")          # the model as scaled
         write_result(out_dir, result_document(result, scene, config, {"scale": scale.to_json()}), result.timings)
