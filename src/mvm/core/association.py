@@ -30,7 +30,7 @@ from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained, pose_groups
 from mvm.core.names import natural_key
-from mvm.core.pose_distance import person_chunks, project_persons, reprojection_cost
+from mvm.core.pose_distance import person_chunks, project_in_views, reprojection_cost
 
 #: In the video cue, per-joint distances are clipped to this many gates: a wrong or swapped
 #: joint weighs like a few ordinary ones, never like the whole pose.
@@ -147,7 +147,7 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
     count = np.zeros(len(X), dtype=np.int64)
     for rows in person_chunks(len(X), len(P)):
-        uv, seen = project_persons(X[rows], P)                                       # (q, F, J, 2), (q, F, J)
+        uv, seen = project_in_views(X[rows], P)                                     # (q, F, J, 2), (q, F, J)
         with np.errstate(invalid="ignore"):
             inside = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
         count[rows] = (inside.sum(-1) * 2 >= known[rows, None]).sum(1)

@@ -66,8 +66,9 @@ def project_views(cameras: Cameras, points: np.ndarray) -> tuple[np.ndarray, np.
     ``points: (..., 3)`` -> pixels ``(V, ..., 2)`` and depths ``(V, ...)``.
     """
     points = np.asarray(points, dtype=float)
-    P = cameras.P.reshape((len(cameras),) + (1,) * (points.ndim - 1) + (3, 4))
-    return project_with_matrices(points[None], P)
+    pixels, depth = project_with_matrices(points.reshape(1, -1, 3), cameras.P)
+    shape = (len(cameras),) + points.shape[:-1]
+    return pixels.reshape(shape + (2,)), depth.reshape(shape)
 
 
 def has_lens(distortion: np.ndarray | None) -> bool:
