@@ -6,7 +6,11 @@ camera ``x_cam = R X + t``, projection matrices ``P = K [R | t]``, pixels of the
 
 A lens is a vector of OpenCV coefficients: ``[k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[,
 tx, ty]]]]]`` (4, 5, 8, 12 or 14 numbers), or with ``fisheye`` OpenCV's fisheye model ``[k1, k2,
-k3, k4]``. An empty or all-zero vector is no lens: the pixels stay as they are.
+k3, k4]``. An empty vector, or an all-zero one of the first model, is no lens: the pixels stay
+as they are. Every lens of mvm is one of these (COLMAP's models are converted when read,
+:mod:`mvm.io.colmap`), and goes through :func:`distort` and :func:`undistort` (OpenCV);
+:func:`distort_views` and :func:`undistort_views` apply the lens of each view of
+:class:`~mvm.core.scene.Cameras`.
 
 Every projection in mvm comes down to :func:`mvm.core.geometry.project` (``P`` matrices); this
 module builds ``P`` from ``K, R, t`` and adds the lens.
@@ -71,9 +75,12 @@ def project_views(cameras: Cameras, points: np.ndarray) -> tuple[np.ndarray, np.
     return pixels.reshape(shape + (2,)), depth.reshape(shape)
 
 
-def has_lens(distortion: np.ndarray | None) -> bool:
-    """Whether ``distortion`` moves any pixel (not None, not empty, not all zero)."""
-    return distortion is not None and bool(np.any(np.asarray(distortion, dtype=float)))
+def has_lens(distortion: np.ndarray | None, fisheye: bool = False) -> bool:
+    """Whether ``distortion`` moves any pixel: not None, not empty, and a fisheye lens or not
+    all zero."""
+    if distortion is None or not np.size(distortion):
+        return False
+    return bool(fisheye) or bool(np.any(np.asarray(distortion, dtype=float)))
 
 
 def _finite_rows(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +101,7 @@ def undistort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fish
             return cv2.fisheye.undistortPoints(flat, K, d, P=K)
         return cv2.undistortPoints(flat, K, d, R=None, P=K, criteria=UNDISTORT_CRITERIA)
 
-    return _through_lens(xy, distortion, move)
+    return _through_lens(xy, distortion, fisheye, move)
 
 
 def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fisheye: bool = False) -> np.ndarray:
@@ -108,19 +115,44 @@ def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fishey
         project_points = cv2.fisheye.projectPoints if fisheye else cv2.projectPoints
         return project_points(rays, zero, zero, K, d)[0]
 
-    return _through_lens(xy, distortion, move)
+    return _through_lens(xy, distortion, fisheye, move)
 
 
-def _through_lens(xy: np.ndarray, distortion: np.ndarray | None, move) -> np.ndarray:
+def _through_lens(xy: np.ndarray, distortion: np.ndarray | None, fisheye: bool, move) -> np.ndarray:
     """``move(points: (n, 2), distortion) -> (n, 1, 2)`` applied to the finite points of
     ``xy: (..., 2)`` (NaN stays NaN); a copy of ``xy`` when the camera has no lens."""
     xy = np.asarray(xy, dtype=float)
-    if not has_lens(distortion):
+    if not has_lens(distortion, fisheye):
         return xy.copy()
     points, finite = _finite_rows(xy)
     out = np.full(xy.shape, np.nan)
     if len(points):
         out[finite] = move(points, np.asarray(distortion, dtype=float).reshape(-1)).reshape(-1, 2)
+    return out
+
+
+def undistort_views(cameras: Cameras, xy: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Undo the lens of each view: distorted pixels ``xy: (N, ..., 2)`` seen in ``view: (N,)``
+    (indices into ``cameras``) -> pixels ``(N, ..., 2)`` of each view's pinhole ``K`` (NaN stays
+    NaN; :func:`undistort`)."""
+    return _views_through_lens(cameras, xy, view, undistort)
+
+
+def distort_views(cameras: Cameras, xy: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Apply the lens of each view (the inverse of :func:`undistort_views`): pinhole pixels
+    ``xy: (N, ..., 2)`` of ``view: (N,)`` -> distorted pixels ``(N, ..., 2)`` (:func:`distort`)."""
+    return _views_through_lens(cameras, xy, view, distort)
+
+
+def _views_through_lens(cameras: Cameras, xy: np.ndarray, view: np.ndarray, lens) -> np.ndarray:
+    """``lens(xy, K, distortion, fisheye)`` applied to the rows of ``xy: (N, ..., 2)`` of each
+    view of ``view: (N,)``."""
+    out = np.array(xy, dtype=float)
+    view = np.asarray(view)
+    for v in np.unique(view):
+        if has_lens(cameras.distortion[v], cameras.fisheye[v]):
+            rows = view == v
+            out[rows] = lens(out[rows], cameras.K[v], cameras.distortion[v], bool(cameras.fisheye[v]))
     return out
 
 
