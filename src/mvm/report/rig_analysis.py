@@ -206,7 +206,7 @@ def compare_with_truth(X: np.ndarray, flags: np.ndarray, instant: np.ndarray, ra
     ``angle_error (Q, A)`` degrees and ``track_angle_error (K,)`` (median over observed angles).
     """
     from mvm.core.completion import FLAG_NAMES, INFERRED, INTERPOLATED
-    from mvm.metrics.poses import similarity_transform
+    from mvm.core.geometry import similarity_transform
 
     centers, true_centers = np.asarray(centers, dtype=float), np.asarray(true_centers, dtype=float)
     if np.abs(centers - true_centers).max() < 1e-3:
