@@ -107,7 +107,9 @@ class Observations:
         ``X: (P, J, 3)`` in every slot's view (:func:`mvm.core.geometry.project`); 0 and 1
         where not fitted."""
         uv, z = project(X[:, None], self.P)                                            # (P, M, J, 2)
-        return np.where(self.fit[:, :, None], np.swapaxes(uv, 2, 3), 0.0), np.where(self.fit, z, 1.0)
+        out = np.zeros(z.shape[:2] + (2, z.shape[2]))                   # C order: normal_terms' layout
+        np.copyto(out, np.swapaxes(uv, 2, 3), where=self.fit[:, :, None])
+        return out, np.where(self.fit, z, 1.0)
 
     def reprojection(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual pixels ``(P, M, J, 2)`` and depths ``(P, M, J)`` of the keypoints at joints
