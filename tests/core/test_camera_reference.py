@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mvm.core.camera import distort_views, has_lens, project, undistort_views
+from mvm.core.camera import distort_views, has_lens, project_camera, undistort_views
 from mvm.core.geometry import project as project_with_matrices
 
 from helpers import random_cameras
@@ -67,7 +67,7 @@ def test_projection_with_a_lens_is_opencv_and_the_loop(lens, fisheye):
     cams = random_cameras(rng, 3)
     X = rng.uniform(-1, 1, (2, 17, 3)) + [0, 0, 1]
     for v in range(3):
-        pixels, depth = project(X, cams.K[v], cams.R[v], cams.t[v], lens, fisheye)
+        pixels, depth = project_camera(X, cams.K[v], cams.R[v], cams.t[v], lens, fisheye)
         rvec = cv2.Rodrigues(cams.R[v])[0]
         opencv = cv2.fisheye.projectPoints if fisheye else cv2.projectPoints
         expected = opencv(X.reshape(-1, 1, 3), rvec, cams.t[v], cams.K[v], lens)[0].reshape(2, 17, 2)
@@ -87,7 +87,7 @@ def test_each_view_has_its_own_lens_and_undistortion_inverts_it():
                                fisheye=[f for _, f in LENSES] + [False])
     X = rng.uniform(-1, 1, (12, 17, 3)) + [0, 0, 1]
     view = rng.integers(0, 4, 12)
-    pinhole = np.stack([project(X[n], cams.K[v], cams.R[v], cams.t[v])[0] for n, v in enumerate(view)])
+    pinhole = np.stack([project_camera(X[n], cams.K[v], cams.R[v], cams.t[v])[0] for n, v in enumerate(view)])
     distorted = distort_views(cams, pinhole, view)
     for n, v in enumerate(view):
         by_hand = [_pixel_by_hand(p, cams.K[v], cams.R[v], cams.t[v], cams.distortion[v], cams.fisheye[v])[:2]
@@ -101,6 +101,6 @@ def test_a_fisheye_lens_without_coefficients_is_the_equidistant_lens():
     assert has_lens(np.zeros(4), fisheye=True) and not has_lens(np.zeros(4)) and not has_lens(np.zeros(0), True)
     K, R, t = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]]), np.eye(3), np.zeros(3)
     X = np.array([[0.8, -0.5, 1.0]])                                                  # 43° off the axis
-    pixels, _ = project(X, K, R, t, np.zeros(4), True)
+    pixels, _ = project_camera(X, K, R, t, np.zeros(4), True)
     np.testing.assert_allclose(pixels[0], _pixel_by_hand(X[0], K, R, t, np.zeros(4), True)[:2], atol=1e-6)
-    assert np.abs(pixels - project(X, K, R, t)[0]).max() > 50
+    assert np.abs(pixels - project_camera(X, K, R, t)[0]).max() > 50

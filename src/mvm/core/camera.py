@@ -16,7 +16,7 @@ Every projection in mvm comes down to :func:`mvm.core.geometry.project` (``P`` m
 module builds ``P`` from ``K, R, t`` and adds the lens.
 
 >>> K = np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]])
->>> pixels, depth = project(np.array([0.2, -0.1, 2.0]), K, np.eye(3), np.zeros(3))
+>>> pixels, depth = project_camera(np.array([0.2, -0.1, 2.0]), K, np.eye(3), np.zeros(3))
 >>> pixels, float(depth)
 (array([60., 35.]), 2.0)
 """
@@ -45,7 +45,7 @@ def projection_matrix(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray
     return np.asarray(K, dtype=float) @ np.concatenate([R, t[..., :, None]], axis=-1)
 
 
-def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+def project_camera(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
             distortion: np.ndarray | None = None, fisheye: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Project world points into one camera.
 
@@ -174,7 +174,7 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
     if reference not in ("image", "person"):
         raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
     X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
-    uv, z = project(X, K, R, t)                                            # (P, 17, 2), (P, 17)
+    uv, z = project_camera(X, K, R, t)                                            # (P, 17, 2), (P, 17)
     w, h = float(size[0]), float(size[1])
     ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
           & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))
