@@ -73,8 +73,8 @@ def make_rig(data: Path, rig: Path, detections: str) -> None:
 
 def centre_errors_mm(calib: Path, reference: Path) -> np.ndarray:
     """Each camera centre's distance to the reference's, after the best similarity, in mm."""
-    est = read_calibration(calib)[0].cameras
-    ref = read_calibration(reference)[0].cameras
+    est = read_calibration(calib).cameras
+    ref = read_calibration(reference).cameras
     index = [est.names.index(n) for n in ref.names]
     s, R, t = similarity_transform(est.centers[index], ref.centers)
     moved = s * est.centers[index] @ R.T + t

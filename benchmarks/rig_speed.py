@@ -15,6 +15,7 @@ Then the ``mvm rig reconstruct`` command in fresh processes (imports included; b
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -41,8 +42,8 @@ def write_capture(root: Path, cameras: int, people: int, instants: int, seed: in
     rig = ring_cameras(cameras)
     rng = np.random.default_rng(seed)
     truth = walking_people(people, instants, rng)
-    write_calib_toml(root / "Calib.toml", RigCalibration(rig, tuple(np.zeros(4) for _ in range(cameras)),
-                                                         np.zeros(cameras, bool)))
+    write_calib_toml(root / "Calib.toml",
+                     RigCalibration(dataclasses.replace(rig, distortion=tuple(np.zeros(4) for _ in range(cameras)))))
     for t in range(instants):
         kp, cam, _ = detect_views(rig, truth[t], rng)
         for v, name in enumerate(rig.names):

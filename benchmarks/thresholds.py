@@ -64,7 +64,7 @@ def rig_detections(sample, index, seed: int, errors: DetectorErrors):
     rng = np.random.default_rng(seed)
     kps, cams, inst, persons = [], [], [], []
     for t, X in enumerate(sample.poses):
-        k, c, g = detect_views(calibration.cameras, X, rng, errors, calibration.distortions)
+        k, c, g = detect_views(calibration.cameras, X, rng, errors)
         kps.append(k)
         cams.append(c)
         inst.append(np.full(len(c), t))

@@ -204,8 +204,8 @@ def write_true_calibration(path: Path, cameras: list, names: list) -> Path:
 
     write_calib_toml(path, RigCalibration(
         Cameras(np.array([c.K for c in cameras]), np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
-                np.array([SIZE] * len(cameras), float), tuple(names)),
-        tuple(c.distortion for c in cameras), np.array([c.fisheye for c in cameras])))
+                np.array([SIZE] * len(cameras), float), tuple(names), tuple(c.distortion for c in cameras),
+                np.array([c.fisheye for c in cameras]))))
     return path
 
 

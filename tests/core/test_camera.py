@@ -6,7 +6,15 @@ import cv2
 import numpy as np
 import pytest
 
-from mvm.core.camera import UNDISTORT_CRITERIA, distort, has_lens, project, project_views, projection_matrix, undistort
+from mvm.core.camera import (
+    UNDISTORT_CRITERIA,
+    distort,
+    has_lens,
+    project_camera,
+    project_views,
+    projection_matrix,
+    undistort,
+)
 
 from helpers import random_cameras
 
@@ -18,7 +26,7 @@ def test_project_by_hand():
     R = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])
     t = np.array([0.0, 0.0, 2.0])
     K1 = np.array([[100.0, 0, 50], [0, 200, 40], [0, 0, 1]])
-    pixels, depth = project(np.array([[0.4, 0.2, 2.0], [0.0, 0.0, -3.0]]), K1, R, t)
+    pixels, depth = project_camera(np.array([[0.4, 0.2, 2.0], [0.0, 0.0, -3.0]]), K1, R, t)
     # x_cam = R X + t = (-0.2, 0.4, 4): u = 100 * -0.05 + 50, v = 200 * 0.1 + 40.
     np.testing.assert_allclose(pixels[0], [45.0, 60.0])
     np.testing.assert_allclose(depth, [4.0, -1.0])                 # the second point is behind
@@ -30,7 +38,7 @@ def test_project_with_a_lens_is_opencv(dist):
     rng = np.random.default_rng(4)
     rvec, t = rng.normal(0, 0.3, 3), np.array([0.1, -0.2, 4.0])
     X = rng.uniform(-1, 1, (5, 17, 3))
-    pixels, depth = project(X, K, cv2.Rodrigues(rvec)[0], t, np.array(dist))
+    pixels, depth = project_camera(X, K, cv2.Rodrigues(rvec)[0], t, np.array(dist))
     expected, _ = cv2.projectPoints(X.reshape(-1, 1, 3), rvec, t, K, np.array(dist))
     np.testing.assert_allclose(pixels, expected.reshape(5, 17, 2), atol=1e-6)
     assert depth.shape == (5, 17) and (depth > 0).all()
@@ -44,7 +52,7 @@ def test_project_views_is_every_camera_and_nan_stays_nan():
     pixels, depth = project_views(cams, X)
     assert pixels.shape == (4, 3, 17, 2) and depth.shape == (4, 3, 17)
     for v in range(4):
-        one, z = project(X, cams.K[v], cams.R[v], cams.t[v])
+        one, z = project_camera(X, cams.K[v], cams.R[v], cams.t[v])
         np.testing.assert_allclose(pixels[v], one, rtol=1e-12, equal_nan=True)
         np.testing.assert_allclose(depth[v], z, rtol=1e-12, equal_nan=True)
     assert np.isnan(pixels[:, 1, 5]).all() and np.isfinite(pixels[:, 1, 4]).all()

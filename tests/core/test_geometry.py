@@ -37,7 +37,7 @@ def test_epipolar_distance_zero_for_same_person_and_resolution_invariant():
     cams = random_cameras(rng, 5)
     person = rng.uniform([-0.5, -0.5, 0], [0.5, 0.5, 1.8], size=(17, 3))
     other = person + np.array([0.0, 0.0, 0.3])                                # a head taller
-    uv, _ = project(np.stack([person, other])[None], cams.P[:, None, None])    # (V, 2, 17, 2)
+    uv, _ = project(np.stack([person, other])[None], cams.P[:, None])    # (V, 2, 17, 2)
     kp = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], -1).reshape(10, 17, 3)
     view = np.repeat(np.arange(5), 2)
     D = epipolar_distance(cams, kp, view, 0.1, 0.01)

@@ -59,7 +59,7 @@ def test_a_person_seen_in_many_views_triangulates_as_well_from_a_spread_subset()
     rng = np.random.default_rng(1)
     cams = random_cameras(rng, 400, arc_deg=120)
     people = np.stack([STANDING, STANDING + [1.0, 0.2, 0.0]])
-    uv, _ = project(people[None], cams.P[:, None, None])
+    uv, _ = project(people[None], cams.P[:, None])
     uv = uv + rng.normal(0, 0.5, uv.shape)
     outliers = rng.uniform(size=uv.shape[:-1]) < 0.2
     uv[outliers] += rng.uniform(60, 200, (outliers.sum(), 2))

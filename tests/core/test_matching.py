@@ -50,7 +50,7 @@ def _close_pair_scene(seed: int, separation: float):
     cams = random_cameras(rng, V, arc_deg=70)
     axis = np.cross(cams.centers.mean(0) / np.linalg.norm(cams.centers.mean(0)), [0, 0, 1.0])
     people = np.stack([STANDING + separation / 2 * axis, STANDING - separation / 2 * axis])
-    uv, _ = project(people[None], cams.P[:, None, None])
+    uv, _ = project(people[None], cams.P[:, None])
     uv += rng.normal(0, 2.0, uv.shape)
     kp = np.concatenate([uv, rng.uniform(0.6, 1.0, uv.shape[:-1] + (1,))], -1).reshape(2 * V, 17, 3)
     view = np.repeat(np.arange(V), 2)
@@ -81,7 +81,7 @@ def _rig_instants(rng: np.random.Generator, instants: int = 12):
     for t in range(instants):
         G = int(rng.integers(1, 5))
         people = STANDING[None] + np.array([[2.0 * g - 3, rng.uniform(-1, 1), 0] for g in range(G)])[:, None]
-        uv, _ = project(people[None], cams.P[:, None, None])                 # (V, G, 17, 2)
+        uv, _ = project(people[None], cams.P[:, None])                 # (V, G, 17, 2)
         seen = rng.uniform(size=(5, G)) < 0.8                                # some people missed
         kp = np.concatenate([uv + rng.normal(0, 1.0, uv.shape), np.ones(uv.shape[:-1] + (1,))], -1)[seen]
         keypoints.append(kp)

@@ -35,7 +35,7 @@ def _capture(seed: int, persons: int = 3, views: int = 6, noise: float = 2.0):
     rng = np.random.default_rng(seed)
     cams = random_cameras(rng, views, arc_deg=70)
     truth = STANDING[None] + np.array([[0.9 * i, 0.3 * (i % 2), 0.0] for i in range(persons)])[:, None]
-    uv, _ = project(truth[:, None], cams.P[None, :, None])                        # (P, V, 17, 2)
+    uv, _ = project(truth[:, None], cams.P)                        # (P, V, 17, 2)
     xy = uv + rng.normal(0, noise, uv.shape)
     conf = rng.uniform(0.4, 1.0, uv.shape[:-1])
     P = np.broadcast_to(cams.P[None], (persons, views, 3, 4)).copy()

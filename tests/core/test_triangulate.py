@@ -14,7 +14,7 @@ from helpers import STANDING, random_cameras
 def _observe(cams, people, rng, noise=0.0, outlier_frac=0.0):
     """Every person seen in every view: poses (V*G), groups, outlier mask (V, G, 17)."""
     V, G = len(cams), len(people)
-    uv, _ = project(people[None], cams.P[:, None, None])                     # (V, G, 17, 2)
+    uv, _ = project(people[None], cams.P[:, None])                     # (V, G, 17, 2)
     uv = uv + rng.normal(0, noise, uv.shape) if noise else uv
     outliers = rng.uniform(size=uv.shape[:-1]) < outlier_frac
     uv[outliers] += rng.uniform(60, 200, (outliers.sum(), 2)) * rng.choice([-1, 1], (outliers.sum(), 2))

@@ -1,4 +1,6 @@
 """Calib.toml: Pose2Sim's published layout read, round trip, clear errors."""
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -50,8 +52,9 @@ def test_round_trip(tmp_path):
     R = np.stack([cv2.Rodrigues(rng.normal(size=3))[0] for _ in range(3)])
     K = np.tile(np.array([[1500.0, 0, 960], [0, 1510, 540], [0, 0, 1]]), (3, 1, 1))
     cams = Cameras(K, R, rng.normal(size=(3, 3)), np.tile([1920.0, 1080], (3, 1)), ("cam_2", "cam_10", "cam 1"))
-    calib = RigCalibration(cams, (np.array([-0.1, 0.02, 0.001, 0.0]), np.zeros(5), np.array([0.1, 0, 0, 0.01])),
-                           np.array([False, False, True]), {"adjusted": True, "error": 0.25})
+    calib = RigCalibration(dataclasses.replace(
+        cams, distortion=(np.array([-0.1, 0.02, 0.001, 0.0]), np.zeros(5), np.array([0.1, 0, 0, 0.01])),
+        fisheye=np.array([False, False, True])), {"adjusted": True, "error": 0.25})
     write_calib_toml(tmp_path / "c.toml", calib)
     back = read_calib_toml(tmp_path / "c.toml")
     assert back.cameras.names == cams.names

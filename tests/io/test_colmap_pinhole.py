@@ -36,7 +36,7 @@ def _same(a, b) -> None:
         np.testing.assert_array_equal(getattr(a.cameras, field), getattr(b.cameras, field), err_msg=field)
     assert a.cameras.names == b.cameras.names and a.models == b.models and a.unregistered == b.unregistered
     assert sorted(map(tuple, a.points3d)) == sorted(map(tuple, b.points3d))
-    assert a.colmap_cameras == () and all(a.lens(v) is None for v in range(len(a.models)))
+    assert not any(map(len, a.cameras.distortion)) and not any(map(len, b.cameras.distortion))
 
 
 @pytest.mark.parametrize("binary", [True, False])
@@ -72,7 +72,8 @@ def test_lenses_and_rigs_of_several_cameras_go_through_pycolmap(tmp_path):
     (tmp_path / "points3D.txt").write_text("")
     assert colmap._pinhole_model(check_model(tmp_path), tmp_path) is None
     model = colmap.read_colmap(tmp_path)
-    assert model.models == ("SIMPLE_RADIAL",) and model.lens(0) is model.colmap_cameras[0]
+    assert model.models == ("SIMPLE_RADIAL",)
+    np.testing.assert_array_equal(model.cameras.distortion[0], [0.01, 0, 0, 0])           # OpenCV's k1 k2 p1 p2
 
     rig = tmp_path / "rig"
     rig.mkdir()

@@ -15,6 +15,7 @@ scale (>= 10,000) and prints the counts.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import io
 import json
 import math
@@ -109,8 +110,9 @@ def make_seeds() -> dict[str, dict[str, bytes]]:
     seeds["openpifpaf"] = {"000012.predictions.json": json.dumps(
         [{"keypoints": kp[v].reshape(-1).tolist(), "bbox": [1.0, 2.0, 30.0, 80.0], "score": 0.8, "category_id": 1}
          for v in range(2)]).encode()}
-    calib = RigCalibration(cams, (np.array([-0.1, 0.01, 0.0, 0.0]), np.zeros(5), np.array([0.01, 0.0, 0.0, 0.0])),
-                           np.array([False, False, True]))
+    calib = RigCalibration(dataclasses.replace(
+        cams, distortion=(np.array([-0.1, 0.01, 0.0, 0.0]), np.zeros(5), np.array([0.01, 0.0, 0.0, 0.0])),
+        fisheye=np.array([False, False, True])))
     seeds["calib_toml"] = {"Calib.toml": calib_toml_text(calib).encode()}
     lines = ["https://www.youtube.com/watch?v=abcdefghijk"]
     for f in range(3):
@@ -211,7 +213,7 @@ def _rig_seeds() -> dict[str, bytes]:
     cams = type(cams)(cams.K, cams.R, cams.t, cams.size, names)
     kp = _projected_keypoints(cams, 2)
     files = {"Calib.toml":
-             calib_toml_text(RigCalibration(cams, (np.zeros(4), np.zeros(4)), np.zeros(2, bool))).encode()}
+             calib_toml_text(RigCalibration(dataclasses.replace(cams, distortion=(np.zeros(4), np.zeros(4))))).encode()}
     for v, name in enumerate(names):
         doc = coco_keypoints_document([f"{name}_000001.jpg", f"{name}_000002.jpg"], np.repeat(cams.size[v:v + 1], 2, 0),
                                       np.array([0, 1]), np.stack([kp[v], kp[v]]), np.full(2, 0.9))

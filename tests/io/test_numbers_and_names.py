@@ -3,6 +3,7 @@ the JSON writer policy (finite or null, relative precision), bounded frame numbe
 appearance descriptors, and the rig's pose files (read inside the rig, named in errors)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -80,8 +81,8 @@ def test_huge_appearance_descriptors_still_match(tmp_path):
 
 def _rig(root, names=("cam_1", "cam_2")):
     cameras = ring_cameras(len(names), names=names)
-    write_calib_toml(root / "Calib.toml", RigCalibration(cameras, tuple(np.zeros(4) for _ in names),
-                                                         np.zeros(len(names), bool)))
+    write_calib_toml(root / "Calib.toml",
+                     RigCalibration(dataclasses.replace(cameras, distortion=tuple(np.zeros(4) for _ in names))))
     (root / "pose").mkdir()
     kp = np.zeros((17, 3))
     kp[:, :2], kp[:, 2] = 100.0 + np.arange(17)[:, None], 0.9

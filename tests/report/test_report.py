@@ -72,7 +72,7 @@ def test_member_errors_measure_the_pixel_offset():
     X[1, :, 0] += 1.0
     view = np.array([0, 1, 2, 3])
     labels = np.array([0, 1, -1, 1])
-    uv, _ = project(X[np.maximum(labels, 0)], cams.P[view][:, None])
+    uv, _ = project(X[np.maximum(labels, 0)], cams.P[view])
     keypoints = np.concatenate([uv, np.ones((4, 17, 1))], axis=2)
     keypoints[3, 7, :2] += [3.0, 4.0]                               # 5 px off
     keypoints[1, 2, 2] = 0                                          # missing
@@ -95,7 +95,7 @@ def test_frustum_corners_project_to_image_corners():
     fr = analysis.frustums(cams.K, cams.R, cams.t, cams.size, depth=0.5)
     assert fr.shape == (3, 5, 3)
     np.testing.assert_allclose(fr[:, 0], cams.centers, atol=1e-9)
-    uv, depth = project(fr[:, 1:], cams.P[:, None])
+    uv, depth = project(fr[:, 1:], cams.P)
     np.testing.assert_allclose(uv, np.broadcast_to([[0, 0], [640, 0], [640, 480], [0, 480]], (3, 4, 2)), atol=1e-6)
     np.testing.assert_allclose(depth, 0.5, atol=1e-9)
 

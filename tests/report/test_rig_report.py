@@ -6,6 +6,7 @@ fault where it was put; the overlays land on the true joints' projections. Bad i
 line, exit 2, nothing written."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -501,13 +502,12 @@ def test_truth_section_of_a_simulated_rig(rig, page):
 
 def _moved(calibration, scale: float, R0: np.ndarray, t0: np.ndarray):
     """The calibration of the same cameras in a world moved by ``x' = scale R0 x + t0``."""
-    from mvm.core.scene import Cameras
     from mvm.io.calib_toml import RigCalibration
 
     c = calibration.cameras
     R = c.R @ R0.T
     t = scale * c.t - np.einsum("vij,j->vi", R, t0)
-    return RigCalibration(Cameras(c.K, R, t, c.size, c.names), calibration.distortions, calibration.fisheye, {})
+    return RigCalibration(dataclasses.replace(c, R=R, t=t))
 
 
 def test_truth_through_a_calibration_in_another_frame(rig, page, tmp_path):

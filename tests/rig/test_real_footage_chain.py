@@ -38,7 +38,7 @@ def _main_track(out) -> tuple[int, np.ndarray]:
 
 
 def _centre_errors_m(calib, reference) -> np.ndarray:
-    est, ref = read_calibration(calib)[0].cameras, read_calibration(reference)[0].cameras
+    est, ref = read_calibration(calib).cameras, read_calibration(reference).cameras
     centres = est.centers[[est.names.index(n) for n in ref.names]]
     s, R, t = similarity_transform(centres, ref.centers)
     return np.linalg.norm(s * centres @ R.T + t - ref.centers, axis=1)

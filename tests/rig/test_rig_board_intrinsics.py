@@ -94,7 +94,7 @@ def test_intrinsics_from_photos(photo_rig, tmp_path):
     assert rows["cam01"][1:3] == ["int_cam01_img", "12 of 12 images"]
     assert rows["cam02"][1:3] == ["int_cam02_img", "10 of 12 images"]
     assert f"wrote {out}" in result.output
-    found, _ = read_calibration(out, extrinsics=False)
+    found = read_calibration(out, extrinsics=False)
     assert found.cameras.names == ("cam01", "cam02")
     assert np.isnan(found.cameras.R).all() and np.isnan(found.cameras.t).all()
     assert found.cameras.size.tolist() == [list(SIZE)] * 2

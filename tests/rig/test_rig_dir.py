@@ -1,5 +1,6 @@
 """Rig directory end to end: Calib.toml with lens distortion, OpenPose folders matched by name,
 the `rig reconstruct` command, JSON Lines and .trc outputs checked against the truth."""
+import dataclasses
 import json
 
 import numpy as np
@@ -24,10 +25,11 @@ def _write_rig(root, T=8, seed=0):
     rng = np.random.default_rng(seed)
     truth = walking_people(2, T, rng)
     dist = tuple(DIST * (i + 1) / len(NAMES) for i in range(len(NAMES)))
-    write_calib_toml(root / "Calib.toml", RigCalibration(cameras, dist, np.zeros(len(NAMES), bool)))
+    cameras = dataclasses.replace(cameras, distortion=dist)
+    write_calib_toml(root / "Calib.toml", RigCalibration(cameras))
     errors = DetectorErrors(noise=0.004, false_pose_rate=0.0, swap_prob=0.0, outlier_joint_prob=0.0)
     for t in range(T):
-        kp, cam, _ = detect_views(cameras, truth[t], rng, errors, distortions=dist)
+        kp, cam, _ = detect_views(cameras, truth[t], rng, errors)
         for v, name in enumerate(NAMES):
             folder = root / "pose" / f"{name.replace('_', '')}_json"        # "cam10_json": matched by number
             folder.mkdir(parents=True, exist_ok=True)

@@ -164,7 +164,7 @@ def test_a_selected_video_reconstructs_and_its_supervision_covers_every_kept_fra
     """A rendered tour with its true cameras and true 2D poses: the frames kept by motion are the
     scene's views, the people are reconstructed from them, and the exported supervision has an
     image, with every person, for each kept frame."""
-    from mvm.core.camera import project
+    from mvm.core.camera import project_camera
     from mvm.io.colmap import write_colmap
     from mvm.io.scene_dir import read_poses3d, read_scene
     from mvm.net.supervision import export_supervision
@@ -200,7 +200,7 @@ def test_a_selected_video_reconstructs_and_its_supervision_covers_every_kept_fra
                             minlength=max(images) + 1)
     for i, name in images.items():                    # every person with 3 joints or more in the frame
         v = truth.cameras.names.index(name.rsplit("/", 1)[-1])
-        uv, _ = project(truth.poses3d, truth.cameras.K[v], truth.cameras.R[v], truth.cameras.t[v])
+        uv, _ = project_camera(truth.poses3d, truth.cameras.K[v], truth.cameras.R[v], truth.cameras.t[v])
         inside = ((uv >= 0) & (uv < [192, 108])).all(-1).sum(-1) >= 3
         assert per_image[i] == inside.sum() > 0, name
 

@@ -6,13 +6,17 @@ camera ``x_cam = R X + t``, projection matrices ``P = K [R | t]``, pixels of the
 
 A lens is a vector of OpenCV coefficients: ``[k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[,
 tx, ty]]]]]`` (4, 5, 8, 12 or 14 numbers), or with ``fisheye`` OpenCV's fisheye model ``[k1, k2,
-k3, k4]``. An empty or all-zero vector is no lens: the pixels stay as they are.
+k3, k4]``. An empty vector, or an all-zero one of the first model, is no lens: the pixels stay
+as they are. Every lens of mvm is one of these (COLMAP's models are converted when read,
+:mod:`mvm.io.colmap`), and goes through :func:`distort` and :func:`undistort` (OpenCV);
+:func:`distort_views` and :func:`undistort_views` apply the lens of each view of
+:class:`~mvm.core.scene.Cameras`.
 
 Every projection in mvm comes down to :func:`mvm.core.geometry.project` (``P`` matrices); this
 module builds ``P`` from ``K, R, t`` and adds the lens.
 
 >>> K = np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]])
->>> pixels, depth = project(np.array([0.2, -0.1, 2.0]), K, np.eye(3), np.zeros(3))
+>>> pixels, depth = project_camera(np.array([0.2, -0.1, 2.0]), K, np.eye(3), np.zeros(3))
 >>> pixels, float(depth)
 (array([60., 35.]), 2.0)
 """
@@ -41,7 +45,7 @@ def projection_matrix(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray
     return np.asarray(K, dtype=float) @ np.concatenate([R, t[..., :, None]], axis=-1)
 
 
-def project(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+def project_camera(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
             distortion: np.ndarray | None = None, fisheye: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Project world points into one camera.
 
@@ -66,13 +70,17 @@ def project_views(cameras: Cameras, points: np.ndarray) -> tuple[np.ndarray, np.
     ``points: (..., 3)`` -> pixels ``(V, ..., 2)`` and depths ``(V, ...)``.
     """
     points = np.asarray(points, dtype=float)
-    P = cameras.P.reshape((len(cameras),) + (1,) * (points.ndim - 1) + (3, 4))
-    return project_with_matrices(points[None], P)
+    pixels, depth = project_with_matrices(points.reshape(1, -1, 3), cameras.P)
+    shape = (len(cameras),) + points.shape[:-1]
+    return pixels.reshape(shape + (2,)), depth.reshape(shape)
 
 
-def has_lens(distortion: np.ndarray | None) -> bool:
-    """Whether ``distortion`` moves any pixel (not None, not empty, not all zero)."""
-    return distortion is not None and bool(np.any(np.asarray(distortion, dtype=float)))
+def has_lens(distortion: np.ndarray | None, fisheye: bool = False) -> bool:
+    """Whether ``distortion`` moves any pixel: not None, not empty, and a fisheye lens or not
+    all zero."""
+    if distortion is None or not np.size(distortion):
+        return False
+    return bool(fisheye) or bool(np.any(np.asarray(distortion, dtype=float)))
 
 
 def _finite_rows(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +101,7 @@ def undistort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fish
             return cv2.fisheye.undistortPoints(flat, K, d, P=K)
         return cv2.undistortPoints(flat, K, d, R=None, P=K, criteria=UNDISTORT_CRITERIA)
 
-    return _through_lens(xy, distortion, move)
+    return _through_lens(xy, distortion, fisheye, move)
 
 
 def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fisheye: bool = False) -> np.ndarray:
@@ -107,19 +115,44 @@ def distort(xy: np.ndarray, K: np.ndarray, distortion: np.ndarray | None, fishey
         project_points = cv2.fisheye.projectPoints if fisheye else cv2.projectPoints
         return project_points(rays, zero, zero, K, d)[0]
 
-    return _through_lens(xy, distortion, move)
+    return _through_lens(xy, distortion, fisheye, move)
 
 
-def _through_lens(xy: np.ndarray, distortion: np.ndarray | None, move) -> np.ndarray:
+def _through_lens(xy: np.ndarray, distortion: np.ndarray | None, fisheye: bool, move) -> np.ndarray:
     """``move(points: (n, 2), distortion) -> (n, 1, 2)`` applied to the finite points of
     ``xy: (..., 2)`` (NaN stays NaN); a copy of ``xy`` when the camera has no lens."""
     xy = np.asarray(xy, dtype=float)
-    if not has_lens(distortion):
+    if not has_lens(distortion, fisheye):
         return xy.copy()
     points, finite = _finite_rows(xy)
     out = np.full(xy.shape, np.nan)
     if len(points):
         out[finite] = move(points, np.asarray(distortion, dtype=float).reshape(-1)).reshape(-1, 2)
+    return out
+
+
+def undistort_views(cameras: Cameras, xy: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Undo the lens of each view: distorted pixels ``xy: (N, ..., 2)`` seen in ``view: (N,)``
+    (indices into ``cameras``) -> pixels ``(N, ..., 2)`` of each view's pinhole ``K`` (NaN stays
+    NaN; :func:`undistort`)."""
+    return _views_through_lens(cameras, xy, view, undistort)
+
+
+def distort_views(cameras: Cameras, xy: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Apply the lens of each view (the inverse of :func:`undistort_views`): pinhole pixels
+    ``xy: (N, ..., 2)`` of ``view: (N,)`` -> distorted pixels ``(N, ..., 2)`` (:func:`distort`)."""
+    return _views_through_lens(cameras, xy, view, distort)
+
+
+def _views_through_lens(cameras: Cameras, xy: np.ndarray, view: np.ndarray, lens) -> np.ndarray:
+    """``lens(xy, K, distortion, fisheye)`` applied to the rows of ``xy: (N, ..., 2)`` of each
+    view of ``view: (N,)``."""
+    out = np.array(xy, dtype=float)
+    view = np.asarray(view)
+    for v in np.unique(view):
+        if has_lens(cameras.distortion[v], cameras.fisheye[v]):
+            rows = view == v
+            out[rows] = lens(out[rows], cameras.K[v], cameras.distortion[v], bool(cameras.fisheye[v]))
     return out
 
 
@@ -141,7 +174,7 @@ def project_persons(keypoints3d: np.ndarray, K: np.ndarray, R: np.ndarray, t: np
     if reference not in ("image", "person"):
         raise ValueError(f"reference: expected 'image' or 'person', got {reference!r}")
     X = np.asarray(keypoints3d, dtype=float).reshape(-1, NUM_JOINTS, 3)
-    uv, z = project(X, K, R, t)                                            # (P, 17, 2), (P, 17)
+    uv, z = project_camera(X, K, R, t)                                            # (P, 17, 2), (P, 17)
     w, h = float(size[0]), float(size[1])
     ok = (np.isfinite(uv).all(-1) & np.isfinite(z) & (z > 1e-9)
           & (uv[..., 0] >= 0) & (uv[..., 0] <= w - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= h - 1))

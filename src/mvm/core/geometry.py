@@ -25,20 +25,34 @@ def skew(v: np.ndarray) -> np.ndarray:
     ], -2)
 
 
-def project(points: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Project world points. ``points: (..., 3)``, ``P: (..., 3, 4)`` (broadcast) ->
-    pixels ``(..., 2)`` and depths ``(..., )`` (camera z; <= 0 is behind the camera).
+def project(points: np.ndarray, P: np.ndarray, min_depth: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Project world points through pinhole cameras: the one projection of mvm (every other,
+    lens included, comes down to it; :mod:`mvm.core.camera` builds ``P`` and adds the lens).
+
+    Args:
+        points: ``(..., N, 3)`` world coordinates (NaN: missing): each camera's block of ``N``
+            points; ``(3,)`` a single point.
+        P: ``(..., 3, 4)`` projection matrices ``K [R | t]``; the leading axes broadcast against
+            those of ``points`` (``points: (Q, 1, J, 3)`` with ``P: (F, 3, 4)``: every person in
+            every view, ``(Q, F, J, ...)``).
+        min_depth: with ``> 0``, depths nearer zero than this divide as ``min_depth`` (a finite
+            pixel for every finite point, as a solver needs); ``0``: a plain division.
+    Returns:
+        pixels ``(..., N, 2)`` and depths ``(..., N)``: camera z, <= 0 behind the camera.
 
     >>> P = np.hstack([np.eye(3), np.zeros((3, 1))])
     >>> project(np.array([2.0, 4.0, 2.0]), P)[0]
     array([1., 2.])
+    >>> project(np.zeros((5, 1, 17, 3)) + [0, 0, 1], np.stack([P] * 4))[0].shape
+    (5, 4, 17, 2)
     """
     points = np.asarray(points, dtype=float)
     homogeneous = np.concatenate([points, np.ones(points.shape[:-1] + (1,))], axis=-1)
-    x = np.einsum("...ij,...j->...i", P, homogeneous)
+    x = homogeneous @ np.swapaxes(np.asarray(P, dtype=float), -1, -2)            # (..., N, 3)
     depth = x[..., 2]
+    divisor = np.where(np.abs(depth) > min_depth, depth, min_depth) if min_depth > 0 else depth
     with np.errstate(divide="ignore", invalid="ignore"):
-        pixels = x[..., :2] / depth[..., None]
+        pixels = x[..., :2] / divisor[..., None]
     return pixels, depth
 
 

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 
-from mvm.core.pose_distance import PAIRS_CHUNK, person_chunks, project_persons
+from mvm.core.pose_distance import PAIRS_CHUNK, person_chunks, project_in_views
 
 
 def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarray | None = None,
@@ -27,7 +27,7 @@ def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarra
     inside = np.zeros((len(X), len(P)), dtype=bool)
     box = np.full((len(X), len(P), 4), np.nan) if scene is not None else None       # u0, v0, u1, v1
     for rows in person_chunks(len(X), len(P)):
-        uv, seen = project_persons(X[rows], P)                                       # (q, F, J, 2), (q, F, J)
+        uv, seen = project_in_views(X[rows], P)                                      # (q, F, J, 2), (q, F, J)
         with np.errstate(invalid="ignore"):
             within = seen & (uv >= 0).all(-1) & (uv < image_size[None, :, None]).all(-1)
         inside[rows] = within.sum(-1) * 2 >= known[rows, None]

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from mvm.core.geometry import project
 from mvm.core.keypoints import FLIP_PERMUTATION
 
 
@@ -86,26 +87,24 @@ def person_chunks(Q: int, F: int) -> Iterator[slice]:
     return (slice(s, s + step) for s in range(0, Q, step))
 
 
-def project_persons(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Persons ``X: (q, J, 3)`` (NaN: not reconstructed) in views ``P: (F, 3, 4)``: pixels
-    ``uv: (q, F, J, 2)`` and ``seen: (q, F, J)``, finite and in front of the camera. Callers give
-    it a few persons at a time (:func:`person_chunks`)."""
-    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], axis=-1)                      # (q, J, 4)
-    x = np.matmul(Xh[:, None], P.transpose(0, 2, 1)[None])                                # (q, F, J, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = x[..., :2] / x[..., 2:3]
-        return uv, np.isfinite(uv).all(-1) & (x[..., 2] > 0)
+def project_in_views(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Persons ``X: (q, J, 3)`` (NaN: not reconstructed) in views ``P: (F, 3, 4)``
+    (:func:`mvm.core.geometry.project`): pixels ``uv: (q, F, J, 2)`` and ``seen: (q, F, J)``,
+    finite and in front of the camera. Callers give it a few persons at a time
+    (:func:`person_chunks`)."""
+    uv, depth = project(X[:, None], P[None])
+    return uv, np.isfinite(uv).all(-1) & (depth > 0)
 
 
 def _projections(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Persons ``X: (Q, J, 3)`` in views ``P: (F, 3, 4)``: pixels ``uv: (Q, F, J, 2)``, ``seen: (Q, F, J)``
-    (:func:`project_persons`), the person's image size ``sqrt(w h)`` of the bounding box of its
+    (:func:`project_in_views`), the person's image size ``sqrt(w h)`` of the bounding box of its
     seen joints ``(Q, F)`` and their centre ``(Q, F, 2)``."""
     Q, J, F = len(X), X.shape[1], len(P)
     uv, seen = np.empty((Q, F, J, 2)), np.empty((Q, F, J), dtype=bool)
     size, centre = np.empty((Q, F)), np.empty((Q, F, 2))
     for rows in person_chunks(Q, F):
-        uv[rows], seen[rows] = project_persons(X[rows], P)
+        uv[rows], seen[rows] = project_in_views(X[rows], P)
         u, s = uv[rows], seen[rows, ..., None]
         lo = np.where(s, u, np.inf).min(2)
         hi = np.where(s, u, -np.inf).max(2)

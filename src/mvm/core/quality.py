@@ -10,7 +10,7 @@ from mvm.core.geometry import project
 
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px."""
-    uv, _ = project(X[:, None], P[:, :, None])
+    uv, _ = project(X[:, None], P)
     return np.linalg.norm(uv - xy, axis=-1)
 
 

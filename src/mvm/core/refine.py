@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from mvm.core.geometry import project
 from mvm.core.keypoints import BONES
 from mvm.core.linearized_prior import LinearPrior, linearized_prior, prior_energy
 from mvm.core.lm import levenberg_marquardt, spd_solve
@@ -102,13 +103,13 @@ class Observations:
                             self.products[persons])
 
     def _homogeneous(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Image coordinates ``(P, M, 2, J)`` and depths ``(P, M, J)`` (1 where not fitted) of
-        the joints ``X: (P, J, 3)`` in every slot's view."""
-        Pn, M = self.P.shape[:2]
-        proj = np.matmul(self.P[..., :3].reshape(Pn, 3 * M, 3), np.swapaxes(X, 1, 2)).reshape(Pn, M, 3, -1) \
-            + self.P[..., 3, None]
-        depth = np.where(self.fit, proj[:, :, 2], 1.0)
-        return proj[:, :, :2] / depth[:, :, None], depth
+        """Image coordinates ``(P, M, 2, J)`` and depths ``(P, M, J)`` of the joints
+        ``X: (P, J, 3)`` in every slot's view (:func:`mvm.core.geometry.project`); 0 and 1
+        where not fitted."""
+        uv, z = project(X[:, None], self.P)                                            # (P, M, J, 2)
+        out = np.zeros(z.shape[:2] + (2, z.shape[2]))                   # C order: normal_terms' layout
+        np.copyto(out, np.swapaxes(uv, 2, 3), where=self.fit[:, :, None])
+        return out, np.where(self.fit, z, 1.0)
 
     def reprojection(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residual pixels ``(P, M, J, 2)`` and depths ``(P, M, J)`` of the keypoints at joints

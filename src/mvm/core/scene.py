@@ -21,7 +21,8 @@ from mvm.core.keypoints import NUM_JOINTS
 
 @dataclass(frozen=True)
 class Cameras:
-    """Pinhole cameras of ``V`` views, world -> camera ``x_cam = R @ X + t``.
+    """Cameras of ``V`` views, world -> camera ``x_cam = R @ X + t``: intrinsics, extrinsics and
+    the lens (OpenCV's model; projection and undistortion in :mod:`mvm.core.camera`).
 
     Attributes:
         K: ``(V, 3, 3)`` intrinsics (pixels).
@@ -29,6 +30,10 @@ class Cameras:
         t: ``(V, 3)`` translations (world units).
         size: ``(V, 2)`` image width and height in pixels.
         names: ``V`` image names (COLMAP ``NAME``, COCO ``file_name``).
+        distortion: ``V`` arrays of OpenCV lens coefficients (:mod:`mvm.core.camera`; empty: no
+            lens); default none. A scene's keypoints are pixels of the pinhole ``K`` whatever
+            the lens: readers undo it once.
+        fisheye: ``(V,)`` bool, OpenCV's fisheye lens model; default all False.
     """
 
     K: np.ndarray
@@ -36,6 +41,8 @@ class Cameras:
     t: np.ndarray
     size: np.ndarray
     names: tuple[str, ...]
+    distortion: tuple[np.ndarray, ...] = ()
+    fisheye: np.ndarray | None = None
 
     def __post_init__(self):
         V = len(self.names)
@@ -44,6 +51,12 @@ class Cameras:
             if value.shape != shape:
                 raise ValueError(f"Cameras.{name}: expected shape {shape}, got {value.shape}")
             object.__setattr__(self, name, value)
+        lens = tuple(np.asarray(d, dtype=float).reshape(-1) for d in self.distortion) or (np.zeros(0),) * V
+        fisheye = np.zeros(V, bool) if self.fisheye is None else np.asarray(self.fisheye, dtype=bool).reshape(-1)
+        if len(lens) != V or len(fisheye) != V:
+            raise ValueError(f"Cameras: expected {V} lenses, got {len(lens)} distortions, {len(fisheye)} fisheye flags")
+        object.__setattr__(self, "distortion", lens)
+        object.__setattr__(self, "fisheye", fisheye)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -66,7 +79,8 @@ class Cameras:
     def subset(self, index: np.ndarray) -> Cameras:
         index = np.asarray(index)
         return Cameras(self.K[index], self.R[index], self.t[index], self.size[index],
-                       tuple(self.names[i] for i in index))
+                       tuple(self.names[i] for i in index), tuple(self.distortion[i] for i in index),
+                       self.fisheye[index])
 
 
 @dataclass(frozen=True)

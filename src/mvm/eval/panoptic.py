@@ -5,7 +5,7 @@ found. World in metres (the files' centimetres / 100, read by :mod:`mvm.io.panop
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +26,7 @@ from mvm.sim.rig import detect_views
 def metric_calibration(calibration: RigCalibration) -> RigCalibration:
     """The calibration with the world in metres (translations / 100)."""
     c = calibration.cameras
-    return RigCalibration(Cameras(c.K, c.R, c.t / 100.0, c.size, c.names), calibration.distortions,
-                          calibration.fisheye, {**calibration.metadata, "units": "m"})
+    return RigCalibration(replace(c, t=c.t / 100.0), {**calibration.metadata, "units": "m"})
 
 
 def spread_cameras(cameras: Cameras, n: int) -> np.ndarray:
@@ -76,7 +75,7 @@ def simulate_detections(sample: PanopticSample, cameras_index: np.ndarray, seed:
     rng = np.random.default_rng(seed)
     kps, cams, inst = [], [], []
     for t, X in enumerate(sample.poses):
-        k, c, _ = detect_views(calibration.cameras, X, rng, errors, calibration.distortions)
+        k, c, _ = detect_views(calibration.cameras, X, rng, errors)
         kps.append(k)
         cams.append(c)
         inst.append(np.full(len(c), t))

@@ -16,10 +16,10 @@ import time
 import numpy as np
 
 from mvm.core.config import Config
+from mvm.core.geometry import similarity_transform
 from mvm.core.scene import Cameras
 from mvm.eval.panoptic import PanopticSample, simulate_detections, spread_cameras
 from mvm.metrics.mocap_scores import pcp
-from mvm.metrics.poses import similarity_transform
 from mvm.rig.calibrate import calibrate_from_people
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.rigdir import subset_calibration, undistort

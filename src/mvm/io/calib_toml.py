@@ -38,22 +38,29 @@ from mvm.io.paths import check_name
 
 @dataclass(frozen=True)
 class RigCalibration:
-    """The calibrated cameras of a rig.
+    """The calibrated cameras of a rig: :class:`~mvm.core.scene.Cameras` (their lenses included)
+    and what the file says besides.
 
     Attributes:
-        cameras: ``V`` pinhole cameras (``K``, world -> camera ``R``, ``t``, image sizes, names).
-        distortions: ``V`` arrays of OpenCV distortion coefficients (may be empty).
-        fisheye: ``(V,)`` bool, OpenCV fisheye model.
+        cameras: ``V`` cameras (``K``, world -> camera ``R``, ``t``, image sizes, names, lenses).
         metadata: the ``[metadata]`` table (empty when absent).
         camera_notes: ``V`` tables of further keys written into each camera's table (what its
             calibration knows of it, e.g. ``position_sd_m``; other tools ignore them), or empty.
     """
 
     cameras: Cameras
-    distortions: tuple[np.ndarray, ...]
-    fisheye: np.ndarray
     metadata: dict = field(default_factory=dict)
     camera_notes: tuple[dict, ...] = ()
+
+    @property
+    def distortions(self) -> tuple[np.ndarray, ...]:
+        """``V`` arrays of OpenCV distortion coefficients (may be empty): the cameras' lenses."""
+        return self.cameras.distortion
+
+    @property
+    def fisheye(self) -> np.ndarray:
+        """``(V,)`` bool, OpenCV fisheye model."""
+        return self.cameras.fisheye
 
     def index(self, name: str) -> int:
         return self.cameras.names.index(name)
@@ -128,9 +135,9 @@ def parse_calib(data: dict, path: str | Path = "<calib>", extrinsics: bool = Tru
         raise InputError(path, None, "no camera table (a table with 'matrix', 'rotation', 'translation', 'size')")
     if len(set(names)) != len(names):
         raise InputError(path, "name", f"duplicate camera names: {sorted(n for n in set(names) if names.count(n) > 1)}")
-    V = len(names)
-    cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names))
-    return RigCalibration(cameras, tuple(dist), np.array(fisheye, dtype=bool).reshape(V), metadata)
+    cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names), tuple(dist),
+                      np.array(fisheye, dtype=bool))
+    return RigCalibration(cameras, metadata)
 
 
 def read_calib_toml(path: str | Path, extrinsics: bool = True) -> RigCalibration:

@@ -1,10 +1,11 @@
 """COLMAP models (text or binary): cameras of every registered image. A model of pinhole cameras
 is built from what the checks of its files read (:mod:`mvm.io.colmap_check`); one with lenses, or
-with rigs of several cameras, through pycolmap."""
+with rigs of several cameras, through pycolmap. A lens is converted to OpenCV's model when read
+(:data:`OPENCV_LENSES`), so that every lens of mvm goes through :mod:`mvm.core.camera`."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,19 @@ from mvm.io.colmap_records import CAMERA_MODELS, PINHOLE_MODEL_IDS, ModelRecords
 
 log = logging.getLogger(__name__)
 
-_PINHOLE_MODELS = frozenset(CAMERA_MODELS[i][0] for i in PINHOLE_MODEL_IDS)
+#: COLMAP's camera models with a lens that OpenCV's models express: ``{name: (fisheye, indices of
+#: the COLMAP parameters that give OpenCV's coefficients, in OpenCV's order, -1 for a zero)}``;
+#: the focal lengths and principal point are the camera's ``K``. COLMAP's radial fisheye models
+#: are OpenCV's fisheye model (``θ_d = θ (1 + k1 θ² + k2 θ⁴ + …)``), its plain fisheye models
+#: that model without coefficients. The others (FOV, thin-prism, division, EUCM,
+#: equirectangular) are refused.
+OPENCV_LENSES = {
+    "SIMPLE_RADIAL": (False, (3, -1, -1, -1)), "RADIAL": (False, (3, 4, -1, -1)),
+    "OPENCV": (False, (4, 5, 6, 7)), "FULL_OPENCV": (False, tuple(range(4, 12))),
+    "OPENCV_FISHEYE": (True, (4, 5, 6, 7)), "SIMPLE_RADIAL_FISHEYE": (True, (3, -1, -1, -1)),
+    "RADIAL_FISHEYE": (True, (3, 4, -1, -1)), "SIMPLE_FISHEYE": (True, (-1, -1, -1, -1)),
+    "FISHEYE": (True, (-1, -1, -1, -1)),
+}
 
 
 @dataclass(frozen=True)
@@ -24,23 +37,17 @@ class ColmapModel:
     """The registered images of a COLMAP model.
 
     Attributes:
-        cameras: the registered images' pinhole cameras (distortion is undone on keypoints).
+        cameras: the registered images' cameras, their lenses in OpenCV's model
+            (:data:`OPENCV_LENSES`).
         models: the COLMAP camera model of each registered image (``"PINHOLE"``, ``"OPENCV"``…).
-        colmap_cameras: the pycolmap camera of each registered image, for undistortion; empty
-            when every camera is a pinhole (read without pycolmap).
         points3d: ``(M, 3)`` sparse points.
         unregistered: names of images in the model that have no pose.
     """
 
     cameras: Cameras
     models: tuple[str, ...]
-    colmap_cameras: tuple
     points3d: np.ndarray
     unregistered: tuple[str, ...]
-
-    def lens(self, view: int):
-        """The pycolmap camera of ``view`` where it has a lens, else None (a pinhole)."""
-        return None if self.models[view] in _PINHOLE_MODELS else self.colmap_cameras[view]
 
     def index(self) -> dict[str, int]:
         return {name: i for i, name in enumerate(self.cameras.names)}
@@ -77,9 +84,9 @@ def read_colmap(sparse: str | Path) -> ColmapModel:
         _last = files, model
     if model.unregistered:
         log.warning("%s: %d images have no pose and are ignored", model_dir, len(model.unregistered))
-    cameras = model.cameras
-    copied = Cameras(cameras.K.copy(), cameras.R.copy(), cameras.t.copy(), cameras.size.copy(), cameras.names)
-    return ColmapModel(copied, model.models, model.colmap_cameras, model.points3d.copy(), model.unregistered)
+    c = model.cameras
+    copied = replace(c, K=c.K.copy(), R=c.R.copy(), t=c.t.copy(), size=c.size.copy())
+    return ColmapModel(copied, model.models, model.points3d.copy(), model.unregistered)
 
 
 #: ``(files, model)``: the content of the model read last (:func:`model_files`) and what it gave.
@@ -100,7 +107,7 @@ def _parse(model_dir: Path, records: ModelRecords | None = None) -> ColmapModel:
         message = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise InputError(model_dir, None, f"cannot read COLMAP model: {message}") from None
 
-    K, R, t, size, names, cams, unregistered = [], [], [], [], [], [], []
+    K, R, t, size, names, cams, lenses, unregistered = [], [], [], [], [], [], [], []
     for image_id in sorted(rec.images):
         image = rec.images[image_id]
         if not image.has_pose:
@@ -115,14 +122,29 @@ def _parse(model_dir: Path, records: ModelRecords | None = None) -> ColmapModel:
         size.append((camera.width, camera.height))
         names.append(image.name)
         cams.append(camera)
+        lenses.append(opencv_lens(camera.model.name, camera.params, model_dir, f"camera {image.camera_id}"))
     if len(set(names)) != len(names):
         raise InputError(model_dir, "images", "duplicate image names")
     points = np.array([p.xyz for p in rec.points3D.values()], dtype=float).reshape(-1, 3)
     V = len(names)
     cameras = Cameras(np.array(K).reshape(V, 3, 3), np.array(R).reshape(V, 3, 3),
                       np.array(t).reshape(V, 3), np.array(size, dtype=float).reshape(V, 2),
-                      tuple(names))
-    return ColmapModel(cameras, tuple(c.model.name for c in cams), tuple(cams), points, tuple(unregistered))
+                      tuple(names), tuple(d for d, _ in lenses), np.array([f for _, f in lenses], dtype=bool))
+    return ColmapModel(cameras, tuple(c.model.name for c in cams), points, tuple(unregistered))
+
+
+def opencv_lens(model: str, params, path: Path, field: str) -> tuple[np.ndarray, bool]:
+    """The lens of a COLMAP camera of ``model`` and ``params`` in OpenCV's model
+    (:data:`OPENCV_LENSES`): its coefficients and whether it is OpenCV's fisheye model; no
+    coefficients for a pinhole. A model OpenCV cannot express raises :class:`InputError`."""
+    if model in ("SIMPLE_PINHOLE", "PINHOLE"):
+        return np.zeros(0), False
+    if model not in OPENCV_LENSES:
+        raise InputError(path, field, f"camera model {model} has no OpenCV equivalent: undistort the images "
+                                      f"(colmap image_undistorter), or use one of {', '.join(OPENCV_LENSES)}")
+    fisheye, index = OPENCV_LENSES[model]
+    params = np.append(np.asarray(params, dtype=float), 0.0)                   # index -1: a zero
+    return params[list(index)], fisheye
 
 
 def _pinhole_model(records: ModelRecords, model_dir: Path) -> ColmapModel | None:
@@ -146,7 +168,7 @@ def _pinhole_model(records: ModelRecords, model_dir: Path) -> ColmapModel | None
     cameras = Cameras(K, R, pose[:, 4:].copy(),
                       np.array([c[1:3] for c in cams], dtype=float).reshape(-1, 2),
                       tuple(records.images[i][2] for i in ids))
-    return ColmapModel(cameras, tuple(CAMERA_MODELS[c[0]][0] for c in cams), (),
+    return ColmapModel(cameras, tuple(CAMERA_MODELS[c[0]][0] for c in cams),
                        np.array(records.points, dtype=float).reshape(-1, 3), ())
 
 
@@ -174,23 +196,6 @@ def rotation_matrices(q: np.ndarray) -> np.ndarray:
     return np.stack([1 - (tyy + tzz), txy - twz, txz + twy,
                      txy + twz, 1 - (txx + tzz), tyz - twx,
                      txz - twy, tyz + twx, 1 - (txx + tyy)], -1).reshape(-1, 3, 3)
-
-
-def undistort_keypoints(model: ColmapModel, view: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Undo lens distortion. ``view: (N,)``, ``xy: (N, J, 2)`` pixels -> ``(N, J, 2)`` pixels of
-    each view's pinhole camera ``K``."""
-    out = np.array(xy, dtype=float)
-    for v in np.unique(view):
-        camera = model.lens(v)
-        if camera is None:
-            continue
-        rows = view == v
-        pts = out[rows].reshape(-1, 2)
-        normalized = np.asarray(camera.cam_from_img(pts), dtype=float)
-        homogeneous = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
-        pixels = homogeneous @ model.cameras.K[v].T
-        out[rows] = pixels[:, :2].reshape(out[rows].shape)
-    return out
 
 
 def write_colmap(path: str | Path, cameras: Cameras, binary: bool = True,

@@ -60,6 +60,5 @@ def read_panoptic_calibration(path: str | Path, types: tuple[str, ...] = ("hd",)
         raise InputError(path, "cameras", f"no camera of type {', '.join(types)}")
     if len(set(names)) != len(names):
         raise InputError(path, "cameras", "duplicate camera names")
-    cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names))
-    return RigCalibration(cameras, tuple(dist), np.zeros(len(names), dtype=bool),
-                          {"source": str(path), "units": "cm"})
+    cameras = Cameras(np.array(K), np.array(R), np.array(t), np.array(size), tuple(names), tuple(dist))
+    return RigCalibration(cameras, {"source": str(path), "units": "cm"})

@@ -8,13 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.camera import undistort_views
 from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED, flag_names, parse_flags
 from mvm.core.keypoints import COCO_KEYPOINTS, NUM_JOINTS
 from mvm.core.scene import Cameras, Persons3D, Poses2D, Scene
 from mvm.errors import InputError
 from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, number, numbers
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
-from mvm.io.colmap import read_colmap, undistort_keypoints, write_colmap
+from mvm.io.colmap import read_colmap, write_colmap
 from mvm.io.files import OutputError, atomic_write_json, json_number
 from mvm.io.outputs import atomic_replace_dir, writing_into
 from mvm.io.paths import check_name, resolve_in
@@ -66,7 +67,7 @@ def read_scene(path: str | Path) -> Scene:
     if not kept.any():
         raise InputError(coco_path, "annotations", "no 2D poses in registered images: nothing to reconstruct")
     keypoints = coco.keypoints[kept].copy()
-    keypoints[:, :, :2] = undistort_keypoints(model, view[kept], keypoints[:, :, :2])
+    keypoints[:, :, :2] = undistort_views(model.cameras, keypoints[:, :, :2], view[kept])
     keypoints[keypoints[:, :, 2] == 0, :2] = 0.0
     bad = ~np.isfinite(keypoints).all(axis=(1, 2))
     if bad.any():

@@ -50,7 +50,7 @@ def reproject(X: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     X = np.asarray(X, dtype=float)
     if X.ndim != 3 or X.shape[-1] != 3:
         raise ValueError(f"X: expected shape (P, J, 3), got {X.shape}")
-    uv, depth = project(X[None], np.asarray(P, dtype=float)[:, None, None])
+    uv, depth = project(X[None], np.asarray(P, dtype=float)[:, None])
     ok = np.isfinite(uv).all(-1) & (depth > 0)
     return uv, ok
 
@@ -66,7 +66,7 @@ def member_errors(X: np.ndarray, labels: np.ndarray, keypoints: np.ndarray, view
     matched = labels >= 0
     if not matched.any():
         return errors
-    uv, depth = project(X[labels[matched]], P[view[matched]][:, None])          # (M, J, 2)
+    uv, depth = project(X[labels[matched]], P[view[matched]])          # (M, J, 2)
     e = np.linalg.norm(uv - keypoints[matched, :, :2], axis=-1)
     e[~((keypoints[matched, :, 2] > 0) & np.isfinite(e) & (depth > 0))] = np.nan
     errors[matched] = e

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mvm.core.camera import distort, has_lens
 from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
 from mvm.io.files import atomic_output, atomic_write_bytes
@@ -100,18 +101,6 @@ def draw_overlay(image: np.ndarray, keypoints: np.ndarray, labels: np.ndarray, c
     return image
 
 
-def _distort(camera, K: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Pinhole pixels ``(..., 2)`` of ``K`` -> pixels of the (distorted) COLMAP ``camera``."""
-    flat = xy.reshape(-1, 2)
-    finite = np.isfinite(flat).all(-1)
-    out = np.full_like(flat, np.nan)
-    if finite.any():
-        normalized = (flat[finite] - K[:2, 2]) / np.array([K[0, 0], K[1, 1]])
-        cam = np.concatenate([normalized, np.ones((len(normalized), 1))], axis=1)
-        out[finite] = np.asarray(camera.img_from_cam(cam, check_cheirality=False), dtype=float)
-    return out.reshape(xy.shape)
-
-
 class ViewRenderer:
     """Draws the overlay of any view of a reconstructed scene (reads the frame image when the
     scene has ``frames/``, else draws on a neutral background of the image size)."""
@@ -123,13 +112,6 @@ class ViewRenderer:
         self.colors = person_colors(len(result.persons))
         self.reprojected, self.reprojected_ok = reproject(result.persons.keypoints3d, scene.cameras.P)
         self.frames_dir = result.frames_dir
-        self._colmap = None
-        if self.frames_dir is not None:
-            from mvm.io.colmap import read_colmap
-
-            model = read_colmap(result.path / "sparse")
-            index = model.index()
-            self._colmap = [model.lens(index[n]) for n in scene.cameras.names]
         self.missing_frames = 0
 
     @property
@@ -168,10 +150,10 @@ class ViewRenderer:
         rows = np.flatnonzero(poses.view == v)
         keypoints = poses.keypoints[rows].copy()
         uv = self.reprojected[v]
-        if real and self._colmap is not None and self._colmap[v] is not None:
-            K = self.result.scene.cameras.K[v]
-            keypoints[:, :, :2] = _distort(self._colmap[v], K, keypoints[:, :, :2])
-            uv = _distort(self._colmap[v], K, uv)
+        cams = self.result.scene.cameras
+        if real and has_lens(cams.distortion[v], cams.fisheye[v]):            # drawn on the frame as shot
+            keypoints[:, :, :2] = distort(keypoints[:, :, :2], cams.K[v], cams.distortion[v], bool(cams.fisheye[v]))
+            uv = distort(uv, cams.K[v], cams.distortion[v], bool(cams.fisheye[v]))
         return draw_overlay(image, keypoints, self.labels[rows], self.colors, uv,
                             self.reprojected_ok[v] & np.isfinite(uv).all(-1), scale)
 

@@ -48,9 +48,9 @@ def keypoint_errors(X: np.ndarray, flags: np.ndarray, detection: np.ndarray, key
     memory of a long capture stays bounded)."""
     X = np.asarray(X, dtype=float)
     Q, J = X.shape[:2]
-    P = np.asarray(P, dtype=float)[None, :, None]
+    P = np.asarray(P, dtype=float)
     keypoints = np.asarray(keypoints, dtype=float)
-    out = np.full((Q, len(P[0]), J), np.nan)
+    out = np.full((Q, len(P), J), np.nan)
     for start in range(0, Q, block):
         rows = slice(start, start + block)
         uv, depth = project(X[rows, None], P)                                                # (b, V, J, 2)
@@ -206,7 +206,7 @@ def compare_with_truth(X: np.ndarray, flags: np.ndarray, instant: np.ndarray, ra
     ``angle_error (Q, A)`` degrees and ``track_angle_error (K,)`` (median over observed angles).
     """
     from mvm.core.completion import FLAG_NAMES, INFERRED, INTERPOLATED
-    from mvm.metrics.poses import similarity_transform
+    from mvm.core.geometry import similarity_transform
 
     centers, true_centers = np.asarray(centers, dtype=float), np.asarray(true_centers, dtype=float)
     if np.abs(centers - true_centers).max() < 1e-3:

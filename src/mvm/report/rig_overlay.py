@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mvm.core.camera import distort, project
+from mvm.core.camera import distort, project_camera
 from mvm.core.completion import MISSING
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.errors import InputError
@@ -66,7 +66,7 @@ class CameraDrawer:
         self.frames = p.frames
         self.shift = int((data.offsets or {}).get(data.names[v], 0))
         self.size = cams.size[v]
-        uv, depth = project(p.X, cams.K[v], cams.R[v], cams.t[v], lens, fisheye)          # (Q, J, 2)
+        uv, depth = project_camera(p.X, cams.K[v], cams.R[v], cams.t[v], lens, fisheye)          # (Q, J, 2)
         self.uv = uv
         self.ok = np.isfinite(uv).all(-1) & (depth > 0) & (p.flags != MISSING)
         self.person_bounds = np.searchsorted(p.instant, np.arange(len(p.frames) + 1))

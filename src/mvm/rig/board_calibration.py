@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from mvm.metrics.poses import similarity_transform
+from mvm.core.geometry import similarity_transform
 from mvm.rig.boards import MIN_CORNERS, spread_views, view_features
 from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
 from mvm.rig.calibrate import CalibrationError, spanning_tree

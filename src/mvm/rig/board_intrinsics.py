@@ -89,8 +89,9 @@ def calibrate_intrinsics_from_board(rig_dir: str | Path, out: str | Path, board:
                 "intrinsics_rms_px": [round(lens.rms_px, 4) for lens in lenses],
                 "intrinsics_coverage": [round(lens.coverage, 3) for lens in lenses]}
     cameras = Cameras(np.array([lens.K for lens in lenses]), np.full((V, 3, 3), np.nan), np.full((V, 3), np.nan),
-                      np.array([s.size for s in scans], dtype=float), tuple(names))
-    calibration = RigCalibration(cameras, tuple(lens.distortion for lens in lenses), np.full(V, fisheye), metadata)
+                      np.array([s.size for s in scans], dtype=float), tuple(names),
+                      tuple(lens.distortion for lens in lenses), np.full(V, fisheye))
+    calibration = RigCalibration(cameras, metadata)
     out = Path(out)
     write_calib_toml(out, calibration)
     return BoardIntrinsics(calibration, lenses, sources, scans, out)

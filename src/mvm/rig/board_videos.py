@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -277,7 +277,7 @@ class RigBoardCalibration:
 
 def _given_intrinsics(path: Path, names: list[str]) -> RigCalibration:
     """The intrinsics of ``path`` for the cameras with videos, in that file's order."""
-    calibration, _ = read_calibration(path, extrinsics=False)
+    calibration = read_calibration(path, extrinsics=False)
     file_names = calibration.cameras.names
     matched = match_cameras(file_names, names)
     missing = [n for i, n in enumerate(names) if i not in matched.values()]
@@ -285,8 +285,7 @@ def _given_intrinsics(path: Path, names: list[str]) -> RigCalibration:
         raise InputError(path, None, f"no camera matches the calibration video of {', '.join(missing)}")
     index = np.array(sorted(matched))
     cams = calibration.cameras.subset(index)
-    return RigCalibration(Cameras(cams.K, cams.R, cams.t, cams.size, tuple(names[matched[i]] for i in index)),
-                          tuple(calibration.distortions[i] for i in index), calibration.fisheye[index],
+    return RigCalibration(replace(cams, names=tuple(names[matched[i]] for i in index)),
                           calibration.metadata)
 
 
@@ -393,7 +392,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
                 "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
                 "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
                 "residual_px": [round(float(r), 4) for r in rig.rms_px]}
-    calibration = RigCalibration(Cameras(K, rig.R, rig.t, sizes, tuple(names)), distortions, fisheye, metadata)
+    calibration = RigCalibration(Cameras(K, rig.R, rig.t, sizes, tuple(names), distortions, fisheye), metadata)
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigBoardCalibration(calibration, lenses, rig, frames, out)

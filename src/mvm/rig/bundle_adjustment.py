@@ -1,11 +1,12 @@
 """Bundle adjustment of a rig's cameras and the points they see (no I/O): every camera but the
 reference (rotation vector, translation) and every point (the people's joints, or a calibration
-board's corners: an object of ``J`` points seen at once), reprojection errors in
-pixels, ``scipy.optimize.least_squares`` with an explicit Jacobian sparsity, ``x_scale='jac'``
-and a soft-L1 loss (as aniposelib's ``bundle_adjust``). Each observation may carry a weight
-(a detector's confidence). The cameras' uncertainty comes from the Jacobian at the solution:
-the reduced camera system (the points eliminated by their Schur complement), inverted with
-the scale held (it is free: every translation may grow), scaled by the residuals' variance."""
+board's corners: an object of ``J`` points seen at once), reprojection errors in pixels (points
+project through :func:`mvm.core.geometry.project`), ``scipy.optimize.least_squares`` with an
+explicit Jacobian sparsity, ``x_scale='jac'`` and a soft-L1 loss (as aniposelib's
+``bundle_adjust``). Each observation may carry a weight (a detector's confidence). The cameras'
+uncertainty comes from the Jacobian at the solution: the reduced camera system (the points
+eliminated by their Schur complement), inverted with the scale held (it is free: every
+translation may grow), scaled by the residuals' variance."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -14,6 +15,9 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csc_matrix, hstack
 from scipy.spatial.transform import Rotation
+
+from mvm.core.camera import projection_matrix
+from mvm.core.geometry import project
 
 #: Scale of the soft-L1 loss on the reprojection errors. [px]
 LOSS_SCALE_PX = 3.0
@@ -95,10 +99,9 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
         Rs = np.concatenate([R[:1], _rotation_matrices(cams[:, :3])])
         ts = np.concatenate([t[:1], cams[:, 3:]])
         pts = params[6 * (V - 1):end].reshape(P, 3)
-        pc = np.einsum("nij,nj->ni", Rs[cam], pts[point_index]) + ts[cam]
-        z = np.where(np.abs(pc[:, 2]) > 1e-9, pc[:, 2], 1e-9)
+        xy, _ = project(pts[point_index, None], projection_matrix(np.eye(3), Rs, ts)[cam], min_depth=1e-9)
         scale = params[end:][cam, None] if refine_focal else 1.0
-        return ((scale * pc[:, :2] / z[:, None] - obs) * f[:, None]).ravel()
+        return ((scale * xy[:, 0] - obs) * f[:, None]).ravel()
 
     sparsity = jacobian_sparsity(cam, point_index, V, P, refine_focal)
     result = least_squares(residuals, params0, jac_sparsity=sparsity, x_scale="jac", loss="soft_l1",
@@ -172,8 +175,7 @@ def reprojection_px(x: np.ndarray, present: np.ndarray, camera: np.ndarray, pers
                     R: np.ndarray, t: np.ndarray, X: np.ndarray, refined: np.ndarray | None = None) -> np.ndarray:
     """``(N, J)`` reprojection error (px) of every point of an object (NaN otherwise); the
     arguments of :func:`bundle_adjust` (``refined``: its focal lengths, when it adjusted them)."""
-    Xp = X[np.maximum(person, 0)]                                                 # (N, J, 3)
-    pc = np.einsum("nij,nkj->nki", R[camera], Xp) + t[camera][:, None]
+    xy, _ = project(X[np.maximum(person, 0)], projection_matrix(np.eye(3), R, t)[camera])   # (N, J, 2)
     scale = (refined / focal)[camera][:, None, None] if refined is not None else 1.0
-    err = np.linalg.norm(scale * pc[..., :2] / pc[..., 2:] - x, axis=-1) * focal[camera][:, None]
+    err = np.linalg.norm(scale * xy - x, axis=-1) * focal[camera][:, None]
     return np.where(present & (person >= 0)[:, None] & np.isfinite(err), err, np.nan)

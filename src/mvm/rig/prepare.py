@@ -5,12 +5,11 @@ the camera or the file, and nothing is written then."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.outputs import check_output_location
@@ -139,8 +138,7 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
         K[:, :2, :2] *= found.focal_scale[:, None, None]
         metadata["focal_refined"] = [round(float(k), 5) for k in found.focal_scale]
     notes = tuple({"position_sd_m": round(float(sd), 4)} for sd in found.position_sd_m)
-    calibration = RigCalibration(Cameras(K, found.R, found.t, cams.size, cams.names),
-                                 rig.calibration.distortions, rig.calibration.fisheye, metadata, notes)
+    calibration = RigCalibration(replace(cams, K=K, R=found.R, t=found.t), metadata, notes)
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigPeopleCalibration(calibration, found, rig.offsets, out)

@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import logging
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from mvm.core.camera import undistort as undo_lens
+from mvm.core.camera import undistort_views
 from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml
@@ -125,24 +125,20 @@ def find_calibration(rig_dir: Path) -> Path:
                                                                       for c in candidates) + " (pass --calib)")
 
 
-def read_calibration(path: Path, extrinsics: bool = True) -> tuple[RigCalibration, object]:
-    """A calibration file or COLMAP model -> ``(calibration, colmap model or None)``.
-    ``extrinsics=False``: a Calib.toml may lack rotations and translations (NaN)."""
+def read_calibration(path: Path, extrinsics: bool = True) -> RigCalibration:
+    """A calibration file or COLMAP model (its lenses converted to OpenCV's model when read) ->
+    the calibration. ``extrinsics=False``: a Calib.toml may lack rotations and translations (NaN)."""
     if path.is_dir():
-        from mvm.core.scene import Cameras
         from mvm.io.colmap import read_colmap
 
-        model = read_colmap(path)
-        c = model.cameras
+        c = read_colmap(path).cameras
         names = tuple(Path(n).stem if "/" not in n else Path(n).parent.name for n in c.names)
-        cameras = Cameras(c.K, c.R, c.t, c.size, names)
-        return RigCalibration(cameras, tuple(np.zeros(0) for _ in names), np.zeros(len(names), bool),
-                              {"source": str(path)}), model
+        return RigCalibration(replace(c, names=names), {"source": str(path)})
     if path.suffix.lower() == ".json":
         from mvm.io.panoptic_calib import read_panoptic_calibration
 
-        return read_panoptic_calibration(path), None
-    return read_calib_toml(path, extrinsics), None
+        return read_panoptic_calibration(path)
+    return read_calib_toml(path, extrinsics)
 
 
 def _pose_root(rig_dir: Path) -> Path:
@@ -299,7 +295,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a directory")
     calib_path = Path(calib) if calib else find_calibration(rig_dir)
-    calibration, colmap_model = read_calibration(calib_path, extrinsics)
+    calibration = read_calibration(calib_path, extrinsics)
     sync_path = rig_dir / SYNC_FILE
     present = sync_path.exists() or sync_path.is_symlink()       # a link to nothing, a FIFO: refused
     offsets = read_sync_toml(sync_path) if sync and present else None
@@ -353,14 +349,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         raise InputError(*(("--frames", frames, "selects no frame with 2D poses") if frames else
                            (_pose_root(rig_dir), None, "no 2D pose in the pose folders")))
     calibration = subset_calibration(calibration, np.array(used))
-    model = None
-    if colmap_model is not None:
-        from mvm.io.colmap import ColmapModel
-
-        model = ColmapModel(colmap_model.cameras.subset(np.array(used)), tuple(colmap_model.models[c] for c in used),
-                            tuple(colmap_model.colmap_cameras[c] for c in used) if colmap_model.colmap_cameras else (),
-                            colmap_model.points3d, ())
-    keypoints = undistort(calibration, keypoints, cam_of, model)
+    keypoints = undistort(calibration, keypoints, cam_of)
     detections = rig_poses(keypoints, instant, cam_of, score)
     log.info("%s: %d cameras, %d instants, %d 2D poses (%s)", rig_dir, len(used), len(all_frames),
              len(detections), fmt)
@@ -399,23 +388,13 @@ def recorded_frame_rate(rig: RigData) -> float | None:
 
 
 def subset_calibration(calibration: RigCalibration, index: np.ndarray) -> RigCalibration:
-    return RigCalibration(calibration.cameras.subset(index), tuple(calibration.distortions[i] for i in index),
-                          calibration.fisheye[index], calibration.metadata)
+    return RigCalibration(calibration.cameras.subset(index), calibration.metadata)
 
 
-def undistort(calibration: RigCalibration, keypoints: np.ndarray, camera: np.ndarray, colmap_model=None) -> np.ndarray:
-    """Undo each camera's lens distortion on ``keypoints: (N, 17, 3)`` (missing joints stay 0)."""
+def undistort(calibration: RigCalibration, keypoints: np.ndarray, camera: np.ndarray) -> np.ndarray:
+    """Undo each camera's lens on ``keypoints: (N, 17, 3)`` seen by ``camera: (N,)`` (missing
+    joints stay 0; :func:`mvm.core.camera.undistort_views`)."""
     out = np.array(keypoints, dtype=float)
-    present = out[..., 2] > 0
-    if colmap_model is not None:
-        from mvm.io.colmap import undistort_keypoints
-
-        xy = undistort_keypoints(colmap_model, camera, out[..., :2])
-        out[..., :2] = np.where(present[..., None], xy, 0.0)
-        return out
-    K = calibration.cameras.K
-    for v in np.unique(camera):
-        rows = camera == v
-        xy = undo_lens(out[rows, :, :2], K[v], calibration.distortions[v], bool(calibration.fisheye[v]))
-        out[rows, :, :2] = np.where(present[rows][..., None], xy, 0.0)
+    xy = undistort_views(calibration.cameras, out[..., :2], camera)
+    out[..., :2] = np.where(out[..., 2:] > 0, xy, 0.0)
     return out

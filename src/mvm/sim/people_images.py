@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mvm.core.camera import project_persons
+from mvm.core.camera import project_camera, project_persons
 from mvm.core.keypoints import INDEX, NUM_JOINTS
 from mvm.io.coco import annotation_record, empty_dataset
 from mvm.io.files import atomic_write_json
@@ -171,10 +171,7 @@ def render(people: np.ndarray, K: np.ndarray, size: tuple[int, int], rng: np.ran
     A, B, R, col = A[front], B[front], R[front], col[front]
     is_head, facing, hair = is_head[front], facing[front], hair[front]
     f = 0.5 * (K[0, 0] + K[1, 1])
-    ua = A @ K.T
-    ua = ua[:, :2] / ua[:, 2:]
-    ub = B @ K.T
-    ub = ub[:, :2] / ub[:, 2:]
+    ua, ub = (project_camera(points, K, np.eye(3), np.zeros(3))[0] for points in (A, B))      # camera frame -> px
     ra, rb = f * R / A[:, 2], f * R / B[:, 2]                                         # (S,) px
     yy, xx = np.mgrid[0:h, 0:w]
     q = np.stack([xx.reshape(-1), yy.reshape(-1)], -1).astype(float)                 # (HW, 2)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.camera import distort, project_views
+from mvm.core.camera import distort_views, project_views
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.core.scene import Cameras
@@ -54,25 +54,20 @@ def walking_people(people: int, instants: int, rng: np.random.Generator, area: f
 
 
 def detect_views(cameras: Cameras, poses3d: np.ndarray, rng: np.random.Generator,
-                 errors: DetectorErrors = DetectorErrors(), distortions=None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 errors: DetectorErrors = DetectorErrors()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulated detections of one instant in every camera (:func:`mvm.sim.detector.detect_people`).
 
     Args:
+        cameras: the cameras, their lenses included.
         poses3d: ``(G, 17, 3)`` true joints, metres (NaN: joint absent in the truth).
-        distortions: per camera OpenCV coefficients to distort the pixels with (None: pinhole).
     Returns:
-        ``keypoints (N, 17, 3)`` (distorted pixels when ``distortions``), ``camera (N,)``,
+        ``keypoints (N, 17, 3)`` (pixels distorted by the cameras' lenses), ``camera (N,)``,
         ``person (N,)`` (-1: a false detection).
     """
     uv, depth = project_views(cameras, np.nan_to_num(poses3d))                    # (V, G, 17, 2), (V, G, 17)
     found = detect_people(uv, depth, cameras.size, cameras.focal, errors, rng,
                           present=np.isfinite(poses3d).all(-1))
     keypoints, camera = found.keypoints, found.view
-    if distortions is not None:
-        for v in np.unique(camera):
-            rows = camera == v
-            present = keypoints[rows, :, 2] > 0
-            xy = distort(keypoints[rows, :, :2], cameras.K[v], distortions[v])
-            keypoints[rows, :, :2] = np.where(present[..., None], xy, 0.0)
+    xy = distort_views(cameras, keypoints[..., :2], camera)
+    keypoints[..., :2] = np.where(keypoints[..., 2:] > 0, xy, 0.0)
     return keypoints, camera, found.person

@@ -9,7 +9,7 @@ number of frames to *add* to camera ``c``'s frame numbers to reach the reference
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -185,7 +185,7 @@ def record_rig(calibration: RigCalibration, poses3d: np.ndarray, offsets: np.nda
     """
     kps, cams, fr, per = [], [], [], []
     for s in range(len(poses3d)):
-        k, c, p = detect_views(calibration.cameras, poses3d[s], rng, errors, calibration.distortions)
+        k, c, p = detect_views(calibration.cameras, poses3d[s], rng, errors)
         f = s + offsets.min() - offsets[c]
         keep = (f >= 0) & (f < frames)
         kps.append(k[keep])
@@ -205,7 +205,7 @@ def simulate_rig(config: RigSimConfig = RigSimConfig()) -> RigSimulation:
                            names=tuple(f"cam_{i + 1:02d}" for i in range(V)))
     distortions = tuple(np.array([config.distortion * (0.5 + 0.5 * i / max(V - 1, 1)), 0.0, 0.0, 0.0])
                         for i in range(V))
-    calibration = RigCalibration(cameras, distortions, np.zeros(V, bool), {"units": "m"})
+    calibration = RigCalibration(replace(cameras, distortion=distortions), {"units": "m"})
     offsets = config.camera_offsets()
     S = config.frames + offsets.max() - offsets.min()
     poses3d = moving_people(config.people, S, rng, config.frame_rate, config.area, config.speed)

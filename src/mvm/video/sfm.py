@@ -17,6 +17,7 @@ import numpy as np
 from mvm.core.config import check_settings, setting
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
+from mvm.io.colmap import OPENCV_LENSES
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
 from mvm.io.outputs import atomic_replace_dir
@@ -31,11 +32,10 @@ SFM_REPORT = "report.json"
 SCALE_FILE = "scale.json"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 SFM_STAGE = "the camera estimation"
-#: COLMAP's camera models (``pycolmap.CameraModelId``, written out: the settings are checked
-#: without importing pycolmap).
-CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "SIMPLE_RADIAL_FISHEYE", "RADIAL", "RADIAL_FISHEYE",
-                 "OPENCV", "OPENCV_FISHEYE", "FULL_OPENCV", "FOV", "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE",
-                 "SIMPLE_DIVISION", "DIVISION", "SIMPLE_FISHEYE", "FISHEYE")
+#: COLMAP's camera models that the scene's reader takes (the pinholes and those with a lens of
+#: OpenCV's models, :data:`mvm.io.colmap.OPENCV_LENSES`; the settings are checked without
+#: importing pycolmap).
+CAMERA_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", *OPENCV_LENSES)
 
 
 @dataclass(frozen=True)

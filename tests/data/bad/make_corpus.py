@@ -7,6 +7,7 @@ checks them. Run from the repository root: ``python tests/data/bad/make_corpus.p
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import struct
@@ -105,7 +106,7 @@ def calib_toml() -> None:
     from mvm.io.calib_toml import RigCalibration, calib_toml_text
 
     cams = _cameras(2)
-    text = calib_toml_text(RigCalibration(cams, (np.zeros(4), np.zeros(4)), np.zeros(2, bool)))
+    text = calib_toml_text(RigCalibration(dataclasses.replace(cams, distortion=(np.zeros(4), np.zeros(4)))))
     first_t = text.split("translation = ")[1].split("\n")[0]
     first_m = text.split("matrix = ")[1].split("\n")[0]
     _write("calib_toml/not_toml.toml", "[cam_1\nname = 1\n")

@@ -153,6 +153,6 @@ def assemble(cameras: list[ForeignCamera], path, metadata: dict) -> RigCalibrati
     K = np.array([c.K for c in cameras])
     t = np.array([c.t for c in cameras])
     size = np.array([c.size for c in cameras])
-    return RigCalibration(Cameras(K, R, t, size, tuple(names)), tuple(np.asarray(c.distortion, float) for c in cameras),
-                          np.zeros(len(cameras), dtype=bool), {"adjusted": False, "error": 0.0, **metadata})
+    return RigCalibration(Cameras(K, R, t, size, tuple(names), tuple(np.asarray(c.distortion, float) for c in cameras)),
+                          {"adjusted": False, "error": 0.0, **metadata})
 
