@@ -171,7 +171,8 @@ def _other_meeting(gaps: _Gaps, start: np.ndarray) -> np.ndarray:
 def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
              sigma_bone: np.ndarray, prior: np.ndarray | None = None, sigma_prior: float = np.inf,
              ray_origin: np.ndarray | None = None, ray_direction: np.ndarray | None = None,
-             sigma_ray: float = np.inf, gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             sigma_ray: float = np.inf, gate: float = np.inf,
+             gate_sigmas: np.ndarray | float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill ``N`` gaps of ``n`` instants each.
 
     Args:
@@ -185,7 +186,11 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
         ray_origin, ray_direction: ``(N, n, R, 3)`` rays relative to the parent (origin: the
             camera centre minus the parent; direction: unit), NaN where absent; ``sigma_ray``
             the deviation of a point's distance to its ray; ``gate``: rays farther from the fit
-            than this weigh nothing.
+            than this weigh nothing; ``gate_sigmas``: ``(N,)`` (or one number) rays farther
+            than this many standard deviations from the guess of the motion and the prior
+            alone (its posterior deviation and ``sigma_ray`` together) are refused before the
+            fit: a keypoint that disagrees with where the track predicts the joint is another
+            thing's.
     Returns:
         ``(r: (N, n, 3), std: (N, n), ray_weight: (N, n, R))``: the offsets, each instant's
         posterior standard deviation (per axis, the root mean of its covariance's diagonal)
@@ -205,12 +210,21 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
         raise ValueError(f"sigma_acc: must be > 0, got {sigma_acc.min()}")
     gaps = _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
                  sigma_ray, gate, n)
-    _, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)              # motion and prior only
+    H0, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)             # motion and prior only
+    if gaps.rays and np.isfinite(gate_sigmas).any():
+        spread = np.sqrt(_variance(H0, N, n) + sigma_ray ** 2)                    # (N, n)
+        tolerance = np.broadcast_to(np.asarray(gate_sigmas, float), (N,))[:, None, None] * spread[..., None]
+        gaps.present = gaps.present & (_ray_distances(gaps, start) <= tolerance)
     r, H, weight = _descend(gaps, start)
     if gaps.rays:
         r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))
         better = _objective(gaps, r2) < _objective(gaps, r)
         r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)
                         for a, b in ((r, r2), (H, H2), (weight, weight2)))
-    var = np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)
-    return r, np.sqrt(np.maximum(var, 0.0)), weight
+    return r, np.sqrt(np.maximum(_variance(H, N, n), 0.0)), weight
+
+
+def _variance(H: np.ndarray, N: int, n: int) -> np.ndarray:
+    """``(N, n)`` each instant's posterior variance per axis (the mean of its covariance's
+    diagonal) from the normal matrices ``H: (N, 3n, 3n)``."""
+    return np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)

@@ -3,6 +3,12 @@ the pose prior and the rays of the views that still see the joint
 (:func:`mvm.core.gap_fit.fit_gaps`), with a confidence that falls as the fill's uncertainty
 grows (towards the middle of a gap, with its length, away from the views that see it).
 
+A limb joint that most of the views that report it dispute (:func:`disputed`: the
+triangulation refused at least :data:`DISPUTED_VIEWS` of their keypoints, as where a hidden
+hand is reported at other things in most views) is refused and filled as a missing one, from
+the rays of all its views, the dispute's included (the rays that agree with the track's motion
+and bone win; the others fall out of the gate); where it cannot be filled it is kept.
+
 A joint is filled over a run of missing instants when its parent joint (the shoulder of an
 elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
 run and both are seen on at least one side of it (a run at a track's end is continued from the
@@ -30,6 +36,10 @@ BONE_SIGMA = 0.03
 RAY_SIGMA_M = 0.02
 #: Rays farther than this from the fill are another person's keypoint or an outlier. [m]
 RAY_GATE_M = 0.25
+#: Through a run with refused instants (its views disagree: some report another thing), rays
+#: farther than this many standard deviations from the motion's and the prior's guess are
+#: refused before the fit (:func:`mvm.core.gap_fit.fit_gaps`' ``gate_sigmas``). [1]
+RAY_GATE_SIGMAS = 2.0
 #: Standard deviation of the pose prior's guess of a limb joint (its error on hidden wrists). [m]
 PRIOR_SIGMA_M = 0.1
 #: The smoothed track's accelerations understate a hidden limb's (the low-pass filter takes the
@@ -47,6 +57,8 @@ MIN_ACC_SIGMA_M = 0.002
 #: Second differences of an offset needed to measure its own; fewer: this default. [m / instant²]
 DEFAULT_ACC_SIGMA_M = 0.01
 MIN_ACC_SAMPLES = 5
+#: A limb joint is disputed where the triangulation refused this many of its views' keypoints. [1]
+DISPUTED_VIEWS = 2
 #: A fill whose posterior standard deviation is this has confidence 0.5. [m]
 CONFIDENCE_SCALE_M = 0.05
 
@@ -62,6 +74,16 @@ def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> t
     ok = (conf > threshold)[..., None]
     origin = np.broadcast_to(cameras.centers[None, :, None], d.shape)
     return np.where(ok, origin, np.nan), np.where(ok, d, np.nan)
+
+
+def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``(Q, 17)`` the limb joints (:data:`LIMB_JOINTS`) of ``Q`` persons whose views dispute
+    them: at least :data:`DISPUTED_VIEWS` of their keypoints ``valid: (Q, V, 17)`` left out of
+    the triangulation's ``inliers: (Q, V, 17)`` (reconstructed or not)."""
+    out = np.zeros(valid.shape[::2], bool)
+    refused = (valid & ~inliers).sum(1)                                            # (Q, 17)
+    out[:, LIMB_JOINTS] = refused[:, LIMB_JOINTS] >= DISPUTED_VIEWS
+    return out
 
 
 def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -86,7 +108,7 @@ def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
 
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
                     direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
-                    max_gap: int = 90, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_gap: int = 90, unit: float = 1.0, refused: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
     Args:
@@ -98,12 +120,17 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             shorter ones interpolated. [instants]
         max_gap: the longest run filled. [instants]
         unit: world units per metre (the module's constants are in metres).
+        refused: ``(Q, 17)`` joints of ``X`` to fill as missing ones (:func:`disputed`); those
+            that cannot be filled are kept.
     Returns:
         ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
         joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
         confidence (0 elsewhere).
     """
     X = np.array(X, dtype=float)
+    kept = X.copy()
+    refused = np.zeros(X.shape[:2], bool) if refused is None else np.asarray(refused, bool)
+    X[refused] = np.nan
     instant, track = np.asarray(instant), np.asarray(track)
     Q = len(X)
     flags = np.zeros((Q, 17), np.int8)
@@ -119,10 +146,11 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
         index[instant[rows] - t0] = rows
         series_rows.append(index)
     for joints in LIMB_PASSES:
-        gaps = []                       # (rows (n,), before rows, after rows, j, p, length, sigma, flag)
+        gaps = []                 # (rows (n,), before rows, after rows, j, p, length, sigma, flag, gate)
         for index in series_rows:
             S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)   # (L, 17, 3)
             seen = np.isfinite(S).all(-1)
+            disputes = (index >= 0)[:, None] & refused[np.maximum(index, 0)]     # (L, 17)
             for j, p in joints:
                 offsets = S[:, j] - S[:, p]
                 both = seen[:, j] & seen[:, p]
@@ -141,7 +169,8 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
                     before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
                     after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
                     flag = INTERPOLATED if brief else INFERRED
-                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag))
+                    gate = RAY_GATE_SIGMAS if disputes[a:b, j].any() else np.inf
+                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag, gate))
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
             rows = np.array([g[0] for g in group])                                 # (N, n)
@@ -156,8 +185,10 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             d = direction[rows, :, j[:, None]]
             bone = np.array([g[5] for g in group])
             r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
-                                 prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit)
+                                 prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
+                                 np.array([g[8] for g in group]))
             X[rows, j[:, None]] = parent + r
             flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
             confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
+    X = np.where(np.isfinite(X), X, kept)                                         # refused, not filled: kept
     return X, flags, confidence

@@ -32,7 +32,7 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
+from mvm.rig.occlusions import LIMB_JOINTS, disputed, fill_occlusions, rays
 from mvm.rig.options import DEFAULT_FRAME_RATE_HZ, RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
@@ -257,12 +257,13 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     person's members and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
     (flags 0 where not filled)."""
     xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
-    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
+    refused = disputed(persons.inliers, persons.valid)
+    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2)) | refused.any(1)        # rays only where needed
     conf = np.where(lacking[:, None, None], conf, 0.0)
     origin, direction = rays(xy, conf, cameras)
-    guess = infer_missing(X, prior)[0] if prior is not None else None
+    guess = infer_missing(np.where(refused[..., None], np.nan, X), prior)[0] if prior is not None else None
     return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
-                           options.occlusion_max_gap, 1.0 / options.metres_per_unit)
+                           options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused)
 
 
 def check_smoothing(options: RigOptions) -> None:
