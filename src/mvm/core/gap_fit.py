@@ -29,6 +29,8 @@ import numpy as np
 
 #: Gauss-Newton iterations (bone linearization, ray weights).
 ITERATIONS = 6
+#: Instants next to a known side of a gap where a view's rays are tried against the motion. [1]
+END_INSTANTS = 3
 #: A ray's Cauchy weight halves at this many ``sigma_ray`` from the fit. [1]
 RAY_CAUCHY = 3.0
 
@@ -168,6 +170,25 @@ def _other_meeting(gaps: _Gaps, start: np.ndarray) -> np.ndarray:
     return np.where(gaps.present.any(-1)[..., None], o + depth[..., None] * d, start)
 
 
+def _agreeing(gaps: _Gaps, start: np.ndarray, H: np.ndarray, gate_sigmas: np.ndarray) -> np.ndarray:
+    """``(N, n, R)`` the present rays that agree with the guess ``start: (N, n, 3)`` of the
+    motion and the prior (normal matrix ``H``). A ray agrees within ``gate_sigmas: (N,)``
+    standard deviations of it (its posterior deviation and ``sigma_ray`` together). A view (the
+    rays' last axis) with rays in the :data:`END_INSTANTS` instants next to a known side of the
+    gap, where the guess is sharp, is kept or refused whole by them (at least half agree): a
+    detector that reports another thing in a view does it through the stretch, and that view's
+    rays jump off the joint's path where the gap begins; the other views ray by ray."""
+    N, n = start.shape[:2]
+    spread = np.sqrt(_variance(H, N, n) + gaps.sigma_ray ** 2)                    # (N, n)
+    agree = gaps.present & (_ray_distances(gaps, start) <= gate_sigmas[:, None, None] * spread[..., None])
+    t = np.arange(n)
+    ends = (((t < END_INSTANTS) & np.isfinite(gaps.known[:, 1:2, 0]))
+            | ((n - 1 - t < END_INSTANTS) & np.isfinite(gaps.known[:, 2:3, 0])))[..., None]   # (N, n, 1)
+    tried = (gaps.present & ends).sum(1)                                           # (N, R)
+    trusted = 2 * (agree & ends).sum(1) >= tried
+    return np.where((tried > 0)[:, None], gaps.present & trusted[:, None], agree)
+
+
 def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
              sigma_bone: np.ndarray, prior: np.ndarray | None = None, sigma_prior: float = np.inf,
              ray_origin: np.ndarray | None = None, ray_direction: np.ndarray | None = None,
@@ -212,9 +233,7 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
                  sigma_ray, gate, n)
     H0, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)             # motion and prior only
     if gaps.rays and np.isfinite(gate_sigmas).any():
-        spread = np.sqrt(_variance(H0, N, n) + sigma_ray ** 2)                    # (N, n)
-        tolerance = np.broadcast_to(np.asarray(gate_sigmas, float), (N,))[:, None, None] * spread[..., None]
-        gaps.present = gaps.present & (_ray_distances(gaps, start) <= tolerance)
+        gaps.present = _agreeing(gaps, start, H0, np.broadcast_to(np.asarray(gate_sigmas, float), (N,)))
     r, H, weight = _descend(gaps, start)
     if gaps.rays:
         r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))

@@ -3,11 +3,13 @@ the pose prior and the rays of the views that still see the joint
 (:func:`mvm.core.gap_fit.fit_gaps`), with a confidence that falls as the fill's uncertainty
 grows (towards the middle of a gap, with its length, away from the views that see it).
 
-A limb joint that most of the views that report it dispute (:func:`disputed`: the
-triangulation refused at least :data:`DISPUTED_VIEWS` of their keypoints, as where a hidden
-hand is reported at other things in most views) is refused and filled as a missing one, from
-the rays of all its views, the dispute's included (the rays that agree with the track's motion
-and bone win; the others fall out of the gate); where it cannot be filled it is kept.
+A limb joint whose views dispute it (:func:`disputed`: the triangulation refused at least
+:data:`DISPUTED_VIEWS` of its keypoints, as where a hidden hand is reported at other things in
+most views) is refused (the rig's driver leaves it out of the smoothing too) and filled as a
+missing one, from the rays of all its views, the dispute's included: through such a run a ray
+is used only where it agrees with the track's prediction, and a view only if its rays agree
+where the gap begins and ends (a detector that reports another thing in a view does it through
+the stretch, and its rays jump off the joint's path there).
 
 A joint is filled over a run of missing instants when its parent joint (the shoulder of an
 elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
@@ -120,15 +122,16 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             shorter ones interpolated. [instants]
         max_gap: the longest run filled. [instants]
         unit: world units per metre (the module's constants are in metres).
-        refused: ``(Q, 17)`` joints of ``X`` to fill as missing ones (:func:`disputed`); those
-            that cannot be filled are kept.
+        refused: ``(Q, 17)`` joints of ``X`` refused as outliers (:func:`disputed`), filled as
+            missing ones (those that cannot be are left missing); the rays of a run with one
+            are tried against the track's motion first (``gate_sigmas`` of
+            :func:`mvm.core.gap_fit.fit_gaps`).
     Returns:
         ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
         joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
         confidence (0 elsewhere).
     """
     X = np.array(X, dtype=float)
-    kept = X.copy()
     refused = np.zeros(X.shape[:2], bool) if refused is None else np.asarray(refused, bool)
     X[refused] = np.nan
     instant, track = np.asarray(instant), np.asarray(track)
@@ -190,5 +193,4 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             X[rows, j[:, None]] = parent + r
             flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
             confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
-    X = np.where(np.isfinite(X), X, kept)                                         # refused, not filled: kept
     return X, flags, confidence

@@ -235,13 +235,16 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     if config is not None and config.refine and detections is not None and len(persons):
         persons = refine_by_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight,
                                    options.workers)
-    X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.rate,
-                      cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
+    fill = complete and detections is not None and cameras is not None and options.occlusion_max_gap > 0
+    refused = disputed(persons.inliers, persons.valid) if fill else np.zeros(persons.X.shape[:2], bool)
+    X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
+                      options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
+                      window=options.savgol_window)
     if complete:
         filled = np.zeros(X.shape[:2], np.int8)
-        if detections is not None and cameras is not None and options.occlusion_max_gap > 0 and len(persons):
+        if fill and len(persons):
             X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
-                                                          options, config or Config())
+                                                          options, config or Config(), refused)
             persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
         flags = np.where(filled > 0, filled, flags).astype(np.int8)
@@ -251,17 +254,16 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
 
 
 def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndarray, detections, cameras, prior,
-                          options: RigOptions, config: Config):
+                          options: RigOptions, config: Config, refused: np.ndarray | None = None):
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
     person's members and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
     (flags 0 where not filled)."""
     xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
-    refused = disputed(persons.inliers, persons.valid)
-    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2)) | refused.any(1)        # rays only where needed
+    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
     conf = np.where(lacking[:, None, None], conf, 0.0)
     origin, direction = rays(xy, conf, cameras)
-    guess = infer_missing(np.where(refused[..., None], np.nan, X), prior)[0] if prior is not None else None
+    guess = infer_missing(X, prior)[0] if prior is not None else None
     return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
                            options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused)
 
