@@ -108,9 +108,72 @@ def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
     return max(ACC_SIGMA_FACTOR * float(np.sqrt(np.mean(acc ** 2))), MIN_ACC_SIGMA_M * unit)
 
 
+def _series(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
+    """Each track's rows by instant: ``(L,)`` from its first instant to its last, -1 where absent."""
+    order = np.lexsort((instant, track))
+    out = []
+    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
+        t0 = instant[rows].min()
+        index = np.full(instant[rows].max() - t0 + 1, -1)
+        index[instant[rows] - t0] = rows
+        out.append(index)
+    return out
+
+
+def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, long_gap: int, max_gap: int,
+                unit: float) -> list[tuple]:
+    """The runs of one track (``index``, :func:`_series`) its limb ``joints`` ((joint, parent)
+    pairs) can be filled over: ``(rows (n,), [the rows of the two instants before], [after] (-1:
+    unknown), joint, parent, bone length, sigma_acc, flag, gate_sigmas)``."""
+    S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)  # (L, 17, 3)
+    seen = np.isfinite(S).all(-1)
+    disputes = (index >= 0)[:, None] & refused[np.maximum(index, 0)]            # (L, 17)
+    gaps = []
+    for j, p in joints:
+        offsets = S[:, j] - S[:, p]
+        both = seen[:, j] & seen[:, p]
+        if both.sum() < 2:
+            continue
+        length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
+        sigma = _acc_sigma(offsets, unit)
+        for a, b in zip(*_runs(~seen[:, j])):
+            at_start = a > 0 and both[a - 1]
+            at_end = b < len(S) and both[b]
+            if not (b - a <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
+                continue
+            before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
+            after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
+            flag = INTERPOLATED if at_start and at_end and b - a < long_gap else INFERRED
+            gate = RAY_GATE_SIGMAS if disputes[a:b, j].any() else np.inf
+            gaps.append((index[a:b], before, after, j, p, length, sigma, flag, gate))
+    return gaps
+
+
+def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction: np.ndarray,
+                prior_X: np.ndarray | None, unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Fit ``group``'s gaps (of one length, :func:`_track_gaps`): ``(rows (N, n), joints (N,),
+    joint positions (N, n, 3), posterior deviations (N, n))``."""
+    rows = np.array([g[0] for g in group])                                         # (N, n)
+    j = np.array([g[3] for g in group])
+    p = np.array([g[4] for g in group])
+    ends = np.array([g[1] + g[2] for g in group])                                  # (N, 4)
+    known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
+    known[ends < 0] = np.nan
+    parent = X[rows, p[:, None]]                                                   # (N, n, 3)
+    prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
+    o = origin[rows, :, j[:, None]] - parent[:, :, None]                           # (N, n, V, 3)
+    d = direction[rows, :, j[:, None]]
+    bone = np.array([g[5] for g in group])
+    r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
+                         prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
+                         np.array([g[8] for g in group]))
+    return rows, j, parent + r, std
+
+
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
                     direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
-                    max_gap: int = 90, unit: float = 1.0, refused: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_gap: int = 90, unit: float = 1.0,
+                    refused: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
     Args:
@@ -135,62 +198,17 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
     refused = np.zeros(X.shape[:2], bool) if refused is None else np.asarray(refused, bool)
     X[refused] = np.nan
     instant, track = np.asarray(instant), np.asarray(track)
-    Q = len(X)
-    flags = np.zeros((Q, 17), np.int8)
-    confidence = np.zeros((Q, 17))
-    if not Q:
+    flags = np.zeros(X.shape[:2], np.int8)
+    confidence = np.zeros(X.shape[:2])
+    if not len(X):
         return X, flags, confidence
-    order = np.lexsort((instant, track))
-    bounds = np.flatnonzero(np.diff(track[order])) + 1
-    series_rows = []                                                               # (L,) rows, -1: absent
-    for rows in np.split(order, bounds):
-        t0 = instant[rows].min()
-        index = np.full(instant[rows].max() - t0 + 1, -1)
-        index[instant[rows] - t0] = rows
-        series_rows.append(index)
+    series = _series(instant, track)
     for joints in LIMB_PASSES:
-        gaps = []                 # (rows (n,), before rows, after rows, j, p, length, sigma, flag, gate)
-        for index in series_rows:
-            S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)   # (L, 17, 3)
-            seen = np.isfinite(S).all(-1)
-            disputes = (index >= 0)[:, None] & refused[np.maximum(index, 0)]     # (L, 17)
-            for j, p in joints:
-                offsets = S[:, j] - S[:, p]
-                both = seen[:, j] & seen[:, p]
-                if both.sum() < 2:
-                    continue
-                length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
-                sigma = _acc_sigma(offsets, unit)
-                starts, ends = _runs(~seen[:, j])
-                for a, b in zip(starts, ends):
-                    n = b - a
-                    at_start = a > 0 and both[a - 1]
-                    at_end = b < len(S) and both[b]
-                    brief = at_start and at_end and n < long_gap
-                    if not (n <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
-                        continue
-                    before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
-                    after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
-                    flag = INTERPOLATED if brief else INFERRED
-                    gate = RAY_GATE_SIGMAS if disputes[a:b, j].any() else np.inf
-                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag, gate))
+        gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
-            rows = np.array([g[0] for g in group])                                 # (N, n)
-            j = np.array([g[3] for g in group])
-            p = np.array([g[4] for g in group])
-            ends = np.array([g[1] + g[2] for g in group])                          # (N, 4)
-            known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
-            known[ends < 0] = np.nan
-            parent = X[rows, p[:, None]]                                           # (N, n, 3)
-            prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
-            o = origin[rows, :, j[:, None]] - parent[:, :, None]                   # (N, n, V, 3)
-            d = direction[rows, :, j[:, None]]
-            bone = np.array([g[5] for g in group])
-            r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
-                                 prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
-                                 np.array([g[8] for g in group]))
-            X[rows, j[:, None]] = parent + r
+            rows, j, filled, std = _fill_group(X, group, origin, direction, prior_X, unit)
+            X[rows, j[:, None]] = filled
             flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
             confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
     return X, flags, confidence
