@@ -214,3 +214,20 @@ def test_disputed_limb_joints():
     valid[2, 1:3, e] = False                                  # absent, not refused
     out = disputed(inliers, valid)
     assert out[0, w] and out.sum() == 1
+
+
+def test_close_disputes_fills_short_breaks_of_one_track():
+    """Two refused instants at most three apart close the stretch between them, in their own
+    track and joint only; farther apart they do not."""
+    from mvm.rig.occlusions import close_disputes
+
+    w = INDEX["left_wrist"]
+    instant = np.concatenate([np.arange(20), np.arange(20)])
+    track = np.repeat([0, 1], 20)
+    refused = np.zeros((40, 17), bool)
+    refused[[2, 5], w] = True                                  # 3, 4 between: closed
+    refused[[10, 15], w] = True                                # five apart: not
+    refused[20 + 6, w] = True                                  # the other track alone
+    out = close_disputes(refused, instant, track)
+    assert out[[2, 3, 4, 5], w].all() and not out[11:15, w].any() and out[[10, 15], w].all()
+    assert out[20:, w].sum() == 1 and out.sum() == 7

@@ -61,6 +61,8 @@ DEFAULT_ACC_SIGMA_M = 0.01
 MIN_ACC_SAMPLES = 5
 #: A limb joint is disputed where the triangulation refused this many of its views' keypoints. [1]
 DISPUTED_VIEWS = 2
+#: Instants either side within which two refused joints close the stretch between them. [1]
+DISPUTE_SPAN = 3
 #: A fill whose posterior standard deviation is this has confidence 0.5. [m]
 CONFIDENCE_SCALE_M = 0.05
 
@@ -85,6 +87,25 @@ def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
     out = np.zeros(valid.shape[::2], bool)
     refused = (valid & ~inliers).sum(1)                                            # (Q, 17)
     out[:, LIMB_JOINTS] = refused[:, LIMB_JOINTS] >= DISPUTED_VIEWS
+    return out
+
+
+def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray,
+                   span: int = DISPUTE_SPAN) -> np.ndarray:
+    """``refused: (Q, 17)`` (:func:`disputed`) with the joints of a track between two refused
+    ones at most ``span`` instants away on either side refused too: within a stretch where a
+    hidden hand is reported at other things, the instants where wrong views happen to agree
+    are as wrong. ``instant, track: (Q,)``."""
+    refused = np.asarray(refused, bool)
+    out = refused.copy()
+    for index in _series(np.asarray(instant), np.asarray(track)):
+        D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
+        c = np.concatenate([np.zeros((1, D.shape[1]), int), np.cumsum(D, 0)])     # (L + 1, 17)
+        t = np.arange(len(index))
+        before = c[t] - c[np.maximum(t - span, 0)] > 0
+        after = c[np.minimum(t + 1 + span, len(index))] - c[t + 1] > 0
+        present = index >= 0
+        out[index[present]] |= (before & after)[present]
     return out
 
 
