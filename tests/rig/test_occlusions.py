@@ -217,17 +217,17 @@ def test_disputed_limb_joints():
 
 
 def test_close_disputes_fills_short_breaks_of_one_track():
-    """Two refused instants at most three apart close the stretch between them, in their own
-    track and joint only; farther apart they do not."""
+    """An instant with a refused one at most three instants before it and another at most
+    three after is refused, in its own track and joint only."""
     from mvm.rig.occlusions import close_disputes
 
     w = INDEX["left_wrist"]
-    instant = np.concatenate([np.arange(20), np.arange(20)])
-    track = np.repeat([0, 1], 20)
-    refused = np.zeros((40, 17), bool)
+    instant = np.concatenate([np.arange(30), np.arange(30)])
+    track = np.repeat([0, 1], 30)
+    refused = np.zeros((60, 17), bool)
     refused[[2, 5], w] = True                                  # 3, 4 between: closed
-    refused[[10, 15], w] = True                                # five apart: not
-    refused[20 + 6, w] = True                                  # the other track alone
+    refused[[15, 23], w] = True                                # seven between: not
+    refused[30 + 6, w] = True                                  # the other track alone
     out = close_disputes(refused, instant, track)
-    assert out[[2, 3, 4, 5], w].all() and not out[11:15, w].any() and out[[10, 15], w].all()
-    assert out[20:, w].sum() == 1 and out.sum() == 7
+    assert out[[2, 3, 4, 5], w].all() and not out[16:23, w].any() and out[[15, 23], w].all()
+    assert out[30:, w].sum() == 1 and out.sum() == 7
