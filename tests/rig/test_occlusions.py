@@ -218,7 +218,7 @@ def test_disputed_limb_joints():
 
 def test_close_disputes_fills_short_breaks_of_one_track():
     """An instant with a refused one at most three instants before it and another at most
-    three after is refused, in its own track and joint only."""
+    three after is refused, and one next to a refused one, in its own track and joint only."""
     from mvm.rig.occlusions import close_disputes
 
     w = INDEX["left_wrist"]
@@ -229,5 +229,5 @@ def test_close_disputes_fills_short_breaks_of_one_track():
     refused[[15, 23], w] = True                                # seven between: not
     refused[30 + 6, w] = True                                  # the other track alone
     out = close_disputes(refused, instant, track)
-    assert out[[2, 3, 4, 5], w].all() and not out[16:23, w].any() and out[[15, 23], w].all()
-    assert out[30:, w].sum() == 1 and out.sum() == 7
+    assert out[1:7, w].all() and not out[17:22, w].any() and out[[14, 15, 16, 22, 23, 24], w].all()
+    assert out[35:38, w].all() and out[30:, w].sum() == 3 and out.sum() == 15

@@ -63,6 +63,9 @@ MIN_ACC_SAMPLES = 5
 DISPUTED_VIEWS = 2
 #: Instants either side within which two refused joints close the stretch between them. [1]
 DISPUTE_SPAN = 3
+#: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
+#: where the wrong views may still agree, and which the smoothing would carry outwards. [1]
+DISPUTE_GROW = 1
 #: A fill whose posterior standard deviation is this has confidence 0.5. [m]
 CONFIDENCE_SCALE_M = 0.05
 
@@ -90,22 +93,24 @@ def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
-def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray,
-                   span: int = DISPUTE_SPAN) -> np.ndarray:
+def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, span: int = DISPUTE_SPAN,
+                   grow: int = DISPUTE_GROW) -> np.ndarray:
     """``refused: (Q, 17)`` (:func:`disputed`) with the joints of a track between two refused
-    ones at most ``span`` instants away on either side refused too: within a stretch where a
-    hidden hand is reported at other things, the instants where wrong views happen to agree
-    are as wrong. ``instant, track: (Q,)``."""
+    ones at most ``span`` instants away on either side, and those at most ``grow`` instants
+    from one, refused too: within and at the edges of a stretch where a hidden hand is
+    reported at other things, the instants where wrong views happen to agree are as wrong.
+    ``instant, track: (Q,)``."""
     refused = np.asarray(refused, bool)
     out = refused.copy()
     for index in _series(np.asarray(instant), np.asarray(track)):
         D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
         c = np.concatenate([np.zeros((1, D.shape[1]), int), np.cumsum(D, 0)])     # (L + 1, 17)
         t = np.arange(len(index))
-        before = c[t] - c[np.maximum(t - span, 0)] > 0
-        after = c[np.minimum(t + 1 + span, len(index))] - c[t + 1] > 0
+        before = c[t + 1] - c[np.maximum(t - span, 0)] > 0                       # t itself counts
+        after = c[np.minimum(t + 1 + span, len(index))] - c[t] > 0
+        near = c[np.minimum(t + 1 + grow, len(index))] - c[np.maximum(t - grow, 0)] > 0
         present = index >= 0
-        out[index[present]] |= (before & after)[present]
+        out[index[present]] |= ((before & after) | near)[present]
     return out
 
 
