@@ -218,16 +218,17 @@ def test_disputed_limb_joints():
 
 def test_close_disputes_fills_short_breaks_of_one_track():
     """An instant with a refused one at most three instants before it and another at most
-    three after is refused, and one next to a refused one, in its own track and joint only."""
+    three after is refused, and the instant either side of a stretch of three or more so
+    closed (not of a lone one), in its own track and joint only."""
     from mvm.rig.occlusions import close_disputes
 
     w = INDEX["left_wrist"]
     instant = np.concatenate([np.arange(30), np.arange(30)])
     track = np.repeat([0, 1], 30)
     refused = np.zeros((60, 17), bool)
-    refused[[2, 5], w] = True                                  # 3, 4 between: closed
+    refused[[2, 5], w] = True                                  # 3, 4 between: closed, 1 and 6 grown
     refused[[15, 23], w] = True                                # seven between: not
-    refused[30 + 6, w] = True                                  # the other track alone
+    refused[30 + 6, w] = True                                  # the other track, alone: not grown
     out = close_disputes(refused, instant, track)
-    assert out[1:7, w].all() and not out[17:22, w].any() and out[[14, 15, 16, 22, 23, 24], w].all()
-    assert out[35:38, w].all() and out[30:, w].sum() == 3 and out.sum() == 15
+    assert out[1:7, w].all() and not out[16:23, w].any() and out[[15, 23], w].all()
+    assert out[36, w] and out[30:, w].sum() == 1 and out.sum() == 9

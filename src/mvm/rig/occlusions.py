@@ -66,6 +66,9 @@ DISPUTE_SPAN = 3
 #: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
 #: where the wrong views may still agree, and which the smoothing would carry outwards. [1]
 DISPUTE_GROW = 1
+#: Refused instants in a row that make a stretch (isolated refusals, a swap's or an outlier's,
+#: are not grown). [1]
+DISPUTE_STRETCH = 3
 #: A fill whose posterior standard deviation is this has confidence 0.5. [m]
 CONFIDENCE_SCALE_M = 0.05
 
@@ -93,24 +96,31 @@ def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
+def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """``(L, K)`` how many of ``mask: (L, K)`` are true from ``t + lo`` to ``t + hi`` (clipped)."""
+    L = len(mask)
+    c = np.concatenate([np.zeros((1,) + mask.shape[1:], int), np.cumsum(mask, 0)])    # (L + 1, K)
+    t = np.arange(L)
+    return c[np.clip(t + hi + 1, 0, L)] - c[np.clip(t + lo, 0, L)]
+
+
 def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, span: int = DISPUTE_SPAN,
                    grow: int = DISPUTE_GROW) -> np.ndarray:
     """``refused: (Q, 17)`` (:func:`disputed`) with the joints of a track between two refused
-    ones at most ``span`` instants away on either side, and those at most ``grow`` instants
-    from one, refused too: within and at the edges of a stretch where a hidden hand is
-    reported at other things, the instants where wrong views happen to agree are as wrong.
-    ``instant, track: (Q,)``."""
+    ones at most ``span`` instants away on either side refused too, and, around a stretch of
+    :data:`DISPUTE_STRETCH` or more so closed, ``grow`` instants either side: within and at the
+    edges of a stretch where a hidden hand is reported at other things, the instants where
+    wrong views happen to agree are as wrong. ``instant, track: (Q,)``."""
     refused = np.asarray(refused, bool)
     out = refused.copy()
+    m = DISPUTE_STRETCH
     for index in _series(np.asarray(instant), np.asarray(track)):
         D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
-        c = np.concatenate([np.zeros((1, D.shape[1]), int), np.cumsum(D, 0)])     # (L + 1, 17)
-        t = np.arange(len(index))
-        before = c[t + 1] - c[np.maximum(t - span, 0)] > 0                       # t itself counts
-        after = c[np.minimum(t + 1 + span, len(index))] - c[t] > 0
-        near = c[np.minimum(t + 1 + grow, len(index))] - c[np.maximum(t - grow, 0)] > 0
+        closed = (_window_count(D, -span, 0) > 0) & (_window_count(D, 0, span) > 0)
+        stretch = _window_count(_window_count(closed, 0, m - 1) == m, 1 - m, 0) > 0
+        closed |= _window_count(stretch, -grow, grow) > 0
         present = index >= 0
-        out[index[present]] |= ((before & after) | near)[present]
+        out[index[present]] |= closed[present]
     return out
 
 
