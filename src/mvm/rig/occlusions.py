@@ -5,11 +5,13 @@ grows (towards the middle of a gap, with its length, away from the views that se
 
 A limb joint whose views dispute it (:func:`disputed`: the triangulation refused at least
 :data:`DISPUTED_VIEWS` of its keypoints, as where a hidden hand is reported at other things in
-most views) is refused (the rig's driver leaves it out of the smoothing too) and filled as a
-missing one, from the rays of all its views, the dispute's included: through such a run a ray
-is used only where it agrees with the track's prediction, and a view only if its rays agree
-where the gap begins and ends (a detector that reports another thing in a view does it through
-the stretch, and its rays jump off the joint's path there).
+most views) is refused, with the instants between two such of a track and the edges of a
+stretch of them (:func:`close_disputes`; the rig's driver leaves them out of the smoothing too,
+and completes those the fill cannot fill as other missing joints), and filled as a missing one from the rays of all its
+views, the dispute's included: through such a run a ray is used only where it agrees with the
+track's prediction, and a view only if its rays agree where the gap begins and ends (a detector
+that reports another thing in a view does it through the stretch, and its rays jump off the
+joint's path there).
 
 A joint is filled over a run of missing instants when its parent joint (the shoulder of an
 elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole

@@ -248,7 +248,6 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
             X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
                                                           options, config or Config(), refused)
             persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
-            X = np.where((refused & (filled == 0))[..., None], persons.X, X)     # refused, not filled: kept
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
         flags = np.where(filled > 0, filled, flags).astype(np.int8)
     else:
