@@ -45,7 +45,8 @@ RAY_GATE_M = 0.25
 #: refused before the fit (:func:`mvm.core.gap_fit.fit_gaps`' ``gate_sigmas``). On the simulated
 #: Shelf-like stretches (benchmarks/rig_occlusion.py) 2 refused a view that sees a hidden elbow
 #: where the arm's motion turned as the stretch began; 3 lets it through (a whole arm with 2
-#: views 42-54 -> 42-45 mm, with 1 view 31-40 -> 20-34 mm; a wrist within 5 mm either way). [1]
+#: views 38-58 -> 33-46 mm, with 1 view 14-40 -> 15-34 mm; a wrist with 1 view 27-37 -> 28-40 mm,
+#: with 2 views 14-15 -> 13-14 mm). [1]
 RAY_GATE_SIGMAS = 3.0
 #: Standard deviation of the pose prior's guess of a limb joint (its error on hidden wrists). [m]
 PRIOR_SIGMA_M = 0.1
