@@ -104,6 +104,25 @@ def test_a_far_ray_is_refused():
     assert (weight == 0).all() and np.abs(r - alone).max() < 1e-9
 
 
+def test_a_view_that_reports_another_thing_through_the_gap_is_refused():
+    """Two views: one sees the joint, the other reports a point 10 cm off it through the whole
+    gap (its rays within the gate of the fill and the rays' Cauchy scale). Tried against the motion where the gap begins
+    and ends (``gate_sigmas``), the second view is refused whole and the fill follows the first;
+    without that test it pulls the fill off."""
+    rng = np.random.default_rng(3)
+    n = 25
+    before, after, truth = gap(n)
+    o1, d1 = camera_rays(truth, np.array([3.0, -2.0, 1.0]), 0.005, rng)
+    o2, d2 = camera_rays(truth + np.array([0.0, 0.06, 0.08]), np.array([-2.0, -3.0, 0.5]), 0.005, rng)
+    o, d = np.concatenate([o1, o2], 2), np.concatenate([d1, d2], 2)
+    args = (before, after, np.array([L]), np.array([0.004]), 0.005, no_prior(n), np.inf, o, d, 0.02, 0.25)
+    plain, _, _ = fit_gaps(*args)
+    tried, _, weight = fit_gaps(*args, gate_sigmas=2.0)
+    error = np.linalg.norm(tried[0] - truth, axis=-1)
+    assert (weight[0, :, 1] == 0).all() and (weight[0, :, 0] > 0.5).mean() > 0.9
+    assert error.mean() < 0.02 and error.mean() < 0.6 * np.linalg.norm(plain[0] - truth, axis=-1).mean()
+
+
 def test_the_uncertainty_grows_with_the_gap():
     stds = []
     for n in (10, 20, 40):

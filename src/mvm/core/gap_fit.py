@@ -29,6 +29,8 @@ import numpy as np
 
 #: Gauss-Newton iterations (bone linearization, ray weights).
 ITERATIONS = 6
+#: Instants next to a known side of a gap where a view's rays are tried against the motion. [1]
+END_INSTANTS = 3
 #: A ray's Cauchy weight halves at this many ``sigma_ray`` from the fit. [1]
 RAY_CAUCHY = 3.0
 
@@ -168,10 +170,30 @@ def _other_meeting(gaps: _Gaps, start: np.ndarray) -> np.ndarray:
     return np.where(gaps.present.any(-1)[..., None], o + depth[..., None] * d, start)
 
 
+def _agreeing(gaps: _Gaps, start: np.ndarray, H: np.ndarray, gate_sigmas: np.ndarray) -> np.ndarray:
+    """``(N, n, R)`` the present rays that agree with the guess ``start: (N, n, 3)`` of the
+    motion and the prior (normal matrix ``H``). A ray agrees within ``gate_sigmas: (N,)``
+    standard deviations of it (its posterior deviation and ``sigma_ray`` together). A view (the
+    rays' last axis) with rays in the :data:`END_INSTANTS` instants next to a known side of the
+    gap, where the guess is sharp, is kept or refused whole by them (at least half agree): a
+    detector that reports another thing in a view does it through the stretch, and that view's
+    rays jump off the joint's path where the gap begins; the other views ray by ray."""
+    N, n = start.shape[:2]
+    spread = np.sqrt(_variance(H, N, n) + gaps.sigma_ray ** 2)                    # (N, n)
+    agree = gaps.present & (_ray_distances(gaps, start) <= gate_sigmas[:, None, None] * spread[..., None])
+    t = np.arange(n)
+    ends = (((t < END_INSTANTS) & np.isfinite(gaps.known[:, 1:2, 0]))
+            | ((n - 1 - t < END_INSTANTS) & np.isfinite(gaps.known[:, 2:3, 0])))[..., None]   # (N, n, 1)
+    tried = (gaps.present & ends).sum(1)                                           # (N, R)
+    trusted = 2 * (agree & ends).sum(1) >= tried
+    return np.where((tried > 0)[:, None], gaps.present & trusted[:, None], agree)
+
+
 def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
              sigma_bone: np.ndarray, prior: np.ndarray | None = None, sigma_prior: float = np.inf,
              ray_origin: np.ndarray | None = None, ray_direction: np.ndarray | None = None,
-             sigma_ray: float = np.inf, gate: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+             sigma_ray: float = np.inf, gate: float = np.inf,
+             gate_sigmas: np.ndarray | float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill ``N`` gaps of ``n`` instants each.
 
     Args:
@@ -185,7 +207,11 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
         ray_origin, ray_direction: ``(N, n, R, 3)`` rays relative to the parent (origin: the
             camera centre minus the parent; direction: unit), NaN where absent; ``sigma_ray``
             the deviation of a point's distance to its ray; ``gate``: rays farther from the fit
-            than this weigh nothing.
+            than this weigh nothing; ``gate_sigmas``: ``(N,)`` (or one number) rays farther
+            than this many standard deviations from the guess of the motion and the prior
+            alone (its posterior deviation and ``sigma_ray`` together) are refused before the
+            fit: a keypoint that disagrees with where the track predicts the joint is another
+            thing's.
     Returns:
         ``(r: (N, n, 3), std: (N, n), ray_weight: (N, n, R))``: the offsets, each instant's
         posterior standard deviation (per axis, the root mean of its covariance's diagonal)
@@ -205,12 +231,19 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
         raise ValueError(f"sigma_acc: must be > 0, got {sigma_acc.min()}")
     gaps = _gaps(before, after, bone, sigma_acc, sigma_bone, prior, sigma_prior, ray_origin, ray_direction,
                  sigma_ray, gate, n)
-    _, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)              # motion and prior only
+    H0, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)             # motion and prior only
+    if gaps.rays and np.isfinite(gate_sigmas).any():
+        gaps.present = _agreeing(gaps, start, H0, np.broadcast_to(np.asarray(gate_sigmas, float), (N,)))
     r, H, weight = _descend(gaps, start)
     if gaps.rays:
         r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))
         better = _objective(gaps, r2) < _objective(gaps, r)
         r, H, weight = (np.where(better[(...,) + (None,) * (a.ndim - 1)], b, a)
                         for a, b in ((r, r2), (H, H2), (weight, weight2)))
-    var = np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)
-    return r, np.sqrt(np.maximum(var, 0.0)), weight
+    return r, np.sqrt(np.maximum(_variance(H, N, n), 0.0)), weight
+
+
+def _variance(H: np.ndarray, N: int, n: int) -> np.ndarray:
+    """``(N, n)`` each instant's posterior variance per axis (the mean of its covariance's
+    diagonal) from the normal matrices ``H: (N, 3n, 3n)``."""
+    return np.einsum("nii->ni", np.linalg.inv(H)).reshape(N, n, 3).mean(-1)

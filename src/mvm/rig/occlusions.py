@@ -3,6 +3,16 @@ the pose prior and the rays of the views that still see the joint
 (:func:`mvm.core.gap_fit.fit_gaps`), with a confidence that falls as the fill's uncertainty
 grows (towards the middle of a gap, with its length, away from the views that see it).
 
+A limb joint whose views dispute it (:func:`disputed`: the triangulation refused at least
+:data:`DISPUTED_VIEWS` of its keypoints, as where a hidden hand is reported at other things in
+most views) is refused, with the instants between two such of a track and the edges of a
+stretch of them (:func:`close_disputes`; the rig's driver leaves them out of the smoothing too,
+and completes those the fill cannot fill as other missing joints), and filled as a missing one from the rays of all its
+views, the dispute's included: through such a run a ray is used only where it agrees with the
+track's prediction, and a view only if its rays agree where the gap begins and ends (a detector
+that reports another thing in a view does it through the stretch, and its rays jump off the
+joint's path there).
+
 A joint is filled over a run of missing instants when its parent joint (the shoulder of an
 elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
 run and both are seen on at least one side of it (a run at a track's end is continued from the
@@ -30,6 +40,14 @@ BONE_SIGMA = 0.03
 RAY_SIGMA_M = 0.02
 #: Rays farther than this from the fill are another person's keypoint or an outlier. [m]
 RAY_GATE_M = 0.25
+#: Through a run with refused instants (its views disagree: some report another thing), rays
+#: farther than this many standard deviations from the motion's and the prior's guess are
+#: refused before the fit (:func:`mvm.core.gap_fit.fit_gaps`' ``gate_sigmas``). On the simulated
+#: Shelf-like stretches (benchmarks/rig_occlusion.py) 2 refused a view that sees a hidden elbow
+#: where the arm's motion turned as the stretch began; 3 lets it through (a whole arm with 2
+#: views 38-58 -> 33-46 mm, with 1 view 14-40 -> 15-34 mm; a wrist with 1 view 27-37 -> 28-40 mm,
+#: with 2 views 14-15 -> 13-14 mm). [1]
+RAY_GATE_SIGMAS = 3.0
 #: Standard deviation of the pose prior's guess of a limb joint (its error on hidden wrists). [m]
 PRIOR_SIGMA_M = 0.1
 #: The smoothed track's accelerations understate a hidden limb's (the low-pass filter takes the
@@ -47,6 +65,16 @@ MIN_ACC_SIGMA_M = 0.002
 #: Second differences of an offset needed to measure its own; fewer: this default. [m / instant²]
 DEFAULT_ACC_SIGMA_M = 0.01
 MIN_ACC_SAMPLES = 5
+#: A limb joint is disputed where the triangulation refused this many of its views' keypoints. [1]
+DISPUTED_VIEWS = 2
+#: Instants either side within which two refused joints close the stretch between them. [1]
+DISPUTE_SPAN = 3
+#: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
+#: where the wrong views may still agree, and which the smoothing would carry outwards. [1]
+DISPUTE_GROW = 1
+#: Refused instants in a row that make a stretch (isolated refusals, a swap's or an outlier's,
+#: are not grown). [1]
+DISPUTE_STRETCH = 3
 #: A fill whose posterior standard deviation is this has confidence 0.5. [m]
 CONFIDENCE_SCALE_M = 0.05
 
@@ -62,6 +90,44 @@ def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> t
     ok = (conf > threshold)[..., None]
     origin = np.broadcast_to(cameras.centers[None, :, None], d.shape)
     return np.where(ok, origin, np.nan), np.where(ok, d, np.nan)
+
+
+def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``(Q, 17)`` the limb joints (:data:`LIMB_JOINTS`) of ``Q`` persons whose views dispute
+    them: at least :data:`DISPUTED_VIEWS` of their keypoints ``valid: (Q, V, 17)`` left out of
+    the triangulation's ``inliers: (Q, V, 17)`` (reconstructed or not)."""
+    out = np.zeros(valid.shape[::2], bool)
+    refused = (valid & ~inliers).sum(1)                                            # (Q, 17)
+    out[:, LIMB_JOINTS] = refused[:, LIMB_JOINTS] >= DISPUTED_VIEWS
+    return out
+
+
+def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    """``(L, K)`` how many of ``mask: (L, K)`` are true from ``t + lo`` to ``t + hi`` (clipped)."""
+    L = len(mask)
+    c = np.concatenate([np.zeros((1,) + mask.shape[1:], int), np.cumsum(mask, 0)])    # (L + 1, K)
+    t = np.arange(L)
+    return c[np.clip(t + hi + 1, 0, L)] - c[np.clip(t + lo, 0, L)]
+
+
+def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, span: int = DISPUTE_SPAN,
+                   grow: int = DISPUTE_GROW) -> np.ndarray:
+    """``refused: (Q, 17)`` (:func:`disputed`) with the joints of a track between two refused
+    ones at most ``span`` instants away on either side refused too, and, around a stretch of
+    :data:`DISPUTE_STRETCH` or more so closed, ``grow`` instants either side: within and at the
+    edges of a stretch where a hidden hand is reported at other things, the instants where
+    wrong views happen to agree are as wrong. ``instant, track: (Q,)``."""
+    refused = np.asarray(refused, bool)
+    out = refused.copy()
+    m = DISPUTE_STRETCH
+    for index in _series(np.asarray(instant), np.asarray(track)):
+        D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
+        closed = (_window_count(D, -span, 0) > 0) & (_window_count(D, 0, span) > 0)
+        stretch = _window_count(_window_count(closed, 0, m - 1) == m, 1 - m, 0) > 0
+        closed |= _window_count(stretch, -grow, grow) > 0
+        present = index >= 0
+        out[index[present]] |= closed[present]
+    return out
 
 
 def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -84,9 +150,72 @@ def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
     return max(ACC_SIGMA_FACTOR * float(np.sqrt(np.mean(acc ** 2))), MIN_ACC_SIGMA_M * unit)
 
 
+def _series(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
+    """Each track's rows by instant: ``(L,)`` from its first instant to its last, -1 where absent."""
+    order = np.lexsort((instant, track))
+    out = []
+    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
+        t0 = instant[rows].min()
+        index = np.full(instant[rows].max() - t0 + 1, -1)
+        index[instant[rows] - t0] = rows
+        out.append(index)
+    return out
+
+
+def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, long_gap: int, max_gap: int,
+                unit: float) -> list[tuple]:
+    """The runs of one track (``index``, :func:`_series`) its limb ``joints`` ((joint, parent)
+    pairs) can be filled over: ``(rows (n,), [the rows of the two instants before], [after] (-1:
+    unknown), joint, parent, bone length, sigma_acc, flag, gate_sigmas)``."""
+    S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)  # (L, 17, 3)
+    seen = np.isfinite(S).all(-1)
+    disputes = (index >= 0)[:, None] & refused[np.maximum(index, 0)]            # (L, 17)
+    gaps = []
+    for j, p in joints:
+        offsets = S[:, j] - S[:, p]
+        both = seen[:, j] & seen[:, p]
+        if both.sum() < 2:
+            continue
+        length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
+        sigma = _acc_sigma(offsets, unit)
+        for a, b in zip(*_runs(~seen[:, j])):
+            at_start = a > 0 and both[a - 1]
+            at_end = b < len(S) and both[b]
+            if not (b - a <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
+                continue
+            before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
+            after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
+            flag = INTERPOLATED if at_start and at_end and b - a < long_gap else INFERRED
+            gate = RAY_GATE_SIGMAS if disputes[a:b, j].any() else np.inf
+            gaps.append((index[a:b], before, after, j, p, length, sigma, flag, gate))
+    return gaps
+
+
+def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction: np.ndarray,
+                prior_X: np.ndarray | None, unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Fit ``group``'s gaps (of one length, :func:`_track_gaps`): ``(rows (N, n), joints (N,),
+    joint positions (N, n, 3), posterior deviations (N, n))``."""
+    rows = np.array([g[0] for g in group])                                         # (N, n)
+    j = np.array([g[3] for g in group])
+    p = np.array([g[4] for g in group])
+    ends = np.array([g[1] + g[2] for g in group])                                  # (N, 4)
+    known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
+    known[ends < 0] = np.nan
+    parent = X[rows, p[:, None]]                                                   # (N, n, 3)
+    prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
+    o = origin[rows, :, j[:, None]] - parent[:, :, None]                           # (N, n, V, 3)
+    d = direction[rows, :, j[:, None]]
+    bone = np.array([g[5] for g in group])
+    r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
+                         prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
+                         np.array([g[8] for g in group]))
+    return rows, j, parent + r, std
+
+
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
                     direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
-                    max_gap: int = 90, unit: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_gap: int = 90, unit: float = 1.0,
+                    refused: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
     Args:
@@ -98,66 +227,30 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             shorter ones interpolated. [instants]
         max_gap: the longest run filled. [instants]
         unit: world units per metre (the module's constants are in metres).
+        refused: ``(Q, 17)`` joints of ``X`` refused as outliers (:func:`disputed`), filled as
+            missing ones (those that cannot be are left missing); the rays of a run with one
+            are tried against the track's motion first (``gate_sigmas`` of
+            :func:`mvm.core.gap_fit.fit_gaps`).
     Returns:
         ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
         joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
         confidence (0 elsewhere).
     """
     X = np.array(X, dtype=float)
+    refused = np.zeros(X.shape[:2], bool) if refused is None else np.asarray(refused, bool)
+    X[refused] = np.nan
     instant, track = np.asarray(instant), np.asarray(track)
-    Q = len(X)
-    flags = np.zeros((Q, 17), np.int8)
-    confidence = np.zeros((Q, 17))
-    if not Q:
+    flags = np.zeros(X.shape[:2], np.int8)
+    confidence = np.zeros(X.shape[:2])
+    if not len(X):
         return X, flags, confidence
-    order = np.lexsort((instant, track))
-    bounds = np.flatnonzero(np.diff(track[order])) + 1
-    series_rows = []                                                               # (L,) rows, -1: absent
-    for rows in np.split(order, bounds):
-        t0 = instant[rows].min()
-        index = np.full(instant[rows].max() - t0 + 1, -1)
-        index[instant[rows] - t0] = rows
-        series_rows.append(index)
+    series = _series(instant, track)
     for joints in LIMB_PASSES:
-        gaps = []                       # (rows (n,), before rows, after rows, j, p, length, sigma, flag)
-        for index in series_rows:
-            S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)   # (L, 17, 3)
-            seen = np.isfinite(S).all(-1)
-            for j, p in joints:
-                offsets = S[:, j] - S[:, p]
-                both = seen[:, j] & seen[:, p]
-                if both.sum() < 2:
-                    continue
-                length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
-                sigma = _acc_sigma(offsets, unit)
-                starts, ends = _runs(~seen[:, j])
-                for a, b in zip(starts, ends):
-                    n = b - a
-                    at_start = a > 0 and both[a - 1]
-                    at_end = b < len(S) and both[b]
-                    brief = at_start and at_end and n < long_gap
-                    if not (n <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
-                        continue
-                    before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
-                    after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
-                    flag = INTERPOLATED if brief else INFERRED
-                    gaps.append((index[a:b], before, after, j, p, length, sigma, flag))
+        gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
-            rows = np.array([g[0] for g in group])                                 # (N, n)
-            j = np.array([g[3] for g in group])
-            p = np.array([g[4] for g in group])
-            ends = np.array([g[1] + g[2] for g in group])                          # (N, 4)
-            known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
-            known[ends < 0] = np.nan
-            parent = X[rows, p[:, None]]                                           # (N, n, 3)
-            prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
-            o = origin[rows, :, j[:, None]] - parent[:, :, None]                   # (N, n, V, 3)
-            d = direction[rows, :, j[:, None]]
-            bone = np.array([g[5] for g in group])
-            r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
-                                 prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit)
-            X[rows, j[:, None]] = parent + r
+            rows, j, filled, std = _fill_group(X, group, origin, direction, prior_X, unit)
+            X[rows, j[:, None]] = filled
             flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
             confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
     return X, flags, confidence

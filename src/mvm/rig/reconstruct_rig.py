@@ -32,7 +32,7 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
+from mvm.rig.occlusions import LIMB_JOINTS, close_disputes, disputed, fill_occlusions, rays
 from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
@@ -235,13 +235,18 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     if config is not None and config.refine and detections is not None and len(persons):
         persons = refine_by_tracks(persons, tracking.track, detections, cameras, config, prior, options.bone_weight,
                                    options.workers)
-    X = smooth_tracks(persons.X, persons.instant, tracking.track, options.smoothing, rate=options.rate,
-                      cutoff_hz=options.cutoff, order=options.filter_order, window=options.savgol_window)
+    fill = complete and detections is not None and cameras is not None and options.occlusion_max_gap > 0
+    refused = np.zeros(persons.X.shape[:2], bool)
+    if fill and len(persons):
+        refused = close_disputes(disputed(persons.inliers, persons.valid), persons.instant, tracking.track)
+    X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
+                      options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
+                      window=options.savgol_window)
     if complete:
         filled = np.zeros(X.shape[:2], np.int8)
-        if detections is not None and cameras is not None and options.occlusion_max_gap > 0 and len(persons):
+        if fill and len(persons):
             X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
-                                                          options, config or Config())
+                                                          options, config or Config(), refused)
             persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
         flags = np.where(filled > 0, filled, flags).astype(np.int8)
@@ -251,7 +256,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
 
 
 def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndarray, detections, cameras, prior,
-                          options: RigOptions, config: Config):
+                          options: RigOptions, config: Config, refused: np.ndarray | None = None):
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
     person's members and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
@@ -262,7 +267,7 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     origin, direction = rays(xy, conf, cameras)
     guess = infer_missing(X, prior)[0] if prior is not None else None
     return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
-                           options.occlusion_max_gap, 1.0 / options.metres_per_unit)
+                           options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused)
 
 
 def check_smoothing(options: RigOptions) -> None:
