@@ -41,7 +41,15 @@ def logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
     """``log Σ exp(a)`` along ``axis``, with the maximum factored out (exact for -inf entries).
 
     Here rather than ``scipy.special.logsumexp``: importing scipy.special costs more than the
-    refinement of a whole rig sequence, and the rig command imports no scipy at all."""
+    refinement of a whole rig sequence, and the rig command imports no scipy at all.
+
+    >>> float(logsumexp(np.log([1.0, 2.0, 3.0])))
+    1.791759469228055
+    >>> round(float(logsumexp(np.array([1000.0, 1000.0])) - 1000.0), 12)     # no overflow
+    0.69314718056
+    >>> float(logsumexp(np.array([-np.inf, -np.inf])))
+    -inf
+    """
     a = np.asarray(a, dtype=float)
     top = np.max(a, axis=axis, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)

@@ -45,7 +45,11 @@ def row_nanmedian(a: np.ndarray) -> np.ndarray:
     """``np.nanmedian(a, axis=1)`` of ``a: (Q, B)`` -> ``(Q,)``, NaN for an all-NaN row, with no
     warning, and the same numbers: the mean of the middle two of each row's sorted non-NaN
     values (NaNs sort last). For the few short rows of one scene, ``np.nanmedian`` goes through
-    masked arrays and costs several times more."""
+    masked arrays and costs several times more.
+
+    >>> row_nanmedian(np.array([[1.0, 5.0, 2.0], [4.0, np.nan, 3.0], [np.nan, np.nan, np.nan]]))
+    array([2. , 3.5, nan])
+    """
     s = np.sort(a, axis=1)
     n = (~np.isnan(a)).sum(1)
     rows = np.arange(len(s))
