@@ -98,6 +98,12 @@ def canonicalize(poses: np.ndarray, frame: tuple | None = None) -> np.ndarray:
     The result does not depend on the world's rotation, translation or scale. NaN joints stay
     NaN; a pose lacking a hip or a shoulder (or with coincident hips) is all NaN. ``frame``:
     the poses' ``body_frame`` when the caller already has it.
+
+    >>> pose = np.random.default_rng(0).normal(size=(17, 3))
+    >>> q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))
+    >>> moved = 3.0 * pose @ (q * np.sign(np.linalg.det(q))).T + [1.0, -2.0, 0.5]
+    >>> np.allclose(canonicalize(moved), canonicalize(pose))
+    True
     """
     rotation, centre, scale = body_frame(poses) if frame is None else frame
     with np.errstate(invalid="ignore"):

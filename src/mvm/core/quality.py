@@ -9,7 +9,13 @@ from mvm.core.geometry import project
 
 
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px."""
+    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px.
+
+    >>> P = np.hstack([np.eye(3), np.zeros((3, 1))])[None, None]          # 1 person, 1 view
+    >>> X = np.array([[[0.0, 0.0, 1.0], [1.0, 1.0, 2.0]]])
+    >>> reprojection_errors(X, np.array([[[[0.0, 0.0], [0.5, 0.0]]]]), P)
+    array([[[0. , 0.5]]])
+    """
     uv, _ = project(X[:, None], P[:, :, None])
     return np.linalg.norm(uv - xy, axis=-1)
 
