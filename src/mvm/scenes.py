@@ -18,9 +18,8 @@ from pathlib import Path
 
 from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
-from mvm.errors import InputError
-from mvm.io.files import LockTimeout, exclusive_lock, remove_stale_temporaries
-from mvm.io.provenance import fingerprints, forget, record_path, write_record
+from mvm.io.outputs import output_lock
+from mvm.io.provenance import fingerprints, forget, write_record
 from mvm.io.scene_dir import (
     RECONSTRUCT_STAGE,
     output_dir,
@@ -203,14 +202,9 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     fingerprints). Runs on the same scene may compute at once; writing is one at a time, and
     the temporary files of a killed run are removed by the next one."""
     document, scene, hashed = made
-    try:
-        with exclusive_lock(out_dir, config.lock_timeout_s):
-            remove_stale_temporaries(out_dir, "poses3d.json", record_path(out_dir / "poses3d.json").name)
-            forget(out_dir / "poses3d.json")
-            write_poses3d(out_dir / "poses3d.json", document)
-            if hashed is not None:
-                write_record(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
-                             {"config": asdict(config), "metric_scale": False}, hashed)
-    except LockTimeout:
-        raise InputError(out_dir, None, f"another mvm run has been writing here for more than "
-                                        f"{config.lock_timeout_s:g} s (lock_timeout_s)") from None
+    with output_lock(out_dir / "poses3d.json", config.lock_timeout_s):
+        forget(out_dir / "poses3d.json")
+        write_poses3d(out_dir / "poses3d.json", document)
+        if hashed is not None:
+            write_record(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
+                         {"config": asdict(config), "metric_scale": False}, hashed)
