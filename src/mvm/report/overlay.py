@@ -34,8 +34,8 @@ def opencv():
     """The ``cv2`` module; its absence is one :class:`InputError` line saying how to install it."""
     try:
         import cv2
-    except ImportError:  # pragma: no cover - opencv is installed with the 'video' extra
-        raise InputError(None, None, "overlays need OpenCV: pip install 'mvm[video]'") from None
+    except ImportError:  # pragma: no cover - opencv is a core dependency
+        raise InputError(None, None, "overlays need OpenCV: pip install opencv-python-headless") from None
     return cv2
 
 
