@@ -61,7 +61,12 @@ def prior_weights(config: Config, X: np.ndarray, centers: np.ndarray, used: np.n
 def noise_threshold(sigma: np.ndarray, config: Config) -> np.ndarray:
     """The RANSAC threshold of noise ``sigma: (B,)`` (person sizes): ``ransac_threshold_sigmas``
     times it, within half to twice ``ransac_threshold``, which a block without a measure (NaN)
-    keeps. ``(B,)``."""
+    keeps. ``(B,)``.
+
+    >>> config = Config(ransac_threshold=0.1, ransac_threshold_sigmas=3.0)
+    >>> noise_threshold(np.array([0.02, 0.01, 0.5, np.nan]), config)
+    array([0.06, 0.05, 0.2 , 0.1 ])
+    """
     base = config.ransac_threshold
     scaled = np.clip(config.ransac_threshold_sigmas * np.asarray(sigma, dtype=float), base / 2, 2 * base)
     return np.where(np.isfinite(sigma), scaled, base)
