@@ -143,6 +143,13 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
     at least half its reconstructed joints project in front of the camera and inside the
     image. Returns ``(Q,)``; a few persons at a time (:func:`mvm.core.pose_distance.person_chunks`).
+
+    One camera at the origin looking along z (640 × 480 px); one person in front of it, one behind:
+
+    >>> P = np.array([[[500.0, 0, 320, 0], [0, 500, 240, 0], [0, 0, 1, 0]]])
+    >>> X = np.zeros((2, 17, 3)) + [[[0.0, 0.0, 4.0]], [[0.0, 0.0, -4.0]]]
+    >>> visible_frames(X, P, np.array([[640.0, 480.0]]))
+    array([1, 0])
     """
     known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
     count = np.zeros(len(X), dtype=np.int64)

@@ -66,6 +66,19 @@ def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     the pelvis (mid-hips), ``scale`` the torso length (mean of the left and right
     shoulder-to-hip distances). Canonical coordinates are ``rotation @ (X - centre) / scale``.
     Poses lacking a hip or a shoulder, or with coincident hips, give NaN.
+
+    A person standing at (1, 2, 0), hips 0.3 apart along x, shoulders 0.5 above them: the body
+    axes are the world's:
+
+    >>> pose = np.zeros((17, 3)) + [1.0, 2.0, 0.0]
+    >>> pose[LEFT_HIP, 0], pose[RIGHT_HIP, 0] = 1.15, 0.85
+    >>> pose[LEFT_SHOULDER] = [1.15, 2.0, 0.5]
+    >>> pose[RIGHT_SHOULDER] = [0.85, 2.0, 0.5]
+    >>> rotation, centre, scale = body_frame(pose)
+    >>> rotation.round(9), centre, float(scale)
+    (array([[1., 0., 0.],
+           [0., 1., 0.],
+           [0., 0., 1.]]), array([1., 2., 0.]), 0.5)
     """
     poses = np.asarray(poses, dtype=float)
     if poses.ndim < 2 or poses.shape[-2:] != (NUM_JOINTS, 3):

@@ -51,7 +51,16 @@ def prior_weights(config: Config, X: np.ndarray, centers: np.ndarray, used: np.n
     of the view spread of its joints' centroid (``X: (P, J, 3)``, NaN where not reconstructed)
     from the camera centres ``centers: (P, M, 3)`` of its views ``used: (P, M)`` bool (those with
     an inlier keypoint). A person seen from all around has its views' evidence in every
-    direction; one on a narrow arc has little evidence of its depth, and the prior holds its shape."""
+    direction; one on a narrow arc has little evidence of its depth, and the prior holds its shape.
+
+    A person seen from all around a ring, another from a narrow arc: the prior holds the second more.
+
+    >>> ring = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
+    >>> arc = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 0.2, 8)])
+    >>> w = prior_weights(Config(), np.zeros((2, 17, 3)), 5 * np.stack([ring, arc]), np.ones((2, 8), bool))
+    >>> bool(w[1] > w[0] == Config().prior_weight)
+    True
+    """
     finite = np.isfinite(X).all(-1)                                               # (P, J)
     with np.errstate(invalid="ignore"):
         centroid = np.where(finite[..., None], X, 0.0).sum(1) / finite.sum(1)[:, None]
