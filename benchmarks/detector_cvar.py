@@ -53,7 +53,7 @@ def simulated_scenes(root: Path, noises: list[float], frames: int, people: int, 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="*", type=Path, help="reconstructed scene directories")
-    parser.add_argument("--output", default="mvm", help="folder of poses3d.json in each scene")
+    parser.add_argument("--output-name", default="mvm", help="folder of poses3d.json in each scene")
     parser.add_argument("--noise", type=float, nargs="+", default=[0.004, 0.008, 0.016],
                         help="demonstration: keypoint noise of each simulated detector")
     parser.add_argument("--frames", type=int, default=40)
@@ -64,7 +64,7 @@ def main() -> None:
         scenes = args.scenes or simulated_scenes(Path(tmp), args.noise, args.frames, args.people, args.seed)
         print(f"{'scene':<24} {'detector':<40} {'C_var@0.5':>10} {'C_var@0.9':>10}")
         for scene in scenes:
-            values = evaluate_cvar([scene], (0.5, 0.9), args.output)["scenes"][scene.name]
+            values = evaluate_cvar([scene], (0.5, 0.9), args.output_name)["scenes"][scene.name]
             cells = " ".join(f"{'–' if v is None else f'{v:.5f}':>10}" for v in values.values())
             print(f"{scene.name:<24} {detector_of(scene)[:40]:<40} {cells}")
         print("C_var in squared world units (m² for a metric scene; the simulation is in metres)")

@@ -7,7 +7,7 @@ python3 -m venv .venv
 . .venv/bin/activate
 python -m pip install -q --upgrade pip
 python -m pip install -q torch==2.13.0
-python -m pip install -q -c constraints.txt -e ".[net,video,detect,eval,dev,bench,report,ray]"
+python -m pip install -q -c constraints.txt -e ".[net,detect,eval,dev,bench,ray]"
 # An editable install leaves mvm's own modules to be compiled at each start where bytecode
 # is not written (PYTHONDONTWRITEBYTECODE): compile them once, as pip does for a regular install.
 python -m compileall -q src/mvm

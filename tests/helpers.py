@@ -231,3 +231,13 @@ def write_avi(path: Path, images, fps: float = 10.0, announce: int | None = None
         struct.pack_into("<I", data, stream + 8 + 32, announce)       # AVIStreamHeader.dwLength
         path.write_bytes(bytes(data))
     return path
+
+
+def dead_pid() -> int:
+    """The process number of a process that has ended (and been waited for): what a killed
+    writer's temporary file names (``.NAME.mvm-tmp-PID-XXXX.tmp``)."""
+    import subprocess
+    import sys
+
+    return int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True, check=True).stdout)

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
-from mvm.io.files import atomic_write_json, remove_stale_temporaries
-from mvm.io.provenance import fingerprints, produce, record_path
+from mvm.io.files import atomic_write_json
+from mvm.io.provenance import fingerprints, produce
 from mvm.io.scene_dir import (
     RECONSTRUCT_STAGE,
     TIMINGS,
@@ -81,8 +81,7 @@ def result_document(result: Result, scene, config: Config, extra: dict | None = 
 
 def write_result(out_dir: Path, document: dict, timings: dict) -> None:
     """Write ``out_dir/poses3d.json`` and the seconds its reconstruction took
-    (``out_dir/timings.json``), each atomically; the caller holds the folder's lock."""
-    remove_stale_temporaries(out_dir, "poses3d.json", record_path(out_dir / "poses3d.json").name, TIMINGS)
+    (``out_dir/timings.json``), each atomically; the caller holds the output's lock."""
     write_poses3d(out_dir / "poses3d.json", document)
     atomic_write_json(out_dir / TIMINGS, {k: round(v, 4) for k, v in timings.items()}, pretty=True)
 
@@ -236,4 +235,4 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     document, timings, scene, hashed = made
     produce(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
             reconstruct_settings(config, metric_scale=False), lambda why, _: write_result(out_dir, document, timings),
-            None, force=True, lock=out_dir, lock_timeout_s=config.lock_timeout_s, hashed=hashed)
+            None, force=True, locked=True, lock_timeout_s=config.lock_timeout_s, hashed=hashed)

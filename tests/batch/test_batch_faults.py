@@ -73,6 +73,7 @@ def root(tmp_path):
     return tmp_path, good
 
 
+@pytest.mark.slow
 def test_killed_worker_is_retried(root):
     root, good = root
     proc = _start(root)
@@ -94,6 +95,7 @@ def test_killed_worker_is_retried(root):
     _check_all_done(root, good)
 
 
+@pytest.mark.slow
 def test_killed_driver_then_rerun(root):
     root, good = root
     proc = _start(root)
@@ -154,6 +156,7 @@ def test_runs_that_create_the_manifest_at_once_all_open_it(tmp_path):
         assert [answers.get(timeout=5) for _ in runs] == ["ok"] * 4
 
 
+@pytest.mark.slow
 def test_two_drivers_share_one_root(root):
     """Two runs started together on the same root split the clips: each (clip, stage) is
     committed once, by one of them."""

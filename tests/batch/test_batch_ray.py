@@ -29,6 +29,7 @@ def _persons(root, cid):
     return [(p["keypoints3d"], p["members"]) for p in doc["persons"]]
 
 
+@pytest.mark.slow
 def test_ray_engine_equals_local_engine(tmp_path, local_ray):
     good = make_root(tmp_path / "ray", n=19, people=(2, 3), frames=(10, 14))
     shutil.copytree(tmp_path / "ray", tmp_path / "local")
@@ -55,6 +56,7 @@ def test_ray_engine_equals_local_engine(tmp_path, local_ray):
     assert a["annotations"] == b["annotations"] and len(a["images"]) == len(b["images"]) > 0
 
 
+@pytest.mark.slow
 def test_ray_command_starts_its_own_instance(tmp_path):
     """The command line starts (and stops) a local Ray instance of --workers CPUs itself."""
     import os

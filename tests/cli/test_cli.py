@@ -81,7 +81,7 @@ def test_folder_where_a_file_is_wanted_is_one_line(tmp_path):
     folder = tmp_path / "a folder"
     folder.mkdir()
     cases = [
-        (["rig", "calibrate", str(tmp_path), "--from-people", "-o", str(folder)], "--output"),
+        (["rig", "calibrate", str(tmp_path), "--from-people", "-o", str(folder)], "--out"),
         (["reconstruct", str(tmp_path), "--config", str(folder)], "--config"),
         (["frames", str(folder)], "VIDEO"),
         (["simulate", str(tmp_path / "s"), "--trajectory", str(tmp_path / "missing.txt")], "--trajectory"),
@@ -99,4 +99,4 @@ def test_a_required_path_not_given_is_one_line_that_says_so(tmp_path):
     ``mvm: error: --output:`` and nothing more)."""
     r = CliRunner().invoke(main, ["rig", "calibrate", str(tmp_path), "--from-people"])
     lines = r.stderr.strip().splitlines()
-    assert r.exit_code == 2 and lines == ["mvm: error: --output: required, not given"], r.output
+    assert r.exit_code == 2 and lines == ["mvm: error: --out: required, not given"], r.output

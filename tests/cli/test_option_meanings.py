@@ -32,12 +32,31 @@ def test_o_is_the_output_path(names):
     assert isinstance(option.type, OutputPath)
 
 
-def test_no_o_means_a_name_any_more():
-    """``-o`` of ``mvm reconstruct`` (a folder name inside each scene) is hidden and deprecated."""
+def _every_command():
+    """``(names, command)`` of every command and subcommand of ``mvm``."""
+    import click
+
+    found = []
     for name in COMMANDS:
-        for param in getattr(_command((name,)), "params", []):
-            if "-o" in param.opts and not isinstance(param.type, __import__("mvm.cli.common").cli.common.OutputPath):
-                assert (name, param.hidden) == ("reconstruct", True)
+        command = _command((name,))
+        if isinstance(command, click.Group):
+            found += [((name, sub), command.get_command(None, sub)) for sub in command.list_commands(None)]
+        else:
+            found.append(((name,), command))
+    return found
+
+
+def test_o_is_spelled_out_one_way():
+    """``-o`` is ``--out`` in every command; no option is ``--output`` any more (it was a second
+    spelling of ``-o`` in four commands, and a hidden spelling of ``--output-name``)."""
+    spellings = {}
+    for names, command in _every_command():
+        for param in command.params:
+            assert "--output" not in param.opts, names
+            if "-o" in param.opts:
+                spellings[names] = tuple(sorted(param.opts))
+    assert ("rig", "calibrate") in spellings and ("frames",) in spellings and len(spellings) == 10, spellings
+    assert set(spellings.values()) == {("--out", "-o")}, spellings
 
 
 def _scene(tmp_path):
@@ -83,23 +102,18 @@ def test_report_and_overlay_write_where_o_says(tmp_path):
     assert (tmp_path / "o.mp4").is_file() and (tmp_path / "o.mp4").stat().st_size > 1000
 
 
-def test_output_name_and_its_deprecated_spellings(tmp_path):
+def test_output_name_names_the_folder_inside_the_scene(tmp_path):
     scene = _scene(tmp_path)
     runner = CliRunner()
     result = runner.invoke(main, ["reconstruct", str(scene), "--workers", "1", "--no-refine", "--output-name", "b"])
     assert result.exit_code == 0 and result.stderr == "", result.output
     assert (scene / "b" / "poses3d.json").is_file()
-    result = runner.invoke(main, ["reconstruct", str(scene), "--workers", "1", "--no-refine", "-o", "c"])
-    assert result.exit_code == 0, result.output
-    assert (scene / "c" / "poses3d.json").is_file()
-    assert result.stderr.startswith("mvm: note: -o/--output of mvm reconstruct names the output folder inside the "
-                                    "scene: it is deprecated, use --output-name")
-    result = runner.invoke(main, ["report", str(scene), "--frames", "0", "--output", "c"])
-    assert result.exit_code == 0 and (scene / "c" / "report.html").is_file()
-    assert "mvm: note: --output of mvm report" in result.stderr
-    result = runner.invoke(main, ["report", str(scene), "--output", "c", "--output-name", "b"])
-    assert result.exit_code == 2
-    assert result.stderr.strip() == "mvm: error: --output: contradicts --output-name 'b': give --output-name only"
+    result = runner.invoke(main, ["report", str(scene), "--frames", "0", "--output-name", "b"])
+    assert result.exit_code == 0 and (scene / "b" / "report.html").is_file(), result.output
+    for args in (["reconstruct", str(scene), "-o", "c"], ["report", str(scene), "--output", "c"]):
+        result = runner.invoke(main, args)
+        assert result.exit_code == 2 and "No such option" in result.stderr, result.output
+    assert not (scene / "c").exists()
 
 
 def test_run_and_batch_read_set_and_refine(tmp_path, monkeypatch):

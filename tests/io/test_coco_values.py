@@ -58,7 +58,7 @@ def test_annotations_checked_at_once_as_one_by_one():
     """The all-at-once reading gives exactly what the per-annotation reading gives (scores
     given or defaulted, flags 2, absent joints, non-persons, descriptors), and hands every
     annotation with a problem, or a mix of descriptors, to the per-annotation reading."""
-    from mvm.io.coco import _annotations_at_once, _annotations_one_by_one
+    from mvm.io.coco import _annotations_one_by_one, annotations_at_once
 
     rng = np.random.default_rng(11)
     index = {1: 0, 2: 1}
@@ -66,11 +66,11 @@ def test_annotations_checked_at_once_as_one_by_one():
     annotations = doc["annotations"]
     annotations[3]["score"] = 7                                    # an integer, clipped to 1
     annotations[4]["keypoints"][2::3] = [0.0] * 17                 # no joint: score 0
-    fast = _annotations_at_once(annotations, index)
+    fast = annotations_at_once(annotations, index)
     assert fast is not None
     _same_columns(fast, _annotations_one_by_one(annotations, "x.json", index))
     described = [dict(a, appearance=rng.normal(size=4).tolist()) for a in annotations]
-    fast = _annotations_at_once(described, index)
+    fast = annotations_at_once(described, index)
     assert fast is not None and fast[4][0].shape == (4,)
     _same_columns(fast, _annotations_one_by_one(described, "x.json", index))
     bad = [
@@ -83,4 +83,4 @@ def test_annotations_checked_at_once_as_one_by_one():
     for spoil in bad:
         spoiled = json.loads(json.dumps(annotations))
         spoil(spoiled)
-        assert _annotations_at_once(spoiled, index) is None, spoil
+        assert annotations_at_once(spoiled, index) is None, spoil

@@ -195,11 +195,11 @@ def test_concurrent_runs_on_one_scene(reference, tmp_path):
 
 
 def test_a_run_that_cannot_get_the_lock_refuses_cleanly(reference, tmp_path):
-    from mvm.io.files import exclusive_lock
+    from mvm.io.outputs import output_lock
 
     scene = copy_scene(reference[0], tmp_path / "scene", with_output=True)
     before = output_of(scene).read_bytes()
-    with exclusive_lock(scene / "mvm"):
+    with output_lock(scene / "mvm" / "poses3d.json"):
         process = start(scene, "", "--set", "lock_timeout_s=0.2")
         code = process.wait(120)
     stderr = process.stderr.read().decode()

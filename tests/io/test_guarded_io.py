@@ -292,6 +292,6 @@ def test_concurrent_exports_leave_one_complete_dataset(scene_dir, tmp_path):
 def test_a_scene_output_name_naming_an_input_is_refused(scene_dir, tmp_path, name):
     path = _copy(scene_dir, tmp_path)
     before = {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file()}
-    code, lines = _run("reconstruct", path, "--output", name)
+    code, lines = _run("reconstruct", path, "--output-name", name)
     assert code == 2 and len(lines) == 1 and "is an input of the scene" in lines[0], lines
     assert {p.relative_to(path): p.read_bytes() for p in path.rglob("*") if p.is_file()} == before

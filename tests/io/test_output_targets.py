@@ -19,6 +19,8 @@ from click.testing import CliRunner
 
 from mvm.cli.main import main
 
+from helpers import dead_pid
+
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="FIFOs, device nodes and flock are POSIX")
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "rig"))
@@ -396,8 +398,9 @@ def test_a_leftover_record_temporary_is_removed(inputs, tmp_path):
     scene = tmp_path / "scene"
     shutil.copytree(inputs["scene"], scene, symlinks=True)
     (scene / "mvm" / "poses3d.inputs.json").unlink()       # killed while writing the record: redone
+    gone = dead_pid()
     for name in ("poses3d.json", "poses3d.inputs.json"):
-        (scene / "mvm" / f".{name}.mvm-tmp-k2j4h_x.tmp").write_text("{half")
+        (scene / "mvm" / f".{name}.mvm-tmp-{gone}-k2j4h_x.tmp").write_text("{half")
     assert invoke("reconstruct", scene, "--workers", "1", "--no-refine").exit_code == 0
     assert sorted(p.name for p in (scene / "mvm").iterdir()) == ["poses3d.inputs.json", "poses3d.json", "timings.json"]
 
@@ -416,7 +419,7 @@ def test_writing_into_a_folder_knows_its_own_names(tmp_path):
             raise AssertionError("never reached")
     assert sorted(p.name for p in folder.iterdir()) == ["clips.csv"]            # no marker, no lock left
     (folder / "clips.csv").unlink()
-    (folder / ".table.md.mvm-tmp-k2j4h_x.tmp").write_text("half")
+    (folder / f".table.md.mvm-tmp-{dead_pid()}-k2j4h_x.tmp").write_text("half")
     (folder / ".table.md.old.tmp").write_text("a user's")
     for _ in range(2):                                                          # the second run: its own files
         with writing_into(folder, ["table.md", "clips.csv"]):
@@ -465,14 +468,9 @@ def test_a_killed_runs_temporary_is_removed_by_the_next_write_into_its_folder(tm
     """Every atomic write's temporary is named after its writer's process: one whose process is
     gone (a run killed while writing) is deleted by the next write into that folder, whatever
     the file; a live writer's stays, and so does a file that only looks like one."""
-    import os
-    import subprocess
-    import sys
-
     from mvm.io.files import atomic_output, atomic_write_text
 
-    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
-                          text=True).stdout.strip()
+    gone = dead_pid()
     dead = tmp_path / f".cams.toml.mvm-tmp-{gone}-abc123.tmp"
     dead_download = tmp_path / f".model.onnx.mvm-tmp-{gone}-x9.part"
     live = tmp_path / f".cams.toml.mvm-tmp-{os.getpid()}-def456.tmp"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 import signal
 import subprocess
 import sys
@@ -26,6 +27,8 @@ from mvm.io.outputs import (
     make_temporary_dir,
     output_lock,
 )
+
+from helpers import dead_pid
 
 posix_only = pytest.mark.skipif(sys.platform == "win32", reason="flock and SIGKILL are POSIX")
 SRC = str(Path(__file__).resolve().parents[2] / "src")
@@ -250,14 +253,21 @@ def test_concurrent_writers_take_turns_and_leave_one_complete_set(tmp_path):
 
 
 def test_stale_temporary_files_are_only_mvms(tmp_path):
-    from mvm.io.files import atomic_output, remove_stale_temporaries
+    """The one cleaner of temporaries removes a killed writer's files, by the process number in
+    their names: not a live writer's, not a folder, not a name without a process, not a user's."""
+    from mvm.io.files import atomic_output, sweep_dead_temporaries
 
     with pytest.raises(RuntimeError), atomic_output(tmp_path / "poses3d.json") as tmp:
         assert tmp.name.startswith(".poses3d.json.mvm-tmp-") and tmp.name.endswith(".tmp")
         raise RuntimeError("killed")                             # the writer removes its own file
-    killed = tmp_path / ".poses3d.json.mvm-tmp-x1y2.tmp"         # what a killed writer leaves
-    killed.write_text("{")
-    (tmp_path / ".poses3d.json.mine.tmp").write_text("a user's file")
-    (tmp_path / ".poses3d.json.mvm-tmp-dir.tmp").mkdir()
-    assert remove_stale_temporaries(tmp_path, "poses3d.json") == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".poses3d.json.mine.tmp", ".poses3d.json.mvm-tmp-dir.tmp"]
+    gone, folder = dead_pid(), tmp_path / "scene"              # a folder this process has not swept yet
+    folder.mkdir()
+    (folder / f".poses3d.json.mvm-tmp-{gone}-x1y2.tmp").write_text("{")         # what a killed writer leaves
+    kept = [".poses3d.json.mine.tmp", f".poses3d.json.mvm-tmp-{gone}-dir.tmp", ".poses3d.json.mvm-tmp-x1y2.tmp",
+            f".poses3d.json.mvm-tmp-{os.getpid()}-live.tmp"]
+    (folder / kept[1]).mkdir()
+    for name in (kept[0], *kept[2:]):
+        (folder / name).write_text("kept")
+    assert sweep_dead_temporaries(folder) == 1
+    assert sorted(p.name for p in folder.iterdir()) == sorted(kept)
+    assert list(tmp_path.iterdir()) == [folder]

@@ -317,6 +317,7 @@ def _ddp_worker(rank, world, port, cfg):
     train(cfg)
 
 
+@pytest.mark.slow
 def test_data_parallel_on_cpu_with_gloo(tiny_data, tmp_path):
     """Two processes (torchrun's environment, the gloo backend): one run, written once by rank 0."""
     import socket

@@ -91,6 +91,7 @@ def test_one_camera_refused(tmp_path):
     assert not (root / "sync.toml").exists() and not (tmp_path / "c.toml").exists()
 
 
+@pytest.mark.slow
 def test_camera_without_common_people_refused(unsynced, tmp_path):
     root, _ = unsynced
     moved = tmp_path / "moved"

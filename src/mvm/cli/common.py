@@ -397,23 +397,10 @@ class OutputPath(click.ParamType):
         return path
 
 
-def resolve_output_name(name: str | None, legacy: str | None, legacy_option: str, default: str = "mvm") -> str:
-    """The ``--output-name`` of a scene's output folder; ``legacy`` is the same given with the
-    deprecated ``legacy_option`` (a note on stderr says so). Both given and different: refused."""
-    if legacy is not None:
-        if name is not None and name != legacy:
-            raise InputError(None, legacy_option, f"contradicts --output-name {name!r}: give --output-name only")
-        click.echo(f"mvm: note: {legacy_option} of {command_name()} names the output folder inside the scene: it is "
-                   "deprecated, use --output-name (-o is the output path, as in every command)", err=True)
-    return name or legacy or default
-
-
-def output_name_options(f):
-    """``--output-name NAME`` (the scene's output folder) and its deprecated spelling ``--output``."""
-    f = click.option("--output", "legacy_output", default=None, hidden=True,
-                     help="Deprecated spelling of --output-name.")(f)
-    return click.option("--output-name", default=None, metavar="NAME",
-                        help="The scene's output folder holding poses3d.json [default: mvm].")(f)
+def output_name_option(f):
+    """``--output-name NAME``: the scene's output folder (``-o`` is a command's output path)."""
+    return click.option("--output-name", "output", default="mvm", show_default=True, metavar="NAME",
+                        help="The scene's output folder holding poses3d.json.")(f)
 
 
 def command_name() -> str:

@@ -5,19 +5,19 @@ from pathlib import Path
 
 import click
 
-from mvm.cli.common import Number, OutputPath, command, output_name_options, resolve_output_name, say
+from mvm.cli.common import Number, OutputPath, command, output_name_option, say
 
 
 @command("report")
 @click.argument("scene", type=click.Path(file_okay=False))
 @click.option("-o", "--out", type=OutputPath((".html", ".htm"), folder=False, product="an .html page"), default=None,
               help="The page to write [default: SCENE/<output-name>/report.html].")
-@output_name_options
+@output_name_option
 @click.option("--frames", default=8, show_default=True, type=click.IntRange(0), help="Frames in the overlay strip.")
 @click.option("--calib", type=click.Path(), default=None,
               help="A rig's calibration [default: the one its reconstruction used].")
 @click.option("--open", "open_page", is_flag=True, help="Open the page in the default browser.")
-def report_cmd(scene, out, output_name, legacy_output, frames, calib, open_page):
+def report_cmd(scene, out, output, frames, calib, open_page):
     """Write SCENE/<output-name>/report.html: metrics, 3D view, overlays and plots in one offline page.
 
     SCENE may be a rig folder reconstructed by mvm rig reconstruct: its page holds the recap, the 3D
@@ -26,7 +26,6 @@ def report_cmd(scene, out, output_name, legacy_output, frames, calib, open_page)
     from mvm.report import write_report
     from mvm.report.rig_load import is_rig_dir
 
-    output = resolve_output_name(output_name, legacy_output, "--output")
     if is_rig_dir(scene, output):
         from mvm.report.rig_page import write_rig_report
 
@@ -45,7 +44,7 @@ def report_cmd(scene, out, output_name, legacy_output, frames, calib, open_page)
 @click.argument("scene", type=click.Path(file_okay=False))
 @click.option("-o", "--out", type=OutputPath((".mp4",), product="a .mp4 video or a folder of images"), default=None,
               help="A .mp4 file, or a folder for one image per frame [default: SCENE/<output-name>/overlay/].")
-@output_name_options
+@output_name_option
 @click.option("--every", "step", default=1, show_default=True, type=click.IntRange(1), help="Draw every n-th frame.")
 @click.option("--max-width", default=None, type=click.IntRange(16), help="Downscale wider frames to this width (px).")
 @click.option("--fps", default=10.0, show_default=True, type=Number(float, ge=0.1, le=1000),
@@ -54,7 +53,7 @@ def report_cmd(scene, out, output_name, legacy_output, frames, calib, open_page)
               help="Image format in a folder.")
 @click.option("--calib", type=click.Path(), default=None,
               help="A rig's calibration [default: the one its reconstruction used].")
-def overlay_cmd(scene, out, output_name, legacy_output, step, max_width, fps, image_format, calib):
+def overlay_cmd(scene, out, output, step, max_width, fps, image_format, calib):
     """Draw every frame's 2D poses in the colour of their person and the reprojected 3D poses.
 
     SCENE may be a rig folder reconstructed by mvm rig reconstruct: each camera's video
@@ -63,7 +62,6 @@ def overlay_cmd(scene, out, output_name, legacy_output, step, max_width, fps, im
     from mvm.report import write_overlays
     from mvm.report.rig_load import is_rig_dir
 
-    output = resolve_output_name(output_name, legacy_output, "--output")
     if is_rig_dir(scene, output):
         return rig_overlay(scene, out, output, step, max_width, calib)
     refuse_rig_option(calib, "--calib")

@@ -117,7 +117,7 @@ def synchronize_cmd(rig_dir, calib, max_offset):
               help="The format of --convert's file (default: told from its name and content).")
 @click.option("--binning", type=Number(float, gt=0), default=None,
               help="Qualisys's binning factor of the videos (default 1; 2 for 540p video of a 1080p sensor).")
-@click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
+@click.option("-o", "--out", "output", type=click.Path(dir_okay=False), required=True,
               help="The Calib.toml to write (use it with mvm rig reconstruct --calib).")
 @click.option("--intrinsics", type=click.Path(dir_okay=False), default=None,
               help="Calib.toml with the cameras' intrinsics (from people: default RIG_DIR's calibration; with a "
@@ -309,7 +309,7 @@ def _board_intrinsics(rig_dir, output, board, fisheye):
               help="Calibration: Calib.toml, a COLMAP model folder or a Panoptic calibration JSON "
                    "(default: found in RIG_DIR).")
 @click.option("--frames", default=None, metavar="START:STOP", help="Frame numbers to use, STOP excluded.")
-@click.option("--output", "-o", type=OutputPath(product="a folder (poses3d.jsonl, .trc files, recap.json)"),
+@click.option("-o", "--out", "output", type=OutputPath(product="a folder (poses3d.jsonl, .trc files, recap.json)"),
               default=None,
               help="Output folder (default RIG_DIR/mvm).")
 @setting_option(RIG, "smoothing")

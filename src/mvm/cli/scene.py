@@ -10,7 +10,6 @@ from mvm.cli.common import (
     fmt,
     print_table,
     read_config,
-    resolve_output_name,
 )
 from mvm.cli.failures import report_failures, run_outcomes
 
@@ -18,14 +17,12 @@ from mvm.cli.failures import report_failures, run_outcomes
 @command("reconstruct")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path())
 @config_options
-@click.option("--output-name", default=None, metavar="NAME",
-              help="Name of the output folder inside each scene directory [default: mvm].")
-@click.option("-o", "--output", "legacy_output", default=None, hidden=True,
-              help="Deprecated spelling of --output-name.")
+@click.option("--output-name", "output", default="mvm", show_default=True, metavar="NAME",
+              help="Name of the output folder inside each scene directory.")
 @click.option("--workers", type=Number(int, ge=1), default=None,
               help="Processes to reconstruct the scenes with (default: $MVM_WORKERS, else one per core; "
                    "1: this process only).")
-def reconstruct(scenes, config_path, sets, refine, output_name, legacy_output, workers):
+def reconstruct(scenes, config_path, sets, refine, output, workers):
     """Reconstruct the 3D poses of one or more scene directories.
 
     Each SCENE holds sparse/ (a COLMAP model) and poses2d.json (COCO keypoints); the result is
@@ -35,7 +32,6 @@ def reconstruct(scenes, config_path, sets, refine, output_name, legacy_output, w
     """
     from mvm.scenes import reconstruct_dirs
 
-    output = resolve_output_name(output_name, legacy_output, "-o/--output")
     config = read_config(config_path, sets, refine=refine)
     outcomes = reconstruct_dirs(scenes, config, output, workers=workers)
     rows, failed = run_outcomes(len(scenes), outcomes, "reconstructing")

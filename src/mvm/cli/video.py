@@ -143,7 +143,7 @@ def _sfm_rows(report):
 
 @command("frames")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+@click.option("-o", "--out", "scene", type=OutputPath(product="a scene directory"), required=True,
               help="The scene directory to write (frames/, frames.json).")
 @with_options(frame_options)
 @config_option
@@ -224,7 +224,7 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
 
 @command("run")
 @click.argument("video", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "scene", type=OutputPath(product="a scene directory"), required=True,
+@click.option("-o", "--out", "scene", type=OutputPath(product="a scene directory"), required=True,
               help="The scene directory to write (frames, cameras, 2D poses, mvm/poses3d.json).")
 @with_options(frame_options + sfm_options + detect_options)
 @click.option("--cameras", type=click.Path(), default=None,

@@ -58,6 +58,9 @@ def affinity_bytes(n_poses: int, appearance: bool, dtype=np.float32) -> int:
     float32); with appearance descriptors the ``N × N`` similarity S adds as much again. The
     rest is per view pair in blocks of at most :data:`BLOCK_BYTES`. So memory grows as
     ``4 N²`` bytes (``8 N²`` with appearance): 10,000 poses take 400 MB (800 MB).
+
+    >>> affinity_bytes(10_000, appearance=False) - BLOCK_BYTES       # 4 N² bytes in float32
+    400000000
     """
     item = np.dtype(dtype).itemsize
     return int(n_poses) ** 2 * item * (2 if appearance else 1) + BLOCK_BYTES

@@ -144,6 +144,13 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     ``X: (Q, J, 3)``, ``P: (F, 3, 4)``, ``image_size: (F, 2)``. A person counts in a view when
     at least half its reconstructed joints project in front of the camera and inside the
     image. Returns ``(Q,)`` (:func:`mvm.core.hiding.sight`).
+
+    One camera at the origin looking along z (640 × 480 px); one person in front of it, one behind:
+
+    >>> P = np.array([[[500.0, 0, 320, 0], [0, 500, 240, 0], [0, 0, 1, 0]]])
+    >>> X = np.zeros((2, 17, 3)) + [[[0.0, 0.0, 4.0]], [[0.0, 0.0, -4.0]]]
+    >>> visible_frames(X, P, np.array([[640.0, 480.0]]))
+    array([1, 0])
     """
     return sight(X, P, image_size)[0]
 

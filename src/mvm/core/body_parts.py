@@ -34,7 +34,13 @@ LINK_SHARE = 0.1
 def shared_views(inliers: np.ndarray, reconstructed: np.ndarray) -> np.ndarray:
     """``(P, J, J)`` float: the views in which both joints are inliers, for each person (the
     diagonal: each joint's inlier views). ``inliers: (P, M, J)`` bool, ``reconstructed: (P, J)``
-    bool. Cost ``P · M · J²``: linear in the views."""
+    bool. Cost ``P · M · J²``: linear in the views.
+
+    >>> inliers = np.array([[[True, True], [True, False], [False, False]]])      # 1 person, 3 views, 2 joints
+    >>> shared_views(inliers, np.array([[True, True]]))
+    array([[[2., 1.],
+            [1., 1.]]], dtype=float32)
+    """
     used = (inliers & reconstructed[:, None, :]).astype(np.float32)       # (P, M, J)
     return used.transpose(0, 2, 1) @ used
 

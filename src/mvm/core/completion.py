@@ -29,12 +29,24 @@ FLAG_NAMES = ("missing", "observed", "interpolated", "inferred")
 
 
 def flag_names(flags: np.ndarray) -> list:
-    """``flags: (..., 17)`` integers -> nested lists of names (as written in the JSON files)."""
+    """``flags: (..., 17)`` integers -> nested lists of names (as written in the JSON files).
+
+    >>> flag_names(np.array([[OBSERVED, INTERPOLATED], [INFERRED, MISSING]]))
+    [['observed', 'interpolated'], ['inferred', 'missing']]
+    """
     return np.asarray(FLAG_NAMES, dtype=object)[np.asarray(flags, dtype=int)].tolist()
 
 
 def parse_flags(names, field: str = "flags") -> np.ndarray:
-    """Flag names -> integers; an unknown name raises ``ValueError`` naming it and the known ones."""
+    """Flag names -> integers; an unknown name raises ``ValueError`` naming it and the known ones.
+
+    >>> parse_flags(["observed", "inferred"])
+    array([1, 3], dtype=int8)
+    >>> parse_flags(["guessed"])
+    Traceback (most recent call last):
+    ...
+    ValueError: flags: unknown flag 'guessed' (known: missing, observed, interpolated, inferred)
+    """
     lookup = {n: i for i, n in enumerate(FLAG_NAMES)}
     try:
         return np.array([lookup[n] for n in names], dtype=np.int8)
@@ -55,6 +67,16 @@ def interpolate_series(series: np.ndarray, max_gap: int) -> tuple[np.ndarray, np
     Returns:
         ``(filled: (L, J, 3), interpolated: (L, J) bool)``. Only gaps with an observation on both
         sides are filled; the ends of a track are never extrapolated.
+
+    A joint moving at constant velocity, missing at instants 1 and 2, is filled on its line:
+
+    >>> series = np.arange(5.0)[:, None, None] * np.ones((5, 1, 3))
+    >>> series[1:3] = np.nan
+    >>> filled, interpolated = interpolate_series(series, max_gap=2)
+    >>> filled[:, 0, 0], interpolated[:, 0]
+    (array([0., 1., 2., 3., 4.]), array([False,  True,  True, False, False]))
+    >>> bool(np.isnan(interpolate_series(series, max_gap=1)[0][1:3]).all())     # a gap too long
+    True
     """
     series = np.asarray(series, dtype=float)
     if series.ndim != 3 or series.shape[2] != 3:

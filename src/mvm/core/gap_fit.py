@@ -37,7 +37,15 @@ RAY_CAUCHY = 3.0
 
 def second_differences(n: int) -> np.ndarray:
     """``(n + 2, n + 4)``: the second differences of a chain of ``n + 4`` values (two known ones
-    before a gap of ``n``, two after)."""
+    before a gap of ``n``, two after).
+
+    >>> second_differences(1)
+    array([[ 1., -2.,  1.,  0.,  0.],
+           [ 0.,  1., -2.,  1.,  0.],
+           [ 0.,  0.,  1., -2.,  1.]])
+    >>> second_differences(2) @ np.arange(6.0)        # a straight line has no acceleration
+    array([0., 0., 0., 0.])
+    """
     D = np.zeros((n + 2, n + 4))
     i = np.arange(n + 2)
     D[i, i], D[i, i + 1], D[i, i + 2] = 1.0, -2.0, 1.0

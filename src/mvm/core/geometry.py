@@ -10,12 +10,21 @@ import numpy as np
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a × b`` of ``(..., 3)`` vectors (broadcast), the numbers of ``np.cross`` without its
-    per-call overhead, which dominates on the small arrays of one scene."""
+    per-call overhead, which dominates on the small arrays of one scene.
+
+    >>> cross(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    array([0., 0., 1.])
+    """
     return a[..., [1, 2, 0]] * b[..., [2, 0, 1]] - a[..., [2, 0, 1]] * b[..., [1, 2, 0]]
 
 
 def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrices. ``v: (..., 3)`` -> ``(..., 3, 3)`` with ``skew(a) @ b == a × b``."""
+    """Cross-product matrices. ``v: (..., 3)`` -> ``(..., 3, 3)`` with ``skew(a) @ b == a × b``.
+
+    >>> a, b = np.array([1.0, 2.0, 3.0]), np.array([-1.0, 0.5, 2.0])
+    >>> np.allclose(skew(a) @ b, np.cross(a, b))
+    True
+    """
     v = np.asarray(v, dtype=float)
     zero = np.zeros(v.shape[:-1])
     return np.stack([
@@ -247,6 +256,16 @@ def triangulate_dlt(points: np.ndarray, P: np.ndarray, weights: np.ndarray | Non
 
     For conditioning, pass normalized coordinates (``K^-1 x`` with ``[R | t]``) where the
     intrinsics are large; the result is the same point.
+
+    Two cameras one unit apart along x, both looking along z:
+
+    >>> P = np.array([np.hstack([np.eye(3), [[0.0], [0.0], [0.0]]]), np.hstack([np.eye(3), [[-1.0], [0.0], [0.0]]])])
+    >>> X = np.array([0.5, 0.2, 4.0])
+    >>> uv, _ = project(X, P)
+    >>> triangulate_dlt(uv, P).round(9)
+    array([0.5, 0.2, 4. ])
+    >>> triangulate_dlt(uv, P, np.array([1.0, 0.0]))                  # one view left: no point
+    array([nan, nan, nan])
     """
     points = np.asarray(points, dtype=float)
     weights = np.ones(points.shape[:-1]) if weights is None else np.asarray(weights, dtype=float)
@@ -276,6 +295,12 @@ def ray_spread_deg(directions: np.ndarray, mask: np.ndarray) -> np.ndarray:
     of the largest pairwise angle: exact on an arc, never below half of it).
 
     ``directions: (..., M, 3)`` unit vectors, ``mask: (..., M)`` bool -> ``(...)`` (0 with < 2 rays).
+
+    >>> rays = np.array([[1.0, 0, 0], [0, 1, 0], [np.sqrt(0.5), np.sqrt(0.5), 0]])
+    >>> float(ray_spread_deg(rays, np.array([True, True, True])).round(9))
+    90.0
+    >>> float(ray_spread_deg(rays, np.array([True, False, False])))       # one ray: no parallax
+    0.0
     """
     d = np.where(mask[..., None], directions, 0.0)
     mean = d.sum(axis=-2)
@@ -315,6 +340,12 @@ def similarity_transform(source: np.ndarray, target: np.ndarray, mask: np.ndarra
 
     ``source, target: (..., N, 3)``; ``mask: (..., N)`` the points of the fit (default: finite
     in both) -> ``s: (...)``, ``R: (..., 3, 3)``, ``t: (..., 3)`` (``s = 1`` without ``scale``).
+
+    >>> source = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    >>> Rz = np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]])          # 90° about z
+    >>> s, R, t = similarity_transform(source, 2.0 * source @ Rz.T + [1.0, 2.0, 3.0])
+    >>> round(float(s), 9), np.allclose(R, Rz), t.round(9)
+    (2.0, True, array([1., 2., 3.]))
     """
     source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
     if source.shape != target.shape or source.ndim < 2 or source.shape[-1] != 3:

@@ -73,6 +73,13 @@ def in_person_sizes(xy: np.ndarray, P: np.ndarray, size: np.ndarray) -> tuple[np
     pixel residual divided by the person's size in that view.
 
     ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)``, ``size: (P, M)`` px (> 0) -> the same shapes.
+
+    >>> xy, P = np.full((1, 1, 17, 2), 100.0), np.hstack([np.eye(3), np.ones((3, 1))])[None, None]
+    >>> xy_s, P_s = in_person_sizes(xy, P, np.array([[50.0]]))
+    >>> xy_s[0, 0, 0], P_s[0, 0]
+    (array([2., 2.]), array([[0.02, 0.  , 0.  , 0.02],
+           [0.  , 0.02, 0.  , 0.02],
+           [0.  , 0.  , 1.  , 1.  ]]))
     """
     inverse = 1.0 / size
     scale = np.stack([inverse, inverse, np.ones_like(inverse)], axis=-1)          # (P, M, 3)

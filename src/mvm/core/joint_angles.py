@@ -32,6 +32,16 @@ def flexion_angles(X: np.ndarray, min_length: float = 1e-9) -> np.ndarray:
 
     ``X: (..., 17, 3)`` joints (NaN: missing) -> ``(..., A)``, NaN where one of the three joints
     is missing or a segment is shorter than ``min_length`` (in the units of ``X``).
+
+    A straight left leg, a left knee bent at a right angle:
+
+    >>> X = np.zeros((17, 3))
+    >>> X[INDEX["left_hip"]], X[INDEX["left_knee"]], X[INDEX["left_ankle"]] = [0, 0, 1.0], [0, 0, 0.5], [0, 0, 0.0]
+    >>> float(flexion_angles(X)[list(JOINT_ANGLES).index("left knee")])
+    0.0
+    >>> X[INDEX["left_ankle"]] = [0.5, 0, 0.5]
+    >>> float(flexion_angles(X)[list(JOINT_ANGLES).index("left knee")])
+    90.0
     """
     X = np.asarray(X, dtype=float)
     if X.shape[-2:] != (17, 3):

@@ -23,6 +23,12 @@ def spread_views(views: np.ndarray, count: int, sequence: np.ndarray | None, cen
     direction. Without one (unordered photos), farthest-point sampling of the camera
     ``centers: (V, 3)``, from the view farthest from their mean. All of ``views`` when they are
     ``count`` or fewer.
+
+    >>> spread_views(np.arange(10), 3, np.arange(10), None)          # along a video: both ends and the middle
+    array([0, 4, 9])
+    >>> centers = np.array([[0.0, 0, 0], [0.1, 0, 0], [5, 0, 0], [5.1, 0, 0]])
+    >>> spread_views(np.arange(4), 2, None, centers)                  # unordered photos: far apart
+    array([0, 3])
     """
     views = np.unique(np.asarray(views, dtype=np.int64))
     if len(views) <= count:
@@ -43,7 +49,13 @@ def spread_views(views: np.ndarray, count: int, sequence: np.ndarray | None, cen
 def frame_windows(view: np.ndarray, size: int, sequence: np.ndarray | None) -> np.ndarray:
     """Window of each pose: consecutive runs of ``size`` of the views that hold poses, in video
     order (``sequence: (V,)``, or view order without one). ``view: (N,)`` -> ``(N,)`` int,
-    0 for every pose when the poses span ``size`` views or fewer."""
+    0 for every pose when the poses span ``size`` views or fewer.
+
+    >>> frame_windows(np.array([0, 0, 1, 2, 3, 4, 5]), 2, None)
+    array([0, 0, 0, 1, 1, 2, 2])
+    >>> frame_windows(np.array([3, 1]), 2, np.array([0, 9, 0, 1]))   # view 3 comes before view 1 in the video
+    array([0, 0])
+    """
     view = np.asarray(view, dtype=np.int64)
     used, inverse = np.unique(view, return_inverse=True)
     rank = np.empty(len(used), dtype=np.int64)

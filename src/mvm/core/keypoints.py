@@ -74,12 +74,27 @@ LEFT_SHOULDER, RIGHT_SHOULDER = INDEX["left_shoulder"], INDEX["right_shoulder"]
 
 
 def pelvis(points: np.ndarray) -> np.ndarray:
-    """Mid-point of the hips. ``points: (..., 17, D)`` -> ``(..., D)``."""
+    """Mid-point of the hips. ``points: (..., 17, D)`` -> ``(..., D)``.
+
+    >>> X = np.zeros((17, 3))
+    >>> X[LEFT_HIP], X[RIGHT_HIP] = [0.2, 0.0, 1.0], [-0.2, 0.0, 1.0]
+    >>> pelvis(X)
+    array([0., 0., 1.])
+    """
     return 0.5 * (points[..., LEFT_HIP, :] + points[..., RIGHT_HIP, :])
 
 
 def bone_lengths(points: np.ndarray) -> np.ndarray:
-    """Lengths of ``BONES``. ``points: (..., 17, D)`` -> ``(..., 12)`` (NaN where a joint is NaN)."""
+    """Lengths of ``BONES``. ``points: (..., 17, D)`` -> ``(..., 12)`` (NaN where a joint is NaN).
+
+    >>> X = np.zeros((17, 3))
+    >>> X[INDEX["left_shoulder"]], X[INDEX["left_elbow"]] = [0.0, 0.0, 1.5], [0.0, 0.0, 1.25]
+    >>> float(bone_lengths(X)[BONES.index((5, 7))])
+    0.25
+    >>> X[INDEX["left_wrist"]] = np.nan
+    >>> bool(np.isnan(bone_lengths(X)[BONES.index((7, 9))]))
+    True
+    """
     points = np.asarray(points, dtype=float)
     a = points[..., [b[0] for b in BONES], :]
     b = points[..., [b[1] for b in BONES], :]
@@ -109,7 +124,14 @@ def optimal_scale(lengths: np.ndarray, mean_lengths: np.ndarray = MEAN_BONE_LENG
 def bone_ratios(X: np.ndarray) -> np.ndarray:
     """Each bone's length over its human proportion at the person's own scale: ``l / (s · l_mean)``,
     ``s`` the median of ``l / l_mean`` over the person's bones (any unit, any posture: about
-    1 ± 0.05 for a real person). ``X: (Q, J, 3)`` -> ``(Q, B)`` (NaN: a bone not reconstructed)."""
+    1 ± 0.05 for a real person). ``X: (Q, J, 3)`` -> ``(Q, B)`` (NaN: a bone not reconstructed).
+
+    >>> rng = np.random.default_rng(0)
+    >>> X = rng.normal(size=(1, 17, 3))
+    >>> A = bone_ratios(X)
+    >>> np.allclose(bone_ratios(7.0 * X), A)       # the same in any unit
+    True
+    """
     ratio = bone_lengths(X) / MEAN_BONE_LENGTHS_M                               # (Q, B)
     with np.errstate(invalid="ignore", divide="ignore"):                    # a zero-length skeleton
         return ratio / row_nanmedian(ratio)[:, None]

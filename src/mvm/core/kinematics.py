@@ -77,6 +77,12 @@ def euler_matrices(angles: np.ndarray, order: str) -> np.ndarray:
 
     ``angles: (..., 3)`` radians about x, y, z (whatever the order) -> ``(..., 3, 3)``.
     For ``order="XYZ"`` the result is ``Rz · Ry · Rx``: the rotation about x is applied first.
+
+    >>> euler_matrices(np.array([0.0, 0.0, np.pi / 2]), "XYZ").round(12) @ [1.0, 0.0, 0.0]
+    array([0., 1., 0.])
+    >>> R = euler_matrices(np.array([0.3, -0.2, 1.1]), "ZXY")
+    >>> np.allclose(R @ R.T, np.eye(3)) and bool(np.isclose(np.linalg.det(R), 1.0))
+    True
     """
     angles = np.asarray(angles, dtype=float)
     out = np.broadcast_to(np.eye(3), angles.shape[:-1] + (3, 3)).copy()

@@ -91,7 +91,13 @@ def spd_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     numpy rather than scipy's Cholesky (``posv``): importing scipy.linalg costs more than the
     whole refinement of a rig sequence, and the solve count matters more than the routine. A
     batch holding an exactly singular matrix is solved matrix by matrix, that one by least
-    squares."""
+    squares.
+
+    >>> A = np.array([[[2.0, 0.0], [0.0, 4.0]], [[1.0, 0.0], [0.0, 0.0]]])     # the second is singular
+    >>> spd_solve(A, np.array([[2.0, 2.0], [3.0, 0.0]]))
+    array([[1. , 0.5],
+           [3. , 0. ]])
+    """
     try:
         return np.linalg.solve(A, b[..., None])[..., 0]
     except np.linalg.LinAlgError:

@@ -108,6 +108,11 @@ def forward_direction(poses: np.ndarray) -> np.ndarray:
     """Horizontal facing direction. ``poses: (..., 17, 3)`` z up -> ``(..., 2)`` unit xy (NaN if undefined).
 
     Forward = (left hip - right hip) × up, i.e. ``(hy, -hx)`` for the hip axis ``h``.
+
+    >>> pose = np.zeros((17, 3))
+    >>> pose[LEFT_HIP, :2], pose[RIGHT_HIP, :2] = [0.0, 0.1], [0.0, -0.1]     # hips along y: facing +x
+    >>> forward_direction(pose)
+    array([ 1., -0.])
     """
     hip_axis = poses[..., LEFT_HIP, :2] - poses[..., RIGHT_HIP, :2]
     forward = np.stack([hip_axis[..., 1], -hip_axis[..., 0]], axis=-1)

@@ -41,7 +41,15 @@ def logsumexp(a: np.ndarray, axis: int = -1) -> np.ndarray:
     """``log Σ exp(a)`` along ``axis``, with the maximum factored out (exact for -inf entries).
 
     Here rather than ``scipy.special.logsumexp``: importing scipy.special costs more than the
-    refinement of a whole rig sequence, and the rig command imports no scipy at all."""
+    refinement of a whole rig sequence, and the rig command imports no scipy at all.
+
+    >>> float(logsumexp(np.log([1.0, 2.0, 3.0])))
+    1.791759469228055
+    >>> round(float(logsumexp(np.array([1000.0, 1000.0])) - 1000.0), 12)     # no overflow
+    0.69314718056
+    >>> float(logsumexp(np.array([-np.inf, -np.inf])))
+    -inf
+    """
     a = np.asarray(a, dtype=float)
     top = np.max(a, axis=axis, keepdims=True)
     top = np.where(np.isfinite(top), top, 0.0)
@@ -58,6 +66,19 @@ def body_frame(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     the pelvis (mid-hips), ``scale`` the torso length (mean of the left and right
     shoulder-to-hip distances). Canonical coordinates are ``rotation @ (X - centre) / scale``.
     Poses lacking a hip or a shoulder, or with coincident hips, give NaN.
+
+    A person standing at (1, 2, 0), hips 0.3 apart along x, shoulders 0.5 above them: the body
+    axes are the world's:
+
+    >>> pose = np.zeros((17, 3)) + [1.0, 2.0, 0.0]
+    >>> pose[LEFT_HIP, 0], pose[RIGHT_HIP, 0] = 1.15, 0.85
+    >>> pose[LEFT_SHOULDER] = [1.15, 2.0, 0.5]
+    >>> pose[RIGHT_SHOULDER] = [0.85, 2.0, 0.5]
+    >>> rotation, centre, scale = body_frame(pose)
+    >>> rotation.round(9), centre, float(scale)
+    (array([[1., 0., 0.],
+           [0., 1., 0.],
+           [0., 0., 1.]]), array([1., 2., 0.]), 0.5)
     """
     poses = np.asarray(poses, dtype=float)
     if poses.ndim < 2 or poses.shape[-2:] != (NUM_JOINTS, 3):
@@ -90,6 +111,12 @@ def canonicalize(poses: np.ndarray, frame: tuple | None = None) -> np.ndarray:
     The result does not depend on the world's rotation, translation or scale. NaN joints stay
     NaN; a pose lacking a hip or a shoulder (or with coincident hips) is all NaN. ``frame``:
     the poses' ``body_frame`` when the caller already has it.
+
+    >>> pose = np.random.default_rng(0).normal(size=(17, 3))
+    >>> q, _ = np.linalg.qr(np.random.default_rng(1).normal(size=(3, 3)))
+    >>> moved = 3.0 * pose @ (q * np.sign(np.linalg.det(q))).T + [1.0, -2.0, 0.5]
+    >>> np.allclose(canonicalize(moved), canonicalize(pose))
+    True
     """
     rotation, centre, scale = body_frame(poses) if frame is None else frame
     with np.errstate(invalid="ignore"):

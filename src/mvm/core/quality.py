@@ -9,7 +9,13 @@ from mvm.core.geometry import project
 
 
 def reprojection_errors(X: np.ndarray, xy: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px."""
+    """``X: (P, J, 3)``, ``xy: (P, M, J, 2)``, ``P: (P, M, 3, 4)`` -> errors ``(P, M, J)`` px.
+
+    >>> P = np.hstack([np.eye(3), np.zeros((3, 1))])[None, None]          # 1 person, 1 view
+    >>> X = np.array([[[0.0, 0.0, 1.0], [1.0, 1.0, 2.0]]])
+    >>> reprojection_errors(X, np.array([[[[0.0, 0.0], [0.5, 0.0]]]]), P)
+    array([[[0. , 0.5]]])
+    """
     uv, _ = project(X[:, None], P)
     return np.linalg.norm(uv - xy, axis=-1)
 
@@ -45,7 +51,11 @@ def row_nanmedian(a: np.ndarray) -> np.ndarray:
     """``np.nanmedian(a, axis=1)`` of ``a: (Q, B)`` -> ``(Q,)``, NaN for an all-NaN row, with no
     warning, and the same numbers: the mean of the middle two of each row's sorted non-NaN
     values (NaNs sort last). For the few short rows of one scene, ``np.nanmedian`` goes through
-    masked arrays and costs several times more."""
+    masked arrays and costs several times more.
+
+    >>> row_nanmedian(np.array([[1.0, 5.0, 2.0], [4.0, np.nan, 3.0], [np.nan, np.nan, np.nan]]))
+    array([2. , 3.5, nan])
+    """
     s = np.sort(a, axis=1)
     n = (~np.isnan(a)).sum(1)
     rows = np.arange(len(s))

@@ -51,7 +51,16 @@ def prior_weights(config: Config, X: np.ndarray, centers: np.ndarray, used: np.n
     of the view spread of its joints' centroid (``X: (P, J, 3)``, NaN where not reconstructed)
     from the camera centres ``centers: (P, M, 3)`` of its views ``used: (P, M)`` bool (those with
     an inlier keypoint). A person seen from all around has its views' evidence in every
-    direction; one on a narrow arc has little evidence of its depth, and the prior holds its shape."""
+    direction; one on a narrow arc has little evidence of its depth, and the prior holds its shape.
+
+    A person seen from all around a ring, another from a narrow arc: the prior holds the second more.
+
+    >>> ring = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
+    >>> arc = np.array([[np.cos(a), np.sin(a), 0.0] for a in np.linspace(0, 0.2, 8)])
+    >>> w = prior_weights(Config(), np.zeros((2, 17, 3)), 5 * np.stack([ring, arc]), np.ones((2, 8), bool))
+    >>> bool(w[1] > w[0] == Config().prior_weight)
+    True
+    """
     finite = np.isfinite(X).all(-1)                                               # (P, J)
     with np.errstate(invalid="ignore"):
         centroid = np.where(finite[..., None], X, 0.0).sum(1) / finite.sum(1)[:, None]
@@ -61,7 +70,12 @@ def prior_weights(config: Config, X: np.ndarray, centers: np.ndarray, used: np.n
 def noise_threshold(sigma: np.ndarray, config: Config) -> np.ndarray:
     """The RANSAC threshold of noise ``sigma: (B,)`` (person sizes): ``ransac_threshold_sigmas``
     times it, within half to twice ``ransac_threshold``, which a block without a measure (NaN)
-    keeps. ``(B,)``."""
+    keeps. ``(B,)``.
+
+    >>> config = Config(ransac_threshold=0.1, ransac_threshold_sigmas=3.0)
+    >>> noise_threshold(np.array([0.02, 0.01, 0.5, np.nan]), config)
+    array([0.06, 0.05, 0.2 , 0.1 ])
+    """
     base = config.ransac_threshold
     scaled = np.clip(config.ransac_threshold_sigmas * np.asarray(sigma, dtype=float), base / 2, 2 * base)
     return np.where(np.isfinite(sigma), scaled, base)

@@ -413,7 +413,16 @@ def spread_slots(conf: np.ndarray, count: int) -> np.ndarray:
     the slots holding keypoints are cut into ``count`` runs of consecutive slots (a group's
     poses come in frame order: runs along the video, so spread in parallax), and each run gives
     its slot of largest summed confidence. ``conf: (P, M, J)`` -> ``(P, count)`` slot indices in
-    increasing order, -1 for padding (a group of fewer slots)."""
+    increasing order, -1 for padding (a group of fewer slots).
+
+    Six slots of one group, the fourth empty, cut into two runs:
+
+    >>> conf = np.array([[1.0, 3.0, 2.0, 0.0, 5.0, 1.0]])[..., None]
+    >>> spread_slots(conf, 2)
+    array([[1, 4]])
+    >>> spread_slots(np.array([[0.0, 2.0, 0.0, 0.0, 1.0, 0.0]])[..., None], 3)   # two slots hold keypoints
+    array([[ 1,  4, -1]])
+    """
     weight = conf.sum(-1)                                                   # (P, M)
     present = weight > 0
     n = present.sum(1, keepdims=True)

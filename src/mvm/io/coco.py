@@ -97,14 +97,14 @@ def read_coco_keypoints(path: str | Path, root: str | Path | None = None) -> Coc
     """
     path = Path(path)
     with collector_paused():
-        return _read_keypoints(path, _load_document(path, root))
+        return _read_keypoints(path, load_document(path, root))
 
 
 def _read_keypoints(path: Path, data: dict) -> CocoKeypoints:
     """:func:`read_coco_keypoints` of the parsed document ``data``."""
-    image_ids, names, sizes = _read_images(data["images"], path)
+    image_ids, names, sizes = read_images(data["images"], path)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
-    columns = _annotations_at_once(data["annotations"], index)
+    columns = annotations_at_once(data["annotations"], index)
     if columns is None:                      # something to report: the first problem, by name
         columns = _annotations_one_by_one(data["annotations"], path, index)
     ann_ids, ann_image, keypoints, scores, apps = columns
@@ -116,12 +116,12 @@ def _read_keypoints(path: Path, data: dict) -> CocoKeypoints:
         ann_image=np.array(ann_image, dtype=np.int64),
         keypoints=keypoints,
         score=np.array(scores, dtype=float),
-        appearance=_stack_appearance(apps, path),
+        appearance=stack_appearance(apps, path),
         info=data["info"] if isinstance(data.get("info"), dict) else None,
     )
 
 
-def _load_document(path: Path, root) -> dict:
+def load_document(path: Path, root) -> dict:
     """The parsed COCO file ``path``: an object with the lists ``images`` and ``annotations``."""
     data = load_json(path, root)
     if not isinstance(data, dict):
@@ -151,7 +151,7 @@ def _is_int(value) -> bool:
     return type(value) is int and -(2 ** 63) <= value < 2 ** 63
 
 
-def _annotations_at_once(annotations: list, index: dict[int, int]) -> tuple | None:
+def annotations_at_once(annotations: list, index: dict[int, int]) -> tuple | None:
     """What :func:`_annotations_one_by_one` returns, with every check done on all annotations
     at once (a few list passes and array operations instead of a dozen calls per
     annotation); None where any check fails, for :func:`_annotations_one_by_one` to name the
@@ -212,7 +212,7 @@ def _appearances_at_once(people: list) -> list | None:
     return list(app) if np.isfinite(app).all() else None
 
 
-def _read_images(images: list, path: Path, allow_parent: bool = False
+def read_images(images: list, path: Path, allow_parent: bool = False
                  ) -> tuple[list[int], list[str], list[tuple[float, float]]]:
     """The ``images`` list -> ids, file names, (width, height); ids and names unique, names
     relative and below the file's folder (``allow_parent``: or above it through ``..``)."""
@@ -241,13 +241,13 @@ def _read_images(images: list, path: Path, allow_parent: bool = False
 def _read_annotation(ann, path: Path, field: str, index: dict[int, int], seen: set[int]):
     """One annotation -> ``(id, image index, keypoints (17, 3), score, appearance or None)``,
     or None when it is not a person. ``seen``: annotation ids so far (updated)."""
-    ann_id, image, category = _annotation_head(ann, path, field, index, seen)
+    ann_id, image, category = annotation_head(ann, path, field, index, seen)
     if category != 1:
         return None
-    return (ann_id, image, *_person(ann, path, field))
+    return (ann_id, image, *read_person(ann, path, field))
 
 
-def _annotation_head(ann, path: Path, field: str, index: dict[int, int], seen: set[int]) -> tuple[int, int, int]:
+def annotation_head(ann, path: Path, field: str, index: dict[int, int], seen: set[int]) -> tuple[int, int, int]:
     """The annotation ``ann`` -> ``(id, image index, category)``: an object whose ``id`` is
     unique (``seen``, updated), whose ``image_id`` is one of ``index`` and whose
     ``category_id`` (default 1, a person) is an integer."""
@@ -266,7 +266,7 @@ def _annotation_head(ann, path: Path, field: str, index: dict[int, int], seen: s
     return ann_id, index[image_id], category
 
 
-def _person(ann: dict, path: Path, field: str) -> tuple[np.ndarray, float, np.ndarray | None]:
+def read_person(ann: dict, path: Path, field: str) -> tuple[np.ndarray, float, np.ndarray | None]:
     """A person annotation's ``keypoints (17, 3)`` (:func:`parse_keypoints`), score (default:
     the mean confidence of its present joints; clipped to 1) and appearance ``(D,)`` or None."""
     kp = parse_keypoints(ann.get("keypoints"), path, f"{field}.keypoints")
@@ -283,7 +283,7 @@ def _person(ann: dict, path: Path, field: str) -> tuple[np.ndarray, float, np.nd
     return kp, min(score, 1.0), app
 
 
-def _stack_appearance(apps: list, path: Path) -> np.ndarray | None:
+def stack_appearance(apps: list, path: Path) -> np.ndarray | None:
     """The descriptors ``(N, D)`` (all present with one length, or all absent -> None). A
     descriptor whose norm could overflow or underflow (a largest value beyond 2**±500) is
     scaled by a power of two to a largest magnitude in [0.5, 1): exact, so its cosine

@@ -25,12 +25,12 @@ from mvm.errors import InputError
 from mvm.io.checks import numbers
 from mvm.io.coco import (
     CocoKeypoints,
-    _annotation_head,
-    _annotations_at_once,
-    _load_document,
-    _person,
-    _read_images,
-    _stack_appearance,
+    annotation_head,
+    annotations_at_once,
+    load_document,
+    read_images,
+    read_person,
+    stack_appearance,
 )
 
 
@@ -62,8 +62,8 @@ def read_coco_dataset(path: str | Path, root: str | Path | None = None) -> CocoD
     naming the file and the field. With ``root``, the file must lie inside that folder
     (:func:`mvm.io.checks.read_bytes`)."""
     path = Path(path)
-    data = _load_document(path, root)
-    image_ids, names, sizes = _read_images(data["images"], path, allow_parent=True)
+    data = load_document(path, root)
+    image_ids, names, sizes = read_images(data["images"], path, allow_parent=True)
     index = {image_id: i for i, image_id in enumerate(image_ids)}
     columns = _dataset_at_once(data["annotations"], index)
     if columns is None:                      # something to report: the first problem, by name
@@ -73,7 +73,7 @@ def read_coco_dataset(path: str | Path, root: str | Path | None = None) -> CocoD
         image_ids=np.array(image_ids, dtype=np.int64), file_names=tuple(names),
         sizes=np.array(sizes, dtype=float).reshape(-1, 2), ann_ids=np.array(ann_ids, dtype=np.int64),
         ann_image=np.array(ann_image, dtype=np.int64), keypoints=keypoints, score=np.array(scores, dtype=float),
-        appearance=_stack_appearance(apps, path))
+        appearance=stack_appearance(apps, path))
     return CocoDataset(people, crowd, boxes, depths, flags, data)
 
 
@@ -86,14 +86,14 @@ def _dataset_one_by_one(annotations: list, path: Path, index: dict[int, int]) ->
     rows: list[tuple] = []
     for i, ann in enumerate(annotations):
         field = f"annotations[{i}]"
-        ann_id, image, category = _annotation_head(ann, path, field, index, seen)
+        ann_id, image, category = annotation_head(ann, path, field, index, seen)
         if category != 1:
             continue
         crowd = _crowd(ann.get("iscrowd", 0), path, f"{field}.iscrowd")
         if crowd and "keypoints" not in ann:
             kp, score, app = np.zeros((NUM_JOINTS, 3)), 0.0, None
         else:
-            kp, score, app = _person(ann, path, field)
+            kp, score, app = read_person(ann, path, field)
         rows.append((ann_id, image, kp, score, app, crowd, _box(ann.get("bbox"), path, f"{field}.bbox"),
                      _depths(ann, kp, path, field), _flags(ann.get("keypoint_flags"), path, f"{field}.keypoint_flags")))
     ann_ids, ann_image, kps, scores, apps, crowd, boxes, depths, flags = ((list(c) for c in zip(*rows)) if rows
@@ -114,12 +114,12 @@ _FLAG_OF = {name: i for i, name in enumerate(FLAG_NAMES)}
 
 def _dataset_at_once(annotations: list, index: dict[int, int]) -> tuple | None:
     """What :func:`_dataset_one_by_one` returns, with every check done on all annotations at
-    once (:func:`mvm.io.coco._annotations_at_once` and array operations: a COCO training set
+    once (:func:`mvm.io.coco.annotations_at_once` and array operations: a COCO training set
     holds hundreds of thousands); None where any check fails, for the one-by-one reading to
     name the first problem."""
     prepared = [{**ann, "keypoints": _NO_KEYPOINTS, "score": 0, "appearance": None}
                 if type(ann) is dict and "keypoints" not in ann and ann.get("iscrowd") else ann for ann in annotations]
-    columns = _annotations_at_once(prepared, index)
+    columns = annotations_at_once(prepared, index)
     if columns is None:
         return None
     people = [ann for ann in annotations if ann.get("category_id", 1) == 1]

@@ -5,7 +5,8 @@ flushed and fsynced, renamed over its final name with :func:`os.replace` (atomic
 and Windows), and the directory is fsynced so that the rename survives a power loss. A
 process killed at any point leaves the previous file (or none) and at most a stale
 temporary file, which the next write into that folder deletes once its writer's process is gone
-(:func:`sweep_dead_temporaries`), or :func:`remove_stale_temporaries` under the output's lock.
+(:func:`sweep_dead_temporaries`, the one cleaner of temporary files). One run writes an output
+at a time: :func:`mvm.io.outputs.output_lock`, the one lock.
 
 The temporary file is created private (``0600``) by :func:`tempfile.mkstemp`; before it is
 renamed into place it gets the mode a plain ``open`` would have given it, ``0666`` less the
@@ -24,18 +25,11 @@ import math
 import os
 import stat
 import tempfile
-import time
 from pathlib import Path
 
 import orjson
 
 from mvm.errors import InputError
-
-try:
-    import fcntl
-except ImportError:                                    # not POSIX: no advisory locks
-    fcntl = None
-
 
 #: The random part of a temporary file's or folder's name follows this: ``.NAME.mvm-tmp-k2j4h_x.tmp``.
 #: Only names carrying it are removed as a killed writer's leftovers, never a user's ``.NAME.old.tmp``.
@@ -248,29 +242,6 @@ def atomic_write_json(path: str | Path, obj, pretty: bool = False) -> None:
     atomic_write_bytes(path, data)
 
 
-def remove_stale_temporaries(directory: str | Path, *names: str) -> int:
-    """Delete the temporary files that a killed writer of ``directory/NAME`` left behind, for
-    each of ``names`` (``.NAME.mvm-tmp-*.tmp``, regular files), the folder listed once whatever
-    the number of names. Call it while holding :func:`exclusive_lock` on ``directory``, so
-    that no live writer's temporary file is removed. Returns how many were deleted."""
-    wanted = set(names)
-    removed = 0
-    try:
-        entries = list(os.scandir(directory))
-    except OSError:
-        return 0
-    for entry in entries:
-        name = entry.name
-        if not (name.startswith(".") and name.endswith(".tmp") and TEMPORARY_INFIX in name):
-            continue
-        if name[1:name.rindex(TEMPORARY_INFIX)] not in wanted or not entry.is_file(follow_symlinks=False):
-            continue
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(entry.path)
-            removed += 1
-    return removed
-
-
 #: The folders this process has swept of dead writers' temporaries (:func:`sweep_dead_temporaries`).
 _SWEPT: set[str] = set()
 
@@ -313,36 +284,3 @@ def _alive(pid: int) -> bool:
     except (PermissionError, OverflowError, OSError):
         return True
     return True
-
-
-class LockTimeout(TimeoutError):
-    """Another process held the lock longer than the timeout."""
-
-
-@contextlib.contextmanager
-def exclusive_lock(directory: str | Path, timeout_s: float = 600.0, poll_s: float = 0.05):
-    """Hold an exclusive advisory lock (``flock``) on ``directory`` itself (created if
-    needed; no lock file is left behind). Waits up to ``timeout_s`` for another holder, then
-    raises :class:`LockTimeout`. The lock is released when the block ends or the process dies.
-    Without ``fcntl`` (not POSIX) it does not lock."""
-    directory = make_dir(directory)
-    if fcntl is None:
-        yield
-        return
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError as e:
-        raise output_error(directory, e) from None
-    try:
-        deadline = time.monotonic() + timeout_s
-        while True:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if time.monotonic() >= deadline:
-                    raise LockTimeout(f"{directory}: locked by another process for more than {timeout_s:g} s") from None
-                time.sleep(poll_s)
-        yield
-    finally:
-        os.close(fd)                                   # releases the lock

@@ -42,7 +42,6 @@ from mvm.io.files import (
     make_dir,
     new_dir_mode,
     output_error,
-    remove_stale_temporaries,
 )
 
 try:
@@ -158,8 +157,8 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
     an mvm stage wrote beside it); a user's file of that name, or a link, FIFO, device or socket
     in its place, is refused in one :class:`OutputError` line before anything is written. The
     names are then listed in the marker (created when absent) so that the next run knows them
-    as its own, the temporaries a killed writer of them left (``.NAME.mvm-tmp-*.tmp``) are
-    removed, and the block writes them. Yields ``folder`` as a :class:`Path`."""
+    as its own, and the block writes them (the atomic writer removes the temporaries that a
+    killed writer left, :func:`mvm.io.files.sweep_dead_temporaries`). Yields ``folder`` as a :class:`Path`."""
     folder, names = Path(folder), list(names)
     created = not os.path.lexists(folder)
     make_dir(folder)
@@ -167,7 +166,6 @@ def writing_into(folder: str | Path, names: Iterable[str], lock_timeout_s: float
         with output_lock(folder / OUTPUT_MARKER, lock_timeout_s):
             written = check_names(folder, names)
             _list_names(folder, written, names)
-            remove_stale_temporaries(folder, *names)  # a killed writer's temporaries of these names
             try:
                 yield folder
             except BaseException:                     # a failed run lists only what it left

@@ -35,7 +35,8 @@ import orjson
 
 from mvm.errors import InputError
 from mvm.io.checks import check_input_file, read_bytes
-from mvm.io.files import LockTimeout, atomic_write_json, check_file_target, exclusive_lock, output_error
+from mvm.io.files import atomic_write_json, check_file_target, output_error
+from mvm.io.outputs import output_lock
 
 log = logging.getLogger(__name__)
 
@@ -337,20 +338,20 @@ def check_fresh(output: str | Path, inputs: Mapping[str, object], command: str) 
 
 
 def produce(output: str | Path, stage: str, inputs: Mapping[str, object], settings, make: Callable,
-            keep: Callable | None, *, force: bool = False, exists: bool | None = None, lock: str | Path | None = None,
+            keep: Callable | None, *, force: bool = False, exists: bool | None = None, locked: bool = False,
             lock_timeout_s: float = 600.0, hashed: Mapping[str, str] | None = None,
             made: Callable | None = None) -> tuple[object, str | None]:
     """Make ``output`` of ``stage`` (its name in the reasons, "the reconstruction") when it is
     not up to date, the one way every stage does it: fingerprint the ``inputs`` (``hashed``:
     those already taken), ask :func:`why_redo` (``exists``: whether the output is all there,
     when its file alone does not say), and, when it must be made (or ``force``), under the
-    exclusive lock of the folder ``lock``: remove the record, ``make(why, hashed)`` (which
+    output's lock (:func:`mvm.io.outputs.output_lock`, when ``locked``): remove the record, ``make(why, hashed)`` (which
     writes the outputs atomically and returns the stage's result; it may update ``hashed``
     for an input it rewrote, a camera model it scaled), then write the record (``made(result)``:
     the files the output consists of besides ``output``, :func:`write_record`).
 
     Returns ``(result, why)``: ``why`` None when the output was up to date and ``keep()`` is
-    the result. A lock held past ``lock_timeout_s`` by another run is one :class:`InputError` line.
+    the result. A lock held past ``lock_timeout_s`` by another run is one error line.
     """
     output = Path(output)
     hashed = dict(fingerprints(inputs) if hashed is None else hashed)
@@ -358,12 +359,8 @@ def produce(output: str | Path, stage: str, inputs: Mapping[str, object], settin
     if why is None:
         log.info("%s is up to date (%s: made from these inputs with these settings)", output, stage)
         return (keep() if keep is not None else None), None
-    try:
-        with exclusive_lock(lock, lock_timeout_s) if lock is not None else contextlib.nullcontext():
-            forget(output)
-            result = make(why, hashed)
-            write_record(output, stage, inputs, settings, hashed, made=made(result) if made is not None else None)
-    except LockTimeout:
-        raise InputError(lock, None, f"another mvm run has been writing here for more than "
-                                     f"{lock_timeout_s:g} s (lock_timeout_s)") from None
+    with output_lock(output, lock_timeout_s) if locked else contextlib.nullcontext():
+        forget(output)
+        result = make(why, hashed)
+        write_record(output, stage, inputs, settings, hashed, made=made(result) if made is not None else None)
     return result, why

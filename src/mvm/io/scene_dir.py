@@ -129,7 +129,7 @@ def output_dir(scene: str | Path, output: str = "mvm") -> Path:
     must be a folder that, every symbolic link resolved, lies inside the scene directory
     (:class:`~mvm.io.files.OutputError` otherwise). It is created by the first write."""
     scene = Path(scene)
-    check_name(output, "--output", "output folder name")
+    check_name(output, "--output-name", "output folder name")
     path = scene / output
     if posixpath.normpath(output.replace("\\", "/")).split("/")[0] in (FRAMES, SPARSE, POSES2D):
         raise OutputError(path, None, "is an input of the scene (frames/, sparse/, poses2d.json): "

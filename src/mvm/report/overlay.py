@@ -31,11 +31,12 @@ IMAGE_SUFFIXES = (".png", ".jpg")
 _SKELETON = np.array(COCO_SKELETON)
 
 
-def _cv2():
+def opencv():
+    """The ``cv2`` module; its absence is one :class:`InputError` line saying how to install it."""
     try:
         import cv2
-    except ImportError:  # pragma: no cover - opencv is installed with the 'video' extra
-        raise InputError(None, None, "overlays need OpenCV: pip install 'mvm[video]'") from None
+    except ImportError:  # pragma: no cover - opencv is a core dependency
+        raise InputError(None, None, "overlays need OpenCV: pip install opencv-python-headless") from None
     return cv2
 
 
@@ -64,7 +65,7 @@ def draw_overlay(image: np.ndarray, keypoints: np.ndarray, labels: np.ndarray, c
         ``(H, W, 3)`` uint8 BGR: thick lines and dots for the 2D poses, thin light lines and
         rings for the reprojected 3D poses.
     """
-    cv2 = _cv2()
+    cv2 = opencv()
     image = np.ascontiguousarray(image, dtype=np.uint8).copy()
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image: expected shape (H, W, 3), got {image.shape}")
@@ -119,7 +120,7 @@ class ViewRenderer:
         return self.frames_dir is not None
 
     def _background(self, v: int) -> tuple[np.ndarray, bool]:
-        cv2 = _cv2()
+        cv2 = opencv()
         W, H = (int(round(s)) for s in self.result.scene.cameras.size[v])
         if self.frames_dir is not None:
             path = self.frames_dir / self.result.scene.cameras.names[v]
@@ -139,7 +140,7 @@ class ViewRenderer:
 
     def render(self, v: int, max_width: int | None = None) -> np.ndarray:
         """The overlay of view ``v``: ``(H, W, 3)`` uint8 BGR, at most ``max_width`` wide."""
-        cv2 = _cv2()
+        cv2 = opencv()
         image, real = self._background(v)
         H, W = image.shape[:2]
         scale = 1.0
@@ -191,7 +192,7 @@ def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output:
     renderer = ViewRenderer(result)
     views = range(0, len(result.scene.cameras), step)
     if video:
-        _write_video(out, (renderer.render(v, max_width) for v in views), fps)
+        write_video(out, (renderer.render(v, max_width) for v in views), fps)
     else:
         atomic_replace_dir(lambda tmp: _write_images(tmp, renderer, views, max_width, image_format), out)
     log.info("%s: %d overlays written", out, len(views))
@@ -200,7 +201,7 @@ def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output:
 
 def _write_images(folder: Path, renderer: ViewRenderer, views, max_width: int | None, image_format: str) -> None:
     """One overlay image per view of ``views`` into ``folder``, named as the view."""
-    cv2 = _cv2()
+    cv2 = opencv()
     for v in views:
         ok, data = cv2.imencode(image_format, renderer.render(v, max_width))
         if not ok:
@@ -209,9 +210,9 @@ def _write_images(folder: Path, renderer: ViewRenderer, views, max_width: int | 
         atomic_write_bytes(folder / name, data.tobytes())
 
 
-def _write_video(path: Path, images, fps: float) -> None:
+def write_video(path: Path, images, fps: float) -> None:
     """Write BGR images (resized to the first one's size) as an MP4, atomically."""
-    cv2 = _cv2()
+    cv2 = opencv()
     writer = None
     with atomic_output(path, suffix=".mp4") as tmp:
         try:

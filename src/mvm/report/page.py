@@ -44,7 +44,8 @@ def _round(a: np.ndarray, digits: int = 4):
     return [_round(row, digits) for row in a]
 
 
-def _nice_step(span: float) -> float:
+def nice_step(span: float) -> float:
+    """A round grid step (1, 2 or 5 times a power of ten) of about a tenth of ``span``."""
     raw = max(span, 1e-9) / 10
     exponent = 10 ** math.floor(math.log10(raw))
     return next(s * exponent for s in (1, 2, 5, 10) if s * exponent >= raw)
@@ -92,17 +93,18 @@ def view_payload(result: SceneResult, max_points: int = MAX_POINTS, max_frustums
     if result.truth is not None:
         Td = to_display(result.truth.poses3d)
         truth = [{"id": g, "color": "#222222", "joints": _round(Td[g])} for g in range(len(Td))]
-    half = _nice_step(2 * radius) * math.ceil(1.1 * radius / _nice_step(2 * radius))
+    half = nice_step(2 * radius) * math.ceil(1.1 * radius / nice_step(2 * radius))
     return {
         "persons": persons, "truth": truth, "skeleton": [list(e) for e in COCO_SKELETON],
         "path": _round(Cd), "frustums": _round(to_display(fr)), "points": points_flat,
         "radius": round(radius, 4), "person_scale": round(person_scale, 4), "center_z": 0.0,
         "heading": round(float(math.atan2(mean_cam[1], mean_cam[0])), 4) if len(Cd) else 0.0,
-        "grid": {"z": round(floor, 4), "half": round(half, 4), "step": round(_nice_step(2 * radius), 4)},
+        "grid": {"z": round(floor, 4), "half": round(half, 4), "step": round(nice_step(2 * radius), 4)},
     }
 
 
-def _fmt(value, digits: int = 2) -> str:
+def fmt_cell(value, digits: int = 2) -> str:
+    """``value`` as HTML for a table cell: a float to ``digits`` decimals, "–" for none or non-finite."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     if isinstance(value, float):
@@ -112,17 +114,17 @@ def _fmt(value, digits: int = 2) -> str:
 
 def _metric_cards(result: SceneResult) -> str:
     m = result.metrics
-    cards = [("persons", _fmt(m.get("persons", len(result.persons)))),
-             ("matched 2D poses", _fmt(m.get("matched_poses"))),
-             ("unmatched 2D poses", _fmt(m.get("unmatched_poses"))),
-             ("E<sub>R</sub> (px)", _fmt(m.get("E_R_px"))),
-             ("outliers per 3D pose", _fmt(m.get("outliers"), 1)),
-             ("|G<sub>k</sub>| (2D keypoints per joint)", _fmt(m.get("G_k"), 1)),
-             ("views", _fmt(len(result.scene.cameras))),
-             ("2D poses", _fmt(len(result.scene.poses)))]
+    cards = [("persons", fmt_cell(m.get("persons", len(result.persons)))),
+             ("matched 2D poses", fmt_cell(m.get("matched_poses"))),
+             ("unmatched 2D poses", fmt_cell(m.get("unmatched_poses"))),
+             ("E<sub>R</sub> (px)", fmt_cell(m.get("E_R_px"))),
+             ("outliers per 3D pose", fmt_cell(m.get("outliers"), 1)),
+             ("|G<sub>k</sub>| (2D keypoints per joint)", fmt_cell(m.get("G_k"), 1)),
+             ("views", fmt_cell(len(result.scene.cameras))),
+             ("2D poses", fmt_cell(len(result.scene.poses)))]
     items = "".join(f'<div class="card"><div class="value">{v}</div><div class="name">{n}</div></div>'
                     for n, v in cards)
-    timings = "".join(f"<tr><td>{escape(k.removesuffix('_s'))}</td><td>{_fmt(float(v), 3)}</td></tr>"
+    timings = "".join(f"<tr><td>{escape(k.removesuffix('_s'))}</td><td>{fmt_cell(float(v), 3)}</td></tr>"
                       for k, v in result.timings.items() if isinstance(v, (int, float)))
     timing_table = (f'<table class="small"><thead><tr><th>stage</th><th>time (s)</th></tr></thead>'
                     f"<tbody>{timings}</tbody></table>") if timings else "<p>No timings in poses3d.json.</p>"
@@ -137,12 +139,12 @@ def _persons_table(result: SceneResult, colors: np.ndarray, comparison: dict | N
         gt = ""
         if comparison is not None:
             g = comparison["truth_of"][p]
-            gt = (f"<td>{g if g >= 0 else '–'}</td><td>{_fmt(1000 * comparison['person_mpjpe'][p], 0)}</td>"
-                  f"<td>{_fmt(1000 * comparison['person_pa_mpjpe'][p], 0)}</td>")
+            gt = (f"<td>{g if g >= 0 else '–'}</td><td>{fmt_cell(1000 * comparison['person_mpjpe'][p], 0)}</td>"
+                  f"<td>{fmt_cell(1000 * comparison['person_pa_mpjpe'][p], 0)}</td>")
         rows.append(f'<tr><td><span class="swatch" style="background:{analysis.hex_color(colors[p])}"></span>{p}</td>'
                     f"<td>{len(persons.members[p])}</td><td>{joints}/17</td>"
-                    f"<td>{_fmt(float(persons.views_per_joint[p].mean()), 1)}</td>"
-                    f"<td>{_fmt(float(persons.reprojection_error_px[p]))}</td>{gt}</tr>")
+                    f"<td>{fmt_cell(float(persons.views_per_joint[p].mean()), 1)}</td>"
+                    f"<td>{fmt_cell(float(persons.reprojection_error_px[p]))}</td>{gt}</tr>")
     head = ("<th>person</th><th>2D poses</th><th>joints</th><th>views per joint</th><th>E<sub>R</sub> (px)</th>"
             + ("<th>true person</th><th>MPJPE (mm)</th><th>PA-MPJPE (mm)</th>" if comparison else ""))
     return f'<table class="small"><thead><tr>{head}</tr></thead><tbody>{"".join(rows)}</tbody></table>'
@@ -150,9 +152,9 @@ def _persons_table(result: SceneResult, colors: np.ndarray, comparison: dict | N
 
 def _strip(result: SceneResult, count: int, width: int) -> tuple[str, bool]:
     """Sampled frames with overlays as inline JPEGs; and whether real frames were used."""
-    from mvm.report.overlay import ViewRenderer, _cv2
+    from mvm.report.overlay import ViewRenderer, opencv
 
-    cv2 = _cv2()
+    cv2 = opencv()
     renderer = ViewRenderer(result)
     poses = result.scene.poses
     figures = []
@@ -198,10 +200,10 @@ def _plots(result: SceneResult, comparison: dict | None) -> str:
 
 def _truth_section(comparison: dict) -> str:
     cards = [("persons found / true", f"{comparison['found']} / {comparison['true']}"),
-             ("matching precision", _fmt(comparison["precision"], 3)),
-             ("matching recall", _fmt(comparison["recall"], 3)),
-             ("MPJPE (mm)", _fmt(1000 * comparison["mpjpe"], 1)),
-             ("PA-MPJPE (mm)", _fmt(1000 * comparison["pa_mpjpe"], 1))]
+             ("matching precision", fmt_cell(comparison["precision"], 3)),
+             ("matching recall", fmt_cell(comparison["recall"], 3)),
+             ("MPJPE (mm)", fmt_cell(1000 * comparison["mpjpe"], 1)),
+             ("PA-MPJPE (mm)", fmt_cell(1000 * comparison["pa_mpjpe"], 1))]
     items = "".join(f'<div class="card"><div class="value">{v}</div><div class="name">{n}</div></div>'
                     for n, v in cards)
     return (f'<section id="truth"><h2>Ground truth (simulated scene)</h2><div class="cards">{items}</div>'
@@ -210,7 +212,7 @@ def _truth_section(comparison: dict) -> str:
             "below 0.5 m; precision and recall count pairs of 2D poses grouped together.</p></section>")
 
 
-_CSS = """
+CSS = """
 body{font:14px/1.45 system-ui,-apple-system,Segoe UI,sans-serif;margin:0;color:#222;background:#f4f4f4}
 header{background:#20262e;color:#fff;padding:14px 24px}header h1{margin:0;font-size:20px}
 header p{margin:4px 0 0;color:#c8cdd3;font-size:12px}
@@ -234,7 +236,7 @@ table.small th{color:#555;font-weight:600}
 .note{color:#666;font-size:12px}#mvm-status{font-size:12px;color:#777}
 """
 
-_ERROR_HOOK = """window.mvmErrors=[];(function(){function note(m){window.mvmErrors.push(String(m));
+ERROR_HOOK = """window.mvmErrors=[];(function(){function note(m){window.mvmErrors.push(String(m));
 var s=document.getElementById('mvm-status');if(s){s.setAttribute('data-state','error');
 s.setAttribute('data-errors',window.mvmErrors.join(' | '));}}
 window.addEventListener('error',function(e){note(e.message||e);});
@@ -269,7 +271,7 @@ def report_html(result: SceneResult, strip: str, strip_on_frames: bool, max_poin
     title = escape(result.path.name)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
-<title>mvm report: {title}</title><style>{_CSS}</style><script>{_ERROR_HOOK}</script></head>
+<title>mvm report: {title}</title><style>{CSS}</style><script>{ERROR_HOOK}</script></head>
 <body><header><h1>mvm report: {title}</h1><p>{escape(str(result.path))} · {escape(result.output)}/poses3d.json ·
 mvm {escape(__version__)} · written {time.strftime("%Y-%m-%d %H:%M")}</p></header><main>
 <section id="metrics"><h2>Metrics</h2>{_metric_cards(result)}</section>

@@ -23,7 +23,7 @@ from mvm.errors import InputError
 from mvm.io.images import step_frames
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
 from mvm.report.analysis import person_colors
-from mvm.report.overlay import _cv2, _write_video, draw_overlay
+from mvm.report.overlay import draw_overlay, opencv, write_video
 from mvm.report.rig_load import (
     POSES3D,
     RECAP,
@@ -90,7 +90,7 @@ class CameraDrawer:
 
     def draw(self, image: np.ndarray, frame: int, max_width: int | None = None) -> np.ndarray:
         """The overlay of the camera's frame ``frame`` on ``image: (H, W, 3)`` BGR."""
-        cv2 = _cv2()
+        cv2 = opencv()
         H, W = image.shape[:2]
         scale = W / float(self.size[0])
         if max_width and W > max_width:
@@ -116,7 +116,7 @@ def _open(path: Path, size: np.ndarray):
     """An opened ``cv2.VideoCapture`` of ``path`` that has decoded its first frame, rewound. A
     video that does not decode, or whose frames are not the shape of the calibration's image
     ``size: (2,)`` (width, height), is one :class:`InputError` line."""
-    cv2 = _cv2()
+    cv2 = opencv()
     capture = cv2.VideoCapture(str(path))
     ok, image = capture.read() if capture.isOpened() else (False, None)
     if not ok:
@@ -176,10 +176,10 @@ def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, outpu
 
     def build(folder: Path) -> None:
         for name, capture in captures.items():
-            fps = capture.get(_cv2().CAP_PROP_FPS)
+            fps = capture.get(opencv().CAP_PROP_FPS)
             counter = [0]
             path = folder / f"{name}.mp4"
-            _write_video(path, _frames(capture, CameraDrawer(data, data.names.index(name)), step, max_width, counter),
+            write_video(path, _frames(capture, CameraDrawer(data, data.names.index(name)), step, max_width, counter),
                          fps if 0 < fps < 1000 else DEFAULT_FRAME_RATE_HZ)
             summary.videos[name] = (target / path.name, counter[0])
 

@@ -22,7 +22,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
 from mvm.io.files import atomic_write_text
 from mvm.io.outputs import add_to_output_set, check_output_location
 from mvm.report import analysis, rig_analysis
-from mvm.report.page import _CSS, _ERROR_HOOK, _fmt, _nice_step, viewer_script
+from mvm.report.page import CSS, ERROR_HOOK, fmt_cell, nice_step, viewer_script
 from mvm.report.plots import flag_timeline, line_chart
 from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result, report_calibration
 from mvm.rig.output_set import DEFAULT_OUTPUT
@@ -140,7 +140,7 @@ def rig_view_payload(fig: RigFigures) -> dict:
         for t, instant in enumerate(instants):
             instant["truth"] = [{"id": g, "color": "#222222", "xyz": xyz} for g, xyz in enumerate(truth[t])
                                 if any(v is not None for v in xyz)]
-    step = _nice_step(2 * radius)
+    step = nice_step(2 * radius)
     return {"persons": [], "instants": instants, "truth": None if truth is None else [],
             "skeleton": [list(e) for e in COCO_SKELETON], "path": [], "points": [],
             "frustums": _rounded(to_display(frustums), 4),
@@ -160,7 +160,7 @@ def _frame_rate(recap: dict) -> float:
 
 def _cards(items) -> str:
     """Cards of ``(name, value)``: names are text (escaped here; a recap's may be anything),
-    values already HTML (:func:`~mvm.report.page._fmt`)."""
+    values already HTML (:func:`~mvm.report.page.fmt_cell`)."""
     return '<div class="cards">' + "".join(f'<div class="card"><div class="value">{v}</div><div class="name">'
                                            f"{escape(n)}</div></div>" for n, v in items) + "</div>"
 
@@ -171,19 +171,19 @@ def recap_section(data: RigReportData) -> str:
     r = data.recap
     flags = r.get("joint_flags") or {}
     offsets = r.get("sync_offsets") or {}
-    cards = [("instants", _fmt(r.get("instants"))), ("tracks", _fmt(r.get("tracks"))),
-             ("persons (all instants)", _fmt(r.get("persons"))),
-             ("persons per instant", _fmt(r.get("persons_per_instant"))),
-             ("reprojection error (px)", _fmt(r.get("reprojection_error_px"))),
-             ("instants / s", _fmt(r.get("instants_per_s"), 1)),
+    cards = [("instants", fmt_cell(r.get("instants"))), ("tracks", fmt_cell(r.get("tracks"))),
+             ("persons (all instants)", fmt_cell(r.get("persons"))),
+             ("persons per instant", fmt_cell(r.get("persons_per_instant"))),
+             ("reprojection error (px)", fmt_cell(r.get("reprojection_error_px"))),
+             ("instants / s", fmt_cell(r.get("instants_per_s"), 1)),
              *[(f"{k} joints", f"{100 * v:.1f} %") for k, v in flags.items() if isinstance(v, (int, float))]]
     names = list((r.get("excluded_per_camera") or {}).keys())
     head = "".join(f"<th>excl. {escape(n)}</th>" for n in names)
     rows = []
     for j, kp in enumerate(r.get("keypoints") or COCO_KEYPOINTS):
-        cells = "".join(f"<td>{_fmt(_at(r['excluded_per_camera'][n], j))}</td>" for n in names)
-        rows.append(f"<tr><td>{escape(str(kp))}</td><td>{_fmt(_at(r.get('error_per_keypoint_px'), j))}</td>"
-                    f"<td>{_fmt(_at(r.get('views_per_keypoint'), j))}</td>{cells}</tr>")
+        cells = "".join(f"<td>{fmt_cell(_at(r['excluded_per_camera'][n], j))}</td>" for n in names)
+        rows.append(f"<tr><td>{escape(str(kp))}</td><td>{fmt_cell(_at(r.get('error_per_keypoint_px'), j))}</td>"
+                    f"<td>{fmt_cell(_at(r.get('views_per_keypoint'), j))}</td>{cells}</tr>")
     sync = (", ".join(f"{escape(n)} {o:+d}" for n, o in offsets.items()) if offsets
             else "none (frame numbers as they are)")
     return (f'<section id="recap"><h2>Recap</h2>{_cards(cards)}<p class="note">Calibration '
@@ -236,8 +236,8 @@ def cameras_section(fig: RigFigures) -> str:
                        note=f"bins of {len(data.poses.frames) / (len(fig.bounds) - 1):.1f} instants" if binned else "")
     excluded = data.recap.get("excluded_overall_per_camera") or {}
     rows = "".join(f'<tr><td><span class="swatch" style="background:{fig.camera_colors[v]}"></span>{escape(n)}</td>'
-                   f"<td>{_fmt(float(s['median'][v]))}</td><td>{_fmt(float(s['p90'][v]))}</td>"
-                   f"<td>{int(s['count'][v])}</td><td>{_fmt(excluded.get(n), 3)}</td></tr>"
+                   f"<td>{fmt_cell(float(s['median'][v]))}</td><td>{fmt_cell(float(s['p90'][v]))}</td>"
+                   f"<td>{int(s['count'][v])}</td><td>{fmt_cell(excluded.get(n), 3)}</td></tr>"
                    for v, n in enumerate(data.names))
     return ('<section id="cameras"><h2>Cameras</h2><p class="note">The distance between each 2D keypoint a '
             "person was matched to and its observed 3D joint projected into that camera (lens undone), median "
@@ -278,15 +278,16 @@ def truth_section(fig: RigFigures) -> str:
     c = fig.comparison
     if c is None:
         return ""
-    mm = lambda v: _fmt(1000 * float(v), 1)  # noqa: E731
+    mm = lambda v: fmt_cell(1000 * float(v), 1)  # noqa: E731
     cards = [*[(f"MPJPE, {k} joints (mm)", mm(v)) for k, v in c["mpjpe"].items()],
              ("tracks on a true person", f"{int((c['truth_of'] >= 0).sum())} / {len(fig.tracks)}"),
              ("true persons", str(fig.data.truth.poses3d.shape[1])),
-             ("camera centres after the similarity (mean, cm)", _fmt(100 * float(c["camera_residual"].mean()))),
-             ("scale of the similarity", _fmt(c["scale"], 4))]
+             ("camera centres after the similarity (mean, cm)", fmt_cell(100 * float(c["camera_residual"].mean()))),
+             ("scale of the similarity", fmt_cell(c["scale"], 4))]
     rows = "".join(f'<tr><td><span class="swatch" style="background:{fig.colors[k]}"></span>{int(track)}</td>'
                    f"<td>{c['truth_of'][k] if c['truth_of'][k] >= 0 else '–'}</td><td>{mm(c['track_mpjpe'][k])}</td>"
-                   f"<td>{_fmt(float(c['track_angle_error'][k]), 1)}</td></tr>" for k, track in enumerate(fig.tracks))
+                   f"<td>{fmt_cell(float(c['track_angle_error'][k]), 1)}</td></tr>"
+                   for k, track in enumerate(fig.tracks))
     return (f'<section id="truth"><h2>Ground truth (simulated rig)</h2>{_cards(cards)}<p class="note">The estimate '
             "is moved by the similarity that maps its camera centres onto the true ones (the identity with the true "
             "calibration); each track is compared with the true person closest to it. The 3D view draws the true "
@@ -307,8 +308,8 @@ def rig_report_html(data: RigReportData) -> str:
                  if fig.comparison is not None else "")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
-<title>mvm rig report: {title}</title><style>{_CSS}.timelines svg{{display:block;margin:4px 0}}</style>
-<script>{_ERROR_HOOK}</script></head>
+<title>mvm rig report: {title}</title><style>{CSS}.timelines svg{{display:block;margin:4px 0}}</style>
+<script>{ERROR_HOOK}</script></head>
 <body><header><h1>mvm rig report: {title}</h1><p>{escape(str(data.rig_dir))} · {escape(data.out_dir.name)}/{POSES3D}
 · {len(data.names)} cameras · mvm {escape(__version__)} · written {time.strftime("%Y-%m-%d %H:%M")}</p></header><main>
 {recap_section(data)}

@@ -42,6 +42,16 @@ def greedy_groups(A: np.ndarray, score: np.ndarray, view: np.ndarray, tau: float
         groups: arrays of pose indices, in the order they were built (seeds first).
 
     Memory: ``A`` is only read, one row per pose (``O(N)`` extra); time ``O(N²)``.
+
+    Four poses in three views: 0 and 2 agree with the confident seed 1, pose 3 (view 2, as pose 2)
+    agrees with nothing and seeds a group of its own:
+
+    >>> A = np.array([[np.nan, 0.4, 0.3, 0.0], [0.4, np.nan, 0.45, 0.05], [0.3, 0.45, np.nan, np.nan],
+    ...               [0.0, 0.05, np.nan, np.nan]])
+    >>> greedy_groups(A, np.array([0.8, 0.9, 0.7, 0.6]), np.array([0, 1, 2, 2]), tau=0.2)
+    [array([1, 0, 2]), array([3])]
+    >>> greedy_groups(A, np.array([0.8, 0.9, 0.7, 0.6]), np.array([0, 1, 2, 2]), tau=0.2, min_group_size=2)
+    [array([1, 0, 2])]
     """
     N = len(score)
     if A.shape != (N, N) or np.shape(view) != (N,):

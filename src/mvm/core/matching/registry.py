@@ -77,7 +77,15 @@ def _lookup(table: dict, name: str, kind: str):
 
 
 def get_matcher(name: str) -> Matcher:
-    """The matcher called ``name`` (one of :data:`MATCHERS`)."""
+    """The matcher called ``name`` (one of :data:`MATCHERS`).
+
+    >>> get_matcher("mvm") is MATCHERS["mvm"]
+    True
+    >>> get_matcher("kmeans")
+    Traceback (most recent call last):
+    ...
+    ValueError: unknown matching method 'kmeans'; known: ...
+    """
     return _lookup(MATCHERS, name, "matching method")
 
 
