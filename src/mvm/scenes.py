@@ -235,4 +235,4 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     document, timings, scene, hashed = made
     produce(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
             reconstruct_settings(config, metric_scale=False), lambda why, _: write_result(out_dir, document, timings),
-            None, force=True, locked=True, lock_timeout_s=config.lock_timeout_s, hashed=hashed)
+            None, force=True, lock=out_dir / "poses3d.json", lock_timeout_s=config.lock_timeout_s, hashed=hashed)

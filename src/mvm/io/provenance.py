@@ -338,17 +338,18 @@ def check_fresh(output: str | Path, inputs: Mapping[str, object], command: str) 
 
 
 def produce(output: str | Path, stage: str, inputs: Mapping[str, object], settings, make: Callable,
-            keep: Callable | None, *, force: bool = False, exists: bool | None = None, locked: bool = False,
+            keep: Callable | None, *, force: bool = False, exists: bool | None = None, lock: str | Path | None = None,
             lock_timeout_s: float = 600.0, hashed: Mapping[str, str] | None = None,
             made: Callable | None = None) -> tuple[object, str | None]:
     """Make ``output`` of ``stage`` (its name in the reasons, "the reconstruction") when it is
     not up to date, the one way every stage does it: fingerprint the ``inputs`` (``hashed``:
     those already taken), ask :func:`why_redo` (``exists``: whether the output is all there,
     when its file alone does not say), and, when it must be made (or ``force``), under the
-    output's lock (:func:`mvm.io.outputs.output_lock`, when ``locked``): remove the record, ``make(why, hashed)`` (which
-    writes the outputs atomically and returns the stage's result; it may update ``hashed``
-    for an input it rewrote, a camera model it scaled), then write the record (``made(result)``:
-    the files the output consists of besides ``output``, :func:`write_record`).
+    lock of the output ``lock`` (a file, or a folder written whole;
+    :func:`mvm.io.outputs.output_lock`): remove the record, ``make(why, hashed)`` (which writes
+    the outputs atomically and returns the stage's result; it may update ``hashed`` for an
+    input it rewrote, a camera model it scaled), then write the record (``made(result)``: the
+    files the output consists of besides ``output``, :func:`write_record`).
 
     Returns ``(result, why)``: ``why`` None when the output was up to date and ``keep()`` is
     the result. A lock held past ``lock_timeout_s`` by another run is one error line.
@@ -359,7 +360,7 @@ def produce(output: str | Path, stage: str, inputs: Mapping[str, object], settin
     if why is None:
         log.info("%s is up to date (%s: made from these inputs with these settings)", output, stage)
         return (keep() if keep is not None else None), None
-    with output_lock(output, lock_timeout_s) if locked else contextlib.nullcontext():
+    with output_lock(lock, lock_timeout_s) if lock is not None else contextlib.nullcontext():
         forget(output)
         result = make(why, hashed)
         write_record(output, stage, inputs, settings, hashed, made=made(result) if made is not None else None)

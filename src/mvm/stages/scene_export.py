@@ -51,7 +51,7 @@ def _run(job: Job, force: bool) -> Done:
         return export_supervision([item], _folder(job), link="none", min_keypoints=job.options.min_keypoints)
 
     path, why = produce(_annotations(job), EXPORT_STAGE, _inputs(job), _settings(job), make, lambda: _annotations(job),
-                        force=force, locked=True)
+                        force=force)                                  # the writer locks its folder
     return Done(path, why)
 
 

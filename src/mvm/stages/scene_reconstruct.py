@@ -86,7 +86,7 @@ def _run(job: Job, force: bool) -> Done:
         return Reconstruction(len(result.persons), result.metrics, scale, _poses3d(job))
 
     made, why = produce(_poses3d(job), RECONSTRUCT_STAGE, _inputs(job), _settings(job), make, lambda: _kept(job),
-                        force=force, locked=True, lock_timeout_s=config.lock_timeout_s)
+                        force=force, lock=_poses3d(job), lock_timeout_s=config.lock_timeout_s)
     return Done(made, why)
 
 
