@@ -38,7 +38,7 @@ def _scene(seed: int, views: int, points: int, noise_px: float):
     rng = np.random.default_rng(seed)
     cams = random_cameras(rng, views, arc_deg=120)
     X = rng.uniform([-1, -1, 0], [1, 1, 2], (points, 3))
-    uv, _ = project(X[:, None, :], cams.P)                                     # (N, M, 2)
+    uv = project(X[None], cams.P)[0].swapaxes(0, 1)                             # (N, M, 2)
     return rng, cams, X, uv + rng.normal(0, noise_px, uv.shape)
 
 
