@@ -26,7 +26,7 @@ from mvm.core.keypoints import INDEX
 from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.options import RigOptions
-from mvm.rig.reconstruct_rig import completion_prior, instants_config, track_and_complete
+from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 
 #: A person is the true person of smallest MPJPE within this distance. [m]
@@ -111,7 +111,7 @@ def main() -> int:
                         "20-40 cm off instead of not at all.")
     parser.add_argument("--no-fill", action="store_true", help="Without the occlusion fill (occlusion_max_gap = 0).")
     args = parser.parse_args()
-    config = Config()
+    config = rig_config()
     prior = completion_prior(config)
     options = RigOptions(frame_rate=30.0, occlusion_max_gap=0 if args.no_fill else RigOptions().occlusion_max_gap)
     total = {"hidden": {f: [] for f in range(len(FLAG_NAMES))}, "around": [], "observed": [], "hidden_cells": 0,

@@ -89,7 +89,8 @@ def _score(estimates: list[np.ndarray], truths: list[np.ndarray]) -> tuple[int, 
 
 
 def oracle_config(config: Config) -> Config:
-    return config.replace(refine=False, ransac_hypotheses=EXHAUSTIVE, merge_distance=0.0)
+    """The scenes' settings (:meth:`Config.for_driver`) of the true grouping's reconstruction."""
+    return config.for_driver("scene").replace(refine=False, ransac_hypotheses=EXHAUSTIVE, merge_distance=0.0)
 
 
 class _Tally:

@@ -60,6 +60,7 @@ def reconstruct_read(path: str | Path, config: Config, output: str = "mvm", prio
     """Read the scene directory ``path`` and reconstruct it, writing nothing: ``(result, scene)``
     (``config`` already the scene driver's, :meth:`~mvm.core.config.Config.for_driver`). The
     scene stage of :mod:`mvm.stages` writes the result itself (:func:`result_document`)."""
+    assert config.resolved, "reconstruct_read takes the scene driver's settings (Config.for_driver)"
     read = _read(Path(path), config, output)
     if isinstance(read[1], Exception):
         raise read[1]

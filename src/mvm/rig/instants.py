@@ -112,8 +112,11 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
 
     ``progress(done, total)`` is called with counts of instants after each batch of this
     process's share (the first), then once all shares are done.
+
+    ``config``'s settings left to the driver take the scenes' defaults (:meth:`Config.for_driver`)
+    unless resolved: the rig driver gives its own (:func:`mvm.rig.reconstruct_rig.instants_config`).
     """
-    config = config or Config()
+    config = (config or Config()).for_driver("scene")
     if poses.instant is None:
         raise ValueError("poses.instant: expected the instant of every pose, got None")
     if len(poses) and (poses.view.min() < 0 or poses.view.max() >= len(cameras)):
