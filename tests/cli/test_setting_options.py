@@ -44,3 +44,33 @@ def test_help_is_the_fields_comment_with_its_default():
     assert "Temporal smoothing of each track" in text
     assert f"(default: {RigOptions().smoothing})" in text
     assert "[none|butterworth|savgol]" in text
+
+
+def test_the_video_and_batch_options_are_their_settings_declarations():
+    """``mvm run`` and ``mvm batch`` refuse what the frame, SfM and detection settings refuse,
+    with the field's bound, and show the field's default: written once, in the dataclasses."""
+    import dataclasses
+
+    from mvm.cli import main
+    from mvm.video.detect import DetectOptions
+    from mvm.video.frames import FrameOptions
+    from mvm.video.sfm import SfmOptions
+
+    bound = {f.name: f.metadata["bounds"] for cls in (FrameOptions, SfmOptions, DetectOptions)
+             for f in dataclasses.fields(cls) if "bounds" in f.metadata}
+    assert (bound["width"].ge, bound["blur_ratio"].le, bound["batch_size"].le) == (16, 1, 4096)
+    for command in (["run", "clip.mp4", "-o", "scene"], ["batch", "root"]):
+        for args, problem in ((["--width", "8"], "--width: must be >= 16, got 8"),
+                              (["--rate", "0"], "--rate: must be > 0, got 0.0"),
+                              (["--focal", "-1"], "--focal: must be > 0, got -1.0")):
+            result = CliRunner().invoke(main, [*command, *args])
+            assert result.exit_code == 2 and problem in result.output, (command, args, result.output)
+    for args, problem in ((["--blur-ratio", "1.5"], "--blur-ratio: must be <= 1, got 1.5"),
+                          (["--batch-size", "5000"], "--batch-size: must be <= 4096, got 5000"),
+                          (["--max-features", "10"], "--max-features: must be >= 64, got 10")):
+        result = CliRunner().invoke(main, ["run", "clip.mp4", "-o", "scene", *args])
+        assert result.exit_code == 2 and problem in result.output, (args, result.output)
+    text = " ".join(CliRunner().invoke(main, ["run", "--help"]).output.split())
+    for default in (f"(default: {FrameOptions().blur_ratio})", f"(default: {SfmOptions().max_features})",
+                    f"(default: {DetectOptions().mode})", f"(default: {DetectOptions().batch_size})"):
+        assert default in text

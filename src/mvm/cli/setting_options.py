@@ -13,7 +13,10 @@ import importlib
 
 import click
 
-from mvm.cli.common import Number
+#: The settings of the video stages, named as :func:`setting_option` takes them.
+FRAMES = "mvm.video.frames:FrameOptions"
+SFM = "mvm.video.sfm:SfmOptions"
+DETECT = "mvm.video.detect:DetectOptions"
 
 
 @functools.cache
@@ -42,6 +45,7 @@ class SettingType(click.ParamType):
 
     @functools.cached_property
     def _inner(self) -> click.ParamType:
+        from mvm.cli.common import Number
         from mvm.core.config import setting_kind
 
         field, _ = declaration(self.settings, self.setting)
