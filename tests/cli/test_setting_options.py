@@ -71,6 +71,21 @@ def test_the_video_and_batch_options_are_their_settings_declarations():
         result = CliRunner().invoke(main, ["run", "clip.mp4", "-o", "scene", *args])
         assert result.exit_code == 2 and problem in result.output, (args, result.output)
     text = " ".join(CliRunner().invoke(main, ["run", "--help"]).output.split())
-    for default in (f"(default: {FrameOptions().blur_ratio})", f"(default: {SfmOptions().max_features})",
-                    f"(default: {DetectOptions().mode})", f"(default: {DetectOptions().batch_size})"):
-        assert default in text
+    for shown in (f"(fraction, default: {FrameOptions().blur_ratio})", f"(default: {DetectOptions().mode})",
+                  f"(features, default: {SfmOptions().max_features})",
+                  f"(frames, default: {DetectOptions().batch_size})", "the original size (px)."):
+        assert shown in text
+
+
+def test_a_bound_the_command_narrows_is_the_commands_and_shown():
+    """``mvm simulate --people`` keeps its own 1-30 (SimConfig allows 1000); the help shows that
+    range beside the field's comment, unit and default."""
+    from mvm.cli import main
+    from mvm.sim.simulate import SimConfig
+
+    result = CliRunner().invoke(main, ["simulate", "scene", "--people", "31"])
+    assert result.exit_code == 2 and "--people: must be <= 30, got 31" in result.output
+    text = " ".join(CliRunner().invoke(main, ["simulate", "--help"]).output.split())
+    assert f"(people, 1-30, default: {SimConfig().people})" in text
+    assert f"(deg, 5-180, default: {SimConfig().arc_deg})" in text
+    assert f"(default: {SimConfig().seed})" in text

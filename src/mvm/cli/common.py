@@ -341,10 +341,9 @@ def _option_name(param) -> str:
     return longest.upper() if not longest.startswith("-") else longest
 
 
-#: Option types of a focal length and a seed not set in a settings file (the options of settings
-#: take theirs from the declarations: :mod:`mvm.cli.setting_options`).
+#: The option type of a focal length not set in a settings file (``mvm predict --focal``; the
+#: options of settings take theirs from the declarations: :mod:`mvm.cli.setting_options`).
 FOCAL = Number(float, gt=0)
-SEED = Number(int, ge=0, le=2**63 - 1)
 
 
 #: ``--set`` and ``--refine/--no-refine``: the reconstruction settings of every command that reconstructs.
