@@ -47,5 +47,5 @@ def test_settings_are_resolved_once_at_the_drivers_entry(tmp_path):
         completion_prior(Config())
     with pytest.raises(AssertionError, match="resolved"):
         triangulate_poses(None, None, Config())
-    with pytest.raises(AssertionError, match="for_driver"):
+    with pytest.raises(AssertionError, match="scene_config"):
         reconstruct_read(tmp_path, Config())

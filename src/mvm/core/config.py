@@ -373,8 +373,8 @@ class Config:
     def resolved(self) -> bool:
         """Whether no setting is left to the driver: these are the settings a driver runs with
         (:meth:`for_driver`). Each driver resolves its settings once, at its entry
-        (:func:`mvm.reconstruct`, :func:`mvm.reconstruct_dir`, the rig's
-        :func:`~mvm.rig.reconstruct_rig.rig_config`); the functions below it take them resolved."""
+        (:func:`mvm.core.reconstruct.scene_config`, :func:`mvm.rig.reconstruct_rig.rig_config`);
+        the functions below it take them resolved."""
         return all(getattr(self, name) != value for name, value in _LEFT_TO_DRIVER.items())
 
 
