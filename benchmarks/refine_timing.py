@@ -31,12 +31,11 @@ import numpy as np
 from rig_speed import write_capture
 
 from mvm.core import refine
-from mvm.core.config import Config
 from mvm.core.image_units import in_person_sizes
 from mvm.core.prior import shipped_prior
 from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.reconstruct_rig import instants_config
+from mvm.rig.reconstruct_rig import instants_config, rig_config
 from mvm.rig.rigdir import read_rig
 from mvm.rig.skeleton import (
     OUTER_ITERATIONS,
@@ -64,7 +63,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    config, options, prior = Config(), RigOptions(), shipped_prior()
+    config, options, prior = rig_config(), RigOptions(), shipped_prior()
     with tempfile.TemporaryDirectory() as tmp:
         write_capture(Path(tmp) / "rig", 5, 4, 300)
         rig = read_rig(Path(tmp) / "rig")

@@ -41,7 +41,7 @@ from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.occlusions import ACC_SIGMA_FACTOR, BONE_SIGMA, LIMB_PASSES, RAY_GATE_M, RAY_SIGMA_M, rays
 from mvm.rig.options import RigOptions
-from mvm.rig.reconstruct_rig import completion_prior, instants_config, track_and_complete
+from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 
 #: A person is the true person of smallest MPJPE within this distance. [m]
@@ -174,7 +174,7 @@ def main() -> int:
     args = parser.parse_args()
     if min(args.lengths) < 1 or max(args.lengths) > args.frames - 22:
         parser.error(f"--lengths: from 1 to {args.frames - 22} instants for {args.frames} frames")
-    config = Config()
+    config = rig_config()
     options = RigOptions(frame_rate=30.0, occlusion_max_gap=0 if args.no_fill else RigOptions().occlusion_max_gap)
     print(f"5 cameras, 3 people, {args.frames} instants, {args.seeds} seeds, hidden: {args.joints}, "
           f"{'without' if args.no_fill else 'with'} the occlusion fill; MPJPE mm (joint-instants)")

@@ -33,7 +33,7 @@ from mvm.metrics.mocap_scores import pcp
 from mvm.metrics.poses import match_persons, pose_errors
 from mvm.rig.instants import reconstruct_instants
 from mvm.rig.options import RigOptions
-from mvm.rig.reconstruct_rig import completion_prior, instants_config, track_and_complete
+from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.rig.tracking import identity_switches, track_persons
 from mvm.sim.detector import DetectorErrors
 from mvm.sim.simulate import PRESETS
@@ -60,7 +60,8 @@ def temporal_table(sample, seeds: int, config: Config, n_cameras: int = 5) -> di
     index = spread_cameras(sample.calibration.cameras, n_cameras)
     cameras = sample.calibration.cameras.subset(index)
     options = RigOptions(frame_rate=30.0)
-    prior = completion_prior(config)
+    rig = rig_config(config)                      # "after": the rig driver's settings
+    prior = completion_prior(rig)
     rows = {}
     for name in ("before", "after"):
         estimates, truths, ids, errors, flags_all, switches, per_person, seconds = [], [], [], [], [], 0, [], 0.0
@@ -72,8 +73,8 @@ def temporal_table(sample, seeds: int, config: Config, n_cameras: int = 5) -> di
                 persons = reconstruct_instants(cameras, det, config, prior)
                 tracking, X, flags = _before(persons, options)
             else:
-                persons = reconstruct_instants(cameras, det, instants_config(config), prior)
-                tracking, persons, X, flags = track_and_complete(persons, options, prior, config, det, cameras)
+                persons = reconstruct_instants(cameras, det, instants_config(rig), prior)
+                tracking, persons, X, flags = track_and_complete(persons, options, prior, rig, det, cameras)
             seconds += time.perf_counter() - t0
             truth_id = np.full(len(X), -1)
             for t, X_true in enumerate(sample.poses):

@@ -33,7 +33,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.core.pipeline import reconstruct_poses
-from mvm.core.reconstruct import reconstruct
+from mvm.core.reconstruct import reconstruct, scene_config
 from mvm.eval.crowd import crowd_config, true_groups
 from mvm.eval.panoptic import load_sample, spread_cameras
 from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, person_errors
@@ -89,7 +89,8 @@ def _score(estimates: list[np.ndarray], truths: list[np.ndarray]) -> tuple[int, 
 
 
 def oracle_config(config: Config) -> Config:
-    return config.replace(refine=False, ransac_hypotheses=EXHAUSTIVE, merge_distance=0.0)
+    """The scenes' settings (:func:`scene_config`) of the true grouping's reconstruction."""
+    return scene_config(config).replace(refine=False, ransac_hypotheses=EXHAUSTIVE, merge_distance=0.0)
 
 
 class _Tally:

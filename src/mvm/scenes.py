@@ -17,7 +17,7 @@ from functools import partial
 from pathlib import Path
 
 from mvm.core.config import Config
-from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, validate_scene
+from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, scene_config, validate_scene
 from mvm.io.files import atomic_write_json
 from mvm.io.provenance import fingerprints, produce
 from mvm.io.scene_dir import (
@@ -48,7 +48,7 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
 
     Bad input raises :class:`~mvm.errors.InputError` naming the file before anything is written.
     """
-    config = (config or Config()).for_driver("scene")
+    config = scene_config(config)
     [(_, outcome, out_dir, document)] = _reconstructed([_read(Path(path), config, output)], config, prior)
     if isinstance(outcome, Exception):
         raise outcome
@@ -58,8 +58,9 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
 
 def reconstruct_read(path: str | Path, config: Config, output: str = "mvm", prior=None) -> tuple[Result, object]:
     """Read the scene directory ``path`` and reconstruct it, writing nothing: ``(result, scene)``
-    (``config`` already the scene driver's, :meth:`~mvm.core.config.Config.for_driver`). The
+    (``config`` already the scene driver's, :func:`~mvm.core.reconstruct.scene_config`). The
     scene stage of :mod:`mvm.stages` writes the result itself (:func:`result_document`)."""
+    assert config.resolved, "reconstruct_read takes the scene driver's settings (scene_config)"
     read = _read(Path(path), config, output)
     if isinstance(read[1], Exception):
         raise read[1]
@@ -111,7 +112,7 @@ def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, 
     :func:`mvm.io.files.atomic_write_bytes`); a scene is yielded once its file is written, so
     that its outcome is final.
     """
-    config = (config or Config()).for_driver("scene")
+    config = scene_config(config)
     paths = list(paths)
     shares = split(len(paths), available_workers(workers), MIN_SCENES_PER_WORKER)
     if len(shares) < 2:

@@ -44,3 +44,48 @@ def test_help_is_the_fields_comment_with_its_default():
     assert "Temporal smoothing of each track" in text
     assert f"(default: {RigOptions().smoothing})" in text
     assert "[none|butterworth|savgol]" in text
+
+
+def test_the_video_and_batch_options_are_their_settings_declarations():
+    """``mvm run`` and ``mvm batch`` refuse what the frame, SfM and detection settings refuse,
+    with the field's bound, and show the field's default: written once, in the dataclasses."""
+    import dataclasses
+
+    from mvm.cli import main
+    from mvm.video.detect import DetectOptions
+    from mvm.video.frames import FrameOptions
+    from mvm.video.sfm import SfmOptions
+
+    bound = {f.name: f.metadata["bounds"] for cls in (FrameOptions, SfmOptions, DetectOptions)
+             for f in dataclasses.fields(cls) if "bounds" in f.metadata}
+    assert (bound["width"].ge, bound["blur_ratio"].le, bound["batch_size"].le) == (16, 1, 4096)
+    for command in (["run", "clip.mp4", "-o", "scene"], ["batch", "root"]):
+        for args, problem in ((["--width", "8"], "--width: must be >= 16, got 8"),
+                              (["--rate", "0"], "--rate: must be > 0, got 0.0"),
+                              (["--focal", "-1"], "--focal: must be > 0, got -1.0")):
+            result = CliRunner().invoke(main, [*command, *args])
+            assert result.exit_code == 2 and problem in result.output, (command, args, result.output)
+    for args, problem in ((["--blur-ratio", "1.5"], "--blur-ratio: must be <= 1, got 1.5"),
+                          (["--batch-size", "5000"], "--batch-size: must be <= 4096, got 5000"),
+                          (["--max-features", "10"], "--max-features: must be >= 64, got 10")):
+        result = CliRunner().invoke(main, ["run", "clip.mp4", "-o", "scene", *args])
+        assert result.exit_code == 2 and problem in result.output, (args, result.output)
+    text = " ".join(CliRunner().invoke(main, ["run", "--help"]).output.split())
+    for shown in (f"(fraction, default: {FrameOptions().blur_ratio})", f"(default: {DetectOptions().mode})",
+                  f"(features, default: {SfmOptions().max_features})",
+                  f"(frames, default: {DetectOptions().batch_size})", "the original size (px)."):
+        assert shown in text
+
+
+def test_a_bound_the_command_narrows_is_the_commands_and_shown():
+    """``mvm simulate --people`` keeps its own 1-30 (SimConfig allows 1000); the help shows that
+    range beside the field's comment, unit and default."""
+    from mvm.cli import main
+    from mvm.sim.simulate import SimConfig
+
+    result = CliRunner().invoke(main, ["simulate", "scene", "--people", "31"])
+    assert result.exit_code == 2 and "--people: must be <= 30, got 31" in result.output
+    text = " ".join(CliRunner().invoke(main, ["simulate", "--help"]).output.split())
+    assert f"(people, 1-30, default: {SimConfig().people})" in text
+    assert f"(deg, 5-180, default: {SimConfig().arc_deg})" in text
+    assert f"(default: {SimConfig().seed})" in text

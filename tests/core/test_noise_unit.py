@@ -61,10 +61,10 @@ def test_a_rig_refinement_weighs_bones_and_prior_by_the_capture_noise():
     bones come out steadier without moving the joints away from the truth."""
     from mvm.core.prior import load_prior
     from mvm.metrics.tracks import limb_length_std
-    from mvm.rig.reconstruct_rig import instants_config
+    from mvm.rig.reconstruct_rig import instants_config, rig_config
     from mvm.rig.skeleton import capture_noise_factor, refine_tracks
 
-    config = instants_config(Config())
+    config = instants_config(rig_config())
     cameras, poses, truth = _capture(0.005, instants=40)
     precise = reconstruct_instants(cameras, poses, config, workers=1)
     assert capture_noise_factor(precise, poses, config) == 0.5               # below the settings' noise: the bound

@@ -6,13 +6,12 @@ import pytest
 
 from mvm.core.camera import project_views
 from mvm.core.completion import INFERRED, OBSERVED
-from mvm.core.config import Config
 from mvm.core.keypoints import INDEX
 from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
 from mvm.rig.occlusions import rays
 from mvm.rig.options import RigOptions
-from mvm.rig.reconstruct_rig import completion_prior, instants_config, track_and_complete
+from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.sim.rig import ring_cameras
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 
@@ -29,7 +28,7 @@ def _hide(sim):
 
 
 def _run(sim, options):
-    config = Config()
+    config = rig_config()
     prior = completion_prior(config)
     det = rig_poses(sim.keypoints, sim.frame, sim.camera, sim.score)
     cameras = sim.calibration.cameras

@@ -7,12 +7,8 @@ import sys
 import click
 
 from mvm.cli.common import (
-    FOCAL,
-    MAX_FRAMES,
-    RATE,
     REFINE_OPTION,
     SET_OPTION,
-    WIDTH,
     command,
     err,
     fmt,
@@ -24,6 +20,7 @@ from mvm.cli.common import (
     read_config,
     say,
 )
+from mvm.cli.setting_options import FRAMES, SFM, setting_option
 
 
 def _f(value) -> str:
@@ -74,12 +71,12 @@ def read_batch_options(config_path: str | None, sets: tuple[str, ...], checkpoin
                    "each clip's imported detections).")
 @click.option("--model", type=click.Path(dir_okay=False), default=None,
               help="detect: the detector's ONNX model (as mvm detect --model; yolo-pose: required).")
-@click.option("--max-frames", type=MAX_FRAMES, default=None, help="frames: keep at most this many frames per clip.")
-@click.option("--rate", type=RATE, default=None, help="frames: frames per second to keep.")
-@click.option("--width", type=WIDTH, default=None, help="frames: resize to this width (px).")
+@setting_option(FRAMES, "max_frames")
+@setting_option(FRAMES, "rate")
+@setting_option(FRAMES, "width")
 @click.option("--every-frame", is_flag=True, default=None,
-              help="frames: keep every sampled frame instead of selecting them by camera motion.")
-@click.option("--focal", "focal_px", type=FOCAL, default=None, help="sfm: known focal length (px).")
+              help="Keep every sampled frame (all, or those at --rate) instead of selecting them by camera motion.")
+@setting_option(SFM, "focal_px", "--focal")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
               help="TOML settings file: its [reconstruct], [frames], [sfm], [detect] and [batch] tables "
                    "(mvm config prints one).")

@@ -15,6 +15,7 @@ from contextlib import contextmanager
 
 import click
 
+from mvm.cli.setting_options import DETECT, setting_option
 from mvm.core.config import Bounds
 from mvm.errors import InputError
 from mvm.io import paths
@@ -340,12 +341,9 @@ def _option_name(param) -> str:
     return longest.upper() if not longest.startswith("-") else longest
 
 
-#: Option types of the frame selection and cameras, shared by ``frames``, ``run`` and ``batch``.
-RATE = Number(float, gt=0, le=1000)
-MAX_FRAMES = Number(int, ge=1)
-WIDTH = Number(int, ge=16, le=16384)
+#: The option type of a focal length not set in a settings file (``mvm predict --focal``; the
+#: options of settings take theirs from the declarations: :mod:`mvm.cli.setting_options`).
 FOCAL = Number(float, gt=0)
-SEED = Number(int, ge=0, le=2**63 - 1)
 
 
 #: ``--set`` and ``--refine/--no-refine``: the reconstruction settings of every command that reconstructs.
@@ -471,14 +469,10 @@ DETECTOR_OPTIONS = [
                       "downloaded once into $MVM_CACHE/models or ~/.cache/mvm/models; yolo-pose: required)."),
     click.option("--person-model", type=click.Path(dir_okay=False), default=None,
                  help="rtmpose's person detector (YOLOX ONNX model; default: the published one)."),
-    click.option("--mode", type=click.Choice(["lightweight", "balanced", "performance"]), default=None,
-                 help="Size of the published models (default balanced)."),
-    click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None,
-                 help="Where the detector runs (default cpu; cuda: onnxruntime-gpu or a CUDA torch)."),
-    click.option("--batch-size", type=click.IntRange(min=1), default=None,
-                 help="Frames given to the detector at once (default 4)."),
+    setting_option(DETECT, "mode"),
+    setting_option(DETECT, "device"),
+    setting_option(DETECT, "batch_size"),
     click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
                  help="Checkpoint of mvm's pose network (local file; implies --detector mvm)."),
-    click.option("--input-size", type=Number(int, ge=16, le=4096), default=None,     # as mvm predict
-                 help="Long edge of mvm's network input, 16 to 4096 px (default: as trained)."),
+    setting_option(DETECT, "input_size"),
 ]

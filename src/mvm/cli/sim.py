@@ -7,7 +7,6 @@ from pathlib import Path
 import click
 
 from mvm.cli.common import (
-    SEED,
     Number,
     OutputPath,
     command,
@@ -20,18 +19,19 @@ from mvm.cli.common import (
     say,
     stage_progress,
 )
+from mvm.cli.setting_options import setting_option
+
+SIM = "mvm.sim.simulate:SimConfig"
 
 
 def scene_options(f):
     """``--people``, ``--frames``, ``--arc`` and ``--seed`` of a simulated scene."""
     for option in reversed([
-        click.option("--people", default=None, type=Number(int, ge=1, le=30),
-                     help="Persons in the scene (1-30, default 6)."),
-        click.option("--frames", default=None, type=Number(int, ge=20, le=3600),
-                     help="Frames of the camera tour (20-3600: two minutes at 30 frames/s; default 100)."),
-        click.option("--arc", "arc_deg", default=None, type=Number(float, ge=5, le=180),
-                     help="Total angle of the tour (deg, 5-180, default 60)."),
-        click.option("--seed", default=None, type=SEED, help="Random seed of the simulation (default 0)."),
+        # The simulated scenes the commands make are bounded tighter than SimConfig's.
+        setting_option(SIM, "people", type=Number(int, ge=1, le=30)),
+        setting_option(SIM, "frames", type=Number(int, ge=20, le=3600)),
+        setting_option(SIM, "arc_deg", "--arc", type=Number(float, ge=5, le=180)),
+        setting_option(SIM, "seed"),
     ]):
         f = option(f)
     return f

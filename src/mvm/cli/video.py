@@ -11,13 +11,8 @@ import click
 
 from mvm.cli.common import (
     DETECTOR_OPTIONS,
-    FOCAL,
-    MAX_FRAMES,
-    RATE,
     REFINE_OPTION,
     SET_OPTION,
-    WIDTH,
-    Number,
     OutputPath,
     command,
     err,
@@ -30,32 +25,27 @@ from mvm.cli.common import (
     with_options,
 )
 from mvm.cli.common import fmt as _f
+from mvm.cli.setting_options import DETECT, FRAMES, SFM, setting_option
 from mvm.errors import InputError
 
 #: ``--config`` of the video commands: the tables of their settings.
 config_option = click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None,
                              help="TOML settings file (mvm config prints one); the options given here win.")
 frame_options = [
-    click.option("--rate", type=RATE, default=None, help="Frames per second to keep (default: all)."),
-    click.option("--max-frames", type=MAX_FRAMES, default=None, help="Keep at most this many frames, evenly spread."),
-    click.option("--width", type=WIDTH, default=None, help="Resize frames to this width (px)."),
-    click.option("--blur-ratio", type=Number(float, ge=0, le=1), default=None,
-                 help="Skip frames sharper than less than this fraction of the median (default 0.35; 0: keep all)."),
+    setting_option(FRAMES, "rate"),
+    setting_option(FRAMES, "max_frames"),
+    setting_option(FRAMES, "width"),
+    setting_option(FRAMES, "blur_ratio"),
     click.option("--every-frame", is_flag=True, default=None,
                  help="Keep every sampled frame (all, or those at --rate) instead of selecting them by camera motion."),
-    click.option("--min-motion", type=Number(float, gt=0, le=1), default=None,
-                 help="Keep a frame once the image moved this fraction of its diagonal since the last kept one "
-                      "(default 0.03)."),
-    click.option("--max-gap", "max_gap_s", type=Number(float, gt=0, le=3600), default=None,
-                 help="Keep a frame at least every this many seconds, whatever the motion (default 1)."),
+    setting_option(FRAMES, "min_motion"),
+    setting_option(FRAMES, "max_gap_s", "--max-gap"),
 ]
 sfm_options = [
-    click.option("--camera-model", default=None,
-                 help="COLMAP camera model shared by all frames (default SIMPLE_RADIAL)."),
-    click.option("--focal", "focal_px", type=FOCAL, default=None, help="Known focal length (px)."),
+    setting_option(SFM, "camera_model", metavar="MODEL"),
+    setting_option(SFM, "focal_px", "--focal"),
     click.option("--fix-focal", is_flag=True, help="Keep the known focal length fixed in bundle adjustment."),
-    click.option("--max-features", type=Number(int, ge=64, le=1_000_000), default=None,
-                 help="SIFT features per frame (default 4096)."),
+    setting_option(SFM, "max_features"),
     click.option("--vocab-tree", type=click.Path(dir_okay=False), default=None,
                  help="COLMAP vocabulary tree: enables loop detection in sequential matching."),
 ]
@@ -65,8 +55,7 @@ detect_options = DETECTOR_OPTIONS + [
                       "(a COCO results image_id is a frame's file name, or its 1-based position in frames.json)."),
     click.option("--format", "fmt", type=click.Choice(["coco-results", "coco", "openpifpaf", "openpose"]),
                  default=None, help="Format of --import (guessed by default)."),
-    click.option("--appearance", type=click.Choice(["auto", "colour", "network", "none"]), default=None,
-                 help="Appearance descriptor stored with each pose (default auto)."),
+    setting_option(DETECT, "appearance"),
 ]
 
 

@@ -369,6 +369,14 @@ class Config:
                    if getattr(self, name) == _LEFT_TO_DRIVER[name]}
         return self.replace(**changes) if changes else self
 
+    @property
+    def resolved(self) -> bool:
+        """Whether no setting is left to the driver: these are the settings a driver runs with
+        (:meth:`for_driver`). Each driver resolves its settings once, at its entry
+        (:func:`mvm.core.reconstruct.scene_config`, :func:`mvm.rig.reconstruct_rig.rig_config`);
+        the functions below it take them resolved."""
+        return all(getattr(self, name) != value for name, value in _LEFT_TO_DRIVER.items())
+
 
 #: The frame rate of footage that gives none (a rig's pose files, a video header without one,
 #: a simulated rig). [Hz]

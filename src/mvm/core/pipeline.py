@@ -404,9 +404,9 @@ def triangulate_poses(cameras: Cameras, poses: Poses2D, config: Config,
     """The pipeline up to the refinement: groups (``groups``, else :func:`match`),
     triangulation (again at each block's own RANSAC threshold, :func:`block_thresholds`),
     merging of duplicates, the association consistent in 3D (``association = "3d"``, not for
-    given groups; settings left to the driver take the scenes' defaults,
-    :meth:`mvm.core.config.Config.for_driver`)."""
-    config = config.for_driver("scene")
+    given groups). ``config``: the settings its driver resolved
+    (:attr:`mvm.core.config.Config.resolved`)."""
+    assert config.resolved, "triangulate_poses takes the settings its driver resolved (Config.for_driver)"
     timings = {}
     t = time.perf_counter()
     given = groups is not None

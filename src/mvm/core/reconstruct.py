@@ -94,6 +94,14 @@ def check_affinity_memory(scene: Scene, config: Config, source: str | None) -> N
                          "scene into smaller ones")
 
 
+def scene_config(config: Config | None = None) -> Config:
+    """The settings the scene driver runs with: ``config`` (default :class:`Config`) with the
+    scenes' defaults of the settings left to the driver (:meth:`Config.for_driver`). Resolved
+    once, at each entry (:func:`reconstruct`, :func:`reconstruct_many`,
+    :func:`mvm.scenes.reconstruct_dir`, the scene stage); the steps below take them so."""
+    return (config or Config()).for_driver("scene")
+
+
 def reconstruct(scene: Scene, config: Config | None = None, prior=None,
                 groups: list[np.ndarray] | None = None) -> Result:
     """Reconstruct the persons of ``scene``.
@@ -101,12 +109,12 @@ def reconstruct(scene: Scene, config: Config | None = None, prior=None,
     Args:
         scene: cameras and 2D poses.
         config: thresholds (default :class:`Config`; settings left to the driver take the
-            scenes' defaults, :meth:`Config.for_driver`).
+            scenes' defaults, :func:`scene_config`).
         prior: a :class:`mvm.core.prior.PosePrior`; default as :func:`mvm.core.prior.load_prior`.
         groups: precomputed groups of pose indices (skips matching and the association in 3D),
             e.g. from a baseline or the true grouping.
     """
-    config = (config or Config()).for_driver("scene")
+    config = scene_config(config)
     # The hot paths are many small products: BLAS threads only contend with each other.
     with one_blas_thread():
         [rec] = refine_all([_triangulated(scene, config, groups)], config, prior)
@@ -119,7 +127,7 @@ def reconstruct_many(scenes: list[Scene], config: Config | None = None, prior=No
     a fraction of the time where scenes are small (the one-instant scenes of a rig). Returns,
     in order, each scene's :class:`Result` or the exception it raised: one scene's failure is
     its own."""
-    config = (config or Config()).for_driver("scene")
+    config = scene_config(config)
     outcomes: list = [None] * len(scenes)
     parts = {}
     with one_blas_thread():

@@ -20,6 +20,7 @@ from mvm.core.config import Config
 from mvm.core.duplicates import group_blocks
 from mvm.core.pipeline import Reconstruction, reconstruct_poses
 from mvm.core.prior import load_prior
+from mvm.core.reconstruct import scene_config
 from mvm.core.scene import Cameras, Poses2D
 from mvm.parallel import fork_map_ranges
 
@@ -112,8 +113,12 @@ def reconstruct_instants(cameras: Cameras, poses: Poses2D, config: Config | None
 
     ``progress(done, total)`` is called with counts of instants after each batch of this
     process's share (the first), then once all shares are done.
+
+    ``config``'s settings left to the driver take the scenes' defaults
+    (:func:`mvm.core.reconstruct.scene_config`) unless resolved: the rig driver gives its own
+    (:func:`mvm.rig.reconstruct_rig.instants_config`).
     """
-    config = config or Config()
+    config = scene_config(config)
     if poses.instant is None:
         raise ValueError("poses.instant: expected the instant of every pose, got None")
     if len(poses) and (poses.view.min() < 0 or poses.view.max() >= len(cameras)):

@@ -171,21 +171,29 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
     return paths
 
 
+def rig_config(config: Config | None = None) -> Config:
+    """The settings the rig driver runs with: ``config`` (default :class:`Config`) with the rig's
+    defaults of the settings left to the driver (:meth:`Config.for_driver`). Resolved once, at the
+    driver's entry (:func:`reconstruct_rig`, :func:`rig_reason`); the steps below take them so."""
+    return (config or Config()).for_driver("rig")
+
+
 def completion_prior(config: Config, prior=None):
     """The pose prior for refinement and completion: ``prior``, else the shipped one when either
     needs it (:func:`mvm.core.prior.load_prior`'s rule, extended to completion, which rigs run
-    by default)."""
-    config = config.for_driver("rig")
+    by default). ``config``: the rig's settings (:func:`rig_config`)."""
+    assert config.resolved, "completion_prior takes the rig's settings (rig_config)"
     if prior is not None or not config.complete:
         return load_prior(config, prior)
     return shipped_prior()
 
 
 def instants_config(config: Config) -> Config:
-    """The settings :func:`reconstruct_instants` runs with in the rig driver: the rig's defaults
-    of the settings left to the driver (:meth:`Config.for_driver`), and no per-instant
-    refinement (persons are refined once their track is known)."""
-    return config.for_driver("rig").replace(refine=False)
+    """The settings :func:`reconstruct_instants` runs with in the rig driver: the rig's settings
+    (:func:`rig_config`) without per-instant refinement (persons are refined once their track is
+    known)."""
+    assert config.resolved, "instants_config takes the rig's settings (rig_config)"
+    return config.replace(refine=False)
 
 
 def track_groups(track: np.ndarray, parts: int) -> list[np.ndarray]:
@@ -225,10 +233,11 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     (:func:`mvm.rig.skeleton.refine_tracks`); ``persons`` should then come from
     :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over
     each track's observed joints, then completion fills what is missing (time, then ``prior``)
-    unless the rig's ``config.complete`` is off (:meth:`Config.for_driver`; no ``config``: the
-    defaults).
+    unless the rig's ``config.complete`` is off (``config``: the rig's settings,
+    :func:`rig_config`; none: its defaults).
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
-    complete = (config or Config()).for_driver("rig").complete
+    assert config is None or config.resolved, "track_and_complete takes the rig's settings (rig_config)"
+    complete = (config or rig_config()).complete
     unit = 1.0 / options.metres_per_unit
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
@@ -331,7 +340,7 @@ def rig_reason(rig_dir: str | Path, config: Config | None = None, options: RigOp
     the set's record says it was made from these inputs with these settings)."""
     from mvm.io.provenance import why_redo
 
-    config = (config or Config()).for_driver("rig")
+    config = rig_config(config)
     options = options or RigOptions()
     check_smoothing(options)
     out_dir = check_rig_output(rig_dir, calib, output)
@@ -364,7 +373,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     A run that would produce nothing (a frame range without poses, a folder that is not a rig)
     is refused before anything is written.
     """
-    config = (config or Config()).for_driver("rig")
+    config = rig_config(config)
     options = options or RigOptions()
     check_smoothing(options)
     timings = {}

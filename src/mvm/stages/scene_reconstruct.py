@@ -27,7 +27,9 @@ def _poses3d(job: Job) -> Path:
 
 
 def _config(job: Job):
-    return job.options.config.for_driver("scene")
+    from mvm.core.reconstruct import scene_config
+
+    return scene_config(job.options.config)
 
 
 def _inputs(job: Job) -> dict:
