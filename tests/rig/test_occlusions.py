@@ -97,7 +97,7 @@ def test_a_wrist_reported_off_in_most_views_is_refused_and_filled():
     _report_off(sim)
     errors = {}
     for name, gap in (("fill", RigOptions().occlusion_max_gap), ("none", 0)):
-        config = Config()
+        config = rig_config()
         prior = completion_prior(config)
         det = rig_poses(sim.keypoints, sim.frame, sim.camera, sim.score)
         cameras = sim.calibration.cameras

@@ -19,10 +19,10 @@ class RigSet:
 
 
 def _settings_of(job: RigJob):
-    from mvm.core.config import Config
     from mvm.rig.options import RigOptions
+    from mvm.rig.reconstruct_rig import rig_config
 
-    return (job.config or Config()).for_driver("rig"), job.options or RigOptions()
+    return rig_config(job.config), job.options or RigOptions()
 
 
 def _out_dir(job: RigJob) -> Path:
