@@ -8,8 +8,10 @@ out of date. A new stage is one module declaring its ``STAGE`` and one line in t
 from __future__ import annotations
 
 from mvm.stages import (
+    rig_calibrate,
     rig_detect,
     rig_reconstruct,
+    rig_synchronize,
     scene_detect,
     scene_export,
     scene_frames,
@@ -31,10 +33,13 @@ SCENE_STAGES: tuple[Stage, ...] = (
 )
 #: The stages ``mvm run`` runs (the export is ``mvm batch``'s, for the merged training set).
 RUN_STAGES = SCENE_STAGES[:4]
-#: The stages of a rig folder (:class:`RigJob`) that run through the runner: its videos' 2D
-#: poses (``mvm rig detect``) and its reconstruction (``mvm rig reconstruct``).
+#: The stages of a rig folder (:class:`RigJob`), in the order of the user's path: its videos' 2D
+#: poses (``mvm rig detect``), its cameras' frame offsets (``mvm rig synchronize``), a
+#: calibration (``mvm rig calibrate``) and its reconstruction (``mvm rig reconstruct``).
 RIG_STAGES: tuple[Stage, ...] = (
     rig_detect.STAGE,
+    rig_synchronize.STAGE,
+    rig_calibrate.STAGE,
     rig_reconstruct.STAGE,
 )
 
