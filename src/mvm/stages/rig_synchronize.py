@@ -1,8 +1,8 @@
 """The rig's ``synchronize``: each camera's frame offset from the people's motion, written to
 ``RIG_DIR/sync.toml`` (:func:`mvm.rig.prepare.synchronize_rig`), its record beside it
 (``RIG_DIR/sync.inputs.json``: a record, never a camera's pose file, :func:`mvm.rig.rigdir.pose_sources`).
-Its inputs are the calibration and every pose source (not ``sync.toml`` itself); its settings
-the calibration named and ``max_offset``."""
+Its inputs are the calibration, every pose source and the pose folder (not ``sync.toml``
+itself); its settings the calibration named and ``max_offset``."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -23,7 +23,9 @@ def _inputs(job: RigJob) -> dict:
     from mvm.io.sync_toml import SYNC_FILE
     from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
 
-    return {name: path for name, path in rig_fingerprint_inputs(job.rig_dir, job.calib).items() if name != SYNC_FILE}
+    inputs = rig_fingerprint_inputs(job.rig_dir, job.calib)
+    folder = {"pose": inputs.pop("pose")} if "pose" in inputs else {}      # last: a reason names the camera's file
+    return {name: path for name, path in inputs.items() if name != SYNC_FILE} | folder
 
 
 def _settings(job: RigJob) -> dict:
