@@ -8,6 +8,8 @@ out of date. A new stage is one module declaring its ``STAGE`` and one line in t
 from __future__ import annotations
 
 from mvm.stages import (
+    overlay,
+    report,
     rig_calibrate,
     rig_detect,
     rig_reconstruct,
@@ -43,6 +45,13 @@ RIG_STAGES: tuple[Stage, ...] = (
     rig_reconstruct.STAGE,
 )
 
+#: The stages that draw a reconstruction, a scene's or a rig's (:class:`~mvm.stages.view.ViewJob`):
+#: its HTML page (``mvm report``) and its overlays (``mvm overlay``).
+VIEW_STAGES: tuple[Stage, ...] = (
+    report.STAGE,
+    overlay.STAGE,
+)
+
 
 def scene_stage(name: str) -> Stage:
     """The scene stage called ``name``."""
@@ -52,5 +61,5 @@ def scene_stage(name: str) -> Stage:
     raise ValueError(f"unknown stage {name!r}: expected one of {', '.join(s.name for s in SCENE_STAGES)}")
 
 
-__all__ = ["SCENE_STAGES", "RUN_STAGES", "RIG_STAGES", "Done", "Job", "RigJob", "SceneOptions", "Stage", "run_stage",
-           "run_stages", "scene_stage"]
+__all__ = ["SCENE_STAGES", "RUN_STAGES", "RIG_STAGES", "VIEW_STAGES", "Done", "Job", "RigJob", "SceneOptions", "Stage",
+           "run_stage", "run_stages", "scene_stage"]
