@@ -71,8 +71,8 @@ def test_force_redoes_everything(root):
 
 def test_status_shows_a_clips_page_and_whether_it_is_up_to_date(root):
     from mvm.stages import run_stage
-    from mvm.stages.report import STAGE as REPORT
     from mvm.stages.view import ViewJob
+    from mvm.stages.view_report import STAGE as REPORT
 
     assert batch_status(root).views == []                              # no page made: nothing to say
     assert run_stage(REPORT, ViewJob(root / "seq00/clip00")).why == "no output yet"

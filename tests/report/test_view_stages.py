@@ -1,4 +1,4 @@
-"""``mvm report`` and ``mvm overlay`` as stages (:mod:`mvm.stages.report`, :mod:`mvm.stages.overlay`):
+"""``mvm report`` and ``mvm overlay`` as stages (:mod:`mvm.stages.view_report`, :mod:`mvm.stages.view_overlay`):
 made once with a record, kept on a second run (not rewritten), made again with the reason when
 what they are drawn from or a setting changes, forced with ``--force``; a rig's page and its
 record go with the output set."""
@@ -23,9 +23,9 @@ from mvm.rig.options import RigOptions  # noqa: E402
 from mvm.rig.reconstruct_rig import reconstruct_rig  # noqa: E402
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig  # noqa: E402
 from mvm.stages import VIEW_STAGES, run_stage  # noqa: E402
-from mvm.stages.overlay import STAGE as OVERLAY  # noqa: E402
-from mvm.stages.report import STAGE as REPORT  # noqa: E402
 from mvm.stages.view import ViewJob  # noqa: E402
+from mvm.stages.view_overlay import STAGE as OVERLAY  # noqa: E402
+from mvm.stages.view_report import STAGE as REPORT  # noqa: E402
 
 
 @pytest.fixture(scope="module")

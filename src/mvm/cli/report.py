@@ -26,8 +26,8 @@ def report_cmd(scene, out, output_name, legacy_output, frames, calib, open_page,
     the joint angles of each track. A page up to date (drawn from the same files, with the same
     options) is kept."""
     from mvm.stages import run_stage
-    from mvm.stages.report import STAGE
     from mvm.stages.view import ViewJob
+    from mvm.stages.view_report import STAGE
 
     job = ViewJob(Path(scene), resolve_output_name(output_name, legacy_output, "--output"), out and Path(out),
                   calib and Path(calib), frames)
@@ -66,8 +66,8 @@ def overlay_cmd(scene, out, output_name, legacy_output, step, max_width, fps, im
     (or -o FOLDER), at the video's own frame rate, frame offsets of sync.toml applied. An overlay up
     to date (drawn from the same files, with the same options) is kept."""
     from mvm.stages import run_stage
-    from mvm.stages.overlay import STAGE
     from mvm.stages.view import ViewJob
+    from mvm.stages.view_overlay import STAGE
 
     job = ViewJob(Path(scene), resolve_output_name(output_name, legacy_output, "--output"), out and Path(out),
                   calib and Path(calib), step=step, max_width=max_width, fps=fps, image_format=image_format)

@@ -8,8 +8,6 @@ out of date. A new stage is one module declaring its ``STAGE`` and one line in t
 from __future__ import annotations
 
 from mvm.stages import (
-    overlay,
-    report,
     rig_calibrate,
     rig_detect,
     rig_reconstruct,
@@ -19,6 +17,8 @@ from mvm.stages import (
     scene_frames,
     scene_reconstruct,
     scene_sfm,
+    view_overlay,
+    view_report,
 )
 from mvm.stages.scene_options import SceneOptions
 from mvm.stages.stage import Done, Job, RigJob, Stage
@@ -48,8 +48,8 @@ RIG_STAGES: tuple[Stage, ...] = (
 #: The stages that draw a reconstruction, a scene's or a rig's (:class:`~mvm.stages.view.ViewJob`):
 #: its HTML page (``mvm report``) and its overlays (``mvm overlay``).
 VIEW_STAGES: tuple[Stage, ...] = (
-    report.STAGE,
-    overlay.STAGE,
+    view_report.STAGE,
+    view_overlay.STAGE,
 )
 
 
