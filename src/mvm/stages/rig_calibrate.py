@@ -55,19 +55,9 @@ def _output(job: RigJob) -> Path:
     return Path(job.calibration.output)
 
 
-def _named(rig_dir: Path, paths) -> dict[str, Path]:
-    """``paths`` by their names relative to ``rig_dir`` (their full names outside it)."""
-    named = {}
-    for path in paths:
-        path = Path(path)
-        try:
-            named[path.relative_to(rig_dir).as_posix()] = path
-        except ValueError:
-            named[str(path)] = path
-    return named
-
-
 def _inputs(job: RigJob) -> dict:
+    from mvm.rig.output_set import named_inputs
+
     c, rig_dir = job.calibration, Path(job.rig_dir)
     if c.method == "people":
         from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
@@ -78,17 +68,17 @@ def _inputs(job: RigJob) -> dict:
         from mvm.rig.convert import rig_camera_sources
 
         source = Path(c.source)
-        files = _named(rig_dir, [source, *source_files(source, c.format or detect_format(source))])
+        files = named_inputs(rig_dir, [source, *source_files(source, c.format or detect_format(source))])
         cameras = {group: sorted(entries) for group, entries in rig_camera_sources(rig_dir).items()}
         return {**files, "cameras": cameras}
     if c.method == "intrinsics":
         from mvm.rig.board_intrinsics import intrinsic_sources
 
-        return _named(rig_dir, intrinsic_sources(rig_dir).values())
+        return named_inputs(rig_dir, intrinsic_sources(rig_dir).values())
     from mvm.rig.board_videos import rig_videos
 
     intrinsic, extrinsic = rig_videos(rig_dir)
-    return _named(rig_dir, [*intrinsic.values(), *extrinsic.values(), *([c.intrinsics] if c.intrinsics else [])])
+    return named_inputs(rig_dir, [*intrinsic.values(), *extrinsic.values(), *([c.intrinsics] if c.intrinsics else [])])
 
 
 def _read(job: RigJob) -> list[Path]:
