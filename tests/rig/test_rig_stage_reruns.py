@@ -8,6 +8,7 @@ import shutil
 
 from click.testing import CliRunner
 
+from board_scenes import CHARUCO, write_board_rig
 from calibration_writers import known_cameras, write_qca
 from mvm.cli.rig import rig
 from mvm.io.calib_toml import read_calib_toml
@@ -107,6 +108,28 @@ def test_calibrate_by_conversion_made_kept_redone_forced(tmp_path):
     assert result.exit_code == 0 and f"kept {out}" in result.output, result.output
     result = CliRunner().invoke(rig, [*args, "--force"])
     assert result.exit_code == 0 and f"wrote {out}" in result.output, result.output
+
+
+def test_calibrate_with_a_board_made_kept_redone(tmp_path):
+    """A ChArUco calibration of rendered board videos: kept while its videos and board are the
+    same, made again when the board's size is another, or a camera's video changed."""
+    from dataclasses import replace
+
+    root = tmp_path / "rig"
+    write_board_rig(root, CHARUCO, intrinsic_frames=6, extrinsic_frames=6)
+    out = tmp_path / "Calib.toml"
+    job = RigJob(root, calibration=Calibration("charuco", out, board=CHARUCO))
+    assert run_stage(CALIBRATE, job).why == "no output yet"
+    record = read_record(out)
+    assert "calibration/extrinsics/cam_01.mp4" in record["inputs"] and record["settings"]["board"]["cols"] == 6
+    made = _mtime(out)
+    assert run_stage(CALIBRATE, job).why is None and _mtime(out) == made
+
+    bigger = RigJob(root, calibration=Calibration("charuco", out, board=replace(CHARUCO, square_m=0.2, marker_m=0.15)))
+    assert CALIBRATE.why(bigger) == "setting board.marker_m changed since the calibration (0.075 -> 0.15)"
+    video = root / "calibration" / "extrinsics" / "cam_02.mp4"
+    video.write_bytes(video.read_bytes() + b"\0")
+    assert CALIBRATE.why(job) == "calibration/extrinsics/cam_02.mp4 changed since the calibration"
 
 
 def test_a_calibration_is_not_asked_for_without_its_request(tmp_path):
