@@ -67,3 +67,20 @@ def test_force_redoes_everything(root):
     result = CliRunner().invoke(main, ["batch", str(root), "--stages", ",".join(STAGES), "--workers", "1", "--force"])
     assert result.exit_code == 0, result.output
     assert result.output.count("redone: ") == 4 and "forced" in result.output
+
+
+def test_status_shows_a_clips_page_and_whether_it_is_up_to_date(root):
+    from mvm.stages import run_stage
+    from mvm.stages.view import ViewJob
+    from mvm.stages.view_report import STAGE as REPORT
+
+    assert batch_status(root).views == []                              # no page made: nothing to say
+    assert run_stage(REPORT, ViewJob(root / "seq00/clip00")).why == "no output yet"
+    assert batch_status(root).views == [("seq00/clip00", "report", None)]
+    _drop_last_pose(root / "seq00/clip00")
+    assert batch_status(root).views == [("seq00/clip00", "report", "poses2d.json changed since the report")]
+    result = CliRunner().invoke(main, ["status", str(root)])
+    assert "out of date: seq00/clip00: report: poses2d.json changed since the report" in result.output
+    assert "pages and overlays: 0 of 1 up to date" in result.output
+    assert json.loads(CliRunner().invoke(main, ["status", str(root), "--json"]).output)["views"] == [
+        {"clip": "seq00/clip00", "stage": "report", "why": "poses2d.json changed since the report"}]

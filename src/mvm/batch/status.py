@@ -48,7 +48,9 @@ class Status:
     ``failed``: (clip, stage, error); ``statistics``: :func:`dataset_statistics`;
     ``mismatched``: clips whose committed files no longer match their checksum (with ``verify``);
     ``stale``: (clip, stage, why) of the done stages whose inputs changed since they were made
-    (:func:`mvm.io.provenance.stale_reason`; ``mvm batch`` redoes them)."""
+    (:func:`mvm.io.provenance.stale_reason`; ``mvm batch`` redoes them); ``views``: (clip, stage,
+    why) of the pages and overlays the clips have (:data:`mvm.stages.VIEW_STAGES`, made by
+    ``mvm report`` and ``mvm overlay``), ``why`` None where up to date."""
 
     root: Path
     stages: dict
@@ -60,6 +62,7 @@ class Status:
     training_set: str | None = None
     mismatched: list[tuple[str, str]] = field(default_factory=list)
     stale: list[tuple[str, str, str]] = field(default_factory=list)
+    views: list[tuple[str, str, str | None]] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {"root": str(self.root), "clips": self.clips, "stages": self.stages,
@@ -67,7 +70,8 @@ class Status:
                 "statistics": self.statistics, "stage_seconds": self.seconds, "runs": self.runs,
                 "training_set": self.training_set,
                 "checksum_mismatches": [{"clip": c, "stage": s} for c, s in self.mismatched],
-                "stale": [{"clip": c, "stage": s, "why": w} for c, s, w in self.stale]}
+                "stale": [{"clip": c, "stage": s, "why": w} for c, s, w in self.stale],
+                "views": [{"clip": c, "stage": s, "why": w} for c, s, w in self.views]}
 
 
 def clip_state(states: list[str]) -> str:
@@ -110,12 +114,29 @@ def _stale(clip: Clip, stage: str, output: str) -> str | None:
         return str(e)
 
 
+def _views(clip: Clip, output: str) -> list[tuple[str, str, str | None]]:
+    """(clip, stage, why) of the page and the overlays ``clip`` has in its output folder (the
+    declarations of :data:`mvm.stages.VIEW_STAGES`), why None where up to date."""
+    from mvm.stages import VIEW_STAGES
+    from mvm.stages.view import ViewJob
+
+    job, rows = ViewJob(Path(clip.scene), output), []
+    for stage in VIEW_STAGES:
+        try:
+            if stage.applies(job) is None and stage.record(job).exists():
+                rows.append((clip.id, stage.name, stage.why(job)))
+        except InputError as e:
+            rows.append((clip.id, stage.name, str(e)))
+    return rows
+
+
 def batch_status(root: str | Path, verify: bool = False, output: str = "mvm") -> Status:
     """The state of ``root``'s manifest (:class:`Status`). Every done stage's inputs are hashed
     and compared with its outputs' record (``stale``: what ``mvm batch`` would redo). With
     ``verify``, the files of every committed stage are hashed again and compared with the
     recorded checksum (found under the root where it is now, even when the root was moved).
-    Reads only: nothing is written. A manifest that is not one, or a corrupt cell, raises an
+    The pages and overlays of the clips (``mvm report``, ``mvm overlay``) are checked the same
+    way (``views``). Reads only: nothing is written. A manifest that is not one, or a corrupt cell, raises an
     InputError naming the file."""
     root = Path(root)
     manifest = Manifest(root, create=False)
@@ -159,7 +180,8 @@ def batch_status(root: str | Path, verify: bool = False, output: str = "mvm") ->
     counts["pending"] += sum(1 for c in on_disk if c.id not in per_clip)
     counts["total"] = sum(v for k, v in counts.items() if k != "total")
     training = root / TRAINING_SET
+    views = [row for clip in sorted(on_disk, key=lambda c: c.id) for row in _views(clip, output)]
     return Status(root, stages, counts, failed, dataset_statistics(stats_rows),
                   {k: round(v, 3) for k, v in seconds.items()}, runs,
                   str(training) if training.is_file() else None, mismatched,
-                  sorted(stale, key=lambda row: (row[0], STAGES.index(row[1]))))
+                  sorted(stale, key=lambda row: (row[0], STAGES.index(row[1]))), views)

@@ -169,6 +169,10 @@ def status_cmd(root, as_json, verify):
         print_line(f"out of date: {clip}: {stage}: {why} (mvm batch {root} redoes it)", out())
     if len(status.stale) > 20:
         print_line(f"… and {len(status.stale) - 20} more stages out of date", out())
+    for clip, stage, why in [v for v in status.views if v[2] is not None][:20]:
+        print_line(f"out of date: {clip}: {stage}: {why} (mvm {stage} {root}/{clip} redoes it)", out())
+    if status.views:
+        say(f"pages and overlays: {sum(why is None for *_, why in status.views)} of {len(status.views)} up to date")
     if status.training_set:
         say(f"training set: {status.training_set}")
     for clip, stage in status.mismatched:

@@ -17,22 +17,26 @@ from mvm.cli.common import Number, OutputPath, command, output_name_option, say
 @click.option("--calib", type=click.Path(), default=None,
               help="A rig's calibration [default: the one its reconstruction used].")
 @click.option("--open", "open_page", is_flag=True, help="Open the page in the default browser.")
-def report_cmd(scene, out, output, frames, calib, open_page):
+@click.option("--force", is_flag=True, help="Write the page even if it is up to date.")
+def report_cmd(scene, out, output, frames, calib, open_page, force):
     """Write SCENE/<output-name>/report.html: metrics, 3D view, overlays and plots in one offline page.
 
     SCENE may be a rig folder reconstructed by mvm rig reconstruct: its page holds the recap, the 3D
     view over the instants, every track's timeline, each camera's reprojection error over time and
-    the joint angles of each track."""
-    from mvm.report import write_report
-    from mvm.report.rig_load import is_rig_dir
+    the joint angles of each track. A page up to date (drawn from the same files, with the same
+    options) is kept."""
+    from mvm.stages import run_stage
+    from mvm.stages.view import ViewJob
+    from mvm.stages.view_report import STAGE
 
-    if is_rig_dir(scene, output):
-        from mvm.report.rig_page import write_rig_report
-
-        path = write_rig_report(Path(scene), output=output, path=out, calib=calib)
-    else:
+    job = ViewJob(Path(scene), output, out and Path(out),
+                  calib and Path(calib), frames)
+    if not job.rig:
         refuse_rig_option(calib, "--calib")
-        path = write_report(Path(scene), output=output, frames=frames, path=out)
+    done = run_stage(STAGE, job, force)
+    path = done.result
+    if done.why is None:
+        say(f"kept {path} (up to date; --force to write it again)")
     click.echo(f"report: {path} ({path.stat().st_size / 1e6:.2f} MB)")
     if open_page:
         import webbrowser
@@ -53,22 +57,30 @@ def report_cmd(scene, out, output, frames, calib, open_page):
               help="Image format in a folder.")
 @click.option("--calib", type=click.Path(), default=None,
               help="A rig's calibration [default: the one its reconstruction used].")
-def overlay_cmd(scene, out, output, step, max_width, fps, image_format, calib):
+@click.option("--force", is_flag=True, help="Draw the overlay even if it is up to date.")
+def overlay_cmd(scene, out, output, step, max_width, fps, image_format, calib, force):
     """Draw every frame's 2D poses in the colour of their person and the reprojected 3D poses.
 
     SCENE may be a rig folder reconstructed by mvm rig reconstruct: each camera's video
     (SCENE/videos/<camera>.<ext>) is drawn on, one video per camera in SCENE/<output-name>/overlay/
-    (or -o FOLDER), at the video's own frame rate, frame offsets of sync.toml applied."""
-    from mvm.report import write_overlays
-    from mvm.report.rig_load import is_rig_dir
+    (or -o FOLDER), at the video's own frame rate, frame offsets of sync.toml applied. An overlay up
+    to date (drawn from the same files, with the same options) is kept."""
+    from mvm.stages import run_stage
+    from mvm.stages.view import ViewJob
+    from mvm.stages.view_overlay import STAGE
 
-    if is_rig_dir(scene, output):
-        return rig_overlay(scene, out, output, step, max_width, calib)
-    refuse_rig_option(calib, "--calib")
-    summary = write_overlays(Path(scene), out, output=output, step=step, max_width=max_width,
-                             fps=fps, image_format=image_format)
-    background = "on the frames" if summary.on_frames else "on a neutral background (no frames/ folder)"
-    click.echo(f"overlay: {summary.frames} frames drawn {background} -> {summary.path}")
+    job = ViewJob(Path(scene), output, out and Path(out),
+                  calib and Path(calib), step=step, max_width=max_width, fps=fps, image_format=image_format)
+    if not job.rig:
+        refuse_rig_option(calib, "--calib")
+    done = run_stage(STAGE, job, force)
+    if done.why is None:
+        say(f"kept {STAGE.record(job)} (up to date; --force to draw it again)")
+    elif job.rig:
+        rig_overlay(scene, done.result)
+    else:
+        background = "on the frames" if done.result.on_frames else "on a neutral background (no frames/ folder)"
+        click.echo(f"overlay: {done.result.frames} frames drawn {background} -> {done.result.path}")
 
 
 def refuse_rig_option(value, option: str) -> None:
@@ -79,11 +91,8 @@ def refuse_rig_option(value, option: str) -> None:
         raise InputError(None, option, "is for a rig folder (reconstructed by mvm rig reconstruct), not a scene")
 
 
-def rig_overlay(rig_dir, out, output, step, max_width, calib) -> None:
-    """``mvm overlay RIG_DIR``: one video per camera with a video; the others named in one line."""
-    from mvm.report.rig_overlay import write_rig_overlays
-
-    summary = write_rig_overlays(Path(rig_dir), out, output=output, calib=calib, step=step, max_width=max_width)
+def rig_overlay(rig_dir, summary) -> None:
+    """The recap of ``mvm overlay RIG_DIR``: one video per camera with a video; the others named in one line."""
     for name, (path, count) in summary.videos.items():
         click.echo(f"overlay: {name}: {count} frames drawn -> {path}")
     if summary.skipped:

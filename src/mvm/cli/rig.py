@@ -83,14 +83,22 @@ def rig() -> None:
                    "geometry is estimated from the people.")
 @click.option("--max-offset", type=Number(int, ge=1), default=None,
               help="Largest offset searched, in frames (default 60, or what the shortest video allows).")
-def synchronize_cmd(rig_dir, calib, max_offset):
+@click.option("--force", is_flag=True, help="Synchronize even if sync.toml is up to date.")
+def synchronize_cmd(rig_dir, calib, max_offset, force):
     """Find each camera's frame offset from the people's motion; write RIG_DIR/sync.toml (frames to
-    add to each camera's frame numbers to reach the reference camera's, the first of the calibration)."""
+    add to each camera's frame numbers to reach the reference camera's, the first of the calibration).
+    An up-to-date sync.toml (same pose files, calibration and options) is kept."""
     import numpy as np
 
-    from mvm.rig.prepare import synchronize_rig
+    from mvm.stages import RigJob, run_stage
+    from mvm.stages.rig_synchronize import STAGE
 
-    found = synchronize_rig(rig_dir, calib, max_offset)
+    done = run_stage(STAGE, RigJob(Path(rig_dir), calib=calib, max_offset=max_offset), force)
+    if done.why is None:
+        say(f"kept {STAGE.record(RigJob(Path(rig_dir)))} (up to date; --force to synchronize again): "
+            + ", ".join(f"{n} {o:+d}" for n, o in done.result.items()))
+        return
+    found = done.result
     r = found.result
     print_table(f"{rig_dir}: offsets to the reference camera {found.names[0]} (searched ±{r.lags.max()} frames, "
                 + ("calibrated" if found.calibrated else "epipolar geometry from the people") + ")",
@@ -143,9 +151,10 @@ def synchronize_cmd(rig_dir, calib, max_offset):
 @click.option("--world", type=click.Choice(["board", "camera"]), default=None,
               help="World frame of a board calibration: the board (default; where most cameras first see it "
                    "together: origin on its first corner, z out of its face) or the first camera's frame.")
+@click.option("--force", is_flag=True, help="Calibrate even if the output is up to date.")
 def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_format, binning, output, intrinsics,
                   seed, refine_focal, board_size, square_size, marker_size, dictionary, fisheye, intrinsics_only,
-                  world_frame, world):
+                  world_frame, world, force):
     """Calibrate the cameras from the people or from videos of a board; write a full Calib.toml.
 
     \b
@@ -157,7 +166,8 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
       extrinsics/, Pose2Sim's int_<cam>_img/, or the videos right there);
       with --intrinsics-only, the lenses alone.
     --convert FILE: a calibration made by another system, converted (metres,
-      OpenCV's conventions) for RIG_DIR's cameras, matched by name."""
+      OpenCV's conventions) for RIG_DIR's cameras, matched by name.
+    An up-to-date output (same inputs and options) is kept."""
     modes = [m for m, on in (("--from-people", from_people), ("--checkerboard", checkerboard),
                              ("--charuco", charuco), ("--convert", convert is not None)) if on]
     if len(modes) != 1:
@@ -177,7 +187,7 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
                  if v is not None]
         if given:
             raise InputError(None, given[0], "does not apply to --convert")
-        return _calibrate_by_conversion(rig_dir, convert, output, convert_format, binning or 1.0)
+        return _calibrate_by_conversion(rig_dir, convert, output, convert_format, binning or 1.0, force)
     board_options = {"--board-size": board_size, "--square-size": square_size, "--marker-size": marker_size,
                      "--dictionary": dictionary, "--fisheye": fisheye or None, "--world-frame": world_frame,
                      "--world": world, "--intrinsics-only": intrinsics_only or None}
@@ -185,7 +195,7 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
         given = [k for k, v in board_options.items() if v is not None]
         if given:
             raise InputError(None, given[0], "applies to --checkerboard and --charuco, not --from-people")
-        return _calibrate_from_people(rig_dir, output, intrinsics, seed or 0, refine_focal)
+        return _calibrate_from_people(rig_dir, output, intrinsics, seed or 0, refine_focal, force)
     for option, given in (("--seed", seed is not None), ("--refine-focal", refine_focal)):
         if given:
             raise InputError(None, option, "applies to --from-people only")
@@ -200,13 +210,26 @@ def calibrate_cmd(rig_dir, from_people, checkerboard, charuco, convert, convert_
             raise InputError(None, given[0], "does not apply to --intrinsics-only")
     _calibrate_from_board(rig_dir, output, intrinsics, "charuco" if charuco else "checkerboard", board_size,
                           square_size, marker_size, dictionary, world or "board", fisheye, world_frame,
-                          intrinsics_only)
+                          intrinsics_only, force)
 
 
-def _calibrate_by_conversion(rig_dir, source, output, fmt, binning):
-    from mvm.rig.convert import convert_rig_calibration
+def _calibrate(rig_dir, force: bool, method: str, output, progress=None, **settings):
+    """The rig's ``calibrate`` stage (:mod:`mvm.stages.rig_calibrate`) run by ``method``: what it
+    found, or None (said in one line) when ``output`` is up to date."""
+    from mvm.stages import RigJob, run_stage
+    from mvm.stages.rig_calibrate import STAGE, Calibration
 
-    found = convert_rig_calibration(rig_dir, source, output, fmt, binning)
+    calibration = Calibration(method, Path(output), **settings)
+    done = run_stage(STAGE, RigJob(Path(rig_dir), calibration=calibration, progress=progress), force)
+    if done.why is None:
+        say(f"kept {output} (up to date; --force to calibrate again)")
+    return done.result
+
+
+def _calibrate_by_conversion(rig_dir, source, output, fmt, binning, force):
+    found = _calibrate(rig_dir, force, "convert", output, source=Path(source), format=fmt, binning=binning)
+    if found is None:
+        return
     cams = found.calibration.cameras
     print_table(f"{source}: converted from {found.format}"
                 + ("" if found.matched else f" (no videos or poses in {rig_dir}: every camera kept)"),
@@ -218,10 +241,11 @@ def _calibrate_by_conversion(rig_dir, source, output, fmt, binning):
     say(f"wrote {found.path}")
 
 
-def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
-    from mvm.rig.prepare import calibrate_rig_from_people
-
-    found = calibrate_rig_from_people(rig_dir, output, intrinsics, seed, refine_focal)
+def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal, force):
+    found = _calibrate(rig_dir, force, "people", output, intrinsics=Path(intrinsics) if intrinsics else None,
+                       seed=seed, refine_focal=refine_focal)
+    if found is None:
+        return
     cams = found.calibration.cameras
     r = found.result
     frames = "synchronized by sync.toml" if found.sync else "frame numbers as they are"
@@ -238,9 +262,8 @@ def _calibrate_from_people(rig_dir, output, intrinsics, seed, refine_focal):
 
 
 def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_size, marker_size, dictionary, world,
-                          fisheye, world_frame, intrinsics_only=False):
+                          fisheye, world_frame, intrinsics_only=False, force=False):
     from mvm.rig.board_calibration import MIN_COVERAGE
-    from mvm.rig.board_videos import calibrate_rig_from_board
     from mvm.rig.boards import Board, parse_board_size
 
     for option, value in (("--board-size", board_size), ("--square-size", square_size)) + (
@@ -260,10 +283,12 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
         what, _, problem = str(e).partition(": ")
         raise InputError(None, "--" + what.replace(" ", "-"), problem) from None
     if intrinsics_only:
-        return _board_intrinsics(rig_dir, output, board, fisheye)
+        return _board_intrinsics(rig_dir, output, board, fisheye, force)
     with stage_progress() as update:
-        found = calibrate_rig_from_board(rig_dir, output, board, intrinsics, world, progress=update, fisheye=fisheye,
-                                         world_frame=world_frame)
+        found = _calibrate(rig_dir, force, kind, output, update, intrinsics=Path(intrinsics) if intrinsics else None,
+                           board=board, world=world, fisheye=fisheye, world_frame=world_frame)
+    if found is None:
+        return
     cams = found.calibration.cameras
     r = found.rig
     lenses = found.intrinsics
@@ -281,13 +306,14 @@ def _calibrate_from_board(rig_dir, output, intrinsics, kind, board_size, square_
     say(f"wrote {found.path}")
 
 
-def _board_intrinsics(rig_dir, output, board, fisheye):
+def _board_intrinsics(rig_dir, output, board, fisheye, force):
     from mvm.rig.board_calibration import MIN_COVERAGE
-    from mvm.rig.board_intrinsics import calibrate_intrinsics_from_board
     from mvm.rig.board_videos import searched
 
     with stage_progress() as update:
-        found = calibrate_intrinsics_from_board(rig_dir, output, board, progress=update, fisheye=fisheye)
+        found = _calibrate(rig_dir, force, "intrinsics", output, update, board=board, fisheye=fisheye)
+    if found is None:
+        return
     cams = found.calibration.cameras
     print_table(f"{rig_dir}: intrinsics from a {board.describe()} (no rotations nor translations)",
                 ("camera", "source", "board found in", "focal px (fx, fy)", "principal point px", "RMS px",

@@ -37,6 +37,18 @@ def rig_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> list[Pat
     return inputs + [p for p in pose_sources(rig_dir).values() if not is_mvm_output(p)]
 
 
+def named_inputs(rig_dir: str | Path, paths) -> dict[str, Path]:
+    """``paths`` by name for a record (:mod:`mvm.io.provenance`): relative to ``rig_dir`` where
+    they lie in it, their full names elsewhere."""
+    named = {}
+    for path in map(Path, paths):
+        try:
+            named[path.relative_to(rig_dir).as_posix()] = path
+        except ValueError:
+            named[str(path)] = path
+    return named
+
+
 def check_rig_output(rig_dir: str | Path, calib: str | Path | None, output: str | Path | None) -> Path:
     """The rig's output folder (``output``, default ``RIG_DIR/mvm``), refused in one line when it
     is, holds or lies inside an input of the rig, or is a non-empty folder mvm did not make

@@ -34,7 +34,7 @@ from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
 from mvm.rig.occlusions import LIMB_JOINTS, close_disputes, disputed, fill_occlusions, rays
 from mvm.rig.options import RigOptions
-from mvm.rig.output_set import check_rig_output, replace_output_set, rig_inputs
+from mvm.rig.output_set import check_rig_output, named_inputs, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
 from mvm.rig.skeleton import capture_noise_factor, observations, refine_tracks
@@ -49,14 +49,7 @@ RIG_STAGE = "the rig reconstruction"
 def rig_fingerprint_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> dict[str, Path]:
     """What a rig's output set is made from (:mod:`mvm.io.provenance`): the calibration and
     every pose source, named relative to ``rig_dir`` where they lie in it."""
-    rig_dir = Path(rig_dir)
-    named = {}
-    for path in rig_inputs(rig_dir, calib):
-        try:
-            named[path.relative_to(rig_dir).as_posix()] = path
-        except ValueError:
-            named[str(path)] = path
-    return named
+    return named_inputs(Path(rig_dir), rig_inputs(rig_dir, calib))
 
 
 def rig_settings(config: Config, options: RigOptions, calib, frames: str | None) -> dict:

@@ -5,6 +5,7 @@
     RIG_DIR/
       Calib.toml | calibration/*.toml | sparse/ (COLMAP)   the cameras (or --calib PATH)
       sync.toml                                           frame offsets (optional, mvm.io.sync_toml)
+      sync.inputs.json, <calibration>.inputs.json         records of mvm's outputs (mvm.io.provenance), not cameras
       pose/ (or RIG_DIR itself)
         <camera>/          OpenPose or OpenPifPaf JSON, one file per frame (frame number in the name)
         <camera>.json      or one COCO keypoints file per camera (frame number in file_name; its

@@ -8,13 +8,17 @@ out of date. A new stage is one module declaring its ``STAGE`` and one line in t
 from __future__ import annotations
 
 from mvm.stages import (
+    rig_calibrate,
     rig_detect,
     rig_reconstruct,
+    rig_synchronize,
     scene_detect,
     scene_export,
     scene_frames,
     scene_reconstruct,
     scene_sfm,
+    view_overlay,
+    view_report,
 )
 from mvm.stages.scene_options import SceneOptions
 from mvm.stages.stage import Done, Job, RigJob, Stage
@@ -31,11 +35,21 @@ SCENE_STAGES: tuple[Stage, ...] = (
 )
 #: The stages ``mvm run`` runs (the export is ``mvm batch``'s, for the merged training set).
 RUN_STAGES = SCENE_STAGES[:4]
-#: The stages of a rig folder (:class:`RigJob`) that run through the runner: its videos' 2D
-#: poses (``mvm rig detect``) and its reconstruction (``mvm rig reconstruct``).
+#: The stages of a rig folder (:class:`RigJob`), in the order of the user's path: its videos' 2D
+#: poses (``mvm rig detect``), its cameras' frame offsets (``mvm rig synchronize``), a
+#: calibration (``mvm rig calibrate``) and its reconstruction (``mvm rig reconstruct``).
 RIG_STAGES: tuple[Stage, ...] = (
     rig_detect.STAGE,
+    rig_synchronize.STAGE,
+    rig_calibrate.STAGE,
     rig_reconstruct.STAGE,
+)
+
+#: The stages that draw a reconstruction, a scene's or a rig's (:class:`~mvm.stages.view.ViewJob`):
+#: its HTML page (``mvm report``) and its overlays (``mvm overlay``).
+VIEW_STAGES: tuple[Stage, ...] = (
+    view_report.STAGE,
+    view_overlay.STAGE,
 )
 
 
@@ -47,5 +61,5 @@ def scene_stage(name: str) -> Stage:
     raise ValueError(f"unknown stage {name!r}: expected one of {', '.join(s.name for s in SCENE_STAGES)}")
 
 
-__all__ = ["SCENE_STAGES", "RUN_STAGES", "RIG_STAGES", "Done", "Job", "RigJob", "SceneOptions", "Stage", "run_stage",
-           "run_stages", "scene_stage"]
+__all__ = ["SCENE_STAGES", "RUN_STAGES", "RIG_STAGES", "VIEW_STAGES", "Done", "Job", "RigJob", "SceneOptions", "Stage",
+           "run_stage", "run_stages", "scene_stage"]

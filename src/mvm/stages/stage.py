@@ -110,8 +110,11 @@ class RigJob:
     """One rig folder through the rig stages: ``rig_dir``; ``detect`` and ``checkpoint``: the
     2D detector of its videos; ``config`` and ``options``: the reconstruction's settings (the
     ``[reconstruct]`` and ``[rig]`` tables; None: the defaults); ``calib`` (None: found in the
-    folder), ``frames`` (``START:STOP``) and ``output`` (None: ``RIG_DIR/mvm``) of the
-    reconstruction. ``progress(what, done, total)`` hears each stage advance."""
+    folder: the calibration the synchronization and the reconstruction use), ``frames``
+    (``START:STOP``) and ``output`` (None: ``RIG_DIR/mvm``) of the reconstruction;
+    ``max_offset`` of the synchronization (None: its default); ``calibration``: what the
+    calibration makes (:class:`mvm.stages.rig_calibrate.Calibration`; None: the stage does not
+    apply). ``progress(what, done, total)`` hears each stage advance."""
 
     rig_dir: Path
     detect: object = None
@@ -121,6 +124,8 @@ class RigJob:
     calib: Path | None = None
     frames: str | None = None
     output: Path | None = None
+    max_offset: int | None = None
+    calibration: object = None
     progress: Callable[[str, int, int | None], None] | None = field(default=None, compare=False)
 
     @property
