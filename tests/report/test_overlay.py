@@ -186,4 +186,5 @@ def test_concurrent_overlays_leave_one_complete_folder(scene_dir, tmp_path):
     out = tmp_path / "ov"
     assert 0 in run_at_once(["overlay", scene_dir, "-o", out, "--max-width", "64"])
     assert len(list(out.glob("*.jpg"))) == 12
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ov", "ov.inputs.json"]     # the folder and its record
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ov"]             # the folder, its record inside
+    assert (out / "overlay.inputs.json").is_file()

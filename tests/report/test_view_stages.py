@@ -78,7 +78,8 @@ def test_a_scene_overlay_made_kept_redone_forced(scene, tmp_path):
     done = run_stage(OVERLAY, job)
     assert done.why == "no output yet" and done.result.frames == 2
     assert [p.name for p in OVERLAY.files(job)] == ["frame_00000.jpg", "frame_00006.jpg"]
-    assert read_record(out)["stage"] == "the overlay" and record_path(out) == tmp_path / "ov.inputs.json"
+    assert read_record(out / "overlay")["stage"] == "the overlay"             # a folder keeps its record inside
+    assert record_path(out / "overlay") == out / "overlay.inputs.json" and not (tmp_path / "ov.inputs.json").exists()
     made = {p.name: _mtime(p) for p in OVERLAY.files(job)}
     assert run_stage(OVERLAY, job).why is None and {p.name: _mtime(p) for p in OVERLAY.files(job)} == made
 

@@ -67,7 +67,7 @@ def overlay_cmd(scene, out, output, step, max_width, fps, image_format, calib, f
     to date (drawn from the same files, with the same options) is kept."""
     from mvm.stages import run_stage
     from mvm.stages.view import ViewJob
-    from mvm.stages.view_overlay import STAGE
+    from mvm.stages.view_overlay import STAGE, target
 
     job = ViewJob(Path(scene), output, out and Path(out),
                   calib and Path(calib), step=step, max_width=max_width, fps=fps, image_format=image_format)
@@ -75,7 +75,7 @@ def overlay_cmd(scene, out, output, step, max_width, fps, image_format, calib, f
         refuse_rig_option(calib, "--calib")
     done = run_stage(STAGE, job, force)
     if done.why is None:
-        say(f"kept {STAGE.record(job)} (up to date; --force to draw it again)")
+        say(f"kept {target(job)} (up to date; --force to draw it again)")
     elif job.rig:
         rig_overlay(scene, done.result)
     else:

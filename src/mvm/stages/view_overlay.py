@@ -12,12 +12,33 @@ from mvm.stages.view import ViewJob, check_record_name, list_in_output_set, not_
 
 #: The stage in the reasons of a rerun.
 TITLE = "the overlay"
+#: A folder of images keeps its record inside it, as ``overlay.inputs.json``.
+FOLDER_RECORD = "overlay"
 
 
-def _target(job: ViewJob) -> Path:
+def target(job: ViewJob) -> Path:
     from mvm.report.rig_overlay import OVERLAY_NAME
 
     return Path(job.out) if job.out is not None else job.out_dir / OVERLAY_NAME
+
+
+def _folder(job: ViewJob) -> bool:
+    """Whether a scene's overlay is a folder of images (replaced whole, its record inside it)."""
+    return not job.rig and target(job).suffix.lower() != ".mp4"
+
+
+def _record(job: ViewJob) -> Path:
+    """The output whose record says what the overlay was drawn from: the video (record beside
+    it), or :data:`FOLDER_RECORD` inside a folder of images, so that nothing lands beside a
+    folder the user named."""
+    return target(job) / FOLDER_RECORD if _folder(job) else target(job)
+
+
+def _reason(job: ViewJob) -> str | None:
+    from mvm.io.provenance import why_redo
+
+    return why_redo(_record(job), _inputs(job), _settings(job), TITLE,
+                    exists=target(job).is_dir() if _folder(job) else None)
 
 
 def _inputs(job: ViewJob) -> dict:
@@ -31,10 +52,13 @@ def _settings(job: ViewJob) -> dict:
 
 
 def _files(job: ViewJob) -> list[Path]:
-    target = _target(job)
-    if target.is_dir():
-        return sorted(p for p in target.iterdir() if p.is_file() and not p.name.startswith("."))
-    return [target] if target.is_file() else []
+    from mvm.io.provenance import record_path
+
+    path = target(job)
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith(".")
+                      and p.name != record_path(path / FOLDER_RECORD).name)
+    return [path] if path.is_file() else []
 
 
 def _run(job: ViewJob, force: bool) -> Done:
@@ -42,8 +66,12 @@ def _run(job: ViewJob, force: bool) -> Done:
     ``RigOverlaySummary`` of a rig), or None when it was kept."""
     from mvm.io.provenance import produce
 
-    target, inputs = _target(job), _inputs(job)
-    check_record_name(target, inputs, TITLE)
+    out, inputs = target(job), _inputs(job)
+    check_record_name(out, inputs, TITLE)
+    if _folder(job):                            # replaced whole: never a folder holding what mvm did not write
+        from mvm.io.outputs import check_output_location
+
+        check_output_location(out, [p for p in inputs.values() if isinstance(p, Path)])
 
     def make(why: str, hashed: dict):
         if job.rig:
@@ -51,15 +79,22 @@ def _run(job: ViewJob, force: bool) -> Done:
 
             summary = write_rig_overlays(Path(job.folder), job.out, output=job.output, calib=job.calib, step=job.step,
                                          max_width=job.max_width)
-            list_in_output_set(job, target)
+            list_in_output_set(job, out)
             return summary
+        from mvm.io.outputs import add_to_output_set
+        from mvm.io.provenance import record_path
         from mvm.report import write_overlays
 
-        return write_overlays(Path(job.folder), job.out, output=job.output, step=job.step, max_width=job.max_width,
-                              fps=job.fps, image_format=job.image_format)
+        summary = write_overlays(Path(job.folder), job.out, output=job.output, step=job.step, max_width=job.max_width,
+                                 fps=job.fps, image_format=job.image_format)
+        if _folder(job):                        # the record, written next, is the folder's own
+            add_to_output_set(out, record_path(_record(job)).name, lambda path: None)
+        return summary
 
-    summary, why = produce(target, TITLE, inputs, _settings(job), make, None, force=force)
+    summary, why = produce(_record(job), TITLE, inputs, _settings(job), make, None, force=force,
+                           exists=out.is_dir() if _folder(job) else None)
     return Done(summary, why)
 
 
-STAGE = Stage("overlay", TITLE, (), _target, _inputs, _settings, _files, _run, applies=not_reconstructed)
+STAGE = Stage("overlay", TITLE, (), _record, _inputs, _settings, _files, _run, reason=_reason,
+              applies=not_reconstructed)
