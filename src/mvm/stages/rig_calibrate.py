@@ -134,9 +134,9 @@ def _run(job: RigJob, force: bool) -> Done:
     if job.calibration.method not in METHODS:
         raise ValueError(f"unknown calibration method {job.calibration.method!r}: expected one of {METHODS}")
     check_output_location(_output(job), _read(job), replaced=False)   # before its record is removed
-    folder = _output(job).parent
-    result, why = produce(_output(job), TITLE, _inputs(job), _settings(job), lambda why, hashed: _make(job), None,
-                          force=force, lock=folder if folder.is_dir() else None)
+    output = _output(job)
+    result, why = produce(output, TITLE, _inputs(job), _settings(job), lambda why, hashed: _make(job), None,
+                          force=force, lock=output if output.parent.is_dir() else None)
     return Done(result, why)
 
 

@@ -42,7 +42,7 @@ def _run(job: RigJob, force: bool) -> Done:
     path, rig_dir = _sync_file(job), Path(job.rig_dir)
     result, why = produce(path, TITLE, _inputs(job), _settings(job),
                           lambda why, hashed: synchronize_rig(rig_dir, job.calib, job.max_offset),
-                          lambda: read_sync_toml(path), force=force, lock=rig_dir if rig_dir.is_dir() else None)
+                          lambda: read_sync_toml(path), force=force, lock=path if rig_dir.is_dir() else None)
     return Done(result, why)
 
 
