@@ -146,7 +146,7 @@ def test_module_names_do_not_collide_outside_the_command_line():
 
 
 #: Private names still imported from another module, to be made public or moved: ``(importer, module, name)``.
-PRIVATE_IMPORTS_LEFT = {("cli/rig.py", "mvm.cli.video", "_detect_options")}
+PRIVATE_IMPORTS_LEFT: set[tuple[str, str, str]] = set()
 
 
 def test_no_private_name_is_imported_across_modules():

@@ -79,7 +79,7 @@ def _frame_options(config_path, rate, max_frames, width, blur_ratio, every_frame
                   select="all" if every_frame else None, min_motion=min_motion, max_gap_s=max_gap_s)
 
 
-def _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
+def detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
                     appearance, input_size=None):
     """The detection settings; when no detector is named (option or file), the installed one (rtmo)."""
     from mvm.video.detect import DetectOptions
@@ -198,7 +198,7 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     from mvm.video.detect import detect_scene
 
     with refused(ValueError):
-        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+        options = detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
                                   source, appearance, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
@@ -234,7 +234,7 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_
     from mvm.stages.run import run_video
 
     with refused(ValueError):
-        options = _detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+        options = detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
                                   source, appearance, input_size)
     with refused(ValueError):
         config = read_config(config_path, sets, refine=refine)
