@@ -447,13 +447,13 @@ def detect_cmd(rig_dir, detector, model, person_model, mode, device, batch_size,
     RIG_DIR/pose/<camera>.json, with the detectors of mvm detect; each video's frame rate and
     frame count are recorded there (mvm rig reconstruct takes its frame rate from them)."""
     from mvm.cli.common import rate_column, refused, stage_progress
-    from mvm.cli.video import detect_settings
+    from mvm.cli.video import read_detect_options
     from mvm.stages import RigJob, run_stage
     from mvm.stages.rig_detect import STAGE
 
     with refused(ValueError):
-        options = detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  None, None, input_size)
+        options = read_detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                      None, None, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
         found = run_stage(STAGE, RigJob(Path(rig_dir), options, checkpoint, progress=update), force).result
     print_table(f"{rig_dir}: 2D poses of the videos ({options.detector})",

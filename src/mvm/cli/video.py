@@ -79,8 +79,8 @@ def _frame_options(config_path, rate, max_frames, width, blur_ratio, every_frame
                   select="all" if every_frame else None, min_motion=min_motion, max_gap_s=max_gap_s)
 
 
-def detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
-                    appearance, input_size=None):
+def read_detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint, source,
+                        appearance, input_size=None):
     """The detection settings; when no detector is named (option or file), the installed one (rtmo)."""
     from mvm.video.detect import DetectOptions
     from mvm.video.detectors import available_detector
@@ -198,8 +198,8 @@ def detect_cmd(scene, detector, model, person_model, mode, device, batch_size, c
     from mvm.video.detect import detect_scene
 
     with refused(ValueError):
-        options = detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance, input_size)
+        options = read_detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                      source, appearance, input_size)
     with refused(ValueError), stage_progress(rate_column()) as update:
         d = detect_scene(scene, source, checkpoint, fmt, options, force,
                          lambda done, total: update("detecting", done, total))
@@ -234,8 +234,8 @@ def run_cmd(video, scene, rate, max_frames, width, blur_ratio, every_frame, min_
     from mvm.stages.run import run_video
 
     with refused(ValueError):
-        options = detect_settings(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
-                                  source, appearance, input_size)
+        options = read_detect_options(config_path, detector, model, person_model, mode, device, batch_size, checkpoint,
+                                      source, appearance, input_size)
     with refused(ValueError):
         config = read_config(config_path, sets, refine=refine)
         with stage_progress(rate_column()) as update:
