@@ -27,6 +27,7 @@ import numpy as np
 from mvm.core.completion import INFERRED, INTERPOLATED
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
+from mvm.rig.tracking import runs, track_rows
 
 #: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
 LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left", "right") for j, p in pairs)
@@ -120,7 +121,7 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
     refused = np.asarray(refused, bool)
     out = refused.copy()
     m = DISPUTE_STRETCH
-    for index in _series(np.asarray(instant), np.asarray(track)):
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
         D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
         closed = (_window_count(D, -span, 0) > 0) & (_window_count(D, 0, span) > 0)
         stretch = _window_count(_window_count(closed, 0, m - 1) == m, 1 - m, 0) > 0
@@ -128,12 +129,6 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
         present = index >= 0
         out[index[present]] |= closed[present]
     return out
-
-
-def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive) of the runs of ``True`` in ``missing: (L,)``."""
-    edges = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
-    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
 
 
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
@@ -150,21 +145,9 @@ def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
     return max(ACC_SIGMA_FACTOR * float(np.sqrt(np.mean(acc ** 2))), MIN_ACC_SIGMA_M * unit)
 
 
-def _series(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
-    """Each track's rows by instant: ``(L,)`` from its first instant to its last, -1 where absent."""
-    order = np.lexsort((instant, track))
-    out = []
-    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
-        t0 = instant[rows].min()
-        index = np.full(instant[rows].max() - t0 + 1, -1)
-        index[instant[rows] - t0] = rows
-        out.append(index)
-    return out
-
-
 def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, long_gap: int, max_gap: int,
                 unit: float) -> list[tuple]:
-    """The runs of one track (``index``, :func:`_series`) its limb ``joints`` ((joint, parent)
+    """The runs of one track (``index``, :func:`~mvm.rig.tracking.track_rows`) its limb ``joints`` ((joint, parent)
     pairs) can be filled over: ``(rows (n,), [the rows of the two instants before], [after] (-1:
     unknown), joint, parent, bone length, sigma_acc, flag, gate_sigmas)``."""
     S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)  # (L, 17, 3)
@@ -178,7 +161,7 @@ def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, l
             continue
         length = float(np.median(np.linalg.norm(offsets[both], axis=-1)))
         sigma = _acc_sigma(offsets, unit)
-        for a, b in zip(*_runs(~seen[:, j])):
+        for a, b in zip(*runs(~seen[:, j])):
             at_start = a > 0 and both[a - 1]
             at_end = b < len(S) and both[b]
             if not (b - a <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
@@ -244,7 +227,7 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
     confidence = np.zeros(X.shape[:2])
     if not len(X):
         return X, flags, confidence
-    series = _series(instant, track)
+    series = track_rows(instant, track)
     for joints in LIMB_PASSES:
         gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):

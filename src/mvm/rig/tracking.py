@@ -152,10 +152,31 @@ def identity_switches(track: np.ndarray, truth: np.ndarray, instant: np.ndarray)
             "persons": int(len(people))}
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """Contiguous True runs of a 1-D mask as ``[(start, stop)]``."""
-    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop (exclusive) of the runs of True of a 1-D ``mask``.
+
+    >>> [a.tolist() for a in runs(np.array([1, 1, 0, 1], bool))]
+    [[0, 3], [2, 4]]
+    """
+    edges = np.diff(np.concatenate([[0], np.asarray(mask).astype(np.int8), [0]]))
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def track_rows(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
+    """Each track's rows by instant, tracks in the order of their ids: ``(L,)`` from its first
+    instant to its last, -1 where it was not seen. ``instant, track: (Q,)``.
+
+    >>> [r.tolist() for r in track_rows(np.array([0, 2, 0, 1]), np.array([5, 5, 7, 7]))]
+    [[0, -1, 1], [2, 3]]
+    """
+    order = np.lexsort((instant, track))
+    out = []
+    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
+        t0 = instant[rows].min()
+        index = np.full(instant[rows].max() - t0 + 1, -1)
+        index[instant[rows] - t0] = rows
+        out.append(index)
+    return out
 
 
 def smooth_series(points: np.ndarray, method: str, rate: float = DEFAULT_FRAME_RATE_HZ, cutoff_hz: float = 6.0,
@@ -190,16 +211,16 @@ def _smooth_many(series: list, method: str, rate: float = DEFAULT_FRAME_RATE_HZ,
         window = window if window % 2 else window + 1
         min_length = window
     out = [np.array(points, dtype=float) for points in series]
-    runs = []                                                                        # (series, joint, start, stop)
+    found = []                                                                       # (series, joint, start, stop)
     for i, points in enumerate(out):
         finite = np.isfinite(points).all(-1)                                          # (L, J)
         for j in range(points.shape[1]):
-            runs += [(i, j, start, stop) for start, stop in _runs(finite[:, j]) if stop - start >= min_length]
+            found += [(i, j, start, stop) for start, stop in zip(*runs(finite[:, j])) if stop - start >= min_length]
     if method == "butterworth":
-        smoothed = filtfilt_many(b, a, [out[i][start:stop, j] for i, j, start, stop in runs])
+        smoothed = filtfilt_many(b, a, [out[i][start:stop, j] for i, j, start, stop in found])
     else:
-        smoothed = [savgol_filter(out[i][start:stop, j], window, 2, axis=0) for i, j, start, stop in runs]
-    for (i, j, start, stop), values in zip(runs, smoothed):
+        smoothed = [savgol_filter(out[i][start:stop, j], window, 2, axis=0) for i, j, start, stop in found]
+    for (i, j, start, stop), values in zip(found, smoothed):
         out[i][start:stop, j] = values
     return out
 
@@ -219,12 +240,13 @@ def smooth_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, method:
     if method == "none":
         return np.array(X, dtype=float)
     out = np.array(X, dtype=float)
-    ids = np.unique(track)
-    series = [track_series(X, instant, track, k) for k in ids]
+    if not len(out):
+        return out
+    index = track_rows(np.asarray(instant), np.asarray(track))
+    series = [np.where((rows >= 0)[:, None, None], out[np.maximum(rows, 0)], np.nan) for rows in index]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        smoothed = _smooth_many([points for _, points in series], method, **kwargs)
-    for k, (times, _), points in zip(ids, series, smoothed):
-        rows = np.flatnonzero(track == k)
-        out[rows] = points[instant[rows] - times[0]]
+        smoothed = _smooth_many(series, method, **kwargs)
+    for rows, points in zip(index, smoothed):
+        out[rows[rows >= 0]] = points[rows >= 0]
     return out
