@@ -36,10 +36,6 @@ def declaration(settings: str, name: str) -> tuple[dataclasses.Field, str, str |
     return fields[name], text, None if unit in UNSHOWN_UNITS else unit
 
 
-def _default(field: dataclasses.Field):
-    return field.default if field.default is not dataclasses.MISSING else field.default_factory()
-
-
 class SettingType(click.ParamType):
     """The type of the setting ``name`` of ``settings``: one of its choices, or a number within
     its bounds (:class:`mvm.cli.common.Number`), or text."""
@@ -92,8 +88,10 @@ class SettingOption(click.Option):
 
     def get_help_record(self, ctx):
         if self.help is None:
+            from mvm.settings.reference import field_default
+
             field, text, unit = declaration(self.settings, self.setting)
-            default = _default(field)
+            default = field_default(field)
             notes = [n for n in (unit, _range(self.type), None if default is None else f"default: {default}") if n]
             self.help = f"{text.rstrip('.')} ({', '.join(notes)})." if notes else text
         return super().get_help_record(ctx)

@@ -91,7 +91,8 @@ def toml_value(value) -> str:
     raise TypeError(f"no TOML for {value!r}")
 
 
-def _default(field: dataclasses.Field):
+def field_default(field: dataclasses.Field):
+    """The default of a settings field (its factory's value for a nested settings object)."""
     if field.default is not dataclasses.MISSING:
         return field.default
     return field.default_factory()
@@ -109,7 +110,7 @@ def table_lines(name: str, cls, values=None) -> list[str]:
     docs = field_docs(cls)
     lines, nested = [f"[{name}]"], []
     for field in dataclasses.fields(cls):
-        value = getattr(values, field.name) if values is not None else _default(field)
+        value = getattr(values, field.name) if values is not None else field_default(field)
         text, unit = split_unit(docs.get(field.name, ""))
         if dataclasses.is_dataclass(value):
             if type(value).__name__ in tables:
