@@ -29,7 +29,7 @@ import numpy as np
 from mvm.core.assignment import min_cost_assignment
 from mvm.core.body_parts import body_deviation, split_persons
 from mvm.core.duplicates import absorb_explained, pose_groups
-from mvm.core.hiding import sight
+from mvm.core.hiding import sight, unhidden_views
 from mvm.core.names import natural_key
 from mvm.core.pose_distance import reprojection_cost
 
@@ -152,7 +152,7 @@ def visible_frames(X: np.ndarray, P: np.ndarray, image_size: np.ndarray) -> np.n
     >>> visible_frames(X, P, np.array([[640.0, 480.0]]))
     array([1, 0])
     """
-    return sight(X, P, image_size)[0]
+    return sight(X, P, image_size)[0].sum(1)
 
 
 def frame_sequence(names: tuple[str, ...] | list[str]) -> np.ndarray:
@@ -347,7 +347,7 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen: np.ndarray, P: np.nd
     person from some side): one that explains too few of the views it projects into but has a
     human body (its proportions judged, within ``max_proportion_deviation``) is
     kept when it explains enough of those where no nearer person of its scene hides it
-    (:func:`mvm.core.hiding.sight`; a person behind others for most of a hand-held tour). The
+    (:func:`mvm.core.hiding.unhidden_views`; a person behind others for most of a hand-held tour). The
     persons that pass without it are judged as they were; a group of too few bones to judge, or
     of no human body, is never kept so (kept so in a crowd, a cluster of four false poses 24 m
     away and a person's first poses triangulated 1.5 m off changed the rounds that followed, and
@@ -356,10 +356,11 @@ def credible(groups: list[np.ndarray], X: np.ndarray, seen: np.ndarray, P: np.nd
     keep = (count >= min_group_size) | (~usable & (count > 0))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        visible = visible_frames(X, P, image_size)
+        inside, box = sight(X, P, image_size, boxes=scene is not None)               # one projection
+        visible = inside.sum(1)
         deviation = body_deviation(X, max_bone_ratio, seen)
         weak = usable & (count < min_support * visible) & (deviation <= max_proportion_deviation)
-        unhidden = sight(X, P, image_size, scene, weak)[1] if scene is not None and weak.any() else visible
+        unhidden = unhidden_views(inside, box, X, P, scene, weak) if scene is not None and weak.any() else visible
     keep &= (count >= min_support * unhidden) | ~usable
     keep &= ~((deviation > max_proportion_deviation) & (2 * count < visible))
     keep &= ~((seen.max(-1, initial=0) < min(3, min_group_size)) & ((2 * count < visible) | agreed))

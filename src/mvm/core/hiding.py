@@ -14,18 +14,16 @@ import numpy as np
 from mvm.core.pose_distance import PAIRS_CHUNK, person_chunks, project_in_views
 
 
-def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarray | None = None,
-          among: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """``(Q,)`` the number of views each person is in (at least half its reconstructed joints
-    project in front of the camera and inside the image) and, with ``scene: (Q,)`` the scene
-    (rig instant) of each person, ``(Q,)`` those of them in which it is not hidden
-    (:func:`hidden_views`; else None; only for the persons ``among: (Q,)`` bool, the others
-    count every view), from one projection of the persons ``X: (Q, J, 3)`` into
-    ``P: (F, 3, 4)`` (``image_size: (F, 2)``), a few persons at a time
+def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, boxes: bool = False
+          ) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(Q, F)`` bool: the views each person is in (at least half its reconstructed joints
+    project in front of the camera and inside the image), and with ``boxes`` its image box in
+    each view ``(Q, F, 4)`` (u0, v0, u1, v1; else None), from one projection of the persons
+    ``X: (Q, J, 3)`` into ``P: (F, 3, 4)`` (``image_size: (F, 2)``), a few persons at a time
     (:func:`mvm.core.pose_distance.person_chunks`)."""
     known = np.maximum(np.isfinite(X).all(-1).sum(-1), 1)                            # (Q,)
     inside = np.zeros((len(X), len(P)), dtype=bool)
-    box = np.full((len(X), len(P), 4), np.nan) if scene is not None else None       # u0, v0, u1, v1
+    box = np.full((len(X), len(P), 4), np.nan) if boxes else None
     for rows in person_chunks(len(X), len(P)):
         uv, seen = project_in_views(X[rows], P)                                      # (q, F, J, 2), (q, F, J)
         with np.errstate(invalid="ignore"):
@@ -34,9 +32,15 @@ def sight(X: np.ndarray, P: np.ndarray, image_size: np.ndarray, scene: np.ndarra
         if box is not None:
             box[rows, :, :2] = np.where(seen[..., None], uv, np.inf).min(2)
             box[rows, :, 2:] = np.where(seen[..., None], uv, -np.inf).max(2)
-    if box is None:
-        return inside.sum(1), None
-    return inside.sum(1), (inside & ~hidden_views(box, *_depths(X, P), np.asarray(scene), among)).sum(1)
+    return inside, box
+
+
+def unhidden_views(inside: np.ndarray, box: np.ndarray, X: np.ndarray, P: np.ndarray, scene: np.ndarray,
+                   among: np.ndarray | None = None) -> np.ndarray:
+    """``(Q,)`` the views each person is in (``inside: (Q, F)``, ``box: (Q, F, 4)``,
+    :func:`sight`) where no nearer person of its scene (``scene: (Q,)``, a rig instant) hides it
+    (:func:`hidden_views`; only for the persons ``among: (Q,)`` bool, the others count every view)."""
+    return (inside & ~hidden_views(box, *_depths(X, P), np.asarray(scene), among)).sum(1)
 
 
 #: A person is hidden in a view when a nearer person's image box covers this share of its own. [0-1]
