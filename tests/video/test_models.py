@@ -129,12 +129,33 @@ def test_a_model_url_names_one_cache_file_of_its_own():
 
     a = url_spec("https://one.example/m/yolo.onnx?download=true")
     b = url_spec("https://two.example/x/yolo.onnx")
-    assert a.name.startswith("yolo-") and a.name.endswith(".onnx") and "?" not in a.name
-    assert b.name.startswith("yolo-") and a.name != b.name
-    assert url_spec("https://one.example/m/Pose.ZIP").name.endswith(".zip")
-    for bad in ("https://one.example/m/", "https://one.example/m/..", "https://one.example/m/model.pt"):
-        with pytest.raises(InputError, match="--model|onnx"):
+    assert a.file.startswith("yolo-") and a.file.endswith(".onnx") and "?" not in a.file
+    assert b.file.startswith("yolo-") and a.file != b.file
+    assert url_spec("https://one.example/m/Pose.ZIP").file.endswith(".zip")
+    for bad in ("https://one.example/m/", "https://one.example/m/..", "https://one.example/m/model.pt",
+                "https://one.example/m/a%00b.onnx", "https://one.example/m/a%0Ab.onnx",
+                "https://one.example/m/" + "x" * 300 + ".onnx"):
+        with pytest.raises(InputError, match="--model"):
             url_spec(bad)
+
+
+def test_two_model_urls_of_one_name_are_two_files_of_the_cache(published, tmp_path, monkeypatch):
+    """What a URL downloads is the file its spec names: two URLs ending in the same name (another
+    path to the same file, and another file) download to files of their own in the cache."""
+    from mvm.video.models import cache_path, url_spec
+
+    monkeypatch.setenv("MVM_CACHE", str(tmp_path / "cache"))
+    zip_path, url, _ = published
+    other = tmp_path / "elsewhere" / zip_path.name
+    other.parent.mkdir()
+    other.write_bytes(zip_path.read_bytes())
+    twin = zip_path.parent.as_uri() + "/./" + zip_path.name
+    specs = [url_spec(url), url_spec(twin), url_spec(other.as_uri())]
+    paths = [resolve_model(spec) for spec in specs]
+    assert len({cache_path(spec) for spec in specs}) == 3
+    assert all(cache_path(spec).is_file() and cache_path(spec).parent == tmp_path / "cache" / "models"
+               for spec in specs)
+    assert all(p.suffix == ".onnx" and p.is_file() for p in paths)
 
 
 def test_a_download_past_the_model_size_is_refused_and_not_kept(published, tmp_path, monkeypatch):

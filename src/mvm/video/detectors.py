@@ -163,13 +163,13 @@ def check_models(options: DetectOptions, checkpoint: str | Path | None = None) -
 def fetch_missing_models(options: DetectOptions) -> None:
     """Download now the published models of ``options.detector`` that the cache lacks (when
     downloads are allowed), so that a failed download ends a run before its first heavy step."""
-    from mvm.video.models import cache_dir
+    from mvm.video.models import cache_path
 
     if not options.download:
         return
     if options.detector == "yolo-pose" and is_url(options.model):
         spec = url_spec(options.model)
-        if not (cache_dir() / spec.name).is_file():
+        if not cache_path(spec).is_file():
             resolve_model(spec, None, True)
         return
     if options.detector not in ("rtmo", "rtmpose"):
@@ -178,7 +178,7 @@ def fetch_missing_models(options: DetectOptions) -> None:
               (RTMPOSE[options.mode], options.model, "--model")] if options.detector == "rtmpose"
              else [(RTMO[options.mode], options.model, "--model")])
     for spec, path, option in specs:
-        if path is None and not (cache_dir() / spec.url.rsplit("/", 1)[-1]).is_file():
+        if path is None and not cache_path(spec).is_file():
             resolve_model(spec, None, True, option=option)
 
 

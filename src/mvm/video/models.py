@@ -51,6 +51,8 @@ class ModelSpec:
     mean: tuple[float, float, float] | None = None
     std: tuple[float, float, float] | None = None
     sha256: str | None = None
+    #: The file's name in the cache (None: the last part of ``url``, as a published model's).
+    file: str | None = None
 
 
 _IMAGENET = {"mean": (123.675, 116.28, 103.53), "std": (58.395, 57.12, 57.375)}
@@ -92,6 +94,10 @@ def is_url(model: str | Path | None) -> bool:
     return isinstance(model, str) and model.lower().startswith(("https://", "http://"))
 
 
+#: The longest file name of a model URL (before its digest and suffix). [characters]
+MAX_STEM = 120
+
+
 def url_spec(url: str, size: tuple[int, int] = (640, 640)) -> ModelSpec:
     """A model given by its URL (an ``.onnx`` or a ``.zip`` holding one) as a :class:`ModelSpec`:
     downloaded into the cache on first use like a published model, its SHA-256 recorded then
@@ -100,7 +106,7 @@ def url_spec(url: str, size: tuple[int, int] = (640, 640)) -> ModelSpec:
     files, and a query or a path ending in ``/`` or ``..`` names no file outside the cache. A URL
     whose path names no ``.onnx`` or ``.zip`` file is refused in one line.
 
-    >>> url_spec("https://example.org/m/yolo.onnx?download=true").name.startswith("yolo-")
+    >>> url_spec("https://example.org/m/yolo.onnx?download=true").file.startswith("yolo-")
     True
     """
     from urllib.parse import unquote, urlsplit
@@ -109,8 +115,17 @@ def url_spec(url: str, size: tuple[int, int] = (640, 640)) -> ModelSpec:
     stem, dot, suffix = name.rpartition(".")
     if not dot or suffix.lower() not in ("onnx", "zip") or not stem.strip(". ") or "\\" in name:
         raise InputError(None, "--model", f"{url}: expected the URL of an .onnx model or a .zip holding one")
+    if not stem.isprintable() or len(stem) > MAX_STEM:
+        raise InputError(None, "--model", f"{url}: the file name of the URL is not printable, or longer than "
+                                          f"{MAX_STEM} characters")
     digest = hashlib.sha256(url.encode()).hexdigest()[:12]
-    return ModelSpec(f"{stem}-{digest}.{suffix.lower()}", url, size)
+    return ModelSpec(stem, url, size, file=f"{stem}-{digest}.{suffix.lower()}")
+
+
+def cache_path(spec: ModelSpec) -> Path:
+    """Where the download of ``spec`` is kept: :func:`cache_dir` / its ``file`` (a URL's, named by
+    :func:`url_spec`), else / the last part of its published URL."""
+    return cache_dir() / (spec.file or spec.url.rsplit("/", 1)[-1])
 
 
 def cache_dir() -> Path:
@@ -323,7 +338,7 @@ def model_problem(spec: ModelSpec | None, path: str | Path | None = None, downlo
         except InputError as e:
             return f"{option}: {e.problem}"
         return None
-    archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
+    archive = cache_path(spec)
     if not archive.is_file() and not download_ok:
         return f"{option}: model not in the cache: fetch {spec.url} and put it at {archive}, or give {option} PATH"
     return None
@@ -337,14 +352,14 @@ def resolve_model(spec: ModelSpec | None, path: str | Path | None = None, downlo
     ``option``: the command-line option that gives ``path``, named in the errors."""
     problem = model_problem(spec, path, download_ok, option)
     if problem is not None:
-        raise InputError(path if path is not None else cache_dir() / spec.url.rsplit("/", 1)[-1], None, problem)
+        raise InputError(path if path is not None else cache_path(spec), None, problem)
     if path is not None:
         path = Path(path)
         check_input_file(path)
         if path.suffix.lower() != ".zip":
             return path
         return onnx_in_zip(path, cache_dir() / f"{path.stem}-{sha256(path)[:12]}")
-    archive = cache_dir() / spec.url.rsplit("/", 1)[-1]
+    archive = cache_path(spec)
     if not archive.is_file():
         log.info("downloading %s to %s", spec.url, archive)
         download(spec.url, archive, spec.sha256, progress, option=option)
