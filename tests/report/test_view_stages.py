@@ -100,6 +100,21 @@ def test_a_page_named_over_another_outputs_record_is_refused(scene):
     assert not (scene / "poses2d.html").exists()
 
 
+@pytest.mark.parametrize("mine", [b'{"my": "notes"}', b"not json at all", b""])
+def test_a_page_or_video_beside_a_users_file_of_its_records_name_is_refused(scene, tmp_path, mine):
+    """``-o x/page.html`` (or ``x/v.mp4``) where ``x/page.inputs.json`` is a user's own file: refused
+    in one line naming the output, before anything is written, the user's file as it was."""
+    for stage, name in ((REPORT, "page.html"), (OVERLAY, "v.mp4")):
+        folder = tmp_path / name.split(".")[0]
+        folder.mkdir()
+        out = folder / name
+        (folder / f"{out.stem}.inputs.json").write_bytes(mine)
+        with pytest.raises(InputError, match="no record of mvm's") as refused:
+            run_stage(stage, ViewJob(scene, out=out, step=6, max_width=64))
+        assert refused.value.path == str(out)
+        assert (folder / f"{out.stem}.inputs.json").read_bytes() == mine and not out.exists()
+
+
 def test_a_rig_report_goes_with_its_output_set(tmp_path):
     root = tmp_path / "rig"
     sim = simulate_rig(RigSimConfig(cameras=3, people=2, frames=30, seed=6))

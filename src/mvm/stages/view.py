@@ -5,6 +5,7 @@ the image folder; one written into a rig's output set is listed in the set's mar
 next ``mvm rig reconstruct`` replaces it with the set (:func:`list_in_output_set`)."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,8 +82,8 @@ def check_record_name(out: Path, inputs: dict, title: str) -> None:
     """Refuse, in one line naming ``out``, an ``out`` that is, holds or lies inside one of
     ``inputs`` (:func:`mvm.io.outputs.check_output_location`), or whose record
     (``<stem>.inputs.json``) would be another output's: an input's record (``-o
-    SCENE/poses2d.html`` beside ``poses2d.json``), or a record another stage wrote. Called before
-    the record is removed."""
+    SCENE/poses2d.html`` beside ``poses2d.json``), a record another stage wrote, or a file that
+    is no record of mvm's (a user's own). Called before the record is removed."""
     from mvm.errors import InputError
     from mvm.io.outputs import check_output_location
     from mvm.io.provenance import read_record, record_path
@@ -94,6 +95,9 @@ def check_record_name(out: Path, inputs: dict, title: str) -> None:
     if record in {record_path(p) for p in paths} or (other is not None and other.get("stage") != title):
         raise InputError(out, None, f"its record would be {record.name}, the record of another output: "
                                     "choose another name")
+    if os.path.lexists(record) and other is None:              # a page or video beside a user's own file
+        raise InputError(out, None, f"its record would replace {record.name}, which is no record of mvm's: "
+                                    "move it or choose another name")
 
 
 def list_in_output_set(job: ViewJob, out: Path) -> None:

@@ -34,11 +34,15 @@ def _record(job: ViewJob) -> Path:
     return target(job) / FOLDER_RECORD if _folder(job) else target(job)
 
 
+def _exists(job: ViewJob) -> bool | None:
+    """Whether a folder of images is there (its record alone does not say); None: a video."""
+    return target(job).is_dir() if _folder(job) else None
+
+
 def _reason(job: ViewJob) -> str | None:
     from mvm.io.provenance import why_redo
 
-    return why_redo(_record(job), _inputs(job), _settings(job), TITLE,
-                    exists=target(job).is_dir() if _folder(job) else None)
+    return why_redo(_record(job), _inputs(job), _settings(job), TITLE, exists=_exists(job))
 
 
 def _inputs(job: ViewJob) -> dict:
@@ -66,12 +70,12 @@ def _run(job: ViewJob, force: bool) -> Done:
     ``RigOverlaySummary`` of a rig), or None when it was kept."""
     from mvm.io.provenance import produce
 
-    out, inputs = target(job), _inputs(job)
-    check_record_name(out, inputs, TITLE)
-    if _folder(job):                            # replaced whole: never a folder holding what mvm did not write
+    out, inputs, folder = target(job), _inputs(job), _folder(job)
+    if folder:                                  # replaced whole: never a folder holding what mvm did not write
         from mvm.io.outputs import check_output_location
 
         check_output_location(out, [p for p in inputs.values() if isinstance(p, Path)])
+    check_record_name(_record(job), inputs, TITLE)
 
     def make(why: str, hashed: dict):
         if job.rig:
@@ -87,12 +91,12 @@ def _run(job: ViewJob, force: bool) -> Done:
 
         summary = write_overlays(Path(job.folder), job.out, output=job.output, step=job.step, max_width=job.max_width,
                                  fps=job.fps, image_format=job.image_format)
-        if _folder(job):                        # the record, written next, is the folder's own
+        if folder:                              # the record, written next, is the folder's own
             add_to_output_set(out, record_path(_record(job)).name, lambda path: None)
         return summary
 
     summary, why = produce(_record(job), TITLE, inputs, _settings(job), make, None, force=force,
-                           exists=out.is_dir() if _folder(job) else None)
+                           exists=_exists(job))
     return Done(summary, why)
 
 
