@@ -55,15 +55,17 @@ class StageResult:
     host: str = ""
 
 
-def job_of(clip: Clip, options: SceneOptions = SceneOptions()) -> Job:
-    """The clip as the stages take it. Each clip's SfM runs on one thread: the clips run in
-    parallel (the thread count is not among the settings its record keeps)."""
+def job_of(clip: Clip, options: SceneOptions | None = None) -> Job:
+    """The clip as the stages take it (``options`` None: the defaults, built when called: they
+    import the video stages). Each clip's SfM runs on one thread: the clips run in parallel (the
+    thread count is not among the settings its record keeps)."""
+    options = options or SceneOptions()
     options = options.replace(sfm=dataclasses.replace(options.sfm, threads=1))
     return Job(Path(clip.scene), options, None if clip.video is None else Path(clip.video),
                None if clip.detections is None else Path(clip.detections))
 
 
-def output_files(clip: Clip, stage: str, options: SceneOptions = SceneOptions()) -> list[Path]:
+def output_files(clip: Clip, stage: str, options: SceneOptions | None = None) -> list[Path]:
     """The files ``stage`` commits for ``clip``, sorted (an empty list when absent)."""
     return scene_stage(stage).files(job_of(clip, options))
 
