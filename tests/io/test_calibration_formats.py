@@ -114,6 +114,9 @@ def test_opencap_pickles_turned_to_z_up(tmp_path):
     for given in (first, tmp_path / "Videos"):
         assert detect_format(given) == "opencap"
         _assert_same(read_foreign_calibration(given), cams, names=["Cam0", "Cam1", "Cam2"])
+    one = read_foreign_calibration(tmp_path / "Videos" / "Cam1", "opencap")       # a camera's folder alone
+    assert list(one.cameras.names) == ["Cam1"]
+    np.testing.assert_allclose(one.cameras.K[0], cams[1].K)
 
 
 def test_anipose_and_freemocap_in_millimetres_or_metres(tmp_path):

@@ -50,10 +50,10 @@ def opencap_files(path) -> dict[str, Path]:
     """``{camera: pickle}`` of the set ``path`` belongs to (module docstring), in natural order:
     the ``<camera>/cameraIntrinsicsExtrinsics.pickle`` of its folder where there are any, else its
     ``<camera>.pickle`` files (one level only: another session's pickles further down are not
-    this set's)."""
+    this set's); a camera's folder given alone is that camera, named after its folder."""
     path, folder = Path(path), opencap_folder(path)
     files = {p.parent.name: p for p in folder.glob(f"*/{OPENCAP_FILE}")} or \
-        {p.stem: p for p in folder.glob("*.pickle")}
+        {p.parent.name if p.name == OPENCAP_FILE else p.stem: p for p in folder.glob("*.pickle")}
     if not files:
         raise InputError(path, None, "no OpenCap calibration pickle (*.pickle) found")
     return dict(sorted(files.items(), key=lambda item: natural_key(item[0])))
