@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from mvm.core.geometry import skew
+
 #: A joint agrees with an essential matrix within this Sampson error at least. [px]
 INLIER_PX = 6.0
 #: ... and within this fraction of its pairing's height (the geometric mean of its two poses'
@@ -257,13 +259,8 @@ def pair_poses(keypoints: np.ndarray, x: np.ndarray, present: np.ndarray, camera
             if found is None:
                 continue
             R, t, _, _ = found                               # the repeats, once it is found, link people too
-            E = _essential(R, t)
+            E = skew(t) @ R
             _, accepted, inlier = _score(E, x[ia], x[jb], ok, threshold)
             error = float(np.median(sampson(E, x[ia][inlier], x[jb][inlier]))) * scale
             out[a, b] = PairPose(a, b, R, t, ia[accepted], jb[accepted], error)
     return out, counts
-
-
-def _essential(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    return tx @ R

@@ -230,7 +230,8 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     :func:`rig_config`; none: its defaults).
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
     assert config is None or config.resolved, "track_and_complete takes the rig's settings (rig_config)"
-    complete = (config or rig_config()).complete
+    settings = config or rig_config()
+    complete = settings.complete
     unit = 1.0 / options.metres_per_unit
     tracking = track_persons(persons.X, persons.instant, options.max_link_distance_m * unit, options.max_gap,
                              options.min_link_joints)
@@ -248,7 +249,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
         filled = np.zeros(X.shape[:2], np.int8)
         if fill and len(persons):
             X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
-                                                          options, config or Config(), refused)
+                                                          options, settings, refused)
             persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
         X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
         flags = np.where(filled > 0, filled, flags).astype(np.int8)

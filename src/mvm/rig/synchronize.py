@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mvm.core.geometry import skew
 from mvm.rig.people_pairs import INLIER_PX, aligned_pairs, essential_from_pairings, normalized_points, sampson
 
 #: Two poses of consecutive frames are one person when their median joint distance is below
@@ -183,11 +184,7 @@ def fundamental_matrix(K_a: np.ndarray, R_a: np.ndarray, t_a: np.ndarray,
                        K_b: np.ndarray, R_b: np.ndarray, t_b: np.ndarray) -> np.ndarray:
     """``F`` with ``x_b^T F x_a = 0`` for pixels of the same point in cameras a and b: ``(3, 3)``."""
     R = R_b @ R_a.T
-    return essential_to_fundamental(_skew(t_b - R @ t_a) @ R, K_a, K_b)
-
-
-def _skew(t: np.ndarray) -> np.ndarray:
-    return np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    return essential_to_fundamental(skew(t_b - R @ t_a) @ R, K_a, K_b)
 
 
 def essential_to_fundamental(E: np.ndarray, K_a: np.ndarray, K_b: np.ndarray) -> np.ndarray:
