@@ -61,7 +61,7 @@ def reconstruct_read(path: str | Path, config: Config, output: str = "mvm", prio
     (``config`` already the scene driver's, :func:`~mvm.core.reconstruct.scene_config`). The
     scene stage of :mod:`mvm.stages` writes the result itself (:func:`result_document`)."""
     assert config.resolved, "reconstruct_read takes the scene driver's settings (scene_config)"
-    read = _read(Path(path), config, output)
+    read = _read(Path(path), config, output, hashed=False)            # the stage's writer hashed them
     if isinstance(read[1], Exception):
         raise read[1]
     [outcome] = reconstruct_many([read[1]], config, prior)
@@ -162,15 +162,15 @@ def _batches(paths: list, config: Config, output: str, prior) -> Iterator[list[t
         yield _reconstructed(batch, config, prior)
 
 
-def _read(path: Path, config: Config, output: str) -> tuple:
+def _read(path: Path, config: Config, output: str, hashed: bool = True) -> tuple:
     """``(path, scene, output folder, seconds to read, fingerprints)`` of a scene read and
     checked, or ``(path, exception, None, None, None)``; the fingerprints of its inputs
     (:mod:`mvm.io.provenance`), taken once the guarded readers accepted them, are for the
-    output's record."""
+    output's record (None without ``hashed``: the caller took them)."""
     try:
         t = time.perf_counter()
         scene = read_scene(path)
-        hashed = fingerprints(reconstruction_inputs(path))
+        hashed = fingerprints(reconstruction_inputs(path)) if hashed else None
         out_dir = output_dir(path, output)
         read_s = time.perf_counter() - t
         validate_scene(scene, str(path))
