@@ -306,3 +306,32 @@ def test_summary_never_replaces_what_mvm_did_not_write(tmp_path, scene_dir):
     page.unlink()
     first = write_summary(root, [scene_dir]).read_text()
     assert write_summary(root, [scene_dir]).read_text() == first
+
+
+@pytest.mark.parametrize("kind", ["not json", "a list", "a link out of the scene", "a fifo"])
+def test_a_hostile_timings_file_is_one_line_or_passed_over(scene_dir, tmp_path, kind):
+    """``mvm/timings.json`` is read as any input: text that is no JSON object, a link leading out
+    of the scene is one line naming it; a FIFO is not waited on (no seconds shown)."""
+    import os
+    import shutil
+
+    from mvm.report.load import load_result
+
+    copy = tmp_path / "scene"
+    shutil.copytree(scene_dir, copy)
+    path = copy / "mvm" / "timings.json"
+    path.unlink()
+    if kind == "not json":
+        path.write_text("{seconds")
+    elif kind == "a list":
+        path.write_text("[1, 2]")
+    elif kind == "a link out of the scene":
+        (tmp_path / "elsewhere.json").write_text('{"a_s": 1}')
+        path.symlink_to(tmp_path / "elsewhere.json")
+    else:
+        os.mkfifo(path)
+        assert load_result(copy).timings == {}
+        return
+    with pytest.raises(InputError, match="timings.json") as e:
+        load_result(copy)
+    assert "\n" not in str(e.value)
