@@ -205,6 +205,23 @@ def complete_persons(X: np.ndarray, prior=None, min_joints: int = 5) -> tuple[np
     return out, flags
 
 
+def track_rows(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
+    """Each track's rows by instant, tracks in the order of their ids: ``(L,)`` from its first
+    instant to its last, -1 where it was not seen. ``instant, track: (Q,)``.
+
+    >>> [r.tolist() for r in track_rows(np.array([0, 2, 0, 1]), np.array([5, 5, 7, 7]))]
+    [[0, -1, 1], [2, 3]]
+    """
+    order = np.lexsort((instant, track))
+    out = []
+    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
+        t0 = instant[rows].min()
+        index = np.full(instant[rows].max() - t0 + 1, -1)
+        index[instant[rows] - t0] = rows
+        out.append(index)
+    return out
+
+
 def complete_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, max_gap: int,
                     prior=None, min_joints: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """Complete the persons of a tracked sequence: time first, then the prior.
@@ -222,15 +239,13 @@ def complete_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, max_g
     out = X.copy()
     flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
     if len(X) and max_gap > 0:
-        order = np.lexsort((instant, track))
-        bounds = np.flatnonzero(np.diff(track[order])) + 1
-        for rows in np.split(order, bounds):
-            t0 = instant[rows].min()
-            series = np.full((instant[rows].max() - t0 + 1, NUM_JOINTS, 3), np.nan)
-            series[instant[rows] - t0] = X[rows]
-            filled, interpolated = interpolate_series(series, max_gap)
-            out[rows] = filled[instant[rows] - t0]
-            flags[rows] = np.where(interpolated[instant[rows] - t0], INTERPOLATED, flags[rows])
+        for index in track_rows(instant, track):
+            seen = index >= 0
+            filled, interpolated = interpolate_series(np.where(seen[:, None, None], X[np.maximum(index, 0)], np.nan),
+                                                      max_gap)
+            rows = index[seen]
+            out[rows] = filled[seen]
+            flags[rows] = np.where(interpolated[seen], INTERPOLATED, flags[rows])
     if prior is not None:
         out, inferred = infer_missing(out, prior, min_joints)
         flags[inferred] = INFERRED

@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.completion import INFERRED, INTERPOLATED
+from mvm.core.completion import INFERRED, INTERPOLATED, track_rows
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
-from mvm.rig.tracking import runs, track_rows
+from mvm.rig.tracking import runs
 
 #: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
 LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left", "right") for j, p in pairs)
@@ -147,7 +147,7 @@ def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
 
 def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, long_gap: int, max_gap: int,
                 unit: float) -> list[tuple]:
-    """The runs of one track (``index``, :func:`~mvm.rig.tracking.track_rows`) its limb ``joints`` ((joint, parent)
+    """The runs of one track (``index``, :func:`~mvm.core.completion.track_rows`) its limb ``joints`` ((joint, parent)
     pairs) can be filled over: ``(rows (n,), [the rows of the two instants before], [after] (-1:
     unknown), joint, parent, bone length, sigma_acc, flag, gate_sigmas)``."""
     S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)  # (L, 17, 3)

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
+from mvm.core.completion import track_rows
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.rig.filters import butter_lowpass, filtfilt_many
 
@@ -160,23 +161,6 @@ def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     edges = np.diff(np.concatenate([[0], np.asarray(mask).astype(np.int8), [0]]))
     return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-
-
-def track_rows(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
-    """Each track's rows by instant, tracks in the order of their ids: ``(L,)`` from its first
-    instant to its last, -1 where it was not seen. ``instant, track: (Q,)``.
-
-    >>> [r.tolist() for r in track_rows(np.array([0, 2, 0, 1]), np.array([5, 5, 7, 7]))]
-    [[0, -1, 1], [2, 3]]
-    """
-    order = np.lexsort((instant, track))
-    out = []
-    for rows in np.split(order, np.flatnonzero(np.diff(track[order])) + 1):
-        t0 = instant[rows].min()
-        index = np.full(instant[rows].max() - t0 + 1, -1)
-        index[instant[rows] - t0] = rows
-        out.append(index)
-    return out
 
 
 def smooth_series(points: np.ndarray, method: str, rate: float = DEFAULT_FRAME_RATE_HZ, cutoff_hz: float = 6.0,
