@@ -12,7 +12,10 @@ arm``: its elbow and wrist) for a stretch of each of ``--lengths`` instants. Two
 - ``wrong`` (as on Shelf): the joint is seen at its place in 1 or 2 views (a quarter to a
   third of them) and reported in the others anyway, each at the projection of a point 20 to
   40 cm from the truth (a direction drawn per view and stretch), as a detector confuses a
-  hidden hand with something near it.
+  hidden hand with something near it;
+- ``ghost``: as ``wrong``, but the views that do not see the joint all report one point 20 to
+  40 cm from it (one direction per stretch): they agree on a thing that is not the joint (the
+  other hand, a prop), and outnumber the views that see it.
 
 The rig's time steps run as ``mvm rig reconstruct`` runs them
 (:func:`mvm.rig.reconstruct_rig.track_and_complete`).
@@ -48,16 +51,20 @@ from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 MATCH_M = 0.5
 SIDES = ("left", "right")
 #: The views left seeing the joint at its place, drawn per stretch, in each case.
-SEEN = {"missing": (0, 1), "wrong": (1, 2)}
+SEEN = {"missing": (0, 1), "wrong": (1, 2), "ghost": (1, 2)}
 PARENT = {j: p for joints in LIMB_PASSES for j, p in joints}
 COLUMNS = ("filled", "kept observed", "all hidden", "oracle: right views", "oracle: motion only", "around")
 
 
-def _report_off(sim, rows: np.ndarray, v: int, g: int, j: int, rng: np.random.Generator) -> None:
-    """The keypoints ``rows`` of joint ``j`` of person ``g`` in view ``v`` moved (in place) to
-    the projection of a point 20 to 40 cm from the truth, one direction for the stretch."""
+def _offset(rng: np.random.Generator) -> np.ndarray:
+    """``(3,)`` a displacement of 20 to 40 cm in a random direction. [m]"""
     offset = rng.normal(size=3)
-    offset *= rng.uniform(0.2, 0.4) / np.linalg.norm(offset)
+    return offset * rng.uniform(0.2, 0.4) / np.linalg.norm(offset)
+
+
+def _report_off(sim, rows: np.ndarray, v: int, g: int, j: int, offset: np.ndarray) -> None:
+    """The keypoints ``rows`` of joint ``j`` of person ``g`` in view ``v`` moved (in place) to
+    the projection of the truth displaced by ``offset: (3,)``."""
     sel = np.flatnonzero(rows & (sim.camera == v))
     point = sim.poses3d[sim.frame[sel], g, j] + offset                              # (k, 3)
     uvw = np.einsum("ij,kj->ki", sim.calibration.cameras.P[v], np.concatenate([point, np.ones((len(sel), 1))], 1))
@@ -68,7 +75,7 @@ def _report_off(sim, rows: np.ndarray, v: int, g: int, j: int, rng: np.random.Ge
 def occlude(sim, rng: np.random.Generator, joints: str, length: int, case: str = "missing") -> list[tuple]:
     """Hide one arm of every person of ``sim`` (in place, in ``sim.keypoints``) for ``length``
     instants from all the views but those still seeing it (:data:`SEEN`): dropped (``missing``)
-    or reported 20 to 40 cm off (``wrong``).
+    or reported 20 to 40 cm off (``wrong``: each view elsewhere; ``ghost``: all at one point).
 
     Returns the stretches: ``(person, joints, first instant, views seeing them)``."""
     S, G = sim.poses3d.shape[:2]
@@ -84,8 +91,9 @@ def occlude(sim, rng: np.random.Generator, joints: str, length: int, case: str =
             if case == "missing":
                 sim.keypoints[rows, j] = 0.0
             else:
+                shared = _offset(rng)
                 for v in np.setdiff1d(np.arange(V), keep):
-                    _report_off(sim, rows, v, g, j, rng)
+                    _report_off(sim, rows, v, g, j, shared if case == "ghost" else _offset(rng))
         stretches.append((g, js, t0, keep))
     return stretches
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.completion import INFERRED, INTERPOLATED, track_rows
+from mvm.core.completion import INFERRED, INTERPOLATED, interpolate_series, track_rows
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
 from mvm.rig.tracking import runs
@@ -34,6 +34,9 @@ LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left
                     for pairs in ((("elbow", "shoulder"), ("knee", "hip")), (("wrist", "elbow"), ("ankle", "knee"))))
 #: The joints filled.
 LIMB_JOINTS = [j for joints in LIMB_PASSES for j, _ in joints]
+#: The joints the limb chains hang from (shoulders, hips): interpolated over their own short gaps
+#: before the limbs are filled, so that one instant without a shoulder does not break an arm's chain.
+ROOT_JOINTS = sorted({p for _, p in LIMB_PASSES[0]})
 #: Standard deviation of a bone's length about its track's median, relative to it. [1]
 BONE_SIGMA = 0.03
 #: Standard deviation of a joint's distance to the ray of a view's keypoint of it: the
@@ -68,6 +71,11 @@ DEFAULT_ACC_SIGMA_M = 0.01
 MIN_ACC_SAMPLES = 5
 #: A limb joint is disputed where the triangulation refused this many of its views' keypoints. [1]
 DISPUTED_VIEWS = 2
+#: A limb joint is disputed where its bone to its parent is this far from the track's median
+#: length, relative to it: most views agreeing on another thing (a hand hidden from all views but
+#: one, reported at the other hand in the rest) put it off the bone's sphere. On the simulated rig
+#: the bones of seen joints stay within 5 % of their median; such stretches are 10 to 45 % off. [1]
+BONE_DISPUTE = 0.15
 #: Instants either side within which two refused joints close the stretch between them. [1]
 DISPUTE_SPAN = 3
 #: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
@@ -103,12 +111,62 @@ def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return out
 
 
+def bone_disputed(X: np.ndarray, instant: np.ndarray, track: np.ndarray) -> np.ndarray:
+    """``(Q, 17)`` the limb joints of ``X: (Q, 17, 3)`` (NaN: missing) whose bone to their parent
+    is off their track's median length by more than :data:`BONE_DISPUTE` of it for
+    :data:`DISPUTE_STRETCH` instants or more in a row (a bone off at a lone instant is noise the
+    smoothing takes). ``instant, track: (Q,)``.
+
+    >>> X = np.zeros((10, 17, 3)); X[:, 7] = [0.0, 0.3, 0.0]            # the left elbow...
+    >>> X[:, 9] = [0.25, 0.3, 0.0]; X[1, 9, 0] = X[5:8, 9, 0] = 0.55    # ...and a wrist off twice
+    >>> bone_disputed(X, np.arange(10), np.zeros(10, int))[:, 9].astype(int).tolist()
+    [0, 0, 0, 0, 0, 1, 1, 1, 0, 0]
+    """
+    out = np.zeros(X.shape[:2], bool)
+    joints = np.array(LIMB_JOINTS)
+    parents = np.array([p for passes in LIMB_PASSES for _, p in passes])
+    length = np.linalg.norm(X[:, joints] - X[:, parents], axis=-1)                 # (Q, K), NaN: unknown
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
+        rows = index[index >= 0]
+        known = np.isfinite(length[rows])
+        if not known.any():
+            continue
+        median = np.nanmedian(np.where(known.any(0), length[rows], 0.0), 0)       # (K,)
+        with np.errstate(invalid="ignore"):
+            off = np.zeros((len(index), len(joints)), bool)
+            off[index >= 0] = known & (np.abs(length[rows] - median) > BONE_DISPUTE * median)
+        out[rows[:, None], joints] = _stretches(off)[index >= 0]
+    return out
+
+
+def _bridge_roots(X: np.ndarray, series: list[np.ndarray], max_gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """``X: (Q, 17, 3)`` with the :data:`ROOT_JOINTS` of each track (``series``, :func:`track_rows`)
+    interpolated over gaps of up to ``max_gap`` instants (:func:`mvm.core.completion.interpolate_series`,
+    as the completion after the fill would), and ``(Q, 17)`` where."""
+    bridged = np.zeros(X.shape[:2], bool)
+    if max_gap <= 0:
+        return X, bridged
+    for index in series:
+        seen = index >= 0
+        rows = index[seen]
+        filled, interpolated = interpolate_series(np.where(seen[:, None, None], X[np.maximum(index, 0)][:, ROOT_JOINTS],
+                                                           np.nan), max_gap)
+        X[rows[:, None], ROOT_JOINTS] = filled[seen]
+        bridged[rows[:, None], ROOT_JOINTS] = interpolated[seen]
+    return X, bridged
+
+
 def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
     """``(L, K)`` how many of ``mask: (L, K)`` are true from ``t + lo`` to ``t + hi`` (clipped)."""
     L = len(mask)
     c = np.concatenate([np.zeros((1,) + mask.shape[1:], int), np.cumsum(mask, 0)])    # (L + 1, K)
     t = np.arange(L)
     return c[np.clip(t + hi + 1, 0, L)] - c[np.clip(t + lo, 0, L)]
+
+
+def _stretches(mask: np.ndarray, m: int = DISPUTE_STRETCH) -> np.ndarray:
+    """``(L, K)``: the instants of ``mask: (L, K)`` in runs of ``m`` or more true ones in a row."""
+    return _window_count(_window_count(mask, 0, m - 1) == m, 1 - m, 0) > 0
 
 
 def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, span: int = DISPUTE_SPAN,
@@ -120,12 +178,10 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
     wrong views happen to agree are as wrong. ``instant, track: (Q,)``."""
     refused = np.asarray(refused, bool)
     out = refused.copy()
-    m = DISPUTE_STRETCH
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
         closed = (_window_count(D, -span, 0) > 0) & (_window_count(D, 0, span) > 0)
-        stretch = _window_count(_window_count(closed, 0, m - 1) == m, 1 - m, 0) > 0
-        closed |= _window_count(stretch, -grow, grow) > 0
+        closed |= _window_count(_stretches(closed), -grow, grow) > 0
         present = index >= 0
         out[index[present]] |= closed[present]
     return out
@@ -197,8 +253,8 @@ def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction
 
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
                     direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
-                    max_gap: int = 90, unit: float = 1.0,
-                    refused: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    max_gap: int = 90, unit: float = 1.0, refused: np.ndarray | None = None,
+                    root_gap: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
     Args:
@@ -214,6 +270,10 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             missing ones (those that cannot be are left missing); the rays of a run with one
             are tried against the track's motion first (``gate_sigmas`` of
             :func:`mvm.core.gap_fit.fit_gaps`).
+        root_gap: the roots of the limbs (:data:`ROOT_JOINTS`) missing for up to this many
+            instants are interpolated first (flagged interpolated, confidence 0, as the
+            completion after the fill would leave them), so that the limbs hanging from them
+            can be filled through the gap. [instants]
     Returns:
         ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
         joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
@@ -228,6 +288,8 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
     if not len(X):
         return X, flags, confidence
     series = track_rows(instant, track)
+    X, bridged = _bridge_roots(X, series, root_gap)
+    flags[bridged] = INTERPOLATED
     for joints in LIMB_PASSES:
         gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):

@@ -32,7 +32,7 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import LIMB_JOINTS, close_disputes, disputed, fill_occlusions, rays
+from mvm.rig.occlusions import LIMB_JOINTS, bone_disputed, close_disputes, disputed, fill_occlusions, rays
 from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, named_inputs, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
@@ -241,7 +241,9 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     fill = complete and detections is not None and cameras is not None and options.occlusion_max_gap > 0
     refused = np.zeros(persons.X.shape[:2], bool)
     if fill and len(persons):
-        refused = close_disputes(disputed(persons.inliers, persons.valid), persons.instant, tracking.track)
+        refused = close_disputes(disputed(persons.inliers, persons.valid)
+                                 | bone_disputed(persons.X, persons.instant, tracking.track),
+                                 persons.instant, tracking.track)
     X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
                       options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
                       window=options.savgol_window)
@@ -270,7 +272,8 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     origin, direction = rays(xy, conf, cameras)
     guess = infer_missing(X, prior)[0] if prior is not None else None
     return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
-                           options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused)
+                           options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused,
+                           options.max_interpolation_gap)
 
 
 def check_smoothing(options: RigOptions) -> None:
