@@ -91,9 +91,9 @@ def occlude(sim, rng: np.random.Generator, joints: str, length: int, case: str =
             if case == "missing":
                 sim.keypoints[rows, j] = 0.0
             else:
-                shared = _offset(rng)
+                shared = _offset(rng) if case == "ghost" else None
                 for v in np.setdiff1d(np.arange(V), keep):
-                    _report_off(sim, rows, v, g, j, shared if case == "ghost" else _offset(rng))
+                    _report_off(sim, rows, v, g, j, _offset(rng) if shared is None else shared)
         stretches.append((g, js, t0, keep))
     return stretches
 
