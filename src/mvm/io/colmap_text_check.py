@@ -8,17 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
-from mvm.io.colmap_records import (
-    SENSOR_TYPES,
-    ModelRecords,
-    camera_models,
-    check_camera,
-    check_frame,
-    check_image,
-    check_pose,
-    check_position,
-    check_track,
-)
+from mvm.io import colmap_records as records
 
 
 def _text(data: bytes, path: Path) -> str:
@@ -62,11 +52,11 @@ def _floats(tokens, path, where) -> list[float]:
 
 
 def _sensor(token: str, path, where) -> None:
-    if token not in SENSOR_TYPES:
+    if token not in records.SENSOR_TYPES:
         raise InputError(path, where, f"unknown sensor type {token!r} (expected CAMERA or IMU)")
 
 
-def _rigs_txt(data, path, model: ModelRecords) -> None:
+def _rigs_txt(data, path, model: records.ModelRecords) -> None:
     for number, tokens in _lines(data, path):
         where = f"line {number}"
         if len(tokens) < 2:
@@ -78,18 +68,18 @@ def _rigs_txt(data, path, model: ModelRecords) -> None:
             expected += 2
             if len(tokens) >= 4:
                 _sensor(tokens[2], path, where)
-                sensors.add((SENSOR_TYPES[tokens[2]], *_ints(tokens[3:4], path, where)))
+                sensors.add((records.SENSOR_TYPES[tokens[2]], *_ints(tokens[3:4], path, where)))
             k = 4
         for _ in range(max(n_sensors - 1, 0)):
             if len(tokens) < k + 3:
                 raise InputError(path, where, f"{n_sensors} sensors announced, the line ends before them")
             _sensor(tokens[k], path, where)
-            sensors.add((SENSOR_TYPES[tokens[k]], *_ints(tokens[k + 1:k + 2], path, where)))
+            sensors.add((records.SENSOR_TYPES[tokens[k]], *_ints(tokens[k + 1:k + 2], path, where)))
             has_pose = tokens[k + 2] == "1"
             if has_pose:
                 if len(tokens) < k + 10:
                     raise InputError(path, where, "the line ends inside a sensor pose")
-                check_pose(path, where, _floats(tokens[k + 3:k + 10], path, where))
+                records.check_pose(path, where, _floats(tokens[k + 3:k + 10], path, where))
             k += 10 if has_pose else 3
         expected = max(expected, k)
         if len(tokens) != expected:
@@ -101,23 +91,23 @@ def _rigs_txt(data, path, model: ModelRecords) -> None:
         model.one_camera_rigs &= n_sensors <= 1
 
 
-def _cameras_txt(data, path, model: ModelRecords) -> None:
-    names = {name: (model_id, n) for model_id, (name, n, _) in camera_models().items()}
+def _cameras_txt(data, path, model: records.ModelRecords) -> None:
+    names = {name: (model_id, n) for model_id, (name, n, _) in records.camera_models().items()}
     for number, tokens in _lines(data, path):
         where = f"line {number}"
         if len(tokens) < 4:
             raise InputError(path, where, f"expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS…, got {len(tokens)} values")
         if tokens[1] not in names:
-            names = {name: (model_id, n) for model_id, (name, n, _) in camera_models(tokens[1]).items()}
+            names = {name: (model_id, n) for model_id, (name, n, _) in records.camera_models(tokens[1]).items()}
         if tokens[1] not in names:
             raise InputError(path, where, f"unknown camera model {tokens[1][:40]!r}")
         camera_id, = _ints(tokens[:1], path, where)
         width, height = _ints(tokens[2:4], path, where, -(2 ** 63), 2 ** 63)
         params = _floats(tokens[4:], path, where)
-        check_camera(model, path, where, camera_id, names[tokens[1]][0], width, height, params)
+        records.check_camera(model, path, where, camera_id, names[tokens[1]][0], width, height, params)
 
 
-def _frames_txt(data, path, model: ModelRecords) -> None:
+def _frames_txt(data, path, model: records.ModelRecords) -> None:
     model.frames = path
     for number, tokens in _lines(data, path):
         where = f"line {number}"
@@ -126,7 +116,7 @@ def _frames_txt(data, path, model: ModelRecords) -> None:
                                           f"got {len(tokens)} values")
         _, rig_id = _ints(tokens[:2], path, where)
         pose = _floats(tokens[2:9], path, where)
-        check_pose(path, where, pose)
+        records.check_pose(path, where, pose)
         n_data, = _ints(tokens[9:10], path, where)
         if len(tokens) != 10 + 3 * n_data:
             raise InputError(path, where, f"{n_data} data ids need {10 + 3 * n_data} values, got {len(tokens)}")
@@ -135,13 +125,13 @@ def _frames_txt(data, path, model: ModelRecords) -> None:
             _sensor(tokens[10 + 3 * k], path, where)
             sensor_id, = _ints(tokens[11 + 3 * k:12 + 3 * k], path, where)
             data_id, = _ints(tokens[12 + 3 * k:13 + 3 * k], path, where, 0, 2 ** 64)
-            data_ids.append((SENSOR_TYPES[tokens[10 + 3 * k]], sensor_id, data_id))
+            data_ids.append((records.SENSOR_TYPES[tokens[10 + 3 * k]], sensor_id, data_id))
         if model.rig_ids and rig_id not in model.rig_ids:
             raise InputError(path, where, f"rig {rig_id} is not in rigs")
-        check_frame(model, path, where, rig_id, data_ids, pose)
+        records.check_frame(model, path, where, rig_id, data_ids, pose)
 
 
-def _images_txt(data, path, model: ModelRecords) -> None:
+def _images_txt(data, path, model: records.ModelRecords) -> None:
     lines = list(_lines_with_blanks(data, path))
     i = 0
     while i < len(lines):
@@ -156,7 +146,7 @@ def _images_txt(data, path, model: ModelRecords) -> None:
         image_id, = _ints(tokens[:1], path, where)
         pose = _floats(tokens[1:8], path, where)
         camera_id, = _ints(tokens[8:9], path, where)
-        check_image(model, path, where, image_id, pose, camera_id, tokens[9])
+        records.check_image(model, path, where, image_id, pose, camera_id, tokens[9])
         model.points2d[image_id] = 0
         if i + 1 < len(lines):                       # the POINTS2D line, possibly empty
             number, points = lines[i + 1]
@@ -184,7 +174,7 @@ def _lines_with_blanks(data: bytes, path: Path):
             number += 1
 
 
-def _points_txt(data, path, model: ModelRecords) -> None:
+def _points_txt(data, path, model: records.ModelRecords) -> None:
     for number, tokens in _lines(data, path):
         where = f"line {number}"
         if len(tokens) < 8 or (len(tokens) - 8) % 2:
@@ -192,12 +182,12 @@ def _points_txt(data, path, model: ModelRecords) -> None:
                                           f"pairs, got {len(tokens)} values")
         _ints(tokens[:1], path, where, 0, 2 ** 63)
         xyz = _floats(tokens[1:4], path, where)
-        check_position(path, where, xyz)
+        records.check_position(path, where, xyz)
         model.points.append(xyz)
         _ints(tokens[4:7], path, where, 0, 256)
         _floats(tokens[7:8], path, where)
         track = _ints(tokens[8:], path, where)
-        check_track(model, path, where, np.array(track, dtype=np.int64).reshape(-1, 2))
+        records.check_track(model, path, where, np.array(track, dtype=np.int64).reshape(-1, 2))
 
 
 TEXT_CHECKS = {"rigs": _rigs_txt, "cameras": _cameras_txt, "frames": _frames_txt,
