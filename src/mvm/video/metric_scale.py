@@ -17,8 +17,8 @@ from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths, optimal_scale
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_write_json
+from mvm.io.layout import SCALE_FILE, SFM_DIR, SPARSE
 from mvm.io.outputs import atomic_replace_dir
-from mvm.video.sfm import SCALE_FILE, SFM_DIR
 
 log = logging.getLogger(__name__)
 
@@ -84,9 +84,9 @@ def scale_model(scene: str | Path, s: float) -> None:
     from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
-    rec = pycolmap.Reconstruction(str(find_model_dir(scene / "sparse")))
+    rec = pycolmap.Reconstruction(str(find_model_dir(scene / SPARSE)))
     rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
-    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / SPARSE, replace_unmarked=True)
 
 
 def apply_metric_scale(scene: str | Path, persons, metric_scale: bool) -> ScaleRecord:

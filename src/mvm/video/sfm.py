@@ -20,16 +20,13 @@ from mvm.io.checks import load_json_object
 from mvm.io.colmap import OPENCV_LENSES
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
+from mvm.io.layout import FRAMES, FRAMES_INDEX, SCALE_FILE, SFM_DIR, SFM_REPORT, SPARSE
 from mvm.io.outputs import atomic_replace_dir
 from mvm.io.provenance import produce, read_record
-from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
+from mvm.video.frames import list_frames
 
 log = logging.getLogger(__name__)
 
-SFM_DIR = "sfm"
-SFM_REPORT = "report.json"
-#: The model's scale relative to SfM's units (written by the metric scaling of the reconstruction).
-SCALE_FILE = "scale.json"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 SFM_STAGE = "the camera estimation"
 #: COLMAP's camera models that the scene's reader takes (the pinholes and those with a lens of
@@ -195,7 +192,7 @@ def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions,
 def sfm_inputs(scene: str | Path) -> dict[str, Path]:
     """What the cameras are estimated from (:mod:`mvm.io.provenance`): the frames and their index."""
     scene = Path(scene)
-    return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR}
+    return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES: scene / FRAMES}
 
 
 def sfm_settings(options: SfmOptions) -> dict:
@@ -218,7 +215,7 @@ def camera_inputs(scene: str | Path, cameras: str | Path | None = None,
         return {"cameras": Path(cameras), FRAMES_INDEX: scene / FRAMES_INDEX}, {"source": "trajectory"}
     from mvm.io.colmap import find_model_dir
 
-    if Path(cameras).resolve() == (scene / "sparse").resolve():
+    if Path(cameras).resolve() == (scene / SPARSE).resolve():
         return {}, {"source": "colmap"}
     inputs = {"cameras": find_model_dir(Path(cameras))}
     if (scene / FRAMES_INDEX).is_file():
@@ -230,7 +227,7 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
     """Refuse to replace ``scene/sparse`` without ``force`` when mvm did not make it (a model
     imported by hand, a simulated scene's cameras), or when it holds imported cameras and
     ``settings`` ask for SfM's."""
-    sparse = scene / "sparse"
+    sparse = scene / SPARSE
     if force or not sparse.is_dir() or not any(sparse.iterdir()):
         return
     if not (scene / SFM_DIR / SFM_REPORT).is_file():
@@ -246,13 +243,13 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
 def _replace_model(scene: Path, write) -> None:
     """Put the model ``write(folder)`` makes in place of ``scene/sparse`` (the report's record
     already removed); its scale is SfM's again."""
-    atomic_replace_dir(write, scene / "sparse", replace_unmarked=True)
+    atomic_replace_dir(write, scene / SPARSE, replace_unmarked=True)
     (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
 
 
 def _model_made(scene: Path) -> bool:
     """Whether the cameras are there: the model and its report."""
-    return (scene / SFM_DIR / SFM_REPORT).is_file() and (scene / "sparse").is_dir()
+    return (scene / SFM_DIR / SFM_REPORT).is_file() and (scene / SPARSE).is_dir()
 
 
 #: The stages of :func:`run_sfm` as its ``progress`` names them.
@@ -293,7 +290,7 @@ def _estimate(scene: Path, options: SfmOptions, why: str, progress) -> SfmReport
 
     log.info("%s: estimating the cameras: %s", scene, why)
     names = list_frames(scene)
-    frames_dir = scene / FRAMES_DIR
+    frames_dir = scene / FRAMES
     check_frames(frames_dir, names, root=scene)
     if len(names) < 2:
         raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
@@ -370,7 +367,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
-    in_place = Path(model).resolve() == (scene / "sparse").resolve()
+    in_place = Path(model).resolve() == (scene / SPARSE).resolve()
     inputs, settings = camera_inputs(scene, model)
     if not in_place:
         _check_replaceable(scene, settings, force)
