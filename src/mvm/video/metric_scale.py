@@ -17,7 +17,7 @@ from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths, optimal_scale
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_write_json
-from mvm.io.layout import SCALE_FILE, SFM_DIR, SPARSE
+from mvm.io.layout import SPARSE, SceneLayout
 from mvm.io.outputs import atomic_replace_dir
 
 log = logging.getLogger(__name__)
@@ -66,7 +66,7 @@ class ScaleRecord:
 
 def _read_scale(scene: Path) -> float:
     """Metres per unit of ``sparse/`` relative to SfM's units so far (1 when never scaled)."""
-    path = scene / SFM_DIR / SCALE_FILE
+    path = SceneLayout(scene).scale_file
     if not path.is_file():
         return 1.0
     try:
@@ -105,5 +105,5 @@ def apply_metric_scale(scene: str | Path, persons, metric_scale: bool) -> ScaleR
         return ScaleRecord("people", s, before * s, False, bones)
     scale_model(scene, s)
     persons.keypoints3d = persons.keypoints3d * s
-    atomic_write_json(scene / SFM_DIR / SCALE_FILE, {"source": "people", "sfm_units_per_model_unit": before * s})
+    atomic_write_json(SceneLayout(scene).scale_file, {"source": "people", "sfm_units_per_model_unit": before * s})
     return ScaleRecord("people", 1.0, before * s, True, bones)

@@ -20,7 +20,7 @@ from mvm.io.checks import load_json_object
 from mvm.io.colmap import OPENCV_LENSES
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
-from mvm.io.layout import FRAMES, FRAMES_INDEX, SCALE_FILE, SFM_DIR, SFM_REPORT, SPARSE
+from mvm.io.layout import FRAMES, FRAMES_INDEX, SFM_DIR, SPARSE, SceneLayout
 from mvm.io.outputs import atomic_replace_dir
 from mvm.io.provenance import produce, read_record
 from mvm.video.frames import list_frames
@@ -230,10 +230,10 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
     sparse = scene / SPARSE
     if force or not sparse.is_dir() or not any(sparse.iterdir()):
         return
-    if not (scene / SFM_DIR / SFM_REPORT).is_file():
+    if not SceneLayout(scene).sfm_report.is_file():
         raise InputError(sparse, None, "a camera model mvm did not make: give --force to replace it, or "
                                        f"--cameras {sparse} to use it")
-    before = (read_record(scene / SFM_DIR / SFM_REPORT) or {}).get("settings", {})
+    before = (read_record(SceneLayout(scene).sfm_report) or {}).get("settings", {})
     if before.get("source") in ("colmap", "trajectory") and settings.get("source") == "sfm":
         origin = read_sfm_report(scene).source.split(":", 1)[-1]
         raise InputError(sparse, None, f"cameras imported from {origin}: give --force to replace them with SfM's, "
@@ -244,12 +244,12 @@ def _replace_model(scene: Path, write) -> None:
     """Put the model ``write(folder)`` makes in place of ``scene/sparse`` (the report's record
     already removed); its scale is SfM's again."""
     atomic_replace_dir(write, scene / SPARSE, replace_unmarked=True)
-    (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+    SceneLayout(scene).scale_file.unlink(missing_ok=True)
 
 
 def _model_made(scene: Path) -> bool:
     """Whether the cameras are there: the model and its report."""
-    return (scene / SFM_DIR / SFM_REPORT).is_file() and (scene / SPARSE).is_dir()
+    return SceneLayout(scene).sfm_report.is_file() and (scene / SPARSE).is_dir()
 
 
 #: The stages of :func:`run_sfm` as its ``progress`` names them.
@@ -274,7 +274,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     # COLMAP's own log follows this module's level: its INFO lines only with debug output
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
     scene = Path(scene)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     settings = sfm_settings(options)
     _check_replaceable(scene, settings, force)
     report, _ = produce(report_path, SFM_STAGE, sfm_inputs(scene), settings,
@@ -320,7 +320,7 @@ def _estimate(scene: Path, options: SfmOptions, why: str, progress) -> SfmReport
     _warn_unregistered(report, scene)
     document = report.to_json()
     document["options"] = asdict(options)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, document, pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, document, pretty=True)
     return report
 
 
@@ -346,7 +346,7 @@ def _warn_unregistered(report: SfmReport, scene: Path) -> None:
 
 
 def read_sfm_report(scene: str | Path) -> SfmReport:
-    path = Path(scene) / SFM_DIR / SFM_REPORT
+    path = SceneLayout(scene).sfm_report
     if not path.exists():
         raise InputError(path, None, "file not found (run `mvm sfm` first)")
     data = load_json_object(path, root=scene, what="an SfM report object")
@@ -371,7 +371,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     inputs, settings = camera_inputs(scene, model)
     if not in_place:
         _check_replaceable(scene, settings, force)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     report, _ = produce(report_path, SFM_STAGE, inputs, settings,
                         lambda why, hashed: _import_model(model_dir, scene, in_place, why),
                         lambda: read_sfm_report(scene), force=force, exists=_model_made(scene))
@@ -394,7 +394,7 @@ def _import_model(model_dir: Path, scene: Path, in_place: bool, why: str) -> Sfm
     report = _report(rec, names, f"colmap:{model_dir}")
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, report.to_json(), pretty=True)
     return report
 
 
@@ -415,7 +415,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     scene = Path(scene)
     inputs, settings = camera_inputs(scene, path)
     _check_replaceable(scene, settings, force)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     report, _ = produce(report_path, SFM_STAGE, inputs, settings,
                         lambda why, hashed: _trajectory_model(Path(path), scene, why), lambda: read_sfm_report(scene),
                         force=force, exists=_model_made(scene))
@@ -449,7 +449,7 @@ def _trajectory_model(path: Path, scene: Path, why: str) -> SfmReport:
                        float(np.mean(cameras.focal)), 0, cameras.centers)
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, report.to_json(), pretty=True)
     return report
 
 
