@@ -24,6 +24,7 @@ A rig directory (synchronized static cameras)::
 
     RIG_DIR/
       Calib.toml | calibration/*.toml | sparse/ (COLMAP)   the cameras (or --calib PATH)
+      calibration/intrinsics/, calibration/extrinsics/     videos or photos of a board (mvm rig calibrate)
       sync.toml                                           frame offsets (optional, mvm.io.sync_toml)
       sync.inputs.json, <calibration>.inputs.json         records of mvm's outputs (mvm.io.provenance), not cameras
       videos/<camera>.<ext>                               the cameras' videos (optional: mvm rig detect, overlays)
@@ -35,7 +36,7 @@ A rig directory (synchronized static cameras)::
       ../RIG_DIR.groundtruth.json, .groundtruth.toml   a simulated rig's truth and true calibration
       mvm/ (or -o)         the output set of mvm rig reconstruct, replaced whole (mvm.rig.output_set)
         poses3d.jsonl      the persons of every instant
-        tracks/*.trc       one track per person
+        tracks/track_<id>.trc   one track per person
         recap.json         the run's recap
         report.html, overlay/   the page and the overlays (mvm report, mvm overlay)
 """
@@ -91,6 +92,10 @@ SUMMARY_PAGE = "summary.html"
 CALIB_TOML = "Calib.toml"
 #: A folder of a rig's calibration files.
 CALIBRATION_DIR = "calibration"
+#: Videos or photos of a board in ``calibration/`` (``mvm rig calibrate --checkerboard | --charuco``):
+#: the intrinsics' and the extrinsics' (else ``calibration/<camera>.<ext>`` serve both).
+INTRINSICS_DIR = "intrinsics"
+EXTRINSICS_DIR = "extrinsics"
 #: A rig's frame offsets (:mod:`mvm.io.sync_toml`).
 SYNC = "sync.toml"
 #: TOML files at a rig's top that are no calibration: settings files and :data:`SYNC`.
@@ -102,6 +107,8 @@ VIDEOS = "videos"
 #: A rig's output set: the persons of every instant, one ``.trc`` track per person, the recap.
 RIG_POSES3D = "poses3d.jsonl"
 TRACKS_DIR = "tracks"
+#: The ``.trc`` file of a track in ``tracks/``: ``TRACK_FILE.format(track=7)``.
+TRACK_FILE = "track_{track}.trc"
 RECAP = "recap.json"
 
 

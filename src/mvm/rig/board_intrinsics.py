@@ -26,7 +26,7 @@ import numpy as np
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
-from mvm.io.layout import CALIBRATION_DIR
+from mvm.io.layout import CALIBRATION_DIR, INTRINSICS_DIR
 from mvm.io.outputs import check_output_location
 from mvm.rig.board_calibration import Intrinsics
 from mvm.rig.board_videos import (
@@ -57,7 +57,7 @@ def intrinsic_sources(rig_dir: Path) -> dict[str, Path]:
     """``{camera: source}`` of ``rig_dir/calibration/intrinsics``, else of ``rig_dir/calibration``
     (module docstring); none raises :class:`InputError`."""
     root = rig_dir / CALIBRATION_DIR
-    sources = calibration_sources(root / "intrinsics") or calibration_sources(root)
+    sources = calibration_sources(root / INTRINSICS_DIR) or calibration_sources(root)
     if not sources:
         raise InputError(root, None, "no calibration videos or photos: expected calibration/intrinsics/<camera>.<ext> "
                                      "or calibration/intrinsics/<camera>/ with images (Pose2Sim: int_<camera>_img/), "

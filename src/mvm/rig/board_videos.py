@@ -37,7 +37,7 @@ from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.images import frame_count_bound, read_image, step_frames
-from mvm.io.layout import CALIBRATION_DIR
+from mvm.io.layout import CALIBRATION_DIR, EXTRINSICS_DIR, INTRINSICS_DIR
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
@@ -119,12 +119,12 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
 def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
     """The intrinsics and extrinsics sources of ``rig_dir`` (module docstring)."""
     root = rig_dir / CALIBRATION_DIR
-    extrinsics = calibration_sources(root / "extrinsics") or calibration_sources(root)
+    extrinsics = calibration_sources(root / EXTRINSICS_DIR) or calibration_sources(root)
     if not extrinsics:
         raise InputError(root, None, "no calibration videos: expected calibration/extrinsics/<camera>.<ext> "
                                      "(and optionally calibration/intrinsics/<camera>.<ext>), or "
                                      "calibration/<camera>.<ext>")
-    return calibration_sources(root / "intrinsics"), extrinsics
+    return calibration_sources(root / INTRINSICS_DIR), extrinsics
 
 
 def frame_count(source: Path) -> int:

@@ -26,7 +26,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
-from mvm.io.layout import RECAP, RIG_POSES3D, TRACKS_DIR
+from mvm.io.layout import RECAP, RIG_POSES3D, TRACK_FILE, TRACKS_DIR
 from mvm.io.provenance import fingerprints, write_record
 from mvm.io.rig_poses3d import RIG_POSES3D_FORMAT
 from mvm.io.trc import to_opensim, write_trc
@@ -158,7 +158,7 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
         times, series = track_series(X, instant, track, k)
         if complete:
             series = interpolate_series(series, options.max_interpolation_gap)[0]
-        path = directory / f"track_{int(k)}.trc"
+        path = directory / TRACK_FILE.format(track=int(k))
         write_trc(path, to_opensim(series, options.up, options.metres_per_unit), COCO_KEYPOINTS,
                   options.rate, frames=frames[times], comment=comment)
         paths.append(path)
