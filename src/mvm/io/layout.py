@@ -112,6 +112,11 @@ TRACK_FILE = "track_{track}.trc"
 RECAP = "recap.json"
 
 
+def _beside(folder: Path, suffix: str) -> Path:
+    """The file ``<folder><suffix>`` beside ``folder``."""
+    return folder.parent / (folder.name + suffix)
+
+
 @dataclass(frozen=True)
 class SceneLayout:
     """The paths of a scene directory ``root`` whose output folder is named ``output``.
@@ -133,7 +138,7 @@ class SceneLayout:
     @property
     def truth(self) -> Path:
         """The ground truth of a simulated scene, beside the folder."""
-        return self.root.parent / (self.root.name + TRUTH_SUFFIX)
+        return _beside(self.root, TRUTH_SUFFIX)
 
     @property
     def poses2d(self) -> Path:
@@ -191,12 +196,12 @@ class RigLayout:
     @property
     def truth(self) -> Path:
         """The ground truth of a simulated rig, beside the folder."""
-        return self.root.parent / (self.root.name + TRUTH_SUFFIX)
+        return _beside(self.root, TRUTH_SUFFIX)
 
     @property
     def true_calibration(self) -> Path:
         """The true calibration of a simulated rig, beside the folder."""
-        return self.root.parent / (self.root.name + TRUE_CALIBRATION_SUFFIX)
+        return _beside(self.root, TRUE_CALIBRATION_SUFFIX)
 
     @property
     def calib_toml(self) -> Path:
