@@ -133,6 +133,11 @@ def view_inputs(job: ViewJob, videos: bool = False) -> dict:
             FRAMES_INDEX: scene.frames_index, f"../{scene.truth.name}": scene.truth}
 
 
+def input_paths(inputs: dict) -> list[Path]:
+    """The paths among ``inputs`` (:func:`view_inputs`), for the checks of an output's location."""
+    return [p for p in inputs.values() if isinstance(p, Path)]
+
+
 def check_record_name(out: Path, inputs: dict, title: str) -> None:
     """Refuse, in one line naming ``out``, an ``out`` that is, holds or lies inside one of
     ``inputs`` (:func:`mvm.io.outputs.check_output_location`), or whose record
@@ -143,7 +148,7 @@ def check_record_name(out: Path, inputs: dict, title: str) -> None:
     from mvm.io.outputs import check_output_location
     from mvm.io.provenance import read_record, record_path
 
-    paths = [p for p in inputs.values() if isinstance(p, Path)]
+    paths = input_paths(inputs)
     check_output_location(out, paths, replaced=False)
     record = record_path(out)
     other = read_record(out) if record.is_file() else None

@@ -13,6 +13,7 @@ from mvm.stages.view import (
     ViewJob,
     camera_videos,
     check_record_name,
+    input_paths,
     list_in_output_set,
     load_rig_view,
     not_reconstructed,
@@ -79,7 +80,7 @@ def _run(job: ViewJob, force: bool) -> Done:
     from mvm.io.provenance import produce
 
     out, inputs, folder = target(job), _inputs(job), _folder(job)
-    paths = [p for p in inputs.values() if isinstance(p, Path)]
+    paths = input_paths(inputs)
     if folder:                                  # replaced whole: never a folder holding what mvm did not write
         check_output_location(out, paths)
     check_record_name(_record(job), inputs, TITLE)

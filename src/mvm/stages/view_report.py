@@ -11,6 +11,7 @@ from mvm.stages.stage import Done, Stage, present
 from mvm.stages.view import (
     ViewJob,
     check_record_name,
+    input_paths,
     list_in_output_set,
     load_rig_view,
     not_reconstructed,
@@ -29,10 +30,6 @@ def _settings(job: ViewJob) -> dict:
     return {"calib": str(job.calib) if job.calib else None} if job.rig else {"frames": job.frames}
 
 
-def _paths(inputs: dict) -> list[Path]:
-    return [p for p in inputs.values() if isinstance(p, Path)]
-
-
 def _run(job: ViewJob, force: bool) -> Done:
     """``Done.result``: the page's path."""
     from mvm.io.provenance import produce
@@ -44,7 +41,7 @@ def _run(job: ViewJob, force: bool) -> Done:
         if job.rig:
             from mvm.report.rig_page import write_rig_report
 
-            path = write_rig_report(load_rig_view(job), _paths(inputs), job.out)
+            path = write_rig_report(load_rig_view(job), input_paths(inputs), job.out)
             list_in_output_set(job, path)
             return path
         from mvm.report import write_report
