@@ -1,9 +1,9 @@
 """What the ``report`` and ``overlay`` stages share: the reconstruction they draw (:class:`ViewJob`,
-a scene directory or a rig folder), what they read (:func:`view_inputs`; a rig's read here with
-the rig's readers and handed to the drawing as data: :func:`load_rig_view`, :func:`camera_videos`),
-and where their records may lie (:func:`check_record_name`). Their records lie beside the page, the video or
-the image folder; one written into a rig's output set is listed in the set's marker, so that the
-next ``mvm rig reconstruct`` replaces it with the set (:func:`list_in_output_set`)."""
+a scene directory or a rig folder), what they read (:func:`view_inputs`; a rig is read here, with
+the rig's readers, and handed to the drawing as data: :func:`load_rig_view`, :func:`camera_videos`),
+and where their records may lie (:func:`check_record_name`). Their records lie beside the page, the
+video or the image folder; one written into a rig's output set is listed in the set's marker, so
+that the next ``mvm rig reconstruct`` replaces it with the set (:func:`list_in_output_set`)."""
 from __future__ import annotations
 
 import os
