@@ -95,11 +95,12 @@ def child(mode: str, scene_dir: str) -> None:
 
         from mvm.core.reconstruct import reconstruct
         from mvm.eval.crowd import true_groups
-        from mvm.io.ground_truth import ground_truth_path, read_ground_truth
+        from mvm.io.ground_truth import read_ground_truth
+        from mvm.io.layout import SceneLayout
         from mvm.io.scene_dir import read_scene
 
         scene = read_scene(scene_dir)
-        truth = read_ground_truth(ground_truth_path(scene_dir))
+        truth = read_ground_truth(SceneLayout(scene_dir).truth)
         person = dict(zip(range(1, len(truth.person) + 1), truth.person))
         true_person = [person[int(i)] for i in scene.poses.ids]
         result = reconstruct(scene, Config(refine=False), groups=true_groups(np.asarray(true_person)))
@@ -107,9 +108,10 @@ def child(mode: str, scene_dir: str) -> None:
     spent = {"process_s": time.time() - float(os.environ["SCALING_START"]), "cpu_s": usage.ru_utime + usage.ru_stime,
              "peak_mib": peak_mib()}
     from mvm.eval.demo import evaluate
-    from mvm.io.ground_truth import ground_truth_path, read_ground_truth
+    from mvm.io.ground_truth import read_ground_truth
+    from mvm.io.layout import SceneLayout
 
-    report = evaluate(result, read_ground_truth(ground_truth_path(scene_dir)))
+    report = evaluate(result, read_ground_truth(SceneLayout(scene_dir).truth))
     print(json.dumps({k: report[k] for k in ("precision", "recall", "mpjpe_mm", "persons_found",
                                              "persons_estimated", "persons_true", "poses")}
                      | {k: float(v) for k, v in report["timings"].items()} | spent))

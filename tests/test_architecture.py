@@ -23,7 +23,7 @@ ALLOWED: dict[str, set[str]] = {
     "eval": {"core", "io", "metrics", "scenes", "sim", "rig", "errors"},
     "rig": {"core", "io", "metrics", "parallel", "errors"},
     "video": {"core", "io", "scenes", "metrics", "net", "errors"},
-    "report": {"core", "io", "metrics", "sim", "rig", "errors"},
+    "report": {"core", "io", "metrics", "sim", "errors"},
     "stages": {"core", "io", "scenes", "metrics", "net", "video", "rig", "report", "errors"},
     "batch": {"core", "io", "scenes", "metrics", "eval", "sim", "rig", "net", "video", "report", "stages",
               "parallel", "errors"},

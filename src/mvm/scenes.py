@@ -19,10 +19,10 @@ from pathlib import Path
 from mvm.core.config import Config
 from mvm.core.reconstruct import Result, check_affinity_memory, reconstruct_many, scene_config, validate_scene
 from mvm.io.files import atomic_write_json
+from mvm.io.layout import DEFAULT_OUTPUT, POSES2D, POSES3D, TIMINGS
 from mvm.io.provenance import fingerprints, produce
 from mvm.io.scene_dir import (
     RECONSTRUCT_STAGE,
-    TIMINGS,
     output_dir,
     poses3d_document,
     read_scene,
@@ -42,7 +42,7 @@ BATCH_SCENES = 32
 BATCH_POSES, BATCH_POINTS = 1000, 100_000
 
 
-def reconstruct_dir(path: str | Path, config: Config | None = None, output: str = "mvm",
+def reconstruct_dir(path: str | Path, config: Config | None = None, output: str = DEFAULT_OUTPUT,
                     prior=None) -> Result:
     """Read a scene directory, reconstruct it and write ``<path>/<output>/poses3d.json``.
 
@@ -56,7 +56,8 @@ def reconstruct_dir(path: str | Path, config: Config | None = None, output: str 
     return outcome
 
 
-def reconstruct_read(path: str | Path, config: Config, output: str = "mvm", prior=None) -> tuple[Result, object]:
+def reconstruct_read(path: str | Path, config: Config, output: str = DEFAULT_OUTPUT,
+                     prior=None) -> tuple[Result, object]:
     """Read the scene directory ``path`` and reconstruct it, writing nothing: ``(result, scene)``
     (``config`` already the scene driver's, :func:`~mvm.core.reconstruct.scene_config`). The
     scene stage of :mod:`mvm.stages` writes the result itself (:func:`result_document`)."""
@@ -83,11 +84,11 @@ def result_document(result: Result, scene, config: Config, extra: dict | None = 
 def write_result(out_dir: Path, document: dict, timings: dict) -> None:
     """Write ``out_dir/poses3d.json`` and the seconds its reconstruction took
     (``out_dir/timings.json``), each atomically; the caller holds the output's lock."""
-    write_poses3d(out_dir / "poses3d.json", document)
+    write_poses3d(out_dir / POSES3D, document)
     atomic_write_json(out_dir / TIMINGS, {k: round(v, 4) for k, v in timings.items()}, pretty=True)
 
 
-def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, output: str = "mvm",
+def reconstruct_dirs(paths: Iterable[str | Path], config: Config | None = None, output: str = DEFAULT_OUTPUT,
                      prior=None, workers: int | None = None) -> Iterator[tuple[str | Path, Result | Exception]]:
     """:func:`reconstruct_dir` of every scene of ``paths``, in order: yields ``(path, outcome)``,
     the outcome a :class:`Result` or the exception that scene raised (any ``Exception``: one
@@ -174,7 +175,7 @@ def _read(path: Path, config: Config, output: str, hashed: bool = True) -> tuple
         out_dir = output_dir(path, output)
         read_s = time.perf_counter() - t
         validate_scene(scene, str(path))
-        check_affinity_memory(scene, config, str(path / "poses2d.json"))
+        check_affinity_memory(scene, config, str(path / POSES2D))
         return path, scene, out_dir, read_s, hashed
     except Exception as e:                                # noqa: BLE001 - this scene's failure, reported in order
         return path, e, None, None, None
@@ -234,6 +235,6 @@ def _write(out_dir: Path, made: tuple, config: Config) -> None:
     a time (:func:`mvm.io.provenance.produce`'s lock), and the temporary files of a killed run
     are removed by the next one."""
     document, timings, scene, hashed = made
-    produce(out_dir / "poses3d.json", RECONSTRUCT_STAGE, reconstruction_inputs(scene),
+    produce(out_dir / POSES3D, RECONSTRUCT_STAGE, reconstruction_inputs(scene),
             reconstruct_settings(config, metric_scale=False), lambda why, _: write_result(out_dir, document, timings),
-            None, force=True, lock=out_dir / "poses3d.json", lock_timeout_s=config.lock_timeout_s, hashed=hashed)
+            None, force=True, lock=out_dir / POSES3D, lock_timeout_s=config.lock_timeout_s, hashed=hashed)

@@ -91,13 +91,14 @@ def test_a_subcommand_imports_only_its_own_module():
 def test_simulate_reaches_the_crowd_preset_and_real_lengths(tmp_path):
     """``mvm simulate --preset crowd`` makes the dense crowd (12 people by default); the
     options reach 30 people and 3,600 frames, and refuse more in one line."""
-    from mvm.io.ground_truth import ground_truth_path, read_ground_truth
+    from mvm.io.ground_truth import read_ground_truth
+    from mvm.io.layout import SceneLayout
 
     runner = CliRunner()
     scene = tmp_path / "crowd"
     result = runner.invoke(main, ["simulate", str(scene), "--preset", "crowd", "--frames", "20"])
     assert result.exit_code == 0, result.output
-    assert len(read_ground_truth(ground_truth_path(scene)).poses3d) == 12
+    assert len(read_ground_truth(SceneLayout(scene).truth).poses3d) == 12
     for option, value in (("--people", "31"), ("--frames", "3601")):
         refused = runner.invoke(main, ["simulate", str(tmp_path / "x"), option, value])
         assert refused.exit_code == 2 and option in refused.output
@@ -105,5 +106,5 @@ def test_simulate_reaches_the_crowd_preset_and_real_lengths(tmp_path):
         accepted = runner.invoke(main, ["simulate", str(tmp_path / f"y{i}"), "--preset", preset,
                                         "--people", people, "--frames", frames])
         assert accepted.exit_code == 0, accepted.output
-        truth = read_ground_truth(ground_truth_path(tmp_path / f"y{i}"))
+        truth = read_ground_truth(SceneLayout(tmp_path / f"y{i}").truth)
         assert len(truth.poses3d) == int(people)

@@ -539,9 +539,9 @@ def test_pages_written_into_the_set_by_name_go_with_it(rig, tmp_path):
 
 
 def test_keypoint_errors_do_not_depend_on_the_block(rig):
-    from mvm.report.rig_load import load_rig_result
+    from mvm.stages.view import ViewJob, load_rig_view
 
-    data = load_rig_result(rig[0], workers=1)
+    data = load_rig_view(ViewJob(rig[0]), workers=1)
     p = data.poses
     args = (p.X, p.flags, data.detection, data.detections.keypoints, data.calibration.cameras.P)
     np.testing.assert_array_equal(rig_analysis.keypoint_errors(*args, block=7), rig_analysis.keypoint_errors(*args))

@@ -22,10 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mvm.errors import InputError
+from mvm.io.layout import DETECTIONS, SCENE_INPUTS
 from mvm.io.paths import VIDEO_SUFFIXES
-
-#: Entries whose presence makes a directory a scene directory (not a sequence).
-SCENE_MARKERS = ("sparse", "poses2d.json", "frames", "frames.json")
 
 
 @dataclass(frozen=True)
@@ -42,7 +40,7 @@ class Clip:
 
 
 def is_scene_dir(path: Path) -> bool:
-    return path.is_dir() and any((path / marker).exists() for marker in SCENE_MARKERS)
+    return path.is_dir() and any((path / marker).exists() for marker in SCENE_INPUTS)
 
 
 def _is_video(path: Path) -> bool:
@@ -50,9 +48,10 @@ def _is_video(path: Path) -> bool:
 
 
 def _detections(scene: Path, video: Path | None) -> str | None:
-    candidates = [scene / "detections.json", scene / "detections"]
+    candidates = [scene / f"{DETECTIONS}.json", scene / DETECTIONS]
     if video is not None:
-        candidates += [video.with_name(f"{video.stem}.detections.json"), video.with_name(f"{video.stem}.detections")]
+        beside = f"{video.stem}.{DETECTIONS}"
+        candidates += [video.with_name(f"{beside}.json"), video.with_name(beside)]
     for candidate in candidates:
         if candidate.exists():
             return str(candidate)

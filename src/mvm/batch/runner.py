@@ -33,6 +33,7 @@ from mvm.batch.stages import (
     stage_reason,
 )
 from mvm.errors import InputError
+from mvm.io.layout import DEFAULT_OUTPUT, SUPERVISION_FILE, SceneLayout
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +234,7 @@ class _Driver:
                 self.on_progress(self.progress)
 
 
-def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm",
+def merge_training_set(root: str | Path, manifest: Manifest, output: str = DEFAULT_OUTPUT,
                        on_bad_clip: Callable[[str, InputError], None] | None = None) -> Path | None:
     """Merge every exported clip's supervision into ``ROOT/.mvm/training/annotations.json``.
     A clip whose supervision cannot be read or is inconsistent is left out and reported to
@@ -244,7 +245,7 @@ def merge_training_set(root: str | Path, manifest: Manifest, output: str = "mvm"
     done = {r["clip"] for r in manifest.stages() if r["stage"] == "export" and r["state"] in ("done", "skipped")}
     clip_of = {}
     for clip in manifest.clips():
-        path = Path(clip["scene"]) / output / "supervision" / "annotations.json"
+        path = SceneLayout(clip["scene"], output).supervision / SUPERVISION_FILE
         if clip["id"] in done and path.is_file():
             clip_of[path] = clip["id"]
     if not clip_of:

@@ -22,6 +22,7 @@ from threadpoolctl import threadpool_limits
 from mvm.batch.clips import Clip
 from mvm.errors import InputError
 from mvm.io.coco import read_coco_keypoints
+from mvm.io.layout import DEFAULT_OUTPUT, SceneLayout
 from mvm.io.scene_dir import load_poses3d_document, parse_poses3d
 from mvm.stages import SCENE_STAGES, Job, SceneOptions, scene_stage
 from mvm.stages import run_stage as run_scene_stage
@@ -94,7 +95,7 @@ def checksum(scene: str | Path, files: list[Path]) -> str:
     return h.hexdigest()
 
 
-def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
+def clip_stats(scene: str | Path, output: str = DEFAULT_OUTPUT) -> dict:
     """The clip's row of the data set statistics, from ``poses2d.json`` and ``poses3d.json``:
     frames, 2D poses, matched and unmatched 2D poses, 3D poses (persons), G_k (2D joints per
     triangulated joint), reconstructed joints, E_R.
@@ -103,12 +104,13 @@ def clip_stats(scene: str | Path, output: str = "mvm") -> dict:
     naming it (the clip's failure, never the batch's)."""
     scene = Path(scene)
     stats: dict = {}
-    poses2d = scene / "poses2d.json"
+    layout = SceneLayout(scene, output)
+    poses2d = layout.poses2d
     if poses2d.exists():
         coco = read_coco_keypoints(poses2d, root=scene)
         stats["frames"] = len(coco.file_names)
         stats["poses2d"] = len(coco.ann_ids)
-    poses3d = scene / output / "poses3d.json"
+    poses3d = layout.poses3d
     if poses3d.exists():
         document = load_poses3d_document(poses3d, root=scene)
         parse_poses3d(document, poses3d)

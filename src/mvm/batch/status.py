@@ -11,6 +11,7 @@ from mvm.batch.manifest import STATES, Manifest
 from mvm.batch.runner import TRAINING_SET
 from mvm.batch.stages import STAGES, checksum, job_of, output_files
 from mvm.errors import InputError
+from mvm.io.layout import DEFAULT_OUTPUT
 
 
 def dataset_statistics(rows: list[tuple[str, dict]]) -> dict:
@@ -130,7 +131,7 @@ def _views(clip: Clip, output: str) -> list[tuple[str, str, str | None]]:
     return rows
 
 
-def batch_status(root: str | Path, verify: bool = False, output: str = "mvm") -> Status:
+def batch_status(root: str | Path, verify: bool = False, output: str = DEFAULT_OUTPUT) -> Status:
     """The state of ``root``'s manifest (:class:`Status`). Every done stage's inputs are hashed
     and compared with its outputs' record (``stale``: what ``mvm batch`` would redo). With
     ``verify``, the files of every committed stage are hashed again and compared with the

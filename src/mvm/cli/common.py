@@ -19,6 +19,7 @@ from mvm.cli.setting_options import DETECT, setting_option
 from mvm.core.config import Bounds
 from mvm.errors import InputError
 from mvm.io import paths
+from mvm.io.layout import DEFAULT_OUTPUT
 
 
 def refuse(error: Exception) -> None:
@@ -397,7 +398,7 @@ class OutputPath(click.ParamType):
 
 def output_name_option(f):
     """``--output-name NAME``: the scene's output folder (``-o`` is a command's output path)."""
-    return click.option("--output-name", "output", default="mvm", show_default=True, metavar="NAME",
+    return click.option("--output-name", "output", default=DEFAULT_OUTPUT, show_default=True, metavar="NAME",
                         help="The scene's output folder holding poses3d.json.")(f)
 
 

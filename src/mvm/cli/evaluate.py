@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from mvm.cli.common import Group
+from mvm.io.layout import DEFAULT_OUTPUT
 
 
 def _write(out: Path | None, result: dict) -> None:
@@ -120,7 +121,8 @@ def coco_cmd(annotations: Path, images: Path | None, checkpoint: Path | None, de
 @click.argument("scenes", nargs=-1, required=True, type=click.Path(file_okay=False, path_type=Path))
 @click.option("--tau", "taus", type=float, multiple=True,
               help="Confidence threshold (repeatable; default 0.5 and 0.9).")
-@click.option("--output-name", default="mvm", show_default=True, help="Directory of each scene holding poses3d.json.")
+@click.option("--output-name", default=DEFAULT_OUTPUT, show_default=True,
+              help="Directory of each scene holding poses3d.json.")
 @click.option("--label", default="detector of poses2d.json", show_default=True, help="First column of the table row.")
 @_out
 def cvar_cmd(scenes: tuple[Path, ...], taus: tuple[float, ...], output_name: str, label: str, out: Path | None) -> None:

@@ -14,6 +14,7 @@ from mvm.cli.common import FOCAL, Number, OutputPath, command, progress, refuse_
 from mvm.cli.common import parse_sets as _parse_sets
 from mvm.cli.failures import each_isolated, report_failures
 from mvm.errors import InputError
+from mvm.io.layout import DEFAULT_OUTPUT
 
 
 @command("export")
@@ -22,7 +23,7 @@ from mvm.errors import InputError
               help="Dataset directory to write (annotations.json, images/).")
 @click.option("--link", type=click.Choice(["symlink", "copy", "none"]), default="symlink", show_default=True,
               help="How the frames get into the dataset.")
-@click.option("--output-name", default="mvm", show_default=True,
+@click.option("--output-name", default=DEFAULT_OUTPUT, show_default=True,
               help="Directory of each scene holding poses3d.json.")
 @click.option("--min-keypoints", default=3, show_default=True, type=Number(int, ge=0, le=17),
               help="Persons with fewer labelled joints in a frame get no annotation there.")
@@ -36,11 +37,11 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
 
     OUT/annotations.inputs.json records what the dataset was made from: a rerun with the same
     scenes, reconstructions and options keeps it."""
+    from mvm.io.layout import SUPERVISION_FILE, SceneLayout
     from mvm.io.outputs import check_output_location
     from mvm.io.provenance import fingerprints, why_redo, write_record
     from mvm.io.scene_dir import check_reconstruction_fresh, read_poses3d, read_scene, scene_inputs
     from mvm.net.supervision import (
-        ANNOTATIONS_FILE,
         EXPORT_STAGE,
         export_inputs,
         export_settings,
@@ -56,17 +57,18 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
     except InputError:               # an unreadable input: its scene fails on its own below
         hashed = None
     why = ("forced" if force else "an input cannot be read" if hashed is None else
-           why_redo(out_dir / ANNOTATIONS_FILE, inputs, settings, EXPORT_STAGE, hashed=hashed))
+           why_redo(out_dir / SUPERVISION_FILE, inputs, settings, EXPORT_STAGE, hashed=hashed))
     if why is None:
         click.echo("export: kept (up to date)", err=True)
         return
 
     def read(scene_dir):
-        poses3d = scene_dir / output_name / "poses3d.json"
+        layout = SceneLayout(scene_dir, output_name)
+        poses3d = layout.poses3d
         if not poses3d.is_file():
             raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
         check_reconstruction_fresh(scene_dir, poses3d)
-        frames = scene_dir / "frames"
+        frames = layout.frames
         return read_scene(scene_dir), read_poses3d(poses3d, root=scene_dir), (frames if frames.is_dir() else None)
 
     prior = None
@@ -76,7 +78,7 @@ def export_cmd(scenes: tuple[Path, ...], out_dir: Path, link: str, output_name: 
         prior = shipped_prior()
     failed: list = []
     items = [item for _, item in each_isolated(scenes, read, failed)]
-    if failed and (out_dir / ANNOTATIONS_FILE).exists():    # a refused run never replaces the previous data set
+    if failed and (out_dir / SUPERVISION_FILE).exists():    # a refused run never replaces the previous data set
         click.echo(f"export: {out_dir} left as it was (a scene was refused; fix it and export again)", err=True)
         report_failures(failed, len(scenes))
 

@@ -12,12 +12,13 @@ from mvm.cli.common import (
     read_config,
 )
 from mvm.cli.failures import report_failures, run_outcomes
+from mvm.io.layout import DEFAULT_OUTPUT
 
 
 @command("reconstruct")
 @click.argument("scenes", nargs=-1, required=True, type=click.Path())
 @config_options
-@click.option("--output-name", "output", default="mvm", show_default=True, metavar="NAME",
+@click.option("--output-name", "output", default=DEFAULT_OUTPUT, show_default=True, metavar="NAME",
               help="Name of the output folder inside each scene directory.")
 @click.option("--workers", type=Number(int, ge=1), default=None,
               help="Processes to reconstruct the scenes with (default: $MVM_WORKERS, else one per core; "

@@ -20,6 +20,7 @@ from mvm.cli.common import (
     stage_progress,
 )
 from mvm.cli.setting_options import setting_option
+from mvm.io.layout import SceneLayout
 
 SIM = "mvm.sim.simulate:SimConfig"
 
@@ -100,7 +101,7 @@ def simulate_cmd(scene_dir, preset, people, frames, arc_deg, seed, trajectory, r
             from mvm.sim.mannequin_video import render_frames
 
             with stage_progress() as update:
-                render_frames(Path(scene_dir) / "frames", scene.cameras, truth.poses3d, sim.seed,
+                render_frames(SceneLayout(scene_dir).frames, scene.cameras, truth.poses3d, sim.seed,
                               progress=lambda done, total: update("rendering", done, total))
     labels = ", ".join(f"{truth.labels.count(k)} {k}" for k in dict.fromkeys(truth.labels)) or "–"
     measure_table(f"mvm simulate ({preset})", [

@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 
 from mvm.errors import InputError
+from mvm.io.layout import DEFAULT_OUTPUT, SceneLayout
 from mvm.io.scene_dir import read_poses3d, read_scene
 from mvm.metrics.network import c_var, keypoints_per_view
 
 
 def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 0.9),
-                  output_name: str = "mvm") -> dict:
+                  output_name: str = DEFAULT_OUTPUT) -> dict:
     """The paper's Table 5: C_var of the 2D poses of reconstructed scenes.
 
     For each scene, the 2D poses that the reconstruction grouped into each person
@@ -33,7 +34,7 @@ def evaluate_cvar(scene_dirs: list[str | Path], taus: tuple[float, ...] = (0.5, 
             raise InputError(None, "--tau", f"expected a confidence threshold in [0, 1], got {tau}")
     per_scene, missing = {}, {}
     for scene_dir in map(Path, scene_dirs):
-        poses3d = scene_dir / output_name / "poses3d.json"
+        poses3d = SceneLayout(scene_dir, output_name).poses3d
         if not poses3d.is_file():
             raise InputError(poses3d, None, "not found: reconstruct the scene first (mvm reconstruct)")
         scene = read_scene(scene_dir)

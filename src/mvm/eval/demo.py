@@ -8,6 +8,7 @@ import numpy as np
 
 from mvm.core.config import Config
 from mvm.io.ground_truth import write_simulation
+from mvm.io.layout import SceneLayout
 from mvm.metrics.poses import MATCH_DISTANCE_M, match_persons, matching_precision_recall, pose_errors
 from mvm.scenes import reconstruct_dir
 from mvm.sim.simulate import SimConfig, simulate
@@ -50,12 +51,12 @@ def run_demo(out_dir: Path, sim: SimConfig | None = None, config: Config | None 
     if render:
         from mvm.sim.mannequin_video import render_frames
 
-        render_frames(scene_dir / "frames", scene.cameras, truth.poses3d, sim.seed,
+        render_frames(SceneLayout(scene_dir).frames, scene.cameras, truth.poses3d, sim.seed,
                       progress=lambda done, total: tell("rendering", done, total))
     tell("reconstructing", 0, 1)
     result = reconstruct_dir(scene_dir, config or Config())
     tell("reconstructing", 1, 1)
     report = evaluate(result, truth)
-    report.update(scene=str(scene_dir), poses3d=str(scene_dir / "mvm" / "poses3d.json"),
+    report.update(scene=str(scene_dir), poses3d=str(SceneLayout(scene_dir).poses3d),
                   ground_truth=str(truth_path))
     return report

@@ -14,6 +14,7 @@ import numpy as np
 
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
+from mvm.io.layout import SceneLayout
 
 FORMAT = "mvm.groundtruth/1"
 
@@ -49,22 +50,16 @@ class GroundTruth:
                    tuple(data.get("labels", ())), None if merged is None else np.array(merged))
 
 
-def ground_truth_path(scene_dir: str | Path) -> Path:
-    """Where the ground truth of ``scene_dir`` lies: ``<scene_dir>.groundtruth.json`` beside it."""
-    scene_dir = Path(scene_dir)
-    return scene_dir.parent / f"{scene_dir.name}.groundtruth.json"
-
-
 def write_simulation(path: str | Path, scene, truth: GroundTruth, config=None) -> Path:
     """Write the scene directory ``path`` and the ground truth beside it
-    (:func:`ground_truth_path`), with the simulation's settings (a dataclass) when given.
+    (:attr:`mvm.io.layout.SceneLayout.truth`), with the simulation's settings (a dataclass) when given.
     Returns the truth's path."""
     from mvm.io.files import atomic_write_json
     from mvm.io.outputs import check_names, writing_into
     from mvm.io.scene_dir import write_scene
 
     path = Path(path)
-    truth_path = ground_truth_path(path)
+    truth_path = SceneLayout(path).truth
     check_names(truth_path.parent, [truth_path.name])     # a user's file of that name: refused before any write
     document = truth.to_json()
     if config is not None:

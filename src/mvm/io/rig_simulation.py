@@ -22,6 +22,7 @@ import numpy as np
 from mvm.io.calib_toml import calib_toml_text, write_calib_toml
 from mvm.io.coco import coco_keypoints_document
 from mvm.io.files import atomic_write_json, atomic_write_text, check_file_target
+from mvm.io.layout import CALIB_TOML, POSE_DIR, VIDEOS, RigLayout
 from mvm.io.outputs import atomic_replace_dir
 
 TRUTH_FORMAT = "mvm.rig.groundtruth/1"
@@ -59,9 +60,9 @@ def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False,
 
     def build(folder: Path) -> None:
         text = calib_toml_text(sim.calibration)
-        atomic_write_text(folder / "Calib.toml", intrinsics_only_text(text) if intrinsics_only else text)
+        atomic_write_text(folder / CALIB_TOML, intrinsics_only_text(text) if intrinsics_only else text)
         if render is not None:
-            render(folder / "videos")
+            render(folder / VIDEOS)
             return
         for v, name in enumerate(cams.names):
             rows = sim.camera == v
@@ -69,14 +70,14 @@ def write_rig_simulation(out: str | Path, sim, intrinsics_only: bool = False,
             document = coco_keypoints_document([f"{name}/{f:06d}.jpg" for f in frames],
                                                [cams.size[v]] * len(frames), ann_image, sim.keypoints[rows],
                                                sim.score[rows])
-            atomic_write_json(folder / "pose" / f"{name}.json", document)
+            atomic_write_json(folder / POSE_DIR / f"{name}.json", document)
 
-    truth = out.with_name(out.name + ".groundtruth.json")
-    true_calibration = out.with_name(out.name + ".groundtruth.toml")
+    layout = RigLayout(out)
+    truth, true_calibration = layout.truth, layout.true_calibration
     for path in (truth, true_calibration):           # a device, FIFO or link there: refused before any write
         check_file_target(path)
     atomic_replace_dir(build, out)
     atomic_write_json(truth, truth_document(sim))
     write_calib_toml(true_calibration, sim.calibration)
-    paths = {"rig": out, "calibration": out / "Calib.toml", "truth": truth, "true_calibration": true_calibration}
-    return {**paths, "videos": out / "videos"} if render is not None else paths
+    paths = {"rig": out, "calibration": layout.calib_toml, "truth": truth, "true_calibration": true_calibration}
+    return {**paths, "videos": layout.videos} if render is not None else paths

@@ -29,12 +29,6 @@ class RigTruth:
     poses3d: np.ndarray
 
 
-def rig_truth_path(rig_dir: str | Path) -> Path:
-    """Where a simulation writes the truth of ``rig_dir``: ``<rig_dir>.groundtruth.json`` beside it."""
-    rig_dir = Path(rig_dir)
-    return rig_dir.with_name(rig_dir.name + ".groundtruth.json")
-
-
 def read_rig_truth(path: str | Path) -> RigTruth:
     """Read and check ``RIG_DIR.groundtruth.json``; any problem is one :class:`InputError` line."""
     path = Path(path)

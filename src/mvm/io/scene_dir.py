@@ -1,4 +1,5 @@
-"""The scene directory (docs/architecture.md): ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out."""
+"""The scene directory: ``sparse/`` + ``poses2d.json`` in, ``mvm/poses3d.json`` out (its layout:
+:mod:`mvm.io.layout`)."""
 from __future__ import annotations
 
 import logging
@@ -17,14 +18,12 @@ from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, numbe
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, write_colmap
 from mvm.io.files import OutputError, atomic_write_json, json_number
+from mvm.io.layout import DEFAULT_OUTPUT, FRAMES, POSES2D, POSES3D, SPARSE
 from mvm.io.outputs import atomic_replace_dir, writing_into
 from mvm.io.paths import check_name, resolve_in
 
 log = logging.getLogger(__name__)
 
-POSES2D = "poses2d.json"
-FRAMES = "frames"
-SPARSE = "sparse"
 POSES3D_FORMAT = "mvm.poses3d/1"
 
 
@@ -79,7 +78,7 @@ def read_scene(path: str | Path) -> Scene:
     return Scene(path.name, model.cameras, poses, model.points3d)
 
 
-def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
+def scene_inputs(scene: str | Path, output: str = DEFAULT_OUTPUT) -> list[Path]:
     """What a command reading a reconstructed scene reads, for
     :func:`mvm.io.outputs.check_output_location`: every entry of the scene folder but the one
     holding its output folder (``frames/``, ``sparse/``, ``poses2d.json``, videos, ...), and the
@@ -87,14 +86,11 @@ def scene_inputs(scene: str | Path, output: str = "mvm") -> list[Path]:
     scene = Path(scene)
     out = scene / output
     entries = sorted(p for p in scene.iterdir() if not (p == out or p in out.parents)) if scene.is_dir() else []
-    return [*entries, out / "poses3d.json"]
+    return [*entries, out / POSES3D]
 
 
 #: The reconstruction's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RECONSTRUCT_STAGE = "the reconstruction"
-#: The seconds each step of a scene's reconstruction took, beside its ``poses3d.json`` (which
-#: holds nothing that depends on the run).
-TIMINGS = "timings.json"
 
 
 def reconstruct_settings(config, metric_scale: bool) -> dict:
@@ -122,7 +118,7 @@ def check_reconstruction_fresh(scene: str | Path, poses3d: str | Path) -> None:
                 f"mvm reconstruct {scene}` (or `mvm run` again, for a scene made from a video)")
 
 
-def output_dir(scene: str | Path, output: str = "mvm") -> Path:
+def output_dir(scene: str | Path, output: str = DEFAULT_OUTPUT) -> Path:
     """The folder ``scene/output`` that receives a scene's results, checked before any work:
     ``output`` is a relative name that stays in the scene, not one of its inputs (``frames/``,
     ``sparse/``, ``poses2d.json``), and an existing ``scene/output``

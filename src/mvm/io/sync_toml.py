@@ -25,7 +25,6 @@ from mvm.errors import InputError
 from mvm.io.checks import decode_text, parse_toml, read_bytes
 from mvm.io.files import atomic_write_text
 
-SYNC_FILE = "sync.toml"
 #: The largest ``sync.toml`` read (bytes): a few dozen bytes a camera. [bytes]
 MAX_SYNC_BYTES = 2 ** 20
 #: The largest offset read, either way (more than a year of video at 30 frames/s). [frames]

@@ -27,17 +27,17 @@ from mvm.io.checks import check_input_file, read_bytes
 from mvm.io.coco import annotation_record, empty_dataset
 from mvm.io.coco_dataset import read_coco_dataset
 from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
+from mvm.io.layout import DEFAULT_OUTPUT, FRAMES, POSES3D, SUPERVISION_FILE, SceneLayout
 from mvm.io.outputs import atomic_replace_dir, check_output_location
 
 LOG = logging.getLogger(__name__)
 
 LINK_MODES = ("symlink", "copy", "none")
-ANNOTATIONS_FILE = "annotations.json"
 #: The export's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 EXPORT_STAGE = "the export"
 
 
-def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames: bool = False,
+def export_inputs(scene_dirs: Iterable[str | Path], output: str = DEFAULT_OUTPUT, frames: bool = False,
                   located: bool = False) -> dict[str, object]:
     """What a dataset exported from ``scene_dirs`` is made from (:mod:`mvm.io.provenance`):
     each scene's ``<output>/poses3d.json`` and what it was reconstructed from (``poses2d.json``,
@@ -52,9 +52,10 @@ def export_inputs(scene_dirs: Iterable[str | Path], output: str = "mvm", frames:
     inputs: dict[str, object] = {}
     for scene in scene_dirs:
         prefix = "" if len(scene_dirs) == 1 else f"{scene.as_posix()}/"
-        these = {"poses3d.json": scene / output / "poses3d.json", **reconstruction_inputs(scene)}
+        layout = SceneLayout(scene, output)
+        these = {POSES3D: layout.poses3d, **reconstruction_inputs(scene)}
         if frames:
-            these["frames"] = scene / "frames"
+            these[FRAMES] = layout.frames
         inputs.update({prefix + name: path for name, path in these.items()})
     if located or len(scene_dirs) > 1:
         inputs["scenes"] = [(s.resolve() if located else s).as_posix() for s in scene_dirs]
@@ -136,10 +137,10 @@ def export_supervision(scenes_and_persons: Iterable, out_dir: str | Path, link: 
     def build(tmp: Path) -> None:
         _write_dataset(items, out_dir, tmp, link, min_keypoints, prior)
         if finish is not None:
-            finish(tmp / ANNOTATIONS_FILE)
+            finish(tmp / SUPERVISION_FILE)
 
     atomic_replace_dir(build, out_dir)
-    return out_dir / ANNOTATIONS_FILE
+    return out_dir / SUPERVISION_FILE
 
 
 def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoints: int, prior=None) -> None:
@@ -173,7 +174,7 @@ def _write_dataset(items: list, out_dir: Path, tmp: Path, link: str, min_keypoin
                 ann_id += 1
                 data["annotations"].append(ignore_record(ann_id, image_id, box))
         LOG.info("scene %s: %d frames, %d annotations", label, len(cams), n_ann)
-    atomic_write_json(tmp / ANNOTATIONS_FILE, data)
+    atomic_write_json(tmp / SUPERVISION_FILE, data)
 
 
 def _unique(name: str, seen: dict[str, int]) -> str:

@@ -13,8 +13,8 @@ from mvm.core.scene import Persons3D, Scene
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object
 from mvm.io.ground_truth import GroundTruth
+from mvm.io.layout import DEFAULT_OUTPUT, FRAMES, POSES3D, TIMINGS, SceneLayout
 from mvm.io.scene_dir import (
-    TIMINGS,
     check_reconstruction_fresh,
     load_poses3d_document,
     output_dir,
@@ -23,8 +23,6 @@ from mvm.io.scene_dir import (
 )
 
 log = logging.getLogger(__name__)
-
-FRAMES = "frames"
 
 
 @dataclass
@@ -56,11 +54,6 @@ class SceneResult:
     def frames_dir(self) -> Path | None:
         frames = self.path / FRAMES
         return frames if frames.is_dir() else None
-
-
-def truth_path(scene_dir: Path) -> Path:
-    """Where a simulation writes the ground truth of ``scene_dir``: beside it."""
-    return scene_dir.parent / f"{scene_dir.name}.groundtruth.json"
 
 
 def read_truth(path: Path, annotation_ids: np.ndarray) -> tuple[GroundTruth, np.ndarray]:
@@ -109,13 +102,13 @@ def _seconds(value) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
+def load_result(scene_dir: str | Path, output: str = DEFAULT_OUTPUT) -> SceneResult:
     """Read a reconstructed scene directory (and its ground truth when one lies beside it). A
     ``poses3d.json`` whose inputs changed since it was made is refused in one line naming the
     command to run (:func:`mvm.io.scene_dir.check_reconstruction_fresh`)."""
     path = Path(scene_dir)
     scene = read_scene(path)
-    poses3d = output_dir(path, output) / "poses3d.json"
+    poses3d = output_dir(path, output) / POSES3D
     if not (poses3d.exists() or poses3d.is_symlink()):
         raise InputError(poses3d, None, "missing: reconstruct the scene first (mvm reconstruct)")
     check_reconstruction_fresh(path, poses3d)
@@ -125,7 +118,7 @@ def load_result(scene_dir: str | Path, output: str = "mvm") -> SceneResult:
     timings = {k: t for k, t in ((k, _seconds(v)) for k, v in _timings(document, poses3d, path).items())
                if t is not None}
     truth = true_person = None
-    gt = truth_path(path)
+    gt = SceneLayout(path).truth
     if gt.is_file():
         truth, true_person = read_truth(gt, scene.poses.ids)
         log.info("%s: ground truth of %d persons", gt, len(truth.poses3d))

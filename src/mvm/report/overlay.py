@@ -17,6 +17,7 @@ from mvm.core.keypoints import COCO_SKELETON
 from mvm.errors import InputError
 from mvm.io.files import atomic_output, atomic_write_bytes
 from mvm.io.images import read_image
+from mvm.io.layout import DEFAULT_OUTPUT, OVERLAY
 from mvm.io.outputs import atomic_replace_dir, check_output_location
 from mvm.io.scene_dir import output_dir, scene_inputs
 from mvm.report.analysis import UNMATCHED_RGB, person_colors, pose_labels, reproject
@@ -169,7 +170,7 @@ class OverlaySummary:
     on_frames: bool
 
 
-def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output: str = "mvm",
+def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output: str = DEFAULT_OUTPUT,
                    step: int = 1, max_width: int | None = None, fps: float = 10.0,
                    image_format: str = ".jpg") -> OverlaySummary:
     """Draw the overlay of every ``step``-th view of a reconstructed scene.
@@ -185,7 +186,7 @@ def write_overlays(scene_dir: str | Path, out: str | Path | None = None, output:
         raise InputError(None, "--every", f"expected a positive step, got {step}")
     if image_format not in IMAGE_SUFFIXES:
         raise InputError(None, "image format", f"expected one of {IMAGE_SUFFIXES}, got {image_format!r}")
-    out = Path(out) if out is not None else output_dir(scene_dir, output) / "overlay"
+    out = Path(out) if out is not None else output_dir(scene_dir, output) / OVERLAY
     video = out.suffix.lower() == ".mp4"
     check_output_location(out, scene_inputs(scene_dir, output), replaced=not video)
     result = load_result(scene_dir, output)

@@ -19,6 +19,7 @@ import numpy as np
 from mvm import __version__
 from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
 from mvm.io.files import atomic_write_text
+from mvm.io.layout import DEFAULT_OUTPUT, REPORT_PAGE
 from mvm.io.outputs import check_output_location
 from mvm.io.scene_dir import output_dir, scene_inputs
 from mvm.report import analysis
@@ -27,7 +28,6 @@ from mvm.report.plots import bar_chart
 
 log = logging.getLogger(__name__)
 
-REPORT_NAME = "report.html"
 #: Defaults: frames in the strip, width of a strip image (px), SfM points and camera
 #: frustums drawn in the 3D view.
 STRIP_FRAMES = 8
@@ -294,12 +294,12 @@ matched to, unmatched poses in grey, reprojected 3D poses (thin, light) over the
 """
 
 
-def write_report(scene_dir: str | Path, output: str = "mvm", frames: int = STRIP_FRAMES,
+def write_report(scene_dir: str | Path, output: str = DEFAULT_OUTPUT, frames: int = STRIP_FRAMES,
                  frame_width: int = STRIP_WIDTH, max_points: int = MAX_POINTS, path: str | Path | None = None) -> Path:
     """Write the report of a reconstructed scene (default ``<scene_dir>/<output>/report.html``)
     and return its path; a ``path`` that is, holds or lies inside an input of the scene is
     refused before any work (:func:`mvm.io.outputs.check_output_location`)."""
-    path = Path(path) if path is not None else output_dir(scene_dir, output) / REPORT_NAME
+    path = Path(path) if path is not None else output_dir(scene_dir, output) / REPORT_PAGE
     check_output_location(path, scene_inputs(scene_dir, output), replaced=False)
     result = load_result(scene_dir, output)
     strip, on_frames = _strip(result, frames, frame_width)

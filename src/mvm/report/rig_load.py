@@ -1,6 +1,7 @@
 """Read what the report and the overlays of a rig need: the output set of ``mvm rig reconstruct``
-(``poses3d.jsonl``, ``recap.json``), the calibration it used, the 2D poses it matched (read as the
-reconstruction read them, ``sync.toml`` applied) and the cameras' videos. A set whose inputs
+(``poses3d.jsonl``, ``recap.json``) and the calibration it used; with the rig as the
+reconstruction read it (its 2D poses, ``sync.toml`` applied), handed in by the caller
+(:func:`mvm.stages.view.load_rig_view`), they make a :class:`RigReportData`. A set whose inputs
 changed since it was made is refused in one line naming the command to run.
 """
 from __future__ import annotations
@@ -16,36 +17,28 @@ from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration
 from mvm.io.checks import load_json_object
-from mvm.io.paths import videos_by_name
+from mvm.io.layout import DEFAULT_OUTPUT, POSES2D, SYNC, RigLayout
 from mvm.io.provenance import check_fresh, read_record
 from mvm.io.rig_poses3d import RigPoses3D, read_rig_poses3d
-from mvm.io.rig_truth import RigTruth, read_rig_truth, rig_truth_path
+from mvm.io.rig_truth import RigTruth, read_rig_truth
 from mvm.report.rig_analysis import member_detections
-from mvm.rig.output_set import DEFAULT_OUTPUT
-from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
-from mvm.rig.rigdir import find_calibration, match_cameras, read_rig
 
 log = logging.getLogger(__name__)
-
-POSES3D = "poses3d.jsonl"
-RECAP = "recap.json"
-#: Where a rig's videos are: ``RIG_DIR/videos/<camera>.<ext>``.
-VIDEOS = "videos"
 
 
 def is_rig_dir(path: str | Path, output: str = DEFAULT_OUTPUT) -> bool:
     """Whether ``path`` is a rig folder rather than a scene directory: it holds a rig's output
     set (``<output>/poses3d.jsonl`` or ``recap.json``), or it has no ``poses2d.json`` but a
     ``pose/`` folder, a ``calibration/`` folder or a ``*.toml`` calibration."""
-    path = Path(path)
-    if not path.is_dir():
+    layout = RigLayout(path, output)
+    if not layout.root.is_dir():
         return False
-    if (path / output / POSES3D).exists() or (path / output / RECAP).exists():
+    if layout.poses3d.exists() or layout.recap.exists():
         return True
-    if (path / "poses2d.json").exists():
+    if (layout.root / POSES2D).exists():
         return False
-    return (path / "pose").is_dir() or (path / "calibration").is_dir() \
-        or any(p.name.lower() != "sync.toml" for p in path.glob("*.toml"))
+    return layout.pose_dir.is_dir() or layout.calibration_dir.is_dir() \
+        or any(p.name.lower() != SYNC for p in layout.root.glob("*.toml"))
 
 
 @dataclass
@@ -85,19 +78,23 @@ def _setting(record: dict | None, key: str) -> str | None:
     return value if isinstance(value, str) and value else None
 
 
-def used_calibration(rig_dir: Path, poses3d: Path, calib: str | Path | None) -> tuple[Path, bool]:
-    """The calibration to read: ``calib``, else the one the reconstruction was given (its
-    record's ``calib`` setting), else the rig's own (:func:`mvm.rig.rigdir.find_calibration`);
-    and whether it was given (not the rig's own)."""
+def frames_setting(poses3d: Path) -> str | None:
+    """The frames (``START:STOP``) the rig reconstruction of ``poses3d`` read, from its record."""
+    return _setting(read_record(poses3d), "frames")
+
+
+def given_calibration(poses3d: Path, calib: str | Path | None) -> Path | None:
+    """The calibration given for a page or the overlays of ``poses3d``: ``calib``, else the one
+    the reconstruction was given (its record's ``calib`` setting); None: the rig's own."""
     if calib is not None:
-        return Path(calib), True
+        return Path(calib)
     given = _setting(read_record(poses3d), "calib")
     if given is not None:
         if not Path(given).exists():
             raise InputError(poses3d, None, f"made with the calibration {given}, which is not there: "
                                             "give it with --calib")
-        return Path(given), True
-    return find_calibration(rig_dir), False
+        return Path(given)
+    return None
 
 
 #: The containers of ``recap.json`` the page reads: field -> (type, what it must be).
@@ -116,7 +113,8 @@ def _checked_recap(path: Path) -> dict:
     return recap
 
 
-def _command(rig_dir: Path, calib: Path, given: bool, output: str) -> str:
+def rig_command(rig_dir: Path, calib: Path, given: bool, output: str) -> str:
+    """The command that makes the rig's output set again, for a refusal to name."""
     return (f"mvm rig reconstruct {rig_dir}" + (f" --calib {calib}" if given else "")
             + ("" if output == DEFAULT_OUTPUT else f" -o {rig_dir / output}"))
 
@@ -130,38 +128,37 @@ def _check_sync(recap: dict, offsets: dict | None, poses3d: Path, command: str) 
                                         f"run `{command}` first")
 
 
-def _reconstructed(rig_dir: Path, output: str) -> Path:
+def reconstructed(rig_dir: str | Path, output: str) -> Path:
     """The rig's ``poses3d.jsonl`` in its output set ``output``; refused when there is none."""
-    poses3d = rig_dir / output / POSES3D
+    poses3d = RigLayout(rig_dir, output).poses3d
     if not (poses3d.exists() or poses3d.is_symlink()):
         raise InputError(poses3d, None, f"missing: reconstruct the rig first (mvm rig reconstruct {rig_dir})")
     return poses3d
 
 
-def report_calibration(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: str | Path | None = None) -> Path:
-    """The calibration a page or the overlays of the reconstructed rig read
-    (:func:`used_calibration`), for checking their output's location before any work; a rig
-    not reconstructed is refused first."""
-    return used_calibration(Path(rig_dir), _reconstructed(Path(rig_dir), output), calib)[0]
+def checked_set(rig_dir: str | Path, output: str, inputs: dict[str, Path], command: str) -> dict:
+    """The recap of the rig's output set ``output``, refused in one line naming ``command``
+    when the set's inputs (``inputs``: by name, :mod:`mvm.io.provenance`) changed since it was
+    made, or when ``recap.json`` is not of the shape the page reads."""
+    layout = RigLayout(rig_dir, output)
+    check_fresh(reconstructed(rig_dir, output), inputs, command)
+    return _checked_recap(layout.recap)
 
 
-def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: str | Path | None = None,
-                    workers: int | None = None) -> RigReportData:
-    """Read a reconstructed rig folder (see the module)."""
+def rig_report_data(rig_dir: str | Path, output: str, rig, calib: Path, recap: dict, command: str) -> RigReportData:
+    """The report's data of the rig's output set ``output`` (its recap checked:
+    :func:`checked_set`) and ``rig``, the rig as the reconstruction read it
+    (:class:`~mvm.rig.rigdir.RigData`: calibration, frames, 2D poses, offsets) from the
+    calibration ``calib``. A set made from other poses or offsets is refused naming ``command``."""
     rig_dir = Path(rig_dir)
-    out_dir = rig_dir / output
-    poses3d = _reconstructed(rig_dir, output)
-    calib_path, given = used_calibration(rig_dir, poses3d, calib)
-    command = _command(rig_dir, calib_path, given, output)
-    check_fresh(poses3d, rig_fingerprint_inputs(rig_dir, calib_path), command)
-    recap = _checked_recap(out_dir / RECAP)
-    rig = read_rig(rig_dir, calib_path, _setting(read_record(poses3d), "frames"), workers)
+    layout = RigLayout(rig_dir, output)
+    poses3d = layout.poses3d
     _check_sync(recap, rig.offsets, poses3d, command)
     poses = read_rig_poses3d(poses3d)
     names = list(rig.calibration.cameras.names)
     unknown = [c for c in poses.cameras if c not in names]
     if unknown:
-        raise InputError(poses3d, "members", f"camera {unknown[0]} is not a camera of {calib_path} with poses: "
+        raise InputError(poses3d, "members", f"camera {unknown[0]} is not a camera of {calib} with poses: "
                                              f"out of date? run `{command}`")
     members = np.full((len(poses), len(names)), -1, dtype=np.int64)
     for v, c in enumerate(poses.cameras):
@@ -178,13 +175,13 @@ def load_rig_result(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, calib: st
         raise InputError(poses3d, "members", f"{lost} members name 2D poses the pose files do not hold: "
                                              f"out of date? run `{command}`")
     log.info("%s: %d instants, %d persons, %d cameras", poses3d, len(poses.frames), len(poses), len(names))
-    truth_file = rig_truth_path(rig_dir)
+    truth_file = layout.truth
     truth = read_rig_truth(truth_file) if truth_file.is_file() else None
     if truth is not None and set(names) - set(truth.cameras):
         log.warning("%s: not the truth of this rig (no camera %s); not compared", truth_file,
                     sorted(set(names) - set(truth.cameras))[0])
         truth = None
-    return RigReportData(rig_dir, out_dir, poses, rig.calibration, calib_path, detections, detection, recap,
+    return RigReportData(rig_dir, layout.out_dir, poses, rig.calibration, calib, detections, detection, recap,
                          rig.offsets, truth)
 
 
@@ -192,15 +189,3 @@ def in_output_set(path: Path, out_dir: Path) -> bool:
     """Whether ``path`` is an entry at the top of the rig's output set ``out_dir`` (then it is
     listed in the set's marker, :func:`mvm.io.outputs.add_to_output_set`)."""
     return Path(os.path.abspath(path)).parent == Path(os.path.abspath(out_dir))
-
-
-def rig_videos(rig_dir: str | Path, names: list[str]) -> dict[str, Path]:
-    """The video of each camera that has one: ``RIG_DIR/videos/<camera>.<ext>``, matched to the
-    camera names as pose folders are (:func:`mvm.rig.rigdir.match_cameras`)."""
-    folder = Path(rig_dir) / VIDEOS
-    files = list(videos_by_name(folder).values())
-    try:
-        matched = match_cameras(names, [p.stem for p in files])
-    except ValueError as e:
-        raise InputError(folder, None, str(e).replace("pose sources", "videos")) from None
-    return {names[c]: files[e] for c, e in sorted(matched.items())}

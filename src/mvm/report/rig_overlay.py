@@ -21,25 +21,13 @@ from mvm.core.completion import MISSING
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.errors import InputError
 from mvm.io.images import step_frames
+from mvm.io.layout import OVERLAY, VIDEOS
 from mvm.io.outputs import add_to_output_set, atomic_replace_dir, check_output_location
 from mvm.report.analysis import person_colors
 from mvm.report.overlay import draw_overlay, opencv, write_video
-from mvm.report.rig_load import (
-    POSES3D,
-    RECAP,
-    VIDEOS,
-    RigReportData,
-    in_output_set,
-    load_rig_result,
-    report_calibration,
-    rig_videos,
-)
-from mvm.rig.output_set import DEFAULT_OUTPUT
-from mvm.rig.reconstruct_rig import rig_inputs
+from mvm.report.rig_load import RigReportData, in_output_set
 
 log = logging.getLogger(__name__)
-
-OVERLAY_NAME = "overlay"
 
 
 @dataclass
@@ -142,28 +130,32 @@ def _frames(capture, drawer: CameraDrawer, step: int, max_width: int | None, cou
         capture.release()
 
 
-def write_rig_overlays(rig_dir: str | Path, out: str | Path | None = None, output: str = DEFAULT_OUTPUT,
-                       calib: str | Path | None = None, step: int = 1, max_width: int | None = None,
-                       workers: int | None = None) -> RigOverlaySummary:
-    """Write ``<out>/<camera>.mp4`` for every camera of a reconstructed rig that has a video
-    (``out`` defaults to ``RIG_DIR/<output>/overlay``, listed in the output set). Cameras without
-    a video are skipped and named in the summary; a video that does not decode is refused, before
-    anything is written. The folder is written whole (:func:`mvm.io.outputs.atomic_replace_dir`)."""
+def rig_overlay_target(out_dir: Path, out: str | Path | None, step: int) -> Path:
+    """The folder the overlays of the rig's output set ``out_dir`` go to: ``out``, default
+    ``out_dir/overlay``; refused before any work when it names a video or ``step`` is not positive."""
     if step < 1:
         raise InputError(None, "--every", f"expected a positive step, got {step}")
-    rig_dir = Path(rig_dir)
-    out_dir = rig_dir / output
-    target = Path(out) if out is not None else out_dir / OVERLAY_NAME
+    target = Path(out) if out is not None else out_dir / OVERLAY
     if target.suffix.lower() == ".mp4":
         raise InputError(None, "-o", f"{target} names a video, but a rig's overlays are one video per camera: "
                                      "give a folder")
-    check_output_location(target, rig_inputs(rig_dir, report_calibration(rig_dir, output, calib))
-                          + [out_dir / POSES3D, out_dir / RECAP, rig_dir / VIDEOS])
-    data = load_rig_result(rig_dir, output, calib, workers)
-    videos = rig_videos(rig_dir, data.names)
+    return target
+
+
+def write_rig_overlays(data: RigReportData, videos: dict[str, Path], inputs: list[Path], out: str | Path | None = None,
+                       step: int = 1, max_width: int | None = None) -> RigOverlaySummary:
+    """Write ``<out>/<camera>.mp4`` for every camera of a reconstructed rig, ``data``
+    (:func:`mvm.stages.view.load_rig_view`), that has a video in ``videos`` (camera -> video;
+    ``out`` defaults to ``RIG_DIR/<output>/overlay``, listed in the output set). Cameras without
+    a video are skipped and named in the summary; a video that does not decode is refused, and
+    an ``out`` that is, holds or lies inside one of ``inputs``, before anything is written. The
+    folder is written whole (:func:`mvm.io.outputs.atomic_replace_dir`)."""
+    out_dir = data.out_dir
+    target = rig_overlay_target(out_dir, out, step)
+    check_output_location(target, inputs)
     if not videos:
-        raise InputError(rig_dir / "videos", None, "no video of any camera: expected videos/<camera>.<ext> "
-                                                   f"for the cameras {', '.join(data.names)}")
+        raise InputError(data.rig_dir / VIDEOS, None, "no video of any camera: expected videos/<camera>.<ext> "
+                                                      f"for the cameras {', '.join(data.names)}")
     captures = {}
     try:
         for name, path in videos.items():

@@ -20,17 +20,15 @@ from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.core.joint_angles import JOINT_ANGLES
 from mvm.core.keypoints import COCO_KEYPOINTS, COCO_SKELETON
 from mvm.io.files import atomic_write_text
+from mvm.io.layout import REPORT_PAGE, RIG_POSES3D
 from mvm.io.outputs import add_to_output_set, check_output_location
 from mvm.report import analysis, rig_analysis
 from mvm.report.page import CSS, ERROR_HOOK, fmt_cell, nice_step, viewer_script
 from mvm.report.plots import flag_timeline, line_chart
-from mvm.report.rig_load import POSES3D, RECAP, RigReportData, in_output_set, load_rig_result, report_calibration
-from mvm.rig.output_set import DEFAULT_OUTPUT
-from mvm.rig.reconstruct_rig import rig_inputs
+from mvm.report.rig_load import RigReportData, in_output_set
 
 log = logging.getLogger(__name__)
 
-REPORT_NAME = "report.html"
 #: Time bins of the camera-error plot at most (longer captures are binned). [bins]
 MAX_ERROR_BINS = 600
 #: Tracks whose joint angles are plotted at most (the longest ones). [tracks]
@@ -310,7 +308,7 @@ def rig_report_html(data: RigReportData) -> str:
 <html lang="en"><head><meta charset="utf-8"><meta name="viewport" content="width=device-width,initial-scale=1">
 <title>mvm rig report: {title}</title><style>{CSS}.timelines svg{{display:block;margin:4px 0}}</style>
 <script>{ERROR_HOOK}</script></head>
-<body><header><h1>mvm rig report: {title}</h1><p>{escape(str(data.rig_dir))} · {escape(data.out_dir.name)}/{POSES3D}
+<body><header><h1>mvm rig report: {title}</h1><p>{escape(str(data.rig_dir))} · {escape(data.out_dir.name)}/{RIG_POSES3D}
 · {len(data.names)} cameras · mvm {escape(__version__)} · written {time.strftime("%Y-%m-%d %H:%M")}</p></header><main>
 {recap_section(data)}
 <section id="view3d"><h2>3D view</h2><div id="viewer"><div class="viewbox"><canvas id="mvm-view"></canvas>
@@ -331,18 +329,15 @@ reset; the slider picks the instant. Dots: observed joints filled, interpolated 
 """
 
 
-def write_rig_report(rig_dir: str | Path, output: str = DEFAULT_OUTPUT, path: str | Path | None = None,
-                     calib: str | Path | None = None, workers: int | None = None) -> Path:
-    """Write the report of a reconstructed rig (default ``RIG_DIR/<output>/report.html``, listed in
-    the output set, so that the next ``mvm rig reconstruct`` replaces it with the set) and return
-    its path. A ``path`` that is, holds or lies inside an input of the rig is refused before any
-    work (:func:`mvm.io.outputs.check_output_location`); so is a stale output set."""
-    rig_dir = Path(rig_dir)
-    out_dir = rig_dir / output
-    target = Path(path) if path is not None else out_dir / REPORT_NAME
-    inputs = rig_inputs(rig_dir, report_calibration(rig_dir, output, calib)) + [out_dir / POSES3D, out_dir / RECAP]
+def write_rig_report(data: RigReportData, inputs: list[Path], path: str | Path | None = None) -> Path:
+    """Write the report of a reconstructed rig, ``data`` (:func:`mvm.stages.view.load_rig_view`;
+    default ``RIG_DIR/<output>/report.html``, listed in the output set, so that the next
+    ``mvm rig reconstruct`` replaces it with the set) and return its path. A ``path`` that is,
+    holds or lies inside one of ``inputs`` (what the page is drawn from) is refused
+    (:func:`mvm.io.outputs.check_output_location`)."""
+    out_dir = data.out_dir
+    target = Path(path) if path is not None else out_dir / REPORT_PAGE
     check_output_location(target, inputs, replaced=False)
-    data = load_rig_result(rig_dir, output, calib, workers)
     html = rig_report_html(data)
     if in_output_set(target, out_dir):
         add_to_output_set(out_dir, target.name, lambda p: atomic_write_text(p, html))

@@ -12,11 +12,10 @@ from urllib.parse import quote
 from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import OutputError, atomic_write_text
-from mvm.report.page import REPORT_NAME
+from mvm.io.layout import DEFAULT_OUTPUT, REPORT_PAGE, SUMMARY_PAGE, SceneLayout
 
 log = logging.getLogger(__name__)
 
-SUMMARY_NAME = "summary.html"
 _TITLE = b"<title>mvm summary: "
 _COLUMNS = (("persons", "persons", 0), ("matched_poses", "matched", 0), ("unmatched_poses", "unmatched", 0),
             ("E_R_px", "E<sub>R</sub> px", 2), ("outliers", "outliers", 1), ("G_k", "|G<sub>k</sub>|", 1))
@@ -41,12 +40,12 @@ def _cell(value, digits: int) -> str:
     return f"{value:.{digits}f}" if digits else str(int(value))
 
 
-def summary_html(root: Path, scene_dirs: list[Path], output: str = "mvm") -> tuple[str, int]:
+def summary_html(root: Path, scene_dirs: list[Path], output: str = DEFAULT_OUTPUT) -> tuple[str, int]:
     """The summary page as a string (links relative to ``root``) and the number of reports linked."""
     rows, linked = [], 0
     for scene in scene_dirs:
-        report = scene / output / REPORT_NAME
-        metrics = _metrics(scene / output / "poses3d.json")
+        report = scene / output / REPORT_PAGE
+        metrics = _metrics(SceneLayout(scene, output).poses3d)
         name = escape(scene.name)
         if report.is_file():
             href = quote(Path(os.path.relpath(report, root)).as_posix())
@@ -82,12 +81,12 @@ def _check_replaceable(path: Path) -> None:
         raise OutputError(path, None, "is not a summary page mvm wrote: move it away, the summary page is written here")
 
 
-def write_summary(root: str | Path, scene_dirs, output: str = "mvm") -> Path:
+def write_summary(root: str | Path, scene_dirs, output: str = DEFAULT_OUTPUT) -> Path:
     """Write ``<root>/summary.html`` linking the report of every scene in ``scene_dirs`` that has
     one (scenes without a report are listed, unlinked). Returns the page's path."""
     root = Path(root)
     scenes = [Path(s) for s in scene_dirs]
-    path = root / SUMMARY_NAME
+    path = root / SUMMARY_PAGE
     _check_replaceable(path)
     html, linked = summary_html(root, scenes, output)
     atomic_write_text(path, html)

@@ -26,6 +26,7 @@ import numpy as np
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.io.layout import CALIBRATION_DIR, INTRINSICS_DIR
 from mvm.io.outputs import check_output_location
 from mvm.rig.board_calibration import Intrinsics
 from mvm.rig.board_videos import (
@@ -55,8 +56,8 @@ class BoardIntrinsics:
 def intrinsic_sources(rig_dir: Path) -> dict[str, Path]:
     """``{camera: source}`` of ``rig_dir/calibration/intrinsics``, else of ``rig_dir/calibration``
     (module docstring); none raises :class:`InputError`."""
-    root = rig_dir / "calibration"
-    sources = calibration_sources(root / "intrinsics") or calibration_sources(root)
+    root = rig_dir / CALIBRATION_DIR
+    sources = calibration_sources(root / INTRINSICS_DIR) or calibration_sources(root)
     if not sources:
         raise InputError(root, None, "no calibration videos or photos: expected calibration/intrinsics/<camera>.<ext> "
                                      "or calibration/intrinsics/<camera>/ with images (Pose2Sim: int_<camera>_img/), "
@@ -74,7 +75,7 @@ def calibrate_intrinsics_from_board(rig_dir: str | Path, out: str | Path, board:
     folder of photos too) is refused before any work (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
     sources = intrinsic_sources(rig_dir)
-    check_output_location(out, [rig_dir / "calibration", *sources.values()], replaced=False)   # linked ones too
+    check_output_location(out, [rig_dir / CALIBRATION_DIR, *sources.values()], replaced=False)   # linked ones too
     names = list(sources)
     counts = {n: frame_count(sources[n]) for n in names}
     scans = scan_all([(n, sources[n], scan_stride([counts[n]]), counts[n]) for n in names], board, workers, progress)

@@ -37,6 +37,7 @@ from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.images import frame_count_bound, read_image, step_frames
+from mvm.io.layout import CALIBRATION_DIR, EXTRINSICS_DIR, INTRINSICS_DIR
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import VIDEO_SUFFIXES
 from mvm.parallel import available_workers
@@ -117,13 +118,13 @@ def calibration_sources(folder: Path) -> dict[str, Path]:
 
 def rig_videos(rig_dir: Path) -> tuple[dict[str, Path], dict[str, Path]]:
     """The intrinsics and extrinsics sources of ``rig_dir`` (module docstring)."""
-    root = rig_dir / "calibration"
-    extrinsics = calibration_sources(root / "extrinsics") or calibration_sources(root)
+    root = rig_dir / CALIBRATION_DIR
+    extrinsics = calibration_sources(root / EXTRINSICS_DIR) or calibration_sources(root)
     if not extrinsics:
         raise InputError(root, None, "no calibration videos: expected calibration/extrinsics/<camera>.<ext> "
                                      "(and optionally calibration/intrinsics/<camera>.<ext>), or "
                                      "calibration/<camera>.<ext>")
-    return calibration_sources(root / "intrinsics"), extrinsics
+    return calibration_sources(root / INTRINSICS_DIR), extrinsics
 
 
 def frame_count(source: Path) -> int:
@@ -332,12 +333,12 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     holding or lying inside ``rig_dir/calibration`` or ``intrinsics`` is refused before any work
     (:func:`mvm.io.outputs.check_output_location`)."""
     rig_dir = Path(rig_dir)
-    check_output_location(out, [rig_dir / "calibration"] + ([intrinsics] if intrinsics else []), replaced=False)
+    check_output_location(out, [rig_dir / CALIBRATION_DIR] + ([intrinsics] if intrinsics else []), replaced=False)
     intrinsic_sources, ext_sources = rig_videos(rig_dir)
     check_output_location(out, [*intrinsic_sources.values(), *ext_sources.values()], replaced=False)  # linked in
     names = list(ext_sources)
     if len(names) < 2:
-        raise InputError(rig_dir / "calibration", None, f"one camera ({names[0]}): a rig needs at least two")
+        raise InputError(rig_dir / CALIBRATION_DIR, None, f"one camera ({names[0]}): a rig needs at least two")
     if board.symmetric:
         raise InputError("--board-size", f"{board.cols}x{board.rows}",
                          "a checkerboard with both counts even or both odd looks the same turned by 180°, so the "
@@ -381,7 +382,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
         rig = calibrate_extrinsics(corners, K, board.object_points, world, instant)
     except CalibrationError as e:
         name = names[e.camera] if e.camera is not None else None
-        raise InputError(ext_sources[name] if name else rig_dir / "calibration", None,
+        raise InputError(ext_sources[name] if name else rig_dir / CALIBRATION_DIR, None,
                          (f"camera {name}: " if name else "") + e.problem) from None
     metadata = {"adjusted": True, "error": round(float(np.mean(rig.rms_px)), 4),
                 "method": f"{board.kind} (mvm rig calibrate --{board.kind})", "units": "m",

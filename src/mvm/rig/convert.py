@@ -20,6 +20,7 @@ import numpy as np
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.calibrations import detect_format, read_foreign_calibration, source_files
+from mvm.io.layout import POSE_DIR, VIDEOS
 from mvm.io.outputs import check_output_location
 from mvm.io.paths import videos_by_name
 from mvm.rig.rigdir import match_cameras, pose_sources, subset_calibration
@@ -43,7 +44,7 @@ class RigConversion:
 def rig_camera_sources(rig_dir: Path) -> dict[str, dict[str, Path]]:
     """The rig's cameras by where they come from: ``{"videos": {name: video}, "pose":
     {name: source}}`` (empty groups left out)."""
-    groups = {"videos": videos_by_name(rig_dir / "videos"), "pose": pose_sources(rig_dir)}
+    groups = {VIDEOS: videos_by_name(rig_dir / VIDEOS), POSE_DIR: pose_sources(rig_dir)}
     return {k: v for k, v in groups.items() if v}
 
 

@@ -12,12 +12,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from mvm.io.layout import RigLayout
 from mvm.io.outputs import LOCK_WAIT_S, atomic_replace_dir, check_output_location, is_mvm_output
-from mvm.io.sync_toml import SYNC_FILE
 from mvm.rig.rigdir import find_calibration, pose_sources
-
-#: The output folder of a rig when none is given: ``RIG_DIR/mvm``.
-DEFAULT_OUTPUT = "mvm"
 
 
 def rig_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> list[Path]:
@@ -29,11 +26,12 @@ def rig_inputs(rig_dir: str | Path, calib: str | Path | None = None) -> list[Pat
     rig_dir = Path(rig_dir)
     if not rig_dir.is_dir():
         return []
+    layout = RigLayout(rig_dir)
     inputs = [Path(calib) if calib else find_calibration(rig_dir)]
-    if (rig_dir / SYNC_FILE).is_file():
-        inputs.append(rig_dir / SYNC_FILE)
-    if (rig_dir / "pose").is_dir():
-        inputs.append(rig_dir / "pose")
+    if layout.sync.is_file():
+        inputs.append(layout.sync)
+    if layout.pose_dir.is_dir():
+        inputs.append(layout.pose_dir)
     return inputs + [p for p in pose_sources(rig_dir).values() if not is_mvm_output(p)]
 
 
@@ -53,7 +51,7 @@ def check_rig_output(rig_dir: str | Path, calib: str | Path | None, output: str 
     """The rig's output folder (``output``, default ``RIG_DIR/mvm``), refused in one line when it
     is, holds or lies inside an input of the rig, or is a non-empty folder mvm did not make
     (:func:`mvm.io.outputs.check_output_location`)."""
-    out_dir = Path(output) if output else Path(rig_dir) / DEFAULT_OUTPUT
+    out_dir = Path(output) if output else RigLayout(rig_dir).out_dir
     return check_output_location(out_dir, rig_inputs(rig_dir, calib))
 
 

@@ -12,8 +12,9 @@ import numpy as np
 
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
+from mvm.io.layout import RigLayout
 from mvm.io.outputs import check_output_location
-from mvm.io.sync_toml import SYNC_FILE, write_sync_toml
+from mvm.io.sync_toml import write_sync_toml
 from mvm.rig.calibrate import CalibrationError, PeopleCalibration, calibrate_from_people
 from mvm.rig.output_set import rig_inputs
 from mvm.rig.rigdir import RigData, find_calibration, read_rig
@@ -82,7 +83,7 @@ def synchronize_rig(rig_dir: str | Path, calib: str | Path | None = None, max_of
         raise InputError(rig.sources[name], None, f"camera {name}: {e.problem}") from None
     path = None
     if write:
-        path = rig_dir / SYNC_FILE
+        path = RigLayout(rig_dir).sync
         ambiguous = [n for n, a in zip(cams.names, result.ambiguous) if a]
         write_sync_toml(path, {n: int(o) for n, o in zip(cams.names, result.offsets)},
                         {"reference": cams.names[0], "calibration": str(source),

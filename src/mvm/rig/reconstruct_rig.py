@@ -26,6 +26,7 @@ from mvm.core.keypoints import COCO_KEYPOINTS
 from mvm.core.prior import load_prior, shipped_prior
 from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
+from mvm.io.layout import RECAP, RIG_POSES3D, TRACK_FILE, TRACKS_DIR
 from mvm.io.provenance import fingerprints, write_record
 from mvm.io.rig_poses3d import RIG_POSES3D_FORMAT
 from mvm.io.trc import to_opensim, write_trc
@@ -157,7 +158,7 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
         times, series = track_series(X, instant, track, k)
         if complete:
             series = interpolate_series(series, options.max_interpolation_gap)[0]
-        path = directory / f"track_{int(k)}.trc"
+        path = directory / TRACK_FILE.format(track=int(k))
         write_trc(path, to_opensim(series, options.up, options.metres_per_unit), COCO_KEYPOINTS,
                   options.rate, frames=frames[times], comment=comment)
         paths.append(path)
@@ -341,9 +342,9 @@ def rig_reason(rig_dir: str | Path, config: Config | None = None, options: RigOp
     options = options or RigOptions()
     check_smoothing(options)
     out_dir = check_rig_output(rig_dir, calib, output)
-    return why_redo(out_dir / "poses3d.jsonl", rig_fingerprint_inputs(rig_dir, calib),
+    return why_redo(out_dir / RIG_POSES3D, rig_fingerprint_inputs(rig_dir, calib),
                     rig_settings(config, options, calib, frames), RIG_STAGE,
-                    exists=(out_dir / "poses3d.jsonl").is_file() and (out_dir / "recap.json").is_file())
+                    exists=(out_dir / RIG_POSES3D).is_file() and (out_dir / RECAP).is_file())
 
 
 def kept_set(rig_dir: str | Path, calib: str | Path | None = None,
@@ -353,9 +354,9 @@ def kept_set(rig_dir: str | Path, calib: str | Path | None = None,
     from mvm.io.checks import load_json_object
 
     out_dir = check_rig_output(rig_dir, calib, output)
-    recap_path = out_dir / "recap.json"
-    return load_json_object(recap_path), {"poses3d": out_dir / "poses3d.jsonl", "recap": recap_path,
-                                          "tracks": sorted((out_dir / "tracks").glob("*.trc"))}
+    recap_path = out_dir / RECAP
+    return load_json_object(recap_path), {"poses3d": out_dir / RIG_POSES3D, "recap": recap_path,
+                                          "tracks": sorted((out_dir / TRACKS_DIR).glob("*.trc"))}
 
 
 def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: RigOptions | None = None,
@@ -408,17 +409,17 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     outputs = {}
 
     def build(folder: Path) -> None:
-        atomic_write_bytes(folder / "poses3d.jsonl", lines)
-        outputs["tracks"] = [out_dir / "tracks" / p.name
-                             for p in write_tracks(folder / "tracks", rig.frames, X, persons.instant, track,
+        atomic_write_bytes(folder / RIG_POSES3D, lines)
+        outputs["tracks"] = [out_dir / TRACKS_DIR / p.name
+                             for p in write_tracks(folder / TRACKS_DIR, rig.frames, X, persons.instant, track,
                                                    options, flags, config.complete)]
         timings["write_s"] = time.perf_counter() - t0
-        atomic_write_json(folder / "recap.json", {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
+        atomic_write_json(folder / RECAP, {**summary, "timings_s": {k: round(v, 4) for k, v in timings.items()},
                                                  "config": asdict(config), "options": asdict(options),
                                                  "calibration": rig.calibration.metadata.get("source"),
                                                  "pose_format": rig.pose_format}, pretty=True)
-        write_record(folder / "poses3d.jsonl", RIG_STAGE, inputs, rig_settings(config, given, calib, frames), hashed)
+        write_record(folder / RIG_POSES3D, RIG_STAGE, inputs, rig_settings(config, given, calib, frames), hashed)
 
     replace_output_set(build, out_dir, config.lock_timeout_s)
-    outputs.update({"poses3d": out_dir / "poses3d.jsonl", "recap": out_dir / "recap.json"})
+    outputs.update({"poses3d": out_dir / RIG_POSES3D, "recap": out_dir / RECAP})
     return RigResult(rig, persons, track, X, flags, summary, outputs, timings)

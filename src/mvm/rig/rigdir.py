@@ -1,16 +1,7 @@
 """Reading a rig directory: a calibration and one source of 2D poses per camera.
 
-::
-
-    RIG_DIR/
-      Calib.toml | calibration/*.toml | sparse/ (COLMAP)   the cameras (or --calib PATH)
-      sync.toml                                           frame offsets (optional, mvm.io.sync_toml)
-      sync.inputs.json, <calibration>.inputs.json         records of mvm's outputs (mvm.io.provenance), not cameras
-      pose/ (or RIG_DIR itself)
-        <camera>/          OpenPose or OpenPifPaf JSON, one file per frame (frame number in the name)
-        <camera>.json      or one COCO keypoints file per camera (frame number in file_name; its
-                           info.video, written by mvm rig detect, gives the video's frame rate)
-        <camera>.inputs.json  the record of a pose file mvm made (mvm.io.provenance), not a camera
+The layout of a rig directory (calibration, ``sync.toml``, ``pose/``, ``videos/``, the output
+set) is declared in :mod:`mvm.io.layout`.
 
 Cameras are matched to folders by *name*, never by sort order: an exact name, then the name
 without case and known suffixes (``_json``, ``_keypoints``, ``_img``, ``.json``), then the same
@@ -30,6 +21,7 @@ from mvm.core.scene import Poses2D
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml
 from mvm.io.coco import read_coco_keypoints
+from mvm.io.layout import CALIBRATION_DIR, DEFAULT_OUTPUT, NOT_CALIBRATIONS, POSES2D, SPARSE, VIDEOS, RigLayout
 from mvm.io.openpifpaf import read_openpifpaf_frame
 from mvm.io.openpose import frame_number, read_openpose_frames
 from mvm.io.pose_format import pose_format
@@ -40,7 +32,7 @@ from mvm.rig.instants import rig_poses
 log = logging.getLogger(__name__)
 
 _SUFFIXES = ("_json", "-json", "_keypoints", "_img", "_images", "_pose", "_poses", ".json")
-_IGNORED_DIRS = {"calibration", "sparse", "mvm", "videos", "video", "images"}
+_IGNORED_DIRS = {CALIBRATION_DIR, SPARSE, DEFAULT_OUTPUT, VIDEOS, "video", "images"}
 
 
 @dataclass
@@ -113,10 +105,11 @@ def match_cameras(camera_names, entry_names) -> dict[int, int]:
 def find_calibration(rig_dir: Path) -> Path:
     """The calibration of ``rig_dir``: one ``*.toml`` at its top or in ``calibration/``, or a
     COLMAP model in ``sparse/``. Several candidates raise :class:`InputError` (use ``--calib``)."""
-    candidates = sorted(p for p in [*rig_dir.glob("*.toml"), *(rig_dir / "calibration").glob("*.toml")]
-                        if p.name.lower() not in ("config.toml", "mvm.toml", "sync.toml"))
-    if (rig_dir / "sparse").is_dir():
-        candidates.append(rig_dir / "sparse")
+    layout = RigLayout(rig_dir)
+    candidates = sorted(p for p in [*rig_dir.glob("*.toml"), *layout.calibration_dir.glob("*.toml")]
+                        if p.name.lower() not in NOT_CALIBRATIONS)
+    if layout.sparse.is_dir():
+        candidates.append(layout.sparse)
     if len(candidates) == 1:
         return candidates[0]
     if not candidates:
@@ -143,7 +136,8 @@ def read_calibration(path: Path, extrinsics: bool = True) -> RigCalibration:
 
 
 def _pose_root(rig_dir: Path) -> Path:
-    return rig_dir / "pose" if (rig_dir / "pose").is_dir() else rig_dir
+    pose_dir = RigLayout(rig_dir).pose_dir
+    return pose_dir if pose_dir.is_dir() else rig_dir
 
 
 def pose_sources(rig_dir: Path) -> dict[str, Path]:
@@ -156,7 +150,7 @@ def pose_sources(rig_dir: Path) -> dict[str, Path]:
             continue
         if p.is_dir() and any(p.glob("*.json")):
             sources[p.name] = p
-        elif (p.is_file() and p.suffix.lower() == ".json" and not p.name.startswith("calibration")
+        elif (p.is_file() and p.suffix.lower() == ".json" and not p.name.startswith(CALIBRATION_DIR)
               and not p.name.endswith(RECORD_SUFFIX)):
             sources[p.name] = p
     return sources
@@ -290,14 +284,14 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
     With ``sync`` and a ``RIG_DIR/sync.toml``, each camera's frame numbers are shifted by its
     offset (the reference camera's numbering; ``frames`` selects in it). ``extrinsics=False``
     accepts a Calib.toml without rotations and translations (NaN)."""
-    from mvm.io.sync_toml import SYNC_FILE, read_sync_toml
+    from mvm.io.sync_toml import read_sync_toml
 
     rig_dir = Path(rig_dir)
     if not rig_dir.is_dir():
         raise InputError(rig_dir, None, "not a directory")
     calib_path = Path(calib) if calib else find_calibration(rig_dir)
     calibration = read_calibration(calib_path, extrinsics)
-    sync_path = rig_dir / SYNC_FILE
+    sync_path = RigLayout(rig_dir).sync
     present = sync_path.exists() or sync_path.is_symlink()       # a link to nothing, a FIFO: refused
     offsets = read_sync_toml(sync_path) if sync and present else None
     sources = pose_sources(rig_dir)
@@ -306,7 +300,7 @@ def read_rig(rig_dir: str | Path, calib: str | Path | None = None, frames: str |
         matched = match_cameras(names, list(sources))
     except ValueError as e:
         raise InputError(_pose_root(rig_dir), None, str(e)) from None
-    scene = ("" if not (rig_dir / "poses2d.json").is_file() else
+    scene = ("" if not (rig_dir / POSES2D).is_file() else
              " (a scene directory of one moving camera? use `mvm reconstruct`)")
     if not matched:
         shown = ", ".join(names[:10]) + (" …" if len(names) > 10 else "")

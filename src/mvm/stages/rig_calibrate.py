@@ -89,7 +89,7 @@ def _read(job: RigJob) -> list[Path]:
 
     c, rig_dir = job.calibration, Path(job.rig_dir)
     if c.method in ("checkerboard", "charuco", "intrinsics"):
-        check_output_location(c.output, [rig_dir / "calibration", *([c.intrinsics] if c.intrinsics else [])],
+        check_output_location(c.output, [job.layout.calibration_dir, *([c.intrinsics] if c.intrinsics else [])],
                               replaced=False)
     read = [p for p in _inputs(job).values() if isinstance(p, Path)]
     if c.method == "convert":

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvm.io.layout import VIDEOS
 from mvm.stages.stage import Done, RigJob, Stage
 
 
@@ -17,9 +18,9 @@ def _options(job: RigJob):
 
 
 def _pose_files(job: RigJob) -> list[Path]:
-    from mvm.video.rig_videos import POSE_DIR, rig_videos
+    from mvm.video.rig_videos import rig_videos
 
-    folder = Path(job.rig_dir) / POSE_DIR
+    folder = job.layout.pose_dir
     return [folder / f"{camera}.json" for camera in sorted(rig_videos(job.rig_dir))
             if (folder / f"{camera}.json").is_file()]
 
@@ -27,7 +28,7 @@ def _pose_files(job: RigJob) -> list[Path]:
 def _inputs(job: RigJob) -> dict:
     from mvm.video.rig_videos import rig_videos
 
-    inputs: dict = {f"videos/{video.name}": video for video in rig_videos(job.rig_dir).values()}
+    inputs: dict = {f"{VIDEOS}/{video.name}": video for video in rig_videos(job.rig_dir).values()}
     if job.checkpoint is not None:
         inputs["checkpoint"] = Path(job.checkpoint)
     return inputs
@@ -55,5 +56,5 @@ def _run(job: RigJob, force: bool) -> Done:
     return Done(found, next((f"camera {c.camera}: {c.why}" for c in found if c.why is not None), None))
 
 
-STAGE = Stage("detect", "the rig detection", ("detect",), lambda job: Path(job.rig_dir) / "pose", _inputs, _settings,
+STAGE = Stage("detect", "the rig detection", ("detect",), lambda job: job.layout.pose_dir, _inputs, _settings,
               _pose_files, _run, reason=_reason)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from mvm.io.layout import RECAP, RIG_POSES3D, TRACKS_DIR
 from mvm.stages.stage import Done, RigJob, Stage, present
 
 
@@ -46,8 +47,8 @@ def _settings(job: RigJob) -> dict:
 
 def _files(job: RigJob) -> list[Path]:
     out = _out_dir(job)
-    tracks = sorted((out / "tracks").glob("*.trc")) if (out / "tracks").is_dir() else []
-    return present(out / "poses3d.jsonl", out / "recap.json") + tracks
+    tracks = sorted((out / TRACKS_DIR).glob("*.trc")) if (out / TRACKS_DIR).is_dir() else []
+    return present(out / RIG_POSES3D, out / RECAP) + tracks
 
 
 def _reason(job: RigJob) -> str | None:
@@ -70,4 +71,4 @@ def _run(job: RigJob, force: bool) -> Done:
 
 
 STAGE = Stage("reconstruct", "the rig reconstruction", ("reconstruct", "rig"),
-              lambda job: _out_dir(job) / "poses3d.jsonl", _inputs, _settings, _files, _run, reason=_reason)
+              lambda job: _out_dir(job) / RIG_POSES3D, _inputs, _settings, _files, _run, reason=_reason)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvm.io.layout import POSE_DIR, SYNC
 from mvm.stages.stage import Done, RigJob, Stage, present
 
 #: The stage in the reasons of a rerun.
@@ -14,18 +15,15 @@ TITLE = "the synchronization"
 
 
 def _sync_file(job: RigJob) -> Path:
-    from mvm.io.sync_toml import SYNC_FILE
-
-    return Path(job.rig_dir) / SYNC_FILE
+    return job.layout.sync
 
 
 def _inputs(job: RigJob) -> dict:
-    from mvm.io.sync_toml import SYNC_FILE
     from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
 
     inputs = rig_fingerprint_inputs(job.rig_dir, job.calib)
-    folder = {"pose": inputs.pop("pose")} if "pose" in inputs else {}      # last: a reason names the camera's file
-    return {name: path for name, path in inputs.items() if name != SYNC_FILE} | folder
+    folder = {POSE_DIR: inputs.pop(POSE_DIR)} if POSE_DIR in inputs else {}  # last: a reason names the camera's file
+    return {name: path for name, path in inputs.items() if name != SYNC} | folder
 
 
 def _settings(job: RigJob) -> dict:

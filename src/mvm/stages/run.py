@@ -15,6 +15,7 @@ from pathlib import Path
 
 from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.layout import DEFAULT_OUTPUT
 from mvm.stages import RUN_STAGES, Job, SceneOptions, run_stages
 from mvm.stages.scene_reconstruct import Reconstruction
 from mvm.video.detect import DetectOptions, FramePoses
@@ -42,7 +43,7 @@ class RunReport:
 
 def check_run(video: str | Path, scene: str | Path, detections=None, checkpoint=None, detections_format=None,
               cameras=None, frame_options: FrameOptions = FrameOptions(),
-              detect_options: DetectOptions = DetectOptions(), output: str = "mvm") -> None:
+              detect_options: DetectOptions = DetectOptions(), output: str = DEFAULT_OUTPUT) -> None:
     """Everything :func:`run_video` can check in a second, checked before any work, each problem
     one :class:`InputError` line: the video and the cameras exist; the detector's model files
     (every one, named with its option) or the imported detections, read and matched against
@@ -89,7 +90,7 @@ def run_video(video: str | Path, scene: str | Path, *, detections: str | Path | 
               checkpoint: str | Path | None = None, detections_format: str | None = None,
               cameras: str | Path | None = None, frame_options: FrameOptions = FrameOptions(),
               sfm_options: SfmOptions = SfmOptions(), detect_options: DetectOptions = DetectOptions(),
-              config: Config | None = None, metric_scale: bool = True, output: str = "mvm",
+              config: Config | None = None, metric_scale: bool = True, output: str = DEFAULT_OUTPUT,
               force: bool | str | tuple[str, ...] = (),
               progress: Callable[[str, int, int], None] | None = None) -> RunReport:
     """The scene stages on one video (:data:`mvm.stages.RUN_STAGES`, as ``mvm batch`` runs them).

@@ -9,9 +9,7 @@ from mvm.stages.stage import Done, Job, Stage, present
 
 
 def _poses2d(job: Job) -> Path:
-    from mvm.video.detect import POSES2D
-
-    return job.scene / POSES2D
+    return job.layout.poses2d
 
 
 def detector_of(job: Job) -> tuple[str, Path | None, str | None]:

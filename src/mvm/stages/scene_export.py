@@ -6,19 +6,16 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvm.io.layout import SUPERVISION_DIR, SUPERVISION_FILE
 from mvm.stages.stage import Done, Job, Stage, present
-
-SUPERVISION_DIR = "supervision"
 
 
 def _folder(job: Job) -> Path:
-    return job.scene / job.options.output / SUPERVISION_DIR
+    return job.layout.supervision
 
 
 def _annotations(job: Job) -> Path:
-    from mvm.net.supervision import ANNOTATIONS_FILE
-
-    return _folder(job) / ANNOTATIONS_FILE
+    return _folder(job) / SUPERVISION_FILE
 
 
 def _inputs(job: Job) -> dict:
@@ -40,13 +37,13 @@ def _run(job: Job, force: bool) -> Done:
     from mvm.net.supervision import EXPORT_STAGE, export_supervision
 
     scene = job.scene
-    poses3d = scene / job.options.output / "poses3d.json"
+    poses3d = job.layout.poses3d
     if not poses3d.is_file():
         raise InputError(poses3d, None, "not found: the clip is not reconstructed")
 
     def make(why: str, hashed: dict) -> Path:
         check_reconstruction_fresh(scene, poses3d)
-        frames = scene / "frames"
+        frames = job.layout.frames
         item = (read_scene(scene), read_poses3d(poses3d, root=scene), frames if frames.is_dir() else None)
         return export_supervision([item], _folder(job), link="none", min_keypoints=job.options.min_keypoints)
 

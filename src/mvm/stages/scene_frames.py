@@ -21,16 +21,16 @@ def _settings(job: Job) -> dict:
 
 def _files(job: Job) -> list[Path]:
     from mvm.errors import InputError
-    from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, read_frame_index
+    from mvm.video.frames import read_frame_index
 
-    index = job.scene / FRAMES_INDEX
+    index = job.layout.frames_index
     if not index.is_file():
         return []
     try:
         names = list(read_frame_index(job.scene).names)
     except InputError:
         return [index]
-    return [index] + [job.scene / FRAMES_DIR / n for n in sorted(names)]
+    return [index] + [job.layout.frames / n for n in sorted(names)]
 
 
 def _run(job: Job, force: bool) -> Done:
@@ -45,9 +45,7 @@ def _applies(job: Job) -> str | None:
 
 
 def _record(job: Job) -> Path:
-    from mvm.video.frames import FRAMES_INDEX
-
-    return job.scene / FRAMES_INDEX
+    return job.layout.frames_index
 
 
 STAGE = Stage("frames", "the frame extraction", ("frames",), _record, _inputs, _settings, _files, _run,

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from mvm.core.config import Config, check_settings, setting
+from mvm.io.layout import DEFAULT_OUTPUT
 
 if TYPE_CHECKING:
     from mvm.video.detect import DetectOptions
@@ -42,7 +43,7 @@ class SceneOptions:
     #: detects every clip's frames; None: ``checkpoint``, else each clip's imported detections. [-]
     detect: DetectOptions = field(default_factory=_default("mvm.video.detect:DetectOptions"))
     #: Folder of each scene directory receiving ``poses3d.json`` and the supervision. [name]
-    output: str = "mvm"
+    output: str = DEFAULT_OUTPUT
     #: The pose network's checkpoint for ``detect``; None: a detector, or imported detections. [path]
     checkpoint: str | None = None
     #: ``reconstruct``: scale the world (``sparse/`` and the 3D poses) to metres from the

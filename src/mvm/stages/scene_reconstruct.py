@@ -6,9 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from mvm.io.layout import SPARSE
 from mvm.stages.stage import Done, Job, Stage, present
-
-POSES3D = "poses3d.json"
 
 
 @dataclass
@@ -23,7 +22,7 @@ class Reconstruction:
 
 
 def _poses3d(job: Job) -> Path:
-    return job.scene / job.options.output / POSES3D
+    return job.layout.poses3d
 
 
 def _config(job: Job):
@@ -52,11 +51,9 @@ def _settings(job: Job) -> dict:
 
 def _files(job: Job) -> list[Path]:
     """``poses3d.json`` and the camera model as scaled with it (``sparse/``, ``sfm/scale.json``)."""
-    from mvm.video.metric_scale import SCALE_FILE, SFM_DIR
-
-    sparse = job.scene / "sparse"
+    sparse = job.layout.sparse
     model = sorted(p for p in sparse.rglob("*") if p.is_file()) if sparse.is_dir() else []
-    return present(_poses3d(job)) + model + present(job.scene / SFM_DIR / SCALE_FILE) if present(_poses3d(job)) \
+    return present(_poses3d(job)) + model + present(job.layout.scale_file) if present(_poses3d(job)) \
         else []
 
 
@@ -83,7 +80,7 @@ def _run(job: Job, force: bool) -> Done:
         result, scene = reconstruct_read(job.scene, config, job.options.output)
         scale = apply_metric_scale(job.scene, result.persons, _metric_scale(job))
         if scale.applied_to_model:
-            hashed["sparse"] = fingerprint(job.scene / "sparse")          # the model as scaled
+            hashed[SPARSE] = fingerprint(job.layout.sparse)          # the model as scaled
         write_result(out_dir, result_document(result, scene, config, {"scale": scale.to_json()}), result.timings)
         return Reconstruction(len(result.persons), result.metrics, scale, _poses3d(job))
 

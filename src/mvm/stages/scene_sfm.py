@@ -8,9 +8,7 @@ from mvm.stages.stage import Done, Job, Stage, present
 
 
 def _report(job: Job) -> Path:
-    from mvm.video.sfm import SFM_DIR, SFM_REPORT
-
-    return job.scene / SFM_DIR / SFM_REPORT
+    return job.layout.sfm_report
 
 
 def _declared(job: Job) -> tuple[dict, dict]:
@@ -29,7 +27,7 @@ def _reason(job: Job) -> str | None:
     """A camera model without mvm's report was made elsewhere: the clip's input, kept."""
     from mvm.io.provenance import why_redo
 
-    report, sparse = _report(job), job.scene / "sparse"
+    report, sparse = _report(job), job.layout.sparse
     if sparse.is_dir() and not report.is_file():
         return None
     inputs, settings = _declared(job)

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mvm.io.layout import RigLayout, SceneLayout
 from mvm.stages.scene_options import SceneOptions
 
 
@@ -35,6 +36,11 @@ class Job:
     def folder(self) -> Path:
         """The folder the stages write in."""
         return self.scene
+
+    @property
+    def layout(self) -> SceneLayout:
+        """The paths of the clip's scene directory and its output folder."""
+        return SceneLayout(self.scene, self.options.output)
 
     def tick(self, stage: str) -> Callable[[int, int], None] | None:
         """``progress`` of ``stage`` as ``(done, total)``, or None."""
@@ -132,3 +138,8 @@ class RigJob:
     def folder(self) -> Path:
         """The folder the stages write in."""
         return self.rig_dir
+
+    @property
+    def layout(self) -> RigLayout:
+        """The paths of the rig folder (its output set: :func:`mvm.rig.output_set.check_rig_output`)."""
+        return RigLayout(self.rig_dir)

@@ -1,13 +1,29 @@
 """What the ``report`` and ``overlay`` stages share: the reconstruction they draw (:class:`ViewJob`,
-a scene directory or a rig folder), what they read (:func:`view_inputs`), and where their
-records may lie (:func:`check_record_name`). Their records lie beside the page, the video or
-the image folder; one written into a rig's output set is listed in the set's marker, so that the
-next ``mvm rig reconstruct`` replaces it with the set (:func:`list_in_output_set`)."""
+a scene directory or a rig folder), what they read (:func:`view_inputs`; a rig is read here, with
+the rig's readers, and handed to the drawing as data: :func:`load_rig_view`, :func:`camera_videos`),
+and where their records may lie (:func:`check_record_name`). Their records lie beside the page, the
+video or the image folder; one written into a rig's output set is listed in the set's marker, so
+that the next ``mvm rig reconstruct`` replaces it with the set (:func:`list_in_output_set`)."""
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
 from pathlib import Path
+
+from mvm.io.layout import (
+    DEFAULT_OUTPUT,
+    FRAMES,
+    FRAMES_INDEX,
+    POSES2D,
+    POSES3D,
+    RECAP,
+    RIG_POSES3D,
+    SPARSE,
+    TIMINGS,
+    VIDEOS,
+    RigLayout,
+    SceneLayout,
+)
 
 
 @dataclass(frozen=True)
@@ -19,7 +35,7 @@ class ViewJob:
     overlay's ``step``, ``max_width``, ``fps`` and ``image_format`` (a scene's)."""
 
     folder: Path
-    output: str = "mvm"
+    output: str = DEFAULT_OUTPUT
     out: Path | None = None
     calib: Path | None = None
     frames: int = 8
@@ -40,7 +56,7 @@ class ViewJob:
         """The reconstruction's output folder (a scene's name checked:
         :func:`mvm.io.scene_dir.output_dir`)."""
         if self.rig:
-            return Path(self.folder) / self.output
+            return RigLayout(self.folder, self.output).out_dir
         from mvm.io.scene_dir import output_dir
 
         return output_dir(self.folder, self.output)
@@ -48,8 +64,53 @@ class ViewJob:
 
 def not_reconstructed(job: ViewJob) -> str | None:
     """Why there is nothing to draw in ``job`` (None: it is reconstructed)."""
-    reconstructed = job.out_dir / ("poses3d.jsonl" if job.rig else "poses3d.json")
+    reconstructed = job.out_dir / (RIG_POSES3D if job.rig else POSES3D)
     return None if reconstructed.is_file() else f"not reconstructed (no {reconstructed.name})"
+
+
+def rig_calibration(job: ViewJob) -> tuple[Path, bool]:
+    """The calibration a page or the overlays of the reconstructed rig read: ``job.calib``, else
+    the one its reconstruction was given, else the rig's own
+    (:func:`mvm.rig.rigdir.find_calibration`); and whether it was given (not the rig's own). A
+    rig not reconstructed is refused first."""
+    from mvm.report.rig_load import given_calibration, reconstructed
+    from mvm.rig.rigdir import find_calibration
+
+    given = given_calibration(reconstructed(job.folder, job.output), job.calib)
+    return (given, True) if given is not None else (find_calibration(Path(job.folder)), False)
+
+
+def load_rig_view(job: ViewJob, workers: int | None = None):
+    """What a page or the overlays of a reconstructed rig draw
+    (:class:`~mvm.report.rig_load.RigReportData`): its output set, checked up to date, and the rig
+    read as its reconstruction read it (:func:`mvm.rig.rigdir.read_rig`, the pose files on
+    ``workers`` processes)."""
+    from mvm.report.rig_load import checked_set, frames_setting, reconstructed, rig_command, rig_report_data
+    from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
+    from mvm.rig.rigdir import read_rig
+
+    folder = Path(job.folder)
+    calib, given = rig_calibration(job)
+    command = rig_command(folder, calib, given, job.output)
+    recap = checked_set(folder, job.output, rig_fingerprint_inputs(folder, calib), command)
+    rig = read_rig(folder, calib, frames_setting(reconstructed(folder, job.output)), workers)
+    return rig_report_data(folder, job.output, rig, calib, recap, command)
+
+
+def camera_videos(job: ViewJob, names: list[str]) -> dict[str, Path]:
+    """The video of each camera of ``names`` that has one: ``RIG_DIR/videos/<camera>.<ext>``,
+    matched to the camera names as pose folders are (:func:`mvm.rig.rigdir.match_cameras`)."""
+    from mvm.errors import InputError
+    from mvm.io.paths import videos_by_name
+    from mvm.rig.rigdir import match_cameras
+
+    folder = RigLayout(job.folder).videos
+    files = list(videos_by_name(folder).values())
+    try:
+        matched = match_cameras(names, [p.stem for p in files])
+    except ValueError as e:
+        raise InputError(folder, None, str(e).replace("pose sources", "videos")) from None
+    return {names[c]: files[e] for c, e in sorted(matched.items())}
 
 
 def view_inputs(job: ViewJob, videos: bool = False) -> dict:
@@ -57,25 +118,24 @@ def view_inputs(job: ViewJob, videos: bool = False) -> dict:
     their timings), 2D poses, cameras, frames and ground truth; a rig's output set
     (``poses3d.jsonl``, ``recap.json``), what it was made from (the calibration, ``sync.toml``,
     the pose sources) and its ground truth; with ``videos``, the rig's ``videos/`` folder too."""
-    folder = Path(job.folder)
     if job.rig:
-        from mvm.io.rig_truth import rig_truth_path
-        from mvm.report.rig_load import POSES3D, RECAP, VIDEOS, report_calibration
         from mvm.rig.reconstruct_rig import rig_fingerprint_inputs
 
-        truth = rig_truth_path(folder)
-        inputs = {**rig_fingerprint_inputs(folder, report_calibration(folder, job.output, job.calib)),
-                  f"{job.output}/{POSES3D}": job.out_dir / POSES3D, f"{job.output}/{RECAP}": job.out_dir / RECAP,
-                  f"../{truth.name}": truth}
-        return {**inputs, VIDEOS: folder / VIDEOS} if videos else inputs
-    from mvm.io.scene_dir import TIMINGS
-    from mvm.report.load import truth_path
-
-    truth = truth_path(folder)
+        rig = RigLayout(job.folder, job.output)
+        inputs = {**rig_fingerprint_inputs(rig.root, rig_calibration(job)[0]),
+                  f"{job.output}/{RIG_POSES3D}": rig.poses3d, f"{job.output}/{RECAP}": rig.recap,
+                  f"../{rig.truth.name}": rig.truth}
+        return {**inputs, VIDEOS: rig.videos} if videos else inputs
+    scene = SceneLayout(job.folder, job.output)
     out_dir = job.out_dir
-    return {f"{job.output}/poses3d.json": out_dir / "poses3d.json", f"{job.output}/{TIMINGS}": out_dir / TIMINGS,
-            "poses2d.json": folder / "poses2d.json", "sparse": folder / "sparse", "frames": folder / "frames",
-            "frames.json": folder / "frames.json", f"../{truth.name}": truth}
+    return {f"{job.output}/{POSES3D}": out_dir / POSES3D, f"{job.output}/{TIMINGS}": out_dir / TIMINGS,
+            POSES2D: scene.poses2d, SPARSE: scene.sparse, FRAMES: scene.frames,
+            FRAMES_INDEX: scene.frames_index, f"../{scene.truth.name}": scene.truth}
+
+
+def input_paths(inputs: dict) -> list[Path]:
+    """The paths among ``inputs`` (:func:`view_inputs`), for the checks of an output's location."""
+    return [p for p in inputs.values() if isinstance(p, Path)]
 
 
 def check_record_name(out: Path, inputs: dict, title: str) -> None:
@@ -88,7 +148,7 @@ def check_record_name(out: Path, inputs: dict, title: str) -> None:
     from mvm.io.outputs import check_output_location
     from mvm.io.provenance import read_record, record_path
 
-    paths = [p for p in inputs.values() if isinstance(p, Path)]
+    paths = input_paths(inputs)
     check_output_location(out, paths, replaced=False)
     record = record_path(out)
     other = read_record(out) if record.is_file() else None

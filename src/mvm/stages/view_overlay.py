@@ -7,19 +7,27 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvm.io.layout import OVERLAY
 from mvm.stages.stage import Done, Stage
-from mvm.stages.view import ViewJob, check_record_name, list_in_output_set, not_reconstructed, view_inputs
+from mvm.stages.view import (
+    ViewJob,
+    camera_videos,
+    check_record_name,
+    input_paths,
+    list_in_output_set,
+    load_rig_view,
+    not_reconstructed,
+    view_inputs,
+)
 
 #: The stage in the reasons of a rerun.
 TITLE = "the overlay"
 #: A folder of images keeps its record inside it, as ``overlay.inputs.json``.
-FOLDER_RECORD = "overlay"
+FOLDER_RECORD = OVERLAY
 
 
 def target(job: ViewJob) -> Path:
-    from mvm.report.rig_overlay import OVERLAY_NAME
-
-    return Path(job.out) if job.out is not None else job.out_dir / OVERLAY_NAME
+    return Path(job.out) if job.out is not None else job.out_dir / OVERLAY
 
 
 def _folder(job: ViewJob) -> bool:
@@ -68,21 +76,22 @@ def _files(job: ViewJob) -> list[Path]:
 def _run(job: ViewJob, force: bool) -> Done:
     """``Done.result``: what the overlay wrote (``OverlaySummary`` of a scene,
     ``RigOverlaySummary`` of a rig), or None when it was kept."""
+    from mvm.io.outputs import check_output_location
     from mvm.io.provenance import produce
 
     out, inputs, folder = target(job), _inputs(job), _folder(job)
+    paths = input_paths(inputs)
     if folder:                                  # replaced whole: never a folder holding what mvm did not write
-        from mvm.io.outputs import check_output_location
-
-        check_output_location(out, [p for p in inputs.values() if isinstance(p, Path)])
+        check_output_location(out, paths)
     check_record_name(_record(job), inputs, TITLE)
 
     def make(why: str, hashed: dict):
         if job.rig:
-            from mvm.report.rig_overlay import write_rig_overlays
+            from mvm.report.rig_overlay import rig_overlay_target, write_rig_overlays
 
-            summary = write_rig_overlays(Path(job.folder), job.out, output=job.output, calib=job.calib, step=job.step,
-                                         max_width=job.max_width)
+            check_output_location(rig_overlay_target(job.out_dir, job.out, job.step), paths)   # before any reading
+            data = load_rig_view(job)
+            summary = write_rig_overlays(data, camera_videos(job, data.names), paths, job.out, job.step, job.max_width)
             list_in_output_set(job, out)
             return summary
         from mvm.io.outputs import add_to_output_set

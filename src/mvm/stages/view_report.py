@@ -6,17 +6,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvm.io.layout import REPORT_PAGE
 from mvm.stages.stage import Done, Stage, present
-from mvm.stages.view import ViewJob, check_record_name, list_in_output_set, not_reconstructed, view_inputs
+from mvm.stages.view import (
+    ViewJob,
+    check_record_name,
+    input_paths,
+    list_in_output_set,
+    load_rig_view,
+    not_reconstructed,
+    view_inputs,
+)
 
 #: The stage in the reasons of a rerun.
 TITLE = "the report"
 
 
 def _page(job: ViewJob) -> Path:
-    from mvm.report.page import REPORT_NAME
-
-    return Path(job.out) if job.out is not None else job.out_dir / REPORT_NAME
+    return Path(job.out) if job.out is not None else job.out_dir / REPORT_PAGE
 
 
 def _settings(job: ViewJob) -> dict:
@@ -34,7 +41,7 @@ def _run(job: ViewJob, force: bool) -> Done:
         if job.rig:
             from mvm.report.rig_page import write_rig_report
 
-            path = write_rig_report(Path(job.folder), output=job.output, path=job.out, calib=job.calib)
+            path = write_rig_report(load_rig_view(job), input_paths(inputs), job.out)
             list_in_output_set(job, path)
             return path
         from mvm.report import write_report

@@ -25,12 +25,13 @@ from mvm.errors import InputError
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.files import atomic_write_json
 from mvm.io.images import UndecodableImage, read_image
+from mvm.io.layout import FRAMES, FRAMES_INDEX, POSES2D, SPARSE
 from mvm.io.paths import resolve_in
 from mvm.io.pose_format import pose_format
 from mvm.io.provenance import produce, read_record
 from mvm.video.appearance import colour_descriptor
 from mvm.video.detectors import FrameDetector, check_models, make_detector
-from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames, read_frame_index
+from mvm.video.frames import list_frames, read_frame_index
 from mvm.video.importers import check_detections_fit, import_detections
 from mvm.video.models import MODES
 from mvm.video.rtm import RtmOptions
@@ -38,7 +39,6 @@ from mvm.video.yolo_pose import YoloPoseOptions
 
 log = logging.getLogger(__name__)
 
-POSES2D = "poses2d.json"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 DETECT_STAGE = "the detection"
 APPEARANCE = ("auto", "colour", "network", "none")
@@ -113,7 +113,7 @@ class FramePoses:
 
 def registered_names(scene: Path) -> set[str] | None:
     """Image names in ``scene/sparse`` (None when there is no model yet)."""
-    sparse = scene / "sparse"
+    sparse = scene / SPARSE
     if not sparse.is_dir():
         return None
     import pycolmap
@@ -130,7 +130,7 @@ def registered_names(scene: Path) -> set[str] | None:
 
 
 def _frame_names(scene: Path, registered: set[str] | None) -> list[str]:
-    names = list_frames(scene) if (scene / FRAMES_INDEX).is_file() or (scene / FRAMES_DIR).is_dir() else []
+    names = list_frames(scene) if (scene / FRAMES_INDEX).is_file() or (scene / FRAMES).is_dir() else []
     if not names and registered is not None:
         names = sorted(registered)
     if not names:
@@ -143,7 +143,7 @@ def read_frames(scene: Path, names: list[str], batch_size: int, warn: bool = Tru
     an image ``(H, W, 3)`` BGR, or None for a frame that cannot be read (reported when ``warn``)."""
     indices, images = [], []
     for i, name in enumerate(names):
-        file = resolve_in(scene / FRAMES_DIR, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
+        file = resolve_in(scene / FRAMES, name, scene / FRAMES_INDEX, f"frames[{i}].file_name", scene=scene)
         try:
             image = read_image(file, root=scene, missing_ok=True)
         except UndecodableImage:
@@ -276,7 +276,7 @@ def detect_inputs(scene: Path, registered: set[str] | None, source=None, checkpo
     """What the 2D poses are made from (:mod:`mvm.io.provenance`): the frames, their index, the
     names of the frames that have a camera, and the imported detections or the network's
     checkpoint."""
-    inputs = {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR,
+    inputs = {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES: scene / FRAMES,
               "registered frames": sorted(registered) if registered is not None else None}
     if source is not None:
         inputs["detections"] = Path(source)

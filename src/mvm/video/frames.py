@@ -18,6 +18,7 @@ from mvm.errors import InputError
 from mvm.io.checks import load_json
 from mvm.io.files import atomic_write_bytes, atomic_write_json, make_dir
 from mvm.io.images import count_frames, frame_count_bound, step_frames
+from mvm.io.layout import FRAMES, FRAMES_INDEX
 from mvm.io.outputs import writing_into
 from mvm.io.paths import check_name
 from mvm.io.provenance import produce
@@ -25,8 +26,6 @@ from mvm.video.camera_motion import MOTION_WIDTH, FeatureTracks, select_by_motio
 
 log = logging.getLogger(__name__)
 
-FRAMES_DIR = "frames"
-FRAMES_INDEX = "frames.json"
 FRAMES_FORMAT = "mvm.frames/1"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 FRAMES_STAGE = "the frame extraction"
@@ -309,12 +308,12 @@ def extract_frames(video: str | Path, scene: str | Path, options: FrameOptions =
 
     def make(why: str, hashed: dict) -> FrameIndex:
         log.info("%s: extracting frames: %s", scene, why)
-        with writing_into(scene, [FRAMES_DIR, FRAMES_INDEX]):     # a user's frames.json or frames/: refused
+        with writing_into(scene, [FRAMES, FRAMES_INDEX]):     # a user's frames.json or frames/: refused
             return _extract(video, scene, options, progress, why)
 
     index, _ = produce(scene / FRAMES_INDEX, FRAMES_STAGE, frame_inputs(video), frame_settings(options), make,
                        lambda: read_frame_index(scene), force=force,
-                       made=lambda index: [scene / FRAMES_DIR / name for name in index.names])  # one deleted: redone
+                       made=lambda index: [scene / FRAMES / name for name in index.names])  # one deleted: redone
     return index
 
 
@@ -322,7 +321,7 @@ def _extract(video: Path, scene: Path, options: FrameOptions, progress, why: str
     """The body of :func:`extract_frames` once it decided to decode ``video`` (``why``): the
     frames and ``frames.json`` written (the record is :func:`~mvm.io.provenance.produce`'s)."""
     index_path = scene / FRAMES_INDEX
-    frames_dir = scene / FRAMES_DIR
+    frames_dir = scene / FRAMES
     rule = options.rule
     if rule == "all":
         numbers, sharp, size, fps = _decode_sampled(video, options, progress, frames_dir=frames_dir)
@@ -393,7 +392,7 @@ def list_frames(scene: str | Path) -> list[str]:
     scene = Path(scene)
     if (scene / FRAMES_INDEX).is_file():
         return list(read_frame_index(scene).names)
-    folder = scene / FRAMES_DIR
+    folder = scene / FRAMES
     if not folder.is_dir():
         raise InputError(folder, None, "no frames (run `mvm frames` first)")
     names = [p.name for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")]

@@ -23,10 +23,11 @@ from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
 from mvm.io.coco import as_confidence, read_coco_keypoints
 from mvm.io.coco_results import read_coco_results, results_frame_index
+from mvm.io.layout import FRAMES_INDEX
 from mvm.io.openpifpaf import read_openpifpaf_dir
 from mvm.io.openpose import frame_number, read_openpose_dir
 from mvm.io.pose_format import POSE_FORMATS, pose_format
-from mvm.video.frames import FRAMES_INDEX, read_frame_index
+from mvm.video.frames import read_frame_index
 
 log = logging.getLogger(__name__)
 

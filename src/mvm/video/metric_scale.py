@@ -17,8 +17,8 @@ from mvm.core.keypoints import MEAN_BONE_LENGTHS_M, bone_lengths, optimal_scale
 from mvm.errors import InputError
 from mvm.io.checks import load_json_object, number
 from mvm.io.files import atomic_write_json
+from mvm.io.layout import SPARSE, SceneLayout
 from mvm.io.outputs import atomic_replace_dir
-from mvm.video.sfm import SCALE_FILE, SFM_DIR
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,7 @@ class ScaleRecord:
 
 def _read_scale(scene: Path) -> float:
     """Metres per unit of ``sparse/`` relative to SfM's units so far (1 when never scaled)."""
-    path = scene / SFM_DIR / SCALE_FILE
+    path = SceneLayout(scene).scale_file
     if not path.is_file():
         return 1.0
     try:
@@ -84,9 +84,9 @@ def scale_model(scene: str | Path, s: float) -> None:
     from mvm.io.colmap import find_model_dir
 
     scene = Path(scene)
-    rec = pycolmap.Reconstruction(str(find_model_dir(scene / "sparse")))
+    rec = pycolmap.Reconstruction(str(find_model_dir(scene / SPARSE)))
     rec.transform(pycolmap.Sim3d(float(s), pycolmap.Rotation3d(np.eye(3)), np.zeros(3)))
-    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / "sparse", replace_unmarked=True)
+    atomic_replace_dir(lambda tmp: rec.write_binary(str(tmp)), scene / SPARSE, replace_unmarked=True)
 
 
 def apply_metric_scale(scene: str | Path, persons, metric_scale: bool) -> ScaleRecord:
@@ -105,5 +105,5 @@ def apply_metric_scale(scene: str | Path, persons, metric_scale: bool) -> ScaleR
         return ScaleRecord("people", s, before * s, False, bones)
     scale_model(scene, s)
     persons.keypoints3d = persons.keypoints3d * s
-    atomic_write_json(scene / SFM_DIR / SCALE_FILE, {"source": "people", "sfm_units_per_model_unit": before * s})
+    atomic_write_json(SceneLayout(scene).scale_file, {"source": "people", "sfm_units_per_model_unit": before * s})
     return ScaleRecord("people", 1.0, before * s, True, bones)

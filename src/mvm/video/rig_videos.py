@@ -32,6 +32,7 @@ from mvm.errors import InputError
 from mvm.io.checks import integer, load_json
 from mvm.io.files import OutputError, atomic_write_json
 from mvm.io.images import frame_count_bound, over_frame_limit
+from mvm.io.layout import POSE_DIR, VIDEOS
 from mvm.io.paths import VIDEO_SUFFIXES, videos_by_name
 from mvm.io.provenance import RECORD_SUFFIX, fingerprints, produce, read_record, why_redo
 from mvm.video.detect import DetectOptions, FramePoses, detect_batches, detect_settings, poses_document
@@ -39,9 +40,6 @@ from mvm.video.detectors import FrameDetector, check_models, make_detector
 
 log = logging.getLogger(__name__)
 
-#: The rig folder's videos and pose files.
-VIDEOS_DIR = "videos"
-POSE_DIR = "pose"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 RIG_DETECT_STAGE = "the rig detection"
 #: The longest camera name (a video's file name without its type) in bytes: the temporary file of
@@ -87,7 +85,7 @@ def rig_videos(rig_dir: str | Path) -> dict[str, Path]:
     """``{camera: video}`` of ``RIG_DIR/videos``, the camera named by the video's file name
     without its type (``cam_01.mp4`` -> ``cam_01``), in name order. No folder, no video or two
     videos of one camera raise :class:`InputError`."""
-    folder = Path(rig_dir) / VIDEOS_DIR
+    folder = Path(rig_dir) / VIDEOS
     if not folder.is_dir():
         raise InputError(folder, None, "no videos folder: put one video per camera in it, named after the camera "
                                        "(cam_01.mp4, ...)")
@@ -310,11 +308,11 @@ def detect_rig_videos(rig_dir: str | Path, checkpoint: str | Path | None = None,
         raise InputError(video, None, f"camera {camera}{others}: the video ends early: {frames} of the {announced} "
                                       f"frames it announces decode, fewer than the other cameras' (a cut or damaged "
                                       f"file); no pose file written for it (re-encode or replace it, or move it out "
-                                      f"of {VIDEOS_DIR}/ to go on without it)")
+                                      f"of {VIDEOS}/ to go on without it)")
     if empty:
         camera, video, frames = empty[0]
         others = f" (and cameras {', '.join(c for c, _, _ in empty[1:])})" if len(empty) > 1 else ""
         raise InputError(video, None, f"camera {camera}{others}: no person detected in any of its {frames} frames, "
                                       f"no pose file written for it (another --model or lower thresholds of "
-                                      f"[detect]; or move the video out of {VIDEOS_DIR}/ to go on without it)")
+                                      f"[detect]; or move the video out of {VIDEOS}/ to go on without it)")
     return done

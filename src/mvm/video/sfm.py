@@ -20,16 +20,13 @@ from mvm.io.checks import load_json_object
 from mvm.io.colmap import OPENCV_LENSES
 from mvm.io.files import atomic_write_json
 from mvm.io.images import check_frames, read_image
+from mvm.io.layout import FRAMES, FRAMES_INDEX, SFM_DIR, SPARSE, SceneLayout
 from mvm.io.outputs import atomic_replace_dir
 from mvm.io.provenance import produce, read_record
-from mvm.video.frames import FRAMES_DIR, FRAMES_INDEX, list_frames
+from mvm.video.frames import list_frames
 
 log = logging.getLogger(__name__)
 
-SFM_DIR = "sfm"
-SFM_REPORT = "report.json"
-#: The model's scale relative to SfM's units (written by the metric scaling of the reconstruction).
-SCALE_FILE = "scale.json"
 #: The stage's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
 SFM_STAGE = "the camera estimation"
 #: COLMAP's camera models that the scene's reader takes (the pinholes and those with a lens of
@@ -195,7 +192,7 @@ def _map(database: Path, frames_dir: Path, work: Path, options: SfmOptions,
 def sfm_inputs(scene: str | Path) -> dict[str, Path]:
     """What the cameras are estimated from (:mod:`mvm.io.provenance`): the frames and their index."""
     scene = Path(scene)
-    return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES_DIR: scene / FRAMES_DIR}
+    return {FRAMES_INDEX: scene / FRAMES_INDEX, FRAMES: scene / FRAMES}
 
 
 def sfm_settings(options: SfmOptions) -> dict:
@@ -218,7 +215,7 @@ def camera_inputs(scene: str | Path, cameras: str | Path | None = None,
         return {"cameras": Path(cameras), FRAMES_INDEX: scene / FRAMES_INDEX}, {"source": "trajectory"}
     from mvm.io.colmap import find_model_dir
 
-    if Path(cameras).resolve() == (scene / "sparse").resolve():
+    if Path(cameras).resolve() == (scene / SPARSE).resolve():
         return {}, {"source": "colmap"}
     inputs = {"cameras": find_model_dir(Path(cameras))}
     if (scene / FRAMES_INDEX).is_file():
@@ -230,13 +227,13 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
     """Refuse to replace ``scene/sparse`` without ``force`` when mvm did not make it (a model
     imported by hand, a simulated scene's cameras), or when it holds imported cameras and
     ``settings`` ask for SfM's."""
-    sparse = scene / "sparse"
+    sparse = scene / SPARSE
     if force or not sparse.is_dir() or not any(sparse.iterdir()):
         return
-    if not (scene / SFM_DIR / SFM_REPORT).is_file():
+    if not SceneLayout(scene).sfm_report.is_file():
         raise InputError(sparse, None, "a camera model mvm did not make: give --force to replace it, or "
                                        f"--cameras {sparse} to use it")
-    before = (read_record(scene / SFM_DIR / SFM_REPORT) or {}).get("settings", {})
+    before = (read_record(SceneLayout(scene).sfm_report) or {}).get("settings", {})
     if before.get("source") in ("colmap", "trajectory") and settings.get("source") == "sfm":
         origin = read_sfm_report(scene).source.split(":", 1)[-1]
         raise InputError(sparse, None, f"cameras imported from {origin}: give --force to replace them with SfM's, "
@@ -246,13 +243,13 @@ def _check_replaceable(scene: Path, settings: dict, force: bool) -> None:
 def _replace_model(scene: Path, write) -> None:
     """Put the model ``write(folder)`` makes in place of ``scene/sparse`` (the report's record
     already removed); its scale is SfM's again."""
-    atomic_replace_dir(write, scene / "sparse", replace_unmarked=True)
-    (scene / SFM_DIR / SCALE_FILE).unlink(missing_ok=True)
+    atomic_replace_dir(write, scene / SPARSE, replace_unmarked=True)
+    SceneLayout(scene).scale_file.unlink(missing_ok=True)
 
 
 def _model_made(scene: Path) -> bool:
     """Whether the cameras are there: the model and its report."""
-    return (scene / SFM_DIR / SFM_REPORT).is_file() and (scene / "sparse").is_dir()
+    return SceneLayout(scene).sfm_report.is_file() and (scene / SPARSE).is_dir()
 
 
 #: The stages of :func:`run_sfm` as its ``progress`` names them.
@@ -277,7 +274,7 @@ def run_sfm(scene: str | Path, options: SfmOptions = SfmOptions(), force: bool =
     # COLMAP's own log follows this module's level: its INFO lines only with debug output
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
     scene = Path(scene)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     settings = sfm_settings(options)
     _check_replaceable(scene, settings, force)
     report, _ = produce(report_path, SFM_STAGE, sfm_inputs(scene), settings,
@@ -293,7 +290,7 @@ def _estimate(scene: Path, options: SfmOptions, why: str, progress) -> SfmReport
 
     log.info("%s: estimating the cameras: %s", scene, why)
     names = list_frames(scene)
-    frames_dir = scene / FRAMES_DIR
+    frames_dir = scene / FRAMES
     check_frames(frames_dir, names, root=scene)
     if len(names) < 2:
         raise InputError(frames_dir, None, f"need at least 2 frames for SfM, found {len(names)}")
@@ -323,7 +320,7 @@ def _estimate(scene: Path, options: SfmOptions, why: str, progress) -> SfmReport
     _warn_unregistered(report, scene)
     document = report.to_json()
     document["options"] = asdict(options)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, document, pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, document, pretty=True)
     return report
 
 
@@ -349,7 +346,7 @@ def _warn_unregistered(report: SfmReport, scene: Path) -> None:
 
 
 def read_sfm_report(scene: str | Path) -> SfmReport:
-    path = Path(scene) / SFM_DIR / SFM_REPORT
+    path = SceneLayout(scene).sfm_report
     if not path.exists():
         raise InputError(path, None, "file not found (run `mvm sfm` first)")
     data = load_json_object(path, root=scene, what="an SfM report object")
@@ -370,11 +367,11 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
 
     scene = Path(scene)
     model_dir = find_model_dir(Path(model))
-    in_place = Path(model).resolve() == (scene / "sparse").resolve()
+    in_place = Path(model).resolve() == (scene / SPARSE).resolve()
     inputs, settings = camera_inputs(scene, model)
     if not in_place:
         _check_replaceable(scene, settings, force)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     report, _ = produce(report_path, SFM_STAGE, inputs, settings,
                         lambda why, hashed: _import_model(model_dir, scene, in_place, why),
                         lambda: read_sfm_report(scene), force=force, exists=_model_made(scene))
@@ -397,7 +394,7 @@ def _import_model(model_dir: Path, scene: Path, in_place: bool, why: str) -> Sfm
     report = _report(rec, names, f"colmap:{model_dir}")
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, report.to_json(), pretty=True)
     return report
 
 
@@ -418,7 +415,7 @@ def import_trajectory(path: str | Path, scene: str | Path, force: bool = False) 
     scene = Path(scene)
     inputs, settings = camera_inputs(scene, path)
     _check_replaceable(scene, settings, force)
-    report_path = scene / SFM_DIR / SFM_REPORT
+    report_path = SceneLayout(scene).sfm_report
     report, _ = produce(report_path, SFM_STAGE, inputs, settings,
                         lambda why, hashed: _trajectory_model(Path(path), scene, why), lambda: read_sfm_report(scene),
                         force=force, exists=_model_made(scene))
@@ -452,7 +449,7 @@ def _trajectory_model(path: Path, scene: Path, why: str) -> SfmReport:
                        float(np.mean(cameras.focal)), 0, cameras.centers)
     report.why = why
     _warn_unregistered(report, scene)
-    atomic_write_json(scene / SFM_DIR / SFM_REPORT, report.to_json(), pretty=True)
+    atomic_write_json(SceneLayout(scene).sfm_report, report.to_json(), pretty=True)
     return report
 
 
