@@ -272,3 +272,25 @@ def test_close_disputes_fills_short_breaks_of_one_track():
     out = close_disputes(refused, instant, track)
     assert out[1:7, w].all() and not out[16:23, w].any() and out[[15, 23], w].all()
     assert out[36, w] and out[30:, w].sum() == 1 and out.sum() == 9
+
+
+def test_a_dispute_extends_over_one_view_refused_next_to_it_but_not_over_others():
+    """A wrist refused at instants 5-7 (its bone off there) whose view 0 was refused from 2 to 11:
+    the one view that sees it where the others agree on another thing. The refusal extends over
+    2-11; over view 1's refusals at 12-13 (another view, after view 0's run ended) and over
+    view 2's lone refusal at 20 (touching no refused instant) it does not."""
+    from mvm.rig.occlusions import extend_disputes
+
+    w = INDEX["left_wrist"]
+    refused = np.zeros((30, 17), bool)
+    refused[5:8, w] = True
+    view_refused = np.zeros((30, 3, 17), bool)
+    view_refused[2:12, 0, w] = True
+    view_refused[12:14, 1, w] = True
+    view_refused[20, 2, w] = True
+    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
+    assert np.flatnonzero(out[:, w]).tolist() == list(range(2, 12))
+    assert out.sum() == 10
+    two_tracks = np.r_[np.zeros(9, int), np.ones(21, int)]                 # 0-8 and 9-29: the run is cut at 9
+    other = extend_disputes(refused, view_refused, np.arange(30), two_tracks)
+    assert np.flatnonzero(other[:, w]).tolist() == list(range(2, 9))

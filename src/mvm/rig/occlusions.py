@@ -5,7 +5,9 @@ grows (towards the middle of a gap, with its length, away from the views that se
 
 A limb joint whose views dispute it (:func:`disputed`: the triangulation refused at least
 :data:`DISPUTED_VIEWS` of its keypoints, as where a hidden hand is reported at other things in
-most views) is refused, with the instants between two such of a track and the edges of a
+most views), or whose bone does (:func:`bone_disputed`: off its track's length for a stretch, as
+where the views that do not see a hand all report one other thing), is refused
+(:func:`refused_limb_joints`), with the instants between two such of a track and the edges of a
 stretch of them (:func:`close_disputes`; the rig's driver leaves them out of the smoothing too,
 and completes those the fill cannot fill as other missing joints), and filled as a missing one from the rays of all its
 views, the dispute's included: through such a run a ray is used only where it agrees with the
@@ -34,6 +36,8 @@ LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left
                     for pairs in ((("elbow", "shoulder"), ("knee", "hip")), (("wrist", "elbow"), ("ankle", "knee"))))
 #: The joints filled.
 LIMB_JOINTS = [j for joints in LIMB_PASSES for j, _ in joints]
+#: The elbows and wrists.
+ARM_JOINTS = [INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("elbow", "wrist")]
 #: The joints the limb chains hang from (shoulders, hips): interpolated over their own short gaps
 #: before the limbs are filled, so that one instant without a shoulder does not break an arm's chain.
 ROOT_JOINTS = sorted({p for _, p in LIMB_PASSES[0]})
@@ -185,6 +189,43 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
         present = index >= 0
         out[index[present]] |= closed[present]
     return out
+
+
+def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.ndarray,
+                    track: np.ndarray) -> np.ndarray:
+    """``refused: (Q, 17)`` (:func:`close_disputes`) extended, along each track, over the runs of
+    consecutive instants where one view's keypoint of the joint is refused by the triangulation
+    (``view_refused: (Q, V, 17)``) that touch a refused instant: where most views agree on
+    another thing, the one view that sees the joint is refused all along the stretch, but the
+    bone betrays the other thing only where it lies off the bone's sphere. ``instant, track: (Q,)``."""
+    refused = np.asarray(refused, bool)
+    out = refused.copy()
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
+        present = index >= 0
+        R = present[:, None] & refused[np.maximum(index, 0)]                       # (L, 17)
+        for v in range(view_refused.shape[1]):
+            chain = present[:, None] & view_refused[np.maximum(index, 0), v]       # (L, 17)
+            run = np.cumsum(np.vstack([np.ones((1, R.shape[1]), bool), ~chain[:-1] | ~chain[1:]]), 0)
+            hit = np.zeros((len(R) + 1, R.shape[1]), bool)
+            np.logical_or.at(hit, (run, np.broadcast_to(np.arange(R.shape[1]), R.shape)), R & chain)
+            out[index[present]] |= (chain & np.take_along_axis(hit, run, 0))[present]
+    return out
+
+
+def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, instant: np.ndarray,
+                        track: np.ndarray) -> np.ndarray:
+    """``(Q, 17)`` the limb joints of tracked persons ``X: (Q, 17, 3)`` refused, to be filled
+    (:func:`fill_occlusions`): those their views dispute (:func:`disputed`, of the
+    triangulation's ``inliers`` among the ``valid: (Q, V, 17)`` keypoints) or their bone does
+    (:func:`bone_disputed`), closed into stretches (:func:`close_disputes`) and, for the elbows
+    and wrists, extended over the runs of one view refused next to them (:func:`extend_disputes`;
+    on the real 4-camera capture of ``benchmarks/real_footage.py`` extending the legs too made a
+    hip-knee bone's length vary more, its standard deviation 18 -> 25 mm, where a leg crossing
+    the other keeps one view refused). ``instant, track: (Q,)``."""
+    refused = close_disputes(disputed(inliers, valid) | bone_disputed(X, instant, track), instant, track)
+    arms = np.zeros(refused.shape[1], bool)
+    arms[ARM_JOINTS] = True
+    return extend_disputes(refused, valid & ~inliers & arms, instant, track)
 
 
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:

@@ -33,7 +33,7 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import LIMB_JOINTS, bone_disputed, close_disputes, disputed, fill_occlusions, rays
+from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays, refused_limb_joints
 from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, named_inputs, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
@@ -242,9 +242,7 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     fill = complete and detections is not None and cameras is not None and options.occlusion_max_gap > 0
     refused = np.zeros(persons.X.shape[:2], bool)
     if fill and len(persons):
-        refused = close_disputes(disputed(persons.inliers, persons.valid)
-                                 | bone_disputed(persons.X, persons.instant, tracking.track),
-                                 persons.instant, tracking.track)
+        refused = refused_limb_joints(persons.X, persons.inliers, persons.valid, persons.instant, tracking.track)
     X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
                       options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
                       window=options.savgol_window)
