@@ -1,9 +1,10 @@
-"""Reading a rig's ``poses3d.jsonl`` (format ``mvm.rig.poses3d/1``, written by
-:mod:`mvm.rig.reconstruct_rig`): one JSON object per line and instant, ``{"format", "frame",
-"persons": [{"id", "keypoints3d", "flags", "members", "views_per_joint", "reprojection_error_px"}]}``.
+"""A rig's ``poses3d.jsonl`` (format ``mvm.rig.poses3d/1``), written and read: one JSON object
+per line and instant, ``{"format", "frame", "persons": [{"id", "keypoints3d", "flags", "members",
+"views_per_joint", "reprojection_error_px"}]}``.
 
-The persons of all instants come back as one flat list (``instant`` says when), as arrays. Any
-problem is one :class:`~mvm.errors.InputError` naming the file, the line and the field.
+The persons of all instants are one flat list (``instant`` says when), as arrays
+(:class:`RigPoses3D`), both ways. Any problem reading is one :class:`~mvm.errors.InputError`
+naming the file, the line and the field.
 """
 from __future__ import annotations
 
@@ -11,8 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import orjson
 
-from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED
+from mvm.core.completion import FLAG_NAMES, MISSING, OBSERVED, flag_names
 from mvm.core.keypoints import NUM_JOINTS
 from mvm.errors import InputError
 from mvm.io.checks import decode_text, integer, number, parse_json, read_bytes
@@ -51,6 +53,36 @@ class RigPoses3D:
 
     def __len__(self) -> int:
         return len(self.X)
+
+
+def rig_poses3d_lines(poses: RigPoses3D, instants: range | None = None) -> bytes:
+    """The lines of ``poses3d.jsonl`` for ``poses`` (its persons in the order of their instants)
+    at ``instants`` (None: all of them), UTF-8: per person its ``[x, y, z, score]`` per joint
+    rounded to 6 and 4 decimals (``[null, null, null, 0]`` where missing), its flags' names,
+    its ``members`` as ``{camera: pose index}`` (those not -1), ``views_per_joint`` and
+    ``reprojection_error_px`` (4 decimals). A long capture is written in runs of instants, in
+    parallel (the rig's driver), each run's lines by one call."""
+    instants = range(len(poses.frames)) if instants is None else instants
+    bounds = np.searchsorted(poses.instant, np.arange(instants.start, instants.stop + 1))
+    rows = slice(bounds[0], bounds[-1])
+    X = np.asarray(poses.X[rows], dtype=float)
+    J = NUM_JOINTS
+    # [x, y, z, score] rounded; [NaN, NaN, NaN, 0] where missing (orjson writes NaN as null).
+    keypoints = np.concatenate([np.round(X[:, :J], 6),
+                                np.round(np.asarray(poses.scores[rows], dtype=float)[:, :J, None], 4)], axis=-1)
+    keypoints[~np.isfinite(X[:, :J]).all(-1)] = (np.nan, np.nan, np.nan, 0.0)
+    keypoints, names = keypoints.tolist(), flag_names(np.asarray(poses.flags[rows]))
+    members, views = poses.members[rows].tolist(), np.asarray(poses.views[rows]).tolist()
+    errors = np.round(np.asarray(poses.reprojection_error_px[rows], dtype=float), 4).tolist()
+    ids = np.asarray(poses.track[rows]).tolist()
+    out = []
+    for k, t in enumerate(instants):
+        found = [{"id": ids[q], "keypoints3d": keypoints[q], "flags": names[q],
+                  "members": {poses.cameras[v]: m for v, m in enumerate(members[q]) if m >= 0},
+                  "views_per_joint": views[q], "reprojection_error_px": errors[q]}
+                 for q in range(bounds[k] - bounds[0], bounds[k + 1] - bounds[0])]
+        out.append(orjson.dumps({"format": RIG_POSES3D_FORMAT, "frame": int(poses.frames[t]), "persons": found}))
+    return b"\n".join(out) + b"\n" if out else b""
 
 
 def _person(person, where: str, path: Path, cameras: dict[str, int]) -> tuple:

@@ -9,7 +9,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import orjson
 
 from mvm.core.completion import (
     FLAG_NAMES,
@@ -17,7 +16,6 @@ from mvm.core.completion import (
     MISSING,
     OBSERVED,
     complete_tracks,
-    flag_names,
     infer_missing,
     interpolate_series,
 )
@@ -28,7 +26,7 @@ from mvm.errors import InputError
 from mvm.io.files import atomic_write_bytes, atomic_write_json
 from mvm.io.layout import RECAP, RIG_POSES3D, TRACK_FILE, TRACKS_DIR
 from mvm.io.provenance import fingerprints, write_record
-from mvm.io.rig_poses3d import RIG_POSES3D_FORMAT
+from mvm.io.rig_poses3d import RigPoses3D, rig_poses3d_lines
 from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
@@ -79,40 +77,17 @@ class RigResult:
 
 def poses3d_lines(frames: np.ndarray, persons: InstantPersons, X: np.ndarray, track: np.ndarray,
                   camera_names, flags: np.ndarray | None = None, workers: int | None = None) -> bytes:
-    """One JSON object per instant, a line each (UTF-8): ``{"format", "frame", "persons": [{"id" (track), "keypoints3d"
-    [[x, y, z, score] | [null, null, null, 0]], "flags" (per joint: "observed", "interpolated",
-    "inferred" or "missing"), "members" {camera: pose index in that camera's frame},
-    "views_per_joint" (inlier 2D keypoints of the observed joints), "reprojection_error_px"}]}``.
-    ``flags: (Q, 17)`` (:mod:`mvm.core.completion`); None: observed where ``X`` is finite. Long
-    captures are formatted in runs of instants on ``workers`` processes (:func:`mvm.parallel.fork_map`)."""
+    """``poses3d.jsonl`` of the persons of every instant (:func:`mvm.io.rig_poses3d.rig_poses3d_lines`):
+    ``X: (Q, 17, 3)`` their joints, ``track: (Q,)``, ``flags: (Q, 17)`` (:mod:`mvm.core.completion`;
+    None: observed where ``X`` is finite), ``views_per_joint`` the inlier 2D keypoints of their
+    observed joints. Long captures are formatted in runs of instants on ``workers`` processes
+    (:func:`mvm.parallel.fork_map_ranges`)."""
     X = np.asarray(X, dtype=float)
-    bounds = np.searchsorted(persons.instant, np.arange(len(frames) + 1))
     flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING) if flags is None else np.asarray(flags)
-    J = len(COCO_KEYPOINTS)
-
-    def lines(instants: range) -> bytes:
-        rows = slice(bounds[instants.start], bounds[instants.stop])
-        names = flag_names(flags[rows])
-        views = (persons.inliers[rows] & (flags[rows] == OBSERVED)[:, None, :]).sum(1).tolist()
-        # [x, y, z, score] rounded to 6 and 4 decimals, [NaN, NaN, NaN, 0] where missing; orjson
-        # writes NaN as null. Plain nested lists in one pass.
-        keypoints = np.concatenate([np.round(X[rows, :J], 6),
-                                    np.round(np.asarray(persons.scores[rows], dtype=float)[:, :J, None], 4)], axis=-1)
-        keypoints[~np.isfinite(X[rows, :J]).all(-1)] = (np.nan, np.nan, np.nan, 0.0)
-        keypoints = keypoints.tolist()
-        members = persons.members[rows].tolist()
-        errors = np.round(np.asarray(persons.reprojection_error_px[rows], dtype=float), 4).tolist()
-        ids = np.asarray(track[rows]).tolist()
-        out = []
-        for t in instants:
-            found = [{"id": ids[q], "keypoints3d": keypoints[q], "flags": names[q],
-                      "members": {camera_names[v]: m for v, m in enumerate(members[q]) if m >= 0},
-                      "views_per_joint": views[q], "reprojection_error_px": errors[q]}
-                     for q in range(bounds[t] - rows.start, bounds[t + 1] - rows.start)]
-            out.append(orjson.dumps({"format": RIG_POSES3D_FORMAT, "frame": int(frames[t]), "persons": found}))
-        return b"\n".join(out) + b"\n" if out else b""
-
-    return b"".join(fork_map_ranges(lines, len(frames), 100, workers))
+    views = (persons.inliers & (flags == OBSERVED)[:, None, :]).sum(1)
+    poses = RigPoses3D(np.asarray(frames), persons.instant, np.asarray(track), X, persons.scores, flags,
+                       persons.members, list(camera_names), views, persons.reprojection_error_px)
+    return b"".join(fork_map_ranges(lambda instants: rig_poses3d_lines(poses, instants), len(frames), 100, workers))
 
 
 def _local_members(persons: InstantPersons, rig: RigData) -> InstantPersons:
