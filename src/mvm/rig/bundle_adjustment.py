@@ -1,7 +1,12 @@
-"""Bundle adjustment of a rig's cameras and the points they see (no I/O): every camera but the
-reference (rotation vector, translation) and every point (the people's joints, or a calibration
-board's corners: an object of ``J`` points seen at once), reprojection errors in pixels (points
-project through :func:`mvm.core.geometry.project`), ``scipy.optimize.least_squares`` with an
+"""Bundle adjustment of a rig's cameras and the points they see (no I/O), as aniposelib's
+``CameraGroup.bundle_adjust``: it takes :class:`~mvm.core.scene.Cameras` and pixels seen through
+their lens (undone once, at the entry, by :func:`mvm.core.camera.undistort_views`) and returns the
+adjusted ``Cameras`` (the same lens; ``R``, ``t`` and the refined focal lengths adjusted). It moves
+every camera but the reference (rotation vector, translation), every point (the people's joints,
+or a calibration board's corners: an object of ``J`` points seen at once) and optionally every
+camera's focal length (a factor of ``K``'s), on reprojection errors in pixels (the normalized
+coordinates of each ``K`` times its mean focal length; points project through
+:func:`mvm.core.geometry.project`), ``scipy.optimize.least_squares`` with an
 explicit Jacobian sparsity, ``x_scale='jac'`` and a soft-L1 loss (as aniposelib's
 ``bundle_adjust``). Each observation may carry a weight (a detector's confidence). The cameras'
 uncertainty comes from the Jacobian at the solution: the reduced camera system (the points
