@@ -45,6 +45,21 @@ def projection_matrix(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> np.ndarray
     return np.asarray(K, dtype=float) @ np.concatenate([R, t[..., :, None]], axis=-1)
 
 
+def normalized_points(keypoints: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Pixels of a pinhole camera -> normalized image coordinates ``K^-1 x``.
+    ``keypoints: (N, J, >=2)``, ``K: (N, 3, 3)`` or ``(3, 3)`` -> ``(N, J, 2)``.
+
+    >>> normalized_points(np.array([[[150.0, 20.0]]]), np.array([[100.0, 0, 50], [0, 100, 40], [0, 0, 1]]))
+    array([[[ 1. , -0.2]]])
+    """
+    K = np.broadcast_to(K, (len(keypoints), 3, 3))
+    fx, fy, s = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 1, None]
+    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
+    y = (keypoints[..., 1] - cy) / fy
+    x = (keypoints[..., 0] - cx - s * y) / fx
+    return np.stack([x, y], -1)
+
+
 def project_camera(points: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
             distortion: np.ndarray | None = None, fisheye: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Project world points into one camera.

@@ -27,7 +27,7 @@ import numpy as np
 
 from mvm.core.geometry import similarity_transform
 from mvm.rig.boards import MIN_CORNERS, spread_views, view_features
-from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
+from mvm.rig.bundle_adjustment import bundle_adjust, pinhole_cameras, reprojection_px
 from mvm.rig.calibrate import CalibrationError, spanning_tree
 from mvm.rig.people_pairs import PairPose
 
@@ -301,15 +301,12 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     X = _corners_in_world(R_board, t_board, ok, R, t, object_points)
     camera, instant = np.nonzero(ok)
     pixels = corners[camera, instant]                                             # (N, C, 2)
-    x = np.stack([(pixels[..., 0] - K[camera, 0, 2, None]) / K[camera, 0, 0, None],
-                  (pixels[..., 1] - K[camera, 1, 2, None]) / K[camera, 1, 1, None]], -1)
-    present = np.isfinite(x).all(-1)
-    x = np.nan_to_num(x)
-    focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
+    present = np.isfinite(pixels).all(-1)
+    cameras = pinhole_cameras(K, R, t)
     for _ in range(2):                                    # once more without the views it does not explain
-        adjusted = bundle_adjust(x, present, camera, instant, focal, R, t, X)
-        R, t, X, converged = adjusted.R, adjusted.t, adjusted.X, adjusted.converged
-        error = reprojection_px(x, present, camera, instant, focal, R, t, X)
+        adjusted = bundle_adjust(cameras, pixels, present, camera, instant, X)
+        cameras, X, converged = adjusted.cameras, adjusted.X, adjusted.converged
+        error = reprojection_px(cameras, pixels, present, camera, instant, X)
         counted = np.isfinite(error)
         view_rms = np.sqrt((np.where(counted, error, 0) ** 2).sum(1) / np.maximum(counted.sum(1), 1))    # (N,)
         bad = view_rms > max(OUTLIER_VIEW_PX, 3 * np.median(view_rms[counted.any(1)]))
@@ -327,5 +324,5 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
         raise CalibrationError(worst, f"the calibration does not converge (reprojection RMS {rms[worst]:.2f} px; "
                                       f"{SYNC_HINT})")
     view = None if world_instant is None else int(np.searchsorted(shared, world_instant))
-    R, t, f = _world_frame(X, ok, object_points, R, t, world, view)
+    R, t, f = _world_frame(X, ok, object_points, cameras.R, cameras.t, world, view)
     return BoardRig(R, t, rms, ok.sum(1), tree, int(shared[f]) if f >= 0 else -1, converged)

@@ -1,7 +1,12 @@
-"""Bundle adjustment of a rig's cameras and the points they see (no I/O): every camera but the
-reference (rotation vector, translation) and every point (the people's joints, or a calibration
-board's corners: an object of ``J`` points seen at once), reprojection errors in pixels (points
-project through :func:`mvm.core.geometry.project`), ``scipy.optimize.least_squares`` with an
+"""Bundle adjustment of a rig's cameras and the points they see (no I/O), as aniposelib's
+``CameraGroup.bundle_adjust``: it takes :class:`~mvm.core.scene.Cameras` and pixels seen through
+their lens (undone once, at the entry, by :func:`mvm.core.camera.undistort_views`) and returns the
+adjusted ``Cameras`` (the same lens; ``R``, ``t`` and the refined focal lengths adjusted). It moves
+every camera but the reference (rotation vector, translation), every point (the people's joints,
+or a calibration board's corners: an object of ``J`` points seen at once) and optionally every
+camera's focal length (a factor of ``K``'s), on reprojection errors in pixels (the normalized
+coordinates of each ``K`` times its mean focal length; points project through
+:func:`mvm.core.geometry.project`), ``scipy.optimize.least_squares`` with an
 explicit Jacobian sparsity, ``x_scale='jac'`` and a soft-L1 loss (as aniposelib's
 ``bundle_adjust``). Each observation may carry a weight (a detector's confidence). The cameras'
 uncertainty comes from the Jacobian at the solution: the reduced camera system (the points
@@ -9,15 +14,16 @@ eliminated by their Schur complement), inverted with the scale held (it is free:
 translation may grow), scaled by the residuals' variance."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix, csc_matrix, hstack
 from scipy.spatial.transform import Rotation
 
-from mvm.core.camera import projection_matrix
+from mvm.core.camera import normalized_points, projection_matrix, undistort_views
 from mvm.core.geometry import project
+from mvm.core.scene import Cameras
 
 #: Scale of the soft-L1 loss on the reprojection errors. [px]
 LOSS_SCALE_PX = 3.0
@@ -50,40 +56,58 @@ def jacobian_sparsity(cam: np.ndarray, point: np.ndarray, n_cameras: int, n_poin
 
 @dataclass
 class Adjusted:
-    """A bundle adjustment's result: ``R (V, 3, 3)``, ``t (V, 3)``, the points ``X (Q, J, 3)``,
-    ``focal (V,)`` px, ``converged`` (the solver met its tolerance), ``centre_sd (V,)`` each camera
-    centre's standard deviation (the root of its covariance's trace; in the units of ``t``, 0
-    for the fixed reference camera)."""
+    """A bundle adjustment's result: the adjusted ``cameras`` (:class:`~mvm.core.scene.Cameras`:
+    the lens, principal point, aspect ratio, size and names of those given; ``R``, ``t`` and,
+    when refined, the focal lengths adjusted), the points ``X (Q, J, 3)`` (NaN: not adjusted),
+    ``focal_scale (V,)`` each focal length over the one given (1 unless refined), ``converged``
+    (the solver met its tolerance), ``centre_sd (V,)`` each camera centre's standard deviation
+    (the root of its covariance's trace; in the units of ``t``, 0 for the fixed reference camera)."""
 
-    R: np.ndarray
-    t: np.ndarray
+    cameras: Cameras
     X: np.ndarray
-    focal: np.ndarray
+    focal_scale: np.ndarray
     converged: bool
     centre_sd: np.ndarray
 
 
-def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,
-                  R: np.ndarray, t: np.ndarray, X: np.ndarray, refine_focal: bool = False,
-                  weight: np.ndarray | None = None) -> Adjusted:
-    """Sparse bundle adjustment (module docstring, step 3). Camera 0 stays fixed.
+def pinhole_cameras(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> Cameras:
+    """Lens-free :class:`~mvm.core.scene.Cameras` of intrinsics ``K: (V, 3, 3)`` and extrinsics
+    ``R: (V, 3, 3)``, ``t: (V, 3)``, for observations whose lens is undone already (the image
+    size, unused by the adjustment, is 0)."""
+    V = len(K)
+    return Cameras(K, R, t, np.zeros((V, 2)), tuple(str(v) for v in range(V)))
+
+
+def _normalized(cameras: Cameras, pixels: np.ndarray, camera: np.ndarray) -> np.ndarray:
+    """Pixels ``(N, J, 2)`` seen by ``camera: (N,)`` through the cameras' lens -> ``(N, J, 2)``
+    normalized coordinates of their pinhole ``K`` (:func:`mvm.core.camera.undistort_views`)."""
+    return normalized_points(undistort_views(cameras, pixels, camera), cameras.K[camera])
+
+
+def bundle_adjust(cameras: Cameras, pixels: np.ndarray, present: np.ndarray, camera: np.ndarray, obj: np.ndarray,
+                  X: np.ndarray, refine_focal: bool = False, weight: np.ndarray | None = None) -> Adjusted:
+    """Sparse bundle adjustment (module docstring) of ``V`` cameras and the objects they see.
+    Camera 0 stays fixed.
 
     Args:
-        x: ``(N, J, 2)`` normalized points (a person's ``J = 17`` joints, a board's corners) of
-            ``N`` views of objects; present: ``(N, J)``; camera, person: ``(N,)`` (person: the
-            object, -1: none); focal: ``(V,)`` px, the focal lengths ``x`` was normalized with;
-            R, t: ``(V, 3, 3)``, ``(V, 3)`` initial cameras; X: ``(Q, J, 3)`` the objects' points.
+        cameras: the ``V`` initial cameras (their lens is undone from ``pixels``; it stays).
+        pixels: ``(N, J, 2)`` the points (a person's ``J = 17`` joints, a board's corners) of
+            ``N`` views of objects, in pixels through the cameras' lens; present: ``(N, J)``;
+            camera, obj: ``(N,)`` the camera and the object (-1: none) of each view;
+            X: ``(Q, J, 3)`` the objects' initial points.
         refine_focal: adjust every camera's focal length too (its principal point and aspect
             ratio stay).
         weight: ``(N, J)`` each observation's weight (default 1; 0 drops it).
     Returns:
         :class:`Adjusted`.
     """
-    V, J = len(R), x.shape[1]
+    x = _normalized(cameras, pixels, camera)
+    R, t, focal = cameras.R, cameras.t, cameras.focal
+    V, J = len(cameras), x.shape[1]
     weight = np.ones(present.shape) if weight is None else weight
-    use = present & (person >= 0)[:, None] & np.isfinite(X[np.maximum(person, 0)]).all(-1) & (weight > 0)
+    use = present & (obj >= 0)[:, None] & np.isfinite(X[np.maximum(obj, 0)]).all(-1) & (weight > 0)
     pose, joint = np.nonzero(use)
-    cam, point = camera[pose], person[pose] * J + joint
+    cam, point = camera[pose], obj[pose] * J + joint
     points_used, point_index = np.unique(point, return_inverse=True)
     obs = x[pose, joint]
     P = len(points_used)
@@ -106,15 +130,23 @@ def bundle_adjust(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person
     sparsity = jacobian_sparsity(cam, point_index, V, P, refine_focal)
     result = least_squares(residuals, params0, jac_sparsity=sparsity, x_scale="jac", loss="soft_l1",
                            f_scale=LOSS_SCALE_PX, method="trf", max_nfev=200)
-    cams = result.x[:6 * (V - 1)].reshape(V - 1, 6)
-    R = np.concatenate([R[:1], _rotation_matrices(cams[:, :3])])
-    t = np.concatenate([t[:1], cams[:, 3:]])
     Xout = np.full((len(X) * J, 3), np.nan)
     Xout[points_used] = result.x[6 * (V - 1):end].reshape(P, 3)
-    focal_out = focal * result.x[end:] if refine_focal else focal.copy()
     sd = centre_sd(result.jac, 2 * result.cost / max(result.fun.size - result.x.size, 1), result.x[:6 * (V - 1)], P,
                    refine_focal)
-    return Adjusted(R, t, Xout.reshape(X.shape), focal_out, bool(result.status > 0), np.concatenate([[0.0], sd]))
+    scale = result.x[end:] if refine_focal else np.ones(V)
+    return Adjusted(_adjusted_cameras(cameras, result.x[:6 * (V - 1)], scale), Xout.reshape(X.shape), scale,
+                    bool(result.status > 0), np.concatenate([[0.0], sd]))
+
+
+def _adjusted_cameras(cameras: Cameras, params: np.ndarray, focal_scale: np.ndarray) -> Cameras:
+    """``cameras`` with every camera but the first moved to ``params: (6 (V - 1),)`` (rotation
+    vector, translation) and its focal lengths (and skew) scaled by ``focal_scale: (V,)``."""
+    cams = params.reshape(-1, 6)
+    K = cameras.K.copy()
+    K[:, :2, :2] *= focal_scale[:, None, None]
+    return replace(cameras, K=K, R=np.concatenate([cameras.R[:1], _rotation_matrices(cams[:, :3])]),
+                   t=np.concatenate([cameras.t[:1], cams[:, 3:]]))
 
 
 def centre_sd(jac, variance: float, cams: np.ndarray, n_points: int, focal: bool = False) -> np.ndarray:
@@ -171,11 +203,12 @@ def _centre_jacobian(rvec: np.ndarray, t: np.ndarray, step: float = 1e-6) -> np.
     return G
 
 
-def reprojection_px(x: np.ndarray, present: np.ndarray, camera: np.ndarray, person: np.ndarray, focal: np.ndarray,
-                    R: np.ndarray, t: np.ndarray, X: np.ndarray, refined: np.ndarray | None = None) -> np.ndarray:
-    """``(N, J)`` reprojection error (px) of every point of an object (NaN otherwise); the
-    arguments of :func:`bundle_adjust` (``refined``: its focal lengths, when it adjusted them)."""
-    xy, _ = project(X[np.maximum(person, 0)], projection_matrix(np.eye(3), R, t)[camera])   # (N, J, 2)
-    scale = (refined / focal)[camera][:, None, None] if refined is not None else 1.0
-    err = np.linalg.norm(scale * xy - x, axis=-1) * focal[camera][:, None]
-    return np.where(present & (person >= 0)[:, None] & np.isfinite(err), err, np.nan)
+def reprojection_px(cameras: Cameras, pixels: np.ndarray, present: np.ndarray, camera: np.ndarray, obj: np.ndarray,
+                    X: np.ndarray) -> np.ndarray:
+    """``(N, J)`` reprojection error (px) of every present point of an object (NaN otherwise):
+    the arguments of :func:`bundle_adjust`, ``cameras`` (an :class:`Adjusted`'s) and ``X: (Q, J, 3)``;
+    the distance in the normalized coordinates of each camera's ``K``, times its mean focal length."""
+    x = _normalized(cameras, pixels, camera)
+    xy, _ = project(X[np.maximum(obj, 0)], projection_matrix(np.eye(3), cameras.R, cameras.t)[camera])   # (N, J, 2)
+    err = np.linalg.norm(xy - x, axis=-1) * cameras.focal[camera][:, None]
+    return np.where(present & (obj >= 0)[:, None] & np.isfinite(err), err, np.nan)

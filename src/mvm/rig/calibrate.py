@@ -30,10 +30,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvm.core.camera import normalized_points
 from mvm.core.geometry import triangulate_dlt
 from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, NUM_JOINTS, bone_lengths
-from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
-from mvm.rig.people_pairs import MIN_PAIRINGS, PairCount, PairPose, normalized_points, pair_poses
+from mvm.rig.bundle_adjustment import bundle_adjust, pinhole_cameras, reprojection_px
+from mvm.rig.people_pairs import MIN_PAIRINGS, PairCount, PairPose, pair_poses
 
 #: Instants used at most (evenly spread) for the pairs and the bundle adjustment.
 MAX_INSTANTS = 150
@@ -283,9 +284,10 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             _place(parent, child, pair, R, t, X, x, present, camera, person)
         placed[child] = True
     X = triangulate_people(x, present, camera, person, R, t, placed)
-    adjusted = bundle_adjust(x, present, camera, person, focal, R, t, X, refine_focal, weight=keypoints[..., 2])
-    R, t, X, refined = adjusted.R, adjusted.t, adjusted.X, adjusted.focal
-    error = reprojection_px(x, present, camera, person, focal, R, t, X, refined if refine_focal else None)
+    adjusted = bundle_adjust(pinhole_cameras(K, R, t), keypoints[..., :2], present, camera, person, X, refine_focal,
+                             weight=keypoints[..., 2])
+    R, t, X = adjusted.cameras.R, adjusted.cameras.t, adjusted.X
+    error = reprojection_px(adjusted.cameras, keypoints[..., :2], present, camera, person, X)
     residual = np.array([np.nanmedian(error[camera == c]) if np.isfinite(error[camera == c]).any() else np.inf
                          for c in range(V)])
     observations = np.array([int(np.isfinite(error[camera == c]).sum()) for c in range(V)])
@@ -305,7 +307,7 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     instant_of = np.full(len(X), -1)
     instant_of[person[person >= 0]] = instant[person >= 0]
     return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s,
-                             adjusted.converged, refined / focal, s * adjusted.centre_sd)
+                             adjusted.converged, adjusted.focal_scale, s * adjusted.centre_sd)
 
 
 def _unplaced(camera: int, counts: dict[tuple[int, int], PairCount]) -> str:

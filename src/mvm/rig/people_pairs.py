@@ -80,17 +80,6 @@ class PairCount:
 
 
 
-def normalized_points(keypoints: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Pixels -> normalized image coordinates ``K^-1 x``. ``keypoints: (N, 17, >=2)``, ``K: (N, 3, 3)``
-    or ``(3, 3)`` -> ``(N, 17, 2)``."""
-    K = np.broadcast_to(K, (len(keypoints), 3, 3))
-    fx, fy, s = K[:, 0, 0, None], K[:, 1, 1, None], K[:, 0, 1, None]
-    cx, cy = K[:, 0, 2, None], K[:, 1, 2, None]
-    y = (keypoints[..., 1] - cy) / fy
-    x = (keypoints[..., 0] - cx - s * y) / fx
-    return np.stack([x, y], -1)
-
-
 def aligned_pairs(frame_a: np.ndarray, frame_b: np.ndarray, lag: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Every pair of poses ``(i, j)`` with ``frame_a[i] == frame_b[j] + lag``. ``frame_a: (A,)``,
     ``frame_b: (B,)`` -> ``(ia (M,), jb (M,))``."""

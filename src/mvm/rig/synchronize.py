@@ -32,8 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from mvm.core.camera import normalized_points
 from mvm.core.geometry import skew
-from mvm.rig.people_pairs import INLIER_PX, aligned_pairs, essential_from_pairings, normalized_points, sampson
+from mvm.rig.people_pairs import INLIER_PX, aligned_pairs, essential_from_pairings, sampson
 
 #: Two poses of consecutive frames are one person when their median joint distance is below
 #: this fraction of the person's image size. [1]
