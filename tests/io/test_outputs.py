@@ -271,3 +271,29 @@ def test_stale_temporary_files_are_only_mvms(tmp_path):
     assert sweep_dead_temporaries(folder) == 1
     assert sorted(p.name for p in folder.iterdir()) == sorted(kept)
     assert list(tmp_path.iterdir()) == [folder]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="a zombie is told by /proc (Linux)")
+def test_a_killed_writer_not_yet_reaped_counts_as_dead(tmp_path):
+    """A worker killed while writing is a zombie until its parent reaps it; its temporary is
+    swept all the same (the parent redoing its work must not leave it)."""
+    import signal
+    import time
+
+    from mvm.io.files import sweep_dead_temporaries
+
+    pid = os.fork()
+    if pid == 0:                                                                  # the worker
+        time.sleep(60)
+        os._exit(0)
+    try:
+        os.kill(pid, signal.SIGKILL)
+        for _ in range(100):                                                     # dead, not reaped
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().rpartition(")")[2].split()[0] == "Z":
+                    break
+            time.sleep(0.01)
+        (tmp_path / f".poses3d.json.mvm-tmp-{pid}-x1y2.tmp").write_text("{")
+        assert sweep_dead_temporaries(tmp_path) == 1 and not list(tmp_path.iterdir())
+    finally:
+        os.waitpid(pid, 0)

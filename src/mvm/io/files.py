@@ -276,11 +276,16 @@ def sweep_dead_temporaries(directory: str | Path) -> int:
 
 
 def _alive(pid: int) -> bool:
-    """Whether process ``pid`` runs on this machine (one that cannot be signalled counts as alive)."""
+    """Whether process ``pid`` runs on this machine (one that cannot be signalled counts as alive;
+    a killed one its parent has not reaped yet, a zombie, does not: on Linux its state says so)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except (PermissionError, OverflowError, OSError):
         return True
-    return True
+    try:
+        stat_line = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True
+    return stat_line.rpartition(")")[2].split()[:1] != ["Z"]          # "PID (name) STATE ..."
