@@ -197,15 +197,22 @@ def write_board_rig(root: Path, board: Board, n_cameras: int = 3, intrinsic_fram
     return BoardRig(cams, names)
 
 
+def true_cameras(cameras: list, names: list | None = None):
+    """The :class:`TrueCamera` list as :class:`~mvm.core.scene.Cameras` (``SIZE`` images; names
+    ``cam1 ..`` unless given)."""
+    from mvm.core.scene import Cameras
+
+    names = names or [f"cam{v + 1}" for v in range(len(cameras))]
+    return Cameras(np.array([c.K for c in cameras]), np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
+                   np.array([SIZE] * len(cameras), float), tuple(names), tuple(c.distortion for c in cameras),
+                   np.array([c.fisheye for c in cameras]))
+
+
 def write_true_calibration(path: Path, cameras: list, names: list) -> Path:
     """The true cameras as a Calib.toml (for ``--intrinsics``)."""
-    from mvm.core.scene import Cameras
     from mvm.io.calib_toml import RigCalibration, write_calib_toml
 
-    write_calib_toml(path, RigCalibration(
-        Cameras(np.array([c.K for c in cameras]), np.array([c.R for c in cameras]), np.array([c.t for c in cameras]),
-                np.array([SIZE] * len(cameras), float), tuple(names), tuple(c.distortion for c in cameras),
-                np.array([c.fisheye for c in cameras]))))
+    write_calib_toml(path, RigCalibration(true_cameras(cameras, names)))
     return path
 
 

@@ -22,13 +22,13 @@ from board_scenes import (
     render,
     ring_cameras,
     seen_corners,
+    true_cameras,
     write_board_rig,
     write_board_video,
     write_still_board,
     write_true_calibration,
 )
 from mvm.cli.rig import rig
-from mvm.core.camera import undistort
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, read_calib_toml
 from mvm.rig.board_calibration import calibrate_extrinsics, calibrate_intrinsics, image_coverage, usable_views
@@ -61,16 +61,18 @@ def test_intrinsics_and_extrinsics_from_projected_corners():
         K.append(lens.K)
         truth_px.append(lens)
     R, t = floor_board_poses(20, CHECKERBOARD)
-    corners = np.array([undistort(_noisy(seen_corners(CHECKERBOARD, cam, R, t), rng), cam.K, cam.distortion)
-                        for cam in cams])
-    found = calibrate_extrinsics(corners, np.array([cam.K for cam in cams]), CHECKERBOARD.object_points)
+    corners = np.array([_noisy(seen_corners(CHECKERBOARD, cam, R, t), rng) for cam in cams])   # through the lens
+    given = true_cameras(cams)
+    found = calibrate_extrinsics(corners, given, CHECKERBOARD.object_points)
     assert found.world_view == 0 and found.rms_px.max() < 0.2 and found.converged
+    assert found.cameras.names == given.names and np.array_equal(found.cameras.K, given.K)
+    assert all(np.array_equal(a, b) for a, b in zip(found.cameras.distortion, given.distortion))
     for v, cam in enumerate(cams):
-        centre = -found.R[v].T @ found.t[v]
-        assert np.linalg.norm(centre - (cam.centre - FIRST_CORNER)) < 0.01          # 1 cm, 3 m away
-        assert _rotation_deg(found.R[v], cam.R) < 0.2
-    in_camera = calibrate_extrinsics(corners, np.array([cam.K for cam in cams]), CHECKERBOARD.object_points, "camera")
+        assert np.linalg.norm(found.cameras.centers[v] - (cam.centre - FIRST_CORNER)) < 0.01   # 1 cm, 3 m away
+        assert _rotation_deg(found.cameras.R[v], cam.R) < 0.2
+    in_camera = calibrate_extrinsics(corners, given, CHECKERBOARD.object_points, "camera")
     assert in_camera.world_view == -1
+    in_camera = in_camera.cameras
     assert np.allclose(in_camera.R[0], np.eye(3)) and np.allclose(in_camera.t[0], 0)
     relative = cams[1].R @ cams[0].R.T
     assert _rotation_deg(in_camera.R[1], relative) < 0.2
@@ -303,10 +305,10 @@ def test_unsynchronized_views_refused():
     """One camera's extrinsics shifted by 3 frames: its views do not agree with the others'."""
     cams = ring_cameras(3, seed=1)
     R, t = floor_board_poses(20, CHECKERBOARD)
-    corners = np.array([undistort(seen_corners(CHECKERBOARD, cam, R, t), cam.K, cam.distortion) for cam in cams])
+    corners = np.array([seen_corners(CHECKERBOARD, cam, R, t) for cam in cams])
     corners[2] = np.roll(corners[2], 3, axis=0)
     with pytest.raises(CalibrationError, match="recorded together") as caught:
-        calibrate_extrinsics(corners, np.array([cam.K for cam in cams]), CHECKERBOARD.object_points)
+        calibrate_extrinsics(corners, true_cameras(cams), CHECKERBOARD.object_points)
     assert caught.value.camera == 2
 
 

@@ -1,6 +1,7 @@
 """A rig from raw poses: synchronize (sync.toml), calibrate from the people, reconstruct — on a
 simulated rig with the detector's errors (true offsets, true cameras), and the bad input of each
 step (one line naming the camera or file, exit 2, nothing written)."""
+import dataclasses
 import json
 
 import numpy as np
@@ -69,9 +70,11 @@ def test_calibrate_small_simulated_rig_math():
     from mvm.rig.rigdir import undistort
 
     kp = undistort(sim.calibration, sim.keypoints, sim.camera)
-    found = calibrate_from_people(kp, sim.camera, sim.frame, sim.calibration.cameras.K)
     true = sim.calibration.cameras
-    est = -np.einsum("vji,vj->vi", found.R, found.t)
+    found = calibrate_from_people(kp, sim.camera, sim.frame, true)
+    assert found.cameras.names == true.names and np.array_equal(found.cameras.size, true.size)
+    assert np.array_equal(found.cameras.K, true.K) and np.array_equal(found.cameras.fisheye, true.fisheye)
+    est = found.cameras.centers
     s, R, t = similarity_transform(est, true.centers)
     assert np.linalg.norm(s * est @ R.T + t - true.centers, axis=1).mean() < 0.05
     assert (found.residual_px < 5).all() and [c for _, c in found.tree] and sorted(c for _, c in found.tree) == [1, 2]
@@ -180,9 +183,10 @@ def test_focal_lengths_refined_from_people():
     off = np.array([1.05, 0.95, 1.05])
     K = true.K.copy()
     K[:, :2, :2] *= off[:, None, None]
-    found = calibrate_from_people(kp, sim.camera, sim.frame, K, refine_focal=True)
+    found = calibrate_from_people(kp, sim.camera, sim.frame, dataclasses.replace(true, K=K), refine_focal=True)
     assert np.abs(off * found.focal_scale - 1).max() < 0.015
-    est = -np.einsum("vji,vj->vi", found.R, found.t)
+    assert np.abs(found.cameras.K[:, 0, 0] / true.K[:, 0, 0] - 1).max() < 0.015
+    est = found.cameras.centers
     s, R, t = similarity_transform(est, true.centers)
     assert np.linalg.norm(s * est @ R.T + t - true.centers, axis=1).mean() < 0.05
     assert (found.residual_px < 5).all()
@@ -208,7 +212,6 @@ def test_output_on_an_input_refused_before_work(unsynced, tmp_path, monkeypatch)
 def _static_bystander_rig(seed: int = 2):
     """4 cameras without lens distortion; cameras 0-2 see a walking person and a person standing
     still, camera 3 the one standing still only: ``(sim, keypoints, camera, frame)``, 1 px noise."""
-    import dataclasses
 
     sim = simulate_rig(RigSimConfig(cameras=4, people=2, frames=40, distortion=0.0, speed=0.8, seed=seed))
     rng = np.random.default_rng(seed)
@@ -233,7 +236,7 @@ def _static_bystander_rig(seed: int = 2):
 def test_camera_sharing_only_a_person_standing_still_refused(tmp_path):
     sim = _static_bystander_rig()
     with pytest.raises(calibrate.CalibrationError) as e:
-        calibrate_from_people(sim.keypoints, sim.camera, sim.frame, sim.calibration.cameras.K)
+        calibrate_from_people(sim.keypoints, sim.camera, sim.frame, sim.calibration.cameras)
     assert e.value.camera == 3 and "standing still" in e.value.problem
     root = tmp_path / "still"
     write_rig_simulation(root, sim, intrinsics_only=True)

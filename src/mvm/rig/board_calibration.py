@@ -20,14 +20,16 @@ Pose2Sim and anipose do with OpenCV.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from mvm.core.camera import undistort_views
 from mvm.core.geometry import similarity_transform
+from mvm.core.scene import Cameras
 from mvm.rig.boards import MIN_CORNERS, spread_views, view_features
-from mvm.rig.bundle_adjustment import bundle_adjust, pinhole_cameras, reprojection_px
+from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
 from mvm.rig.calibrate import CalibrationError, spanning_tree
 from mvm.rig.people_pairs import PairPose
 
@@ -85,7 +87,8 @@ class BoardRig:
     """Extrinsics found from a board.
 
     Attributes:
-        R: ``(V, 3, 3)`` world -> camera rotations; t: ``(V, 3)`` translations (metres).
+        cameras: the :class:`~mvm.core.scene.Cameras` given, with their rotations ``R (V, 3, 3)``
+            and translations ``t (V, 3)`` (metres) found, world -> camera.
         rms_px: ``(V,)`` each camera's reprojection RMS after the adjustment.
         views: ``(V,)`` shared views of each camera in the adjustment.
         tree: ``[(parent, child)]`` the spanning tree the cameras were placed along.
@@ -94,8 +97,7 @@ class BoardRig:
         converged: the solver met its tolerance (not its evaluation limit).
     """
 
-    R: np.ndarray
-    t: np.ndarray
+    cameras: Cameras
     rms_px: np.ndarray
     views: np.ndarray
     tree: list
@@ -269,23 +271,25 @@ def _world_frame(X: np.ndarray, seen: np.ndarray, object_points: np.ndarray, R: 
     return R_w, t_w, f
 
 
-def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.ndarray, world: str = "board",
+def calibrate_extrinsics(corners: np.ndarray, cameras: Cameras, object_points: np.ndarray, world: str = "board",
                          world_instant: int | None = None) -> BoardRig:
     """Every camera's rotation and position from views of the board at common instants
     (module docstring, steps 2-5).
 
     Args:
-        corners: ``(V, T, C, 2)`` the board's corners (undistorted pixels, NaN: not seen) in
-            every camera at ``T`` common instants (synchronized videos).
-        K: ``(V, 3, 3)``; object_points: ``(C, 3)`` (metres); world: ``"board"`` or ``"camera"``;
+        corners: ``(V, T, C, 2)`` the board's corners (pixels through the cameras' lens, NaN:
+            not seen) in every camera at ``T`` common instants (synchronized videos).
+        cameras: the ``V`` cameras' intrinsics (``K``, size, names, lens; their ``R``, ``t`` are
+            ignored); object_points: ``(C, 3)`` (metres); world: ``"board"`` or ``"camera"``;
         world_instant: the instant whose board is the world (default: the first seen by the most cameras).
     Raises:
         CalibrationError naming a camera that shares no view with the others, or does not converge.
     """
     V, T, C = corners.shape[:3]
     R_board, t_board, ok = np.full((V, T, 3, 3), np.nan), np.full((V, T, 3), np.nan), np.zeros((V, T), bool)
+    pinhole = undistort_views(cameras, corners, np.arange(V))                     # (V, T, C, 2)
     for v in range(V):
-        R_board[v], t_board[v], ok[v] = board_poses(corners[v], K[v], object_points)
+        R_board[v], t_board[v], ok[v] = board_poses(pinhole[v], cameras.K[v], object_points)
         if not ok[v].any():
             raise CalibrationError(v, "the board is not found in any frame")
     shared = np.flatnonzero(ok.sum(0) >= 2)
@@ -300,9 +304,9 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
     R, t, tree = _place_cameras(R_board, t_board, ok)
     X = _corners_in_world(R_board, t_board, ok, R, t, object_points)
     camera, instant = np.nonzero(ok)
-    pixels = corners[camera, instant]                                             # (N, C, 2)
+    pixels = corners[camera, instant]                                             # (N, C, 2) through the lens
     present = np.isfinite(pixels).all(-1)
-    cameras = pinhole_cameras(K, R, t)
+    cameras = replace(cameras, R=R, t=t)
     for _ in range(2):                                    # once more without the views it does not explain
         adjusted = bundle_adjust(cameras, pixels, present, camera, instant, X)
         cameras, X, converged = adjusted.cameras, adjusted.X, adjusted.converged
@@ -325,4 +329,4 @@ def calibrate_extrinsics(corners: np.ndarray, K: np.ndarray, object_points: np.n
                                       f"{SYNC_HINT})")
     view = None if world_instant is None else int(np.searchsorted(shared, world_instant))
     R, t, f = _world_frame(X, ok, object_points, cameras.R, cameras.t, world, view)
-    return BoardRig(R, t, rms, ok.sum(1), tree, int(shared[f]) if f >= 0 else -1, converged)
+    return BoardRig(replace(cameras, R=R, t=t), rms, ok.sum(1), tree, int(shared[f]) if f >= 0 else -1, converged)

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mvm.core.scene import Cameras
 from mvm.errors import InputError
 from mvm.io.calib_toml import RigCalibration, write_calib_toml
 from mvm.io.layout import CALIBRATION_DIR, INTRINSICS_DIR
@@ -34,6 +33,7 @@ from mvm.rig.board_videos import (
     calibration_sources,
     camera_lens,
     frame_count,
+    lens_cameras,
     scan_all,
     scan_stride,
 )
@@ -80,7 +80,6 @@ def calibrate_intrinsics_from_board(rig_dir: str | Path, out: str | Path, board:
     counts = {n: frame_count(sources[n]) for n in names}
     scans = scan_all([(n, sources[n], scan_stride([counts[n]]), counts[n]) for n in names], board, workers, progress)
     lenses = [camera_lens(s, sources[n], n, board, fisheye) for n, s in zip(names, scans)]
-    V = len(names)
     metadata = {"adjusted": False, "error": round(float(np.mean([lens.rms_px for lens in lenses])), 4),
                 "method": f"{board.kind} (mvm rig calibrate --{board.kind} --intrinsics-only)",
                 "board": board.describe(), "cameras": names, "intrinsics": "calibrated on the board",
@@ -89,10 +88,7 @@ def calibrate_intrinsics_from_board(rig_dir: str | Path, out: str | Path, board:
                 "intrinsics_views": [len(lens.views) for lens in lenses],
                 "intrinsics_rms_px": [round(lens.rms_px, 4) for lens in lenses],
                 "intrinsics_coverage": [round(lens.coverage, 3) for lens in lenses]}
-    cameras = Cameras(np.array([lens.K for lens in lenses]), np.full((V, 3, 3), np.nan), np.full((V, 3), np.nan),
-                      np.array([s.size for s in scans], dtype=float), tuple(names),
-                      tuple(lens.distortion for lens in lenses), np.full(V, fisheye))
-    calibration = RigCalibration(cameras, metadata)
+    calibration = RigCalibration(lens_cameras(names, lenses, scans, fisheye), metadata)
     out = Path(out)
     write_calib_toml(out, calibration)
     return BoardIntrinsics(calibration, lenses, sources, scans, out)

@@ -31,7 +31,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mvm.core.camera import undistort
 from mvm.core.names import natural_key, without_shared_words
 from mvm.core.scene import Cameras
 from mvm.errors import InputError
@@ -253,6 +252,15 @@ def _check_found(scan_: BoardScan, source: Path, name: str, board: Board, more: 
                                        f"{searched(scan_, source)} searched ({hint})")
 
 
+def lens_cameras(names: list[str], lenses: list[Intrinsics], scans: list[BoardScan], fisheye: bool) -> Cameras:
+    """The ``V`` cameras of ``names`` with the intrinsics and lens of ``lenses`` and the image
+    size of ``scans`` (their rotations and translations unknown: NaN)."""
+    V = len(names)
+    return Cameras(np.array([lens.K for lens in lenses]), np.full((V, 3, 3), np.nan), np.full((V, 3), np.nan),
+                   np.array([s.size for s in scans], dtype=float), tuple(names),
+                   tuple(lens.distortion for lens in lenses), np.full(V, fisheye))
+
+
 def camera_lens(scan_: BoardScan, source: Path, name: str, board: Board, fisheye: bool) -> Intrinsics:
     """A camera's :class:`Intrinsics` from its scan (the board found in it)."""
     _check_found(scan_, source, name, board)
@@ -355,21 +363,19 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
     if given is None:
         lenses = _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, workers, progress,
                                    fisheye)
-        K = np.array([lens.K for lens in lenses])
-        distortions, fisheye = tuple(lens.distortion for lens in lenses), np.full(len(names), fisheye)
-        sizes = np.array([s.size for s in ext_scans], dtype=float)
+        cameras = lens_cameras(names, lenses, ext_scans, fisheye)
     else:
         lenses = [None] * len(names)
-        K, distortions, fisheye = given.cameras.K, given.distortions, given.fisheye
-        sizes = given.cameras.size
+        cameras = given.cameras
         for v, (name, s) in enumerate(zip(names, ext_scans)):
-            if not np.allclose(sizes[v], s.size):
+            if not np.allclose(cameras.size[v], s.size):
                 raise InputError(ext_sources[name], None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, "
-                                                          f"{intrinsics} says {sizes[v][0]:g}x{sizes[v][1]:g}")
+                                                          f"{intrinsics} says {cameras.size[v][0]:g}x"
+                                                          f"{cameras.size[v][1]:g}")
     frames = np.unique(np.concatenate([s.frames for s in ext_scans]))
     corners = np.full((len(names), len(frames)) + ext_scans[0].corners.shape[1:], np.nan)
     for v, s in enumerate(ext_scans):
-        corners[v, np.searchsorted(frames, s.frames)] = undistort(s.corners, K[v], distortions[v], bool(fisheye[v]))
+        corners[v, np.searchsorted(frames, s.frames)] = s.corners
     instant = None
     if world_frame is not None:
         instant = int(np.argmin(np.abs(frames - world_frame)))
@@ -379,7 +385,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
                              f"the board is found in frame {frames[instant]} (the nearest searched) by "
                              f"{', '.join(seen) or 'no camera'}: at least two cameras must see it")
     try:
-        rig = calibrate_extrinsics(corners, K, board.object_points, world, instant)
+        rig = calibrate_extrinsics(corners, cameras, board.object_points, world, instant)
     except CalibrationError as e:
         name = names[e.camera] if e.camera is not None else None
         raise InputError(ext_sources[name] if name else rig_dir / CALIBRATION_DIR, None,
@@ -393,7 +399,7 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
                 "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
                 "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
                 "residual_px": [round(float(r), 4) for r in rig.rms_px]}
-    calibration = RigCalibration(Cameras(K, rig.R, rig.t, sizes, tuple(names), distortions, fisheye), metadata)
+    calibration = RigCalibration(rig.cameras, metadata)
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigBoardCalibration(calibration, lenses, rig, frames, out)

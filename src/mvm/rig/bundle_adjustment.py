@@ -70,14 +70,6 @@ class Adjusted:
     centre_sd: np.ndarray
 
 
-def pinhole_cameras(K: np.ndarray, R: np.ndarray, t: np.ndarray) -> Cameras:
-    """Lens-free :class:`~mvm.core.scene.Cameras` of intrinsics ``K: (V, 3, 3)`` and extrinsics
-    ``R: (V, 3, 3)``, ``t: (V, 3)``, for observations whose lens is undone already (the image
-    size, unused by the adjustment, is 0)."""
-    V = len(K)
-    return Cameras(K, R, t, np.zeros((V, 2)), tuple(str(v) for v in range(V)))
-
-
 def _normalized(cameras: Cameras, pixels: np.ndarray, camera: np.ndarray) -> np.ndarray:
     """Pixels ``(N, J, 2)`` seen by ``camera: (N,)`` through the cameras' lens -> ``(N, J, 2)``
     normalized coordinates of their pinhole ``K`` (:func:`mvm.core.camera.undistort_views`)."""

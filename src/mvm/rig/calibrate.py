@@ -26,14 +26,15 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from mvm.core.camera import normalized_points
 from mvm.core.geometry import triangulate_dlt
 from mvm.core.keypoints import INDEX, MEAN_BONE_LENGTHS_M, NUM_JOINTS, bone_lengths
-from mvm.rig.bundle_adjustment import bundle_adjust, pinhole_cameras, reprojection_px
+from mvm.core.scene import Cameras
+from mvm.rig.bundle_adjustment import bundle_adjust, reprojection_px
 from mvm.rig.people_pairs import MIN_PAIRINGS, PairCount, PairPose, pair_poses
 
 #: Instants used at most (evenly spread) for the pairs and the bundle adjustment.
@@ -77,7 +78,9 @@ class PeopleCalibration:
     """Extrinsics found from the people.
 
     Attributes:
-        R: ``(V, 3, 3)`` world -> camera rotations; t: ``(V, 3)`` translations (metres).
+        cameras: the :class:`~mvm.core.scene.Cameras` given, with their rotations ``R (V, 3, 3)``
+            and translations ``t (V, 3)`` (metres) found, world -> camera, and their focal
+            lengths refined when asked (``focal_scale``).
         residual_px: ``(V,)`` median reprojection error of each camera's joints after adjustment.
         observations: ``(V,)`` joints of each camera in the adjustment.
         tree: ``[(parent, child)]`` the spanning tree the cameras were placed along.
@@ -90,8 +93,7 @@ class PeopleCalibration:
             reference camera (metres; 0 for it), from the bundle adjustment's Jacobian.
     """
 
-    R: np.ndarray
-    t: np.ndarray
+    cameras: Cameras
     residual_px: np.ndarray
     observations: np.ndarray
     tree: list
@@ -233,21 +235,23 @@ def world_from_people(X: np.ndarray, R0_right: np.ndarray) -> tuple[float, np.nd
     return s, W, b
 
 
-def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np.ndarray, K: np.ndarray,
+def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np.ndarray, cameras: Cameras,
                           seed: int = 0, refine_focal: bool = False) -> PeopleCalibration:
     """Every camera's rotation and position from the people's 2D poses (module docstring).
 
     Args:
-        keypoints: ``(N, 17, 3)`` undistorted 2D poses (pixels, confidence; 0: missing) of
-            synchronized cameras; camera: ``(N,)`` in ``0 .. V-1``; instant: ``(N,)``.
-        K: ``(V, 3, 3)`` intrinsics.
+        keypoints: ``(N, 17, 3)`` 2D poses (pixels, confidence; 0: missing) of synchronized
+            cameras, undistorted already (as a rig's reader gives them: its lens is not undone
+            again); camera: ``(N,)`` in ``0 .. V-1``; instant: ``(N,)``.
+        cameras: the ``V`` cameras' intrinsics (``K``, size, names and the lens the keypoints
+            were seen through; their ``R``, ``t`` are ignored).
         refine_focal: adjust every camera's focal length in the bundle adjustment too (its
             principal point and aspect ratio stay).
     Returns:
         :class:`PeopleCalibration` in the people's world (metres). Raises
         :class:`CalibrationError` naming the camera that cannot be placed or does not converge.
     """
-    V = len(K)
+    K, V = cameras.K, len(cameras)
     if V < 2:
         raise CalibrationError(None, "one camera: at least two are needed")
     for c in range(V):
@@ -284,7 +288,8 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             _place(parent, child, pair, R, t, X, x, present, camera, person)
         placed[child] = True
     X = triangulate_people(x, present, camera, person, R, t, placed)
-    adjusted = bundle_adjust(pinhole_cameras(K, R, t), keypoints[..., :2], present, camera, person, X, refine_focal,
+    pinhole = replace(cameras, R=R, t=t, distortion=(), fisheye=None)              # the lens is undone already
+    adjusted = bundle_adjust(pinhole, keypoints[..., :2], present, camera, person, X, refine_focal,
                              weight=keypoints[..., 2])
     R, t, X = adjusted.cameras.R, adjusted.cameras.t, adjusted.X
     error = reprojection_px(adjusted.cameras, keypoints[..., :2], present, camera, person, X)
@@ -306,7 +311,8 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     X_world = s * X @ W.T + b
     instant_of = np.full(len(X), -1)
     instant_of[person[person >= 0]] = instant[person >= 0]
-    return PeopleCalibration(R_world, t_world, residual, observations, tree, X_world, instant_of, s,
+    found = replace(cameras, K=adjusted.cameras.K, R=R_world, t=t_world)
+    return PeopleCalibration(found, residual, observations, tree, X_world, instant_of, s,
                              adjusted.converged, adjusted.focal_scale, s * adjusted.centre_sd)
 
 

@@ -5,7 +5,7 @@ the camera or the file, and nothing is written then."""
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -125,7 +125,7 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
     cams = rig.calibration.cameras
     det = rig.detections
     try:
-        found = calibrate_from_people(det.keypoints, det.view, det.instant, cams.K, seed, refine_focal)
+        found = calibrate_from_people(det.keypoints, det.view, det.instant, cams, seed, refine_focal)
     except CalibrationError as e:
         where = rig.sources[cams.names[e.camera]] if e.camera is not None else rig_dir
         name = f"camera {cams.names[e.camera]}: " if e.camera is not None else ""
@@ -134,12 +134,10 @@ def calibrate_rig_from_people(rig_dir: str | Path, out: str | Path, intrinsics: 
                 "method": "from people (mvm rig calibrate --from-people)", "units": "m",
                 "intrinsics": str(source), "cameras": list(cams.names),
                 "residual_px": [round(float(r), 4) for r in found.residual_px]}
-    K = cams.K.copy()
     if refine_focal:
-        K[:, :2, :2] *= found.focal_scale[:, None, None]
         metadata["focal_refined"] = [round(float(k), 5) for k in found.focal_scale]
     notes = tuple({"position_sd_m": round(float(sd), 4)} for sd in found.position_sd_m)
-    calibration = RigCalibration(replace(cams, K=K, R=found.R, t=found.t), metadata, notes)
+    calibration = RigCalibration(found.cameras, metadata, notes)
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigPeopleCalibration(calibration, found, rig.offsets, out)
