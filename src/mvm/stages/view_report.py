@@ -7,42 +7,34 @@ from __future__ import annotations
 from pathlib import Path
 
 from mvm.io.layout import REPORT_PAGE
+from mvm.stages import view
 from mvm.stages.stage import Done, Stage, present
-from mvm.stages.view import (
-    ViewJob,
-    check_record_name,
-    input_paths,
-    list_in_output_set,
-    load_rig_view,
-    not_reconstructed,
-    view_inputs,
-)
 
 #: The stage in the reasons of a rerun.
 TITLE = "the report"
 
 
-def _page(job: ViewJob) -> Path:
+def _page(job: view.ViewJob) -> Path:
     return Path(job.out) if job.out is not None else job.out_dir / REPORT_PAGE
 
 
-def _settings(job: ViewJob) -> dict:
+def _settings(job: view.ViewJob) -> dict:
     return {"calib": str(job.calib) if job.calib else None} if job.rig else {"frames": job.frames}
 
 
-def _run(job: ViewJob, force: bool) -> Done:
+def _run(job: view.ViewJob, force: bool) -> Done:
     """``Done.result``: the page's path."""
     from mvm.io.provenance import produce
 
-    page, inputs = _page(job), view_inputs(job)
-    check_record_name(page, inputs, TITLE)
+    page, inputs = _page(job), view.view_inputs(job)
+    view.check_record_name(page, inputs, TITLE)
 
     def make(why: str, hashed: dict) -> Path:
         if job.rig:
             from mvm.report.rig_page import write_rig_report
 
-            path = write_rig_report(load_rig_view(job), input_paths(inputs), job.out)
-            list_in_output_set(job, path)
+            path = write_rig_report(view.load_rig_view(job), view.input_paths(inputs), job.out)
+            view.list_in_output_set(job, path)
             return path
         from mvm.report import write_report
 
@@ -52,5 +44,5 @@ def _run(job: ViewJob, force: bool) -> Done:
     return Done(path, why)
 
 
-STAGE = Stage("report", TITLE, (), _page, view_inputs, _settings, lambda job: present(_page(job)), _run,
-              applies=not_reconstructed)
+STAGE = Stage("report", TITLE, (), _page, view.view_inputs, _settings, lambda job: present(_page(job)), _run,
+              applies=view.not_reconstructed)
