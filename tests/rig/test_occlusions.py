@@ -294,3 +294,25 @@ def test_a_dispute_extends_over_one_view_refused_next_to_it_but_not_over_others(
     two_tracks = np.r_[np.zeros(9, int), np.ones(21, int)]                 # 0-8 and 9-29: the run is cut at 9
     other = extend_disputes(refused, view_refused, np.arange(30), two_tracks)
     assert np.flatnonzero(other[:, w]).tolist() == list(range(2, 9))
+
+
+def test_a_run_of_one_view_refused_where_the_wrist_jumps_is_refused():
+    """A wrist whose one view is refused from 10 to 19 while the joint sits 30 cm off from 10 on
+    (the other views agree on another thing): the run is refused. The same run without the jump
+    (the one view simply wrong), a jump with no view refused, and a run already disputed are not."""
+    from mvm.rig.occlusions import jump_disputed
+
+    truth, instant, track = _arm_track(40)
+    w = INDEX["right_wrist"]
+    X = truth.copy()
+    X[10:20, w] += [0.3, 0.0, 0.0]
+    view_refused = np.zeros((40, 4, 17), bool)
+    view_refused[10:20, 2, w] = True
+    none = np.zeros((40, 17), bool)
+    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, w]).tolist() == list(range(10, 20))
+    assert not jump_disputed(truth, view_refused, none, instant, track).any()
+    assert not jump_disputed(X, np.zeros_like(view_refused), none, instant, track).any()
+    settled = none.copy()
+    settled[12, w] = True
+    assert not jump_disputed(X, view_refused, settled, instant, track).any()
+    assert np.flatnonzero(jump_disputed(1000 * X, view_refused, none, instant, track, unit=1000.0)[:, w]).size == 10

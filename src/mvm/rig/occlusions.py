@@ -80,6 +80,11 @@ DISPUTED_VIEWS = 2
 #: one, reported at the other hand in the rest) put it off the bone's sphere. On the simulated rig
 #: the bones of seen joints stay within 5 % of their median; such stretches are 10 to 45 % off. [1]
 BONE_DISPUTE = 0.15
+#: A run of instants where one view's keypoint of an elbow or a wrist is refused, none of them
+#: disputed otherwise, is refused whole where the joint's offset from its parent jumps this far
+#: (its second difference) where the run begins or ends: the other views took the joint to
+#: another thing there. [m]
+JUMP_M = 0.12
 #: Instants either side within which two refused joints close the stretch between them. [1]
 DISPUTE_SPAN = 3
 #: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
@@ -140,6 +145,34 @@ def bone_disputed(X: np.ndarray, instant: np.ndarray, track: np.ndarray) -> np.n
             off = np.zeros((len(index), len(joints)), bool)
             off[index >= 0] = known & (np.abs(length[rows] - median) > BONE_DISPUTE * median)
         out[rows[:, None], joints] = _stretches(off)[index >= 0]
+    return out
+
+
+def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray, instant: np.ndarray,
+                  track: np.ndarray, unit: float = 1.0) -> np.ndarray:
+    """``(Q, 17)`` the elbows and wrists of ``X: (Q, 17, 3)`` over the runs of
+    :data:`DISPUTE_STRETCH` or more instants where one view's keypoint of them is refused
+    (``view_refused: (Q, V, 17)``), none of them among ``disputes: (Q, 17)``, and their offset
+    from the parent jumps by :data:`JUMP_M` or more (its second difference) at the run's first
+    or last instant: the views that do not see a hand took it to another thing as the run began
+    or ended, and outvoted the one that sees it. ``instant, track: (Q,)``; ``unit``: world units
+    per metre."""
+    out = np.zeros(X.shape[:2], bool)
+    parent = {j: p for passes in LIMB_PASSES for j, p in passes}
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
+        present = index >= 0
+        S = np.where(present[:, None, None], X[np.maximum(index, 0)], np.nan)     # (L, 17, 3)
+        for j in ARM_JOINTS:
+            offset = S[:, j] - S[:, parent[j]]                                     # (L, 3)
+            acc = np.linalg.norm(offset[2:] - 2 * offset[1:-1] + offset[:-2], axis=-1)
+            jump = np.zeros(len(S), bool)                                          # at the middle instant
+            jump[1:-1] = np.nan_to_num(acc) >= JUMP_M * unit
+            settled = present & disputes[np.maximum(index, 0), j]                  # refused already
+            for v in range(view_refused.shape[1]):
+                for a, b in zip(*runs(present & view_refused[np.maximum(index, 0), v, j])):
+                    edges = jump[max(a - 1, 0):a + 1].any() or jump[b - 1:b + 1].any()
+                    if b - a >= DISPUTE_STRETCH and edges and not settled[a:b].any():
+                        out[index[a:b], j] = True
     return out
 
 
@@ -213,19 +246,23 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
 
 
 def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, instant: np.ndarray,
-                        track: np.ndarray) -> np.ndarray:
+                        track: np.ndarray, unit: float = 1.0) -> np.ndarray:
     """``(Q, 17)`` the limb joints of tracked persons ``X: (Q, 17, 3)`` refused, to be filled
     (:func:`fill_occlusions`): those their views dispute (:func:`disputed`, of the
     triangulation's ``inliers`` among the ``valid: (Q, V, 17)`` keypoints) or their bone does
-    (:func:`bone_disputed`), closed into stretches (:func:`close_disputes`) and, for the elbows
+    (:func:`bone_disputed`), an elbow's or a wrist's run of one view refused where it jumps at the
+    run's ends (:func:`jump_disputed`; ``unit``: world units per metre), closed into stretches
+    (:func:`close_disputes`) and, for the elbows
     and wrists, extended over the runs of one view refused next to them (:func:`extend_disputes`;
     on the real 4-camera capture of ``benchmarks/real_footage.py`` extending the legs too made a
     hip-knee bone's length vary more, its standard deviation 18 -> 25 mm, where a leg crossing
     the other keeps one view refused). ``instant, track: (Q,)``."""
-    refused = close_disputes(disputed(inliers, valid) | bone_disputed(X, instant, track), instant, track)
+    view_refused = valid & ~inliers
+    disputes = disputed(inliers, valid) | bone_disputed(X, instant, track)
+    refused = close_disputes(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), instant, track)
     arms = np.zeros(refused.shape[1], bool)
     arms[ARM_JOINTS] = True
-    return extend_disputes(refused, valid & ~inliers & arms, instant, track)
+    return extend_disputes(refused, view_refused & arms, instant, track)
 
 
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:

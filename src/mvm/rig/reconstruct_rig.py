@@ -217,7 +217,8 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     fill = complete and detections is not None and cameras is not None and options.occlusion_max_gap > 0
     refused = np.zeros(persons.X.shape[:2], bool)
     if fill and len(persons):
-        refused = refused_limb_joints(persons.X, persons.inliers, persons.valid, persons.instant, tracking.track)
+        refused = refused_limb_joints(persons.X, persons.inliers, persons.valid, persons.instant, tracking.track,
+                                      unit)
     X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
                       options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
                       window=options.savgol_window)
