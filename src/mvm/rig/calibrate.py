@@ -257,11 +257,7 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     for c in range(V):
         if not (camera == c).any():
             raise CalibrationError(c, "no 2D poses")
-    instants = np.unique(instant)
-    if len(instants) > MAX_INSTANTS:
-        keep_instants = instants[np.linspace(0, len(instants) - 1, MAX_INSTANTS).round().astype(int)]
-        keep = np.isin(instant, keep_instants)
-        keypoints, camera, instant = keypoints[keep], camera[keep], instant[keep]
+    keypoints, camera, instant = _spread_instants(keypoints, camera, instant)
     rng = np.random.default_rng(seed)
     focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
     x = normalized_points(keypoints, K[camera])
@@ -274,6 +270,41 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     person = person_components(pairs, len(x), camera)
     if person.max() < 0:
         raise CalibrationError(None, "no person is seen by two cameras")
+    R, t = _place_along(tree, pairs, V, x, present, camera, person)
+    X = triangulate_people(x, present, camera, person, R, t, np.ones(V, bool))
+    pinhole = replace(cameras, R=R, t=t, distortion=(), fisheye=None)              # the lens is undone already
+    adjusted = bundle_adjust(pinhole, keypoints[..., :2], present, camera, person, X, refine_focal,
+                             weight=keypoints[..., 2])
+    R, t, X = adjusted.cameras.R, adjusted.cameras.t, adjusted.X
+    error = reprojection_px(adjusted.cameras, keypoints[..., :2], present, camera, person, X)
+    parallax = parallax_deg(x, np.isfinite(error), camera, person, R, t, X)
+    residual, observations = _checked_fit(error, camera, V, parallax)
+    s, W, b = world_from_people(X, R[0][0])
+    R_world = R @ W.T
+    t_world = s * t - np.einsum("vij,j->vi", R_world, b)
+    X_world = s * X @ W.T + b
+    instant_of = np.full(len(X), -1)
+    instant_of[person[person >= 0]] = instant[person >= 0]
+    found = replace(cameras, K=adjusted.cameras.K, R=R_world, t=t_world)
+    return PeopleCalibration(found, residual, observations, tree, X_world, instant_of, s,
+                             adjusted.converged, adjusted.focal_scale, s * adjusted.centre_sd)
+
+
+def _spread_instants(keypoints: np.ndarray, camera: np.ndarray, instant: np.ndarray) -> tuple:
+    """The 2D poses ``(N, 17, 3)``, their cameras and instants ``(N,)`` of at most
+    :data:`MAX_INSTANTS` instants, evenly spread."""
+    instants = np.unique(instant)
+    if len(instants) <= MAX_INSTANTS:
+        return keypoints, camera, instant
+    keep = np.isin(instant, instants[np.linspace(0, len(instants) - 1, MAX_INSTANTS).round().astype(int)])
+    return keypoints[keep], camera[keep], instant[keep]
+
+
+def _place_along(tree: list, pairs: dict, V: int, x: np.ndarray, present: np.ndarray, camera: np.ndarray,
+                 person: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R (V, 3, 3), t (V, 3))``: the cameras placed along the spanning ``tree`` from camera 0,
+    the first child by its pair's relative pose, each next one against the people triangulated by
+    those placed before it (:func:`_place`)."""
     R = np.repeat(np.eye(3)[None], V, 0)
     t = np.zeros((V, 3))
     placed = np.zeros(V, bool)
@@ -287,12 +318,14 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             X = triangulate_people(x, present, camera, person, R, t, placed)
             _place(parent, child, pair, R, t, X, x, present, camera, person)
         placed[child] = True
-    X = triangulate_people(x, present, camera, person, R, t, placed)
-    pinhole = replace(cameras, R=R, t=t, distortion=(), fisheye=None)              # the lens is undone already
-    adjusted = bundle_adjust(pinhole, keypoints[..., :2], present, camera, person, X, refine_focal,
-                             weight=keypoints[..., 2])
-    R, t, X = adjusted.cameras.R, adjusted.cameras.t, adjusted.X
-    error = reprojection_px(adjusted.cameras, keypoints[..., :2], present, camera, person, X)
+    return R, t
+
+
+def _checked_fit(error: np.ndarray, camera: np.ndarray, V: int, parallax: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(residual_px (V,), observations (V,))`` of the adjusted cameras, from the reprojection
+    ``error: (N, 17)`` of each pose's joints (NaN: not adjusted) and each camera's median
+    ``parallax: (V,)``; a camera whose median error exceeds :data:`MAX_RESIDUAL_PX`, or whose rays
+    meet the others' under :data:`MIN_PARALLAX_DEG`, raises :class:`CalibrationError`."""
     residual = np.array([np.nanmedian(error[camera == c]) if np.isfinite(error[camera == c]).any() else np.inf
                          for c in range(V)])
     observations = np.array([int(np.isfinite(error[camera == c]).sum()) for c in range(V)])
@@ -300,20 +333,11 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
     if residual[worst] > MAX_RESIDUAL_PX:
         raise CalibrationError(worst, f"the calibration does not converge (median reprojection error "
                                       f"{residual[worst]:.1f} px)")
-    parallax = parallax_deg(x, np.isfinite(error), camera, person, R, t, X)
     short = int(np.nanargmin(np.where(np.isfinite(parallax), parallax, -1.0)))
     if not parallax[short] >= MIN_PARALLAX_DEG:
         raise CalibrationError(short, f"its rays meet the other cameras' at {parallax[short]:.1f}° (median), under "
                                       f"{MIN_PARALLAX_DEG:g}°: too short a baseline to place it")
-    s, W, b = world_from_people(X, R[0][0])
-    R_world = R @ W.T
-    t_world = s * t - np.einsum("vij,j->vi", R_world, b)
-    X_world = s * X @ W.T + b
-    instant_of = np.full(len(X), -1)
-    instant_of[person[person >= 0]] = instant[person >= 0]
-    found = replace(cameras, K=adjusted.cameras.K, R=R_world, t=t_world)
-    return PeopleCalibration(found, residual, observations, tree, X_world, instant_of, s,
-                             adjusted.converged, adjusted.focal_scale, s * adjusted.centre_sd)
+    return residual, observations
 
 
 def _unplaced(camera: int, counts: dict[tuple[int, int], PairCount]) -> str:
