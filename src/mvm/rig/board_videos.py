@@ -328,6 +328,42 @@ def _calibrate_lenses(names, intrinsic_sources, ext_scans, ext_sources, board, w
     return found
 
 
+def _corners_by_frame(scans: list[BoardScan]) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames (F,), corners (V, F, C, 2))``: the frames any camera searched and each camera's
+    board corners in them (NaN: not searched or not found), from the scans of ``V`` cameras."""
+    frames = np.unique(np.concatenate([s.frames for s in scans]))
+    corners = np.full((len(scans), len(frames)) + scans[0].corners.shape[1:], np.nan)
+    for v, s in enumerate(scans):
+        corners[v, np.searchsorted(frames, s.frames)] = s.corners
+    return frames, corners
+
+
+def _world_instant(frames: np.ndarray, corners: np.ndarray, names: list[str], world_frame: int) -> int:
+    """The index in ``frames`` nearest ``world_frame`` (``--world-frame``), refused in one line
+    unless two cameras or more see the board there."""
+    instant = int(np.argmin(np.abs(frames - world_frame)))
+    seen = [n for n, c in zip(names, corners[:, instant]) if np.isfinite(c).all(-1).sum() >= MIN_CORNERS]
+    if len(seen) < 2:
+        raise InputError("--world-frame", str(world_frame),
+                         f"the board is found in frame {frames[instant]} (the nearest searched) by "
+                         f"{', '.join(seen) or 'no camera'}: at least two cameras must see it")
+    return instant
+
+
+def _metadata(rig, board: Board, names: list[str], frames: np.ndarray, lenses: list, intrinsics) -> dict:
+    """The ``[metadata]`` of a board calibration's Calib.toml: the residuals, the board, the world
+    and where the intrinsics came from (each camera's residual and coverage when calibrated here)."""
+    return {"adjusted": True, "error": round(float(np.mean(rig.rms_px)), 4),
+            "method": f"{board.kind} (mvm rig calibrate --{board.kind})", "units": "m",
+            "board": board.describe(), "cameras": names,
+            "world": (f"the board at frame {int(frames[rig.world_view])} (origin on its first corner, z out of "
+                      "its face)") if rig.world_view >= 0 else f"camera {names[0]}",
+            "intrinsics": str(intrinsics) if intrinsics else "calibrated on the board",
+            "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
+            "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
+            "residual_px": [round(float(r), 4) for r in rig.rms_px]}
+
+
 def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board, intrinsics: str | Path | None = None,
                              world: str = "board", workers: int | None = None, progress=None,
                              fisheye: bool = False, world_frame: int | None = None) -> RigBoardCalibration:
@@ -372,34 +408,15 @@ def calibrate_rig_from_board(rig_dir: str | Path, out: str | Path, board: Board,
                 raise InputError(ext_sources[name], None, f"camera {name}: {s.size[0]}x{s.size[1]} pixels, "
                                                           f"{intrinsics} says {cameras.size[v][0]:g}x"
                                                           f"{cameras.size[v][1]:g}")
-    frames = np.unique(np.concatenate([s.frames for s in ext_scans]))
-    corners = np.full((len(names), len(frames)) + ext_scans[0].corners.shape[1:], np.nan)
-    for v, s in enumerate(ext_scans):
-        corners[v, np.searchsorted(frames, s.frames)] = s.corners
-    instant = None
-    if world_frame is not None:
-        instant = int(np.argmin(np.abs(frames - world_frame)))
-        seen = [n for n, c in zip(names, corners[:, instant]) if np.isfinite(c).all(-1).sum() >= MIN_CORNERS]
-        if len(seen) < 2:
-            raise InputError("--world-frame", str(world_frame),
-                             f"the board is found in frame {frames[instant]} (the nearest searched) by "
-                             f"{', '.join(seen) or 'no camera'}: at least two cameras must see it")
+    frames, corners = _corners_by_frame(ext_scans)
+    instant = None if world_frame is None else _world_instant(frames, corners, names, world_frame)
     try:
         rig = calibrate_extrinsics(corners, cameras, board.object_points, world, instant)
     except CalibrationError as e:
         name = names[e.camera] if e.camera is not None else None
         raise InputError(ext_sources[name] if name else rig_dir / CALIBRATION_DIR, None,
                          (f"camera {name}: " if name else "") + e.problem) from None
-    metadata = {"adjusted": True, "error": round(float(np.mean(rig.rms_px)), 4),
-                "method": f"{board.kind} (mvm rig calibrate --{board.kind})", "units": "m",
-                "board": board.describe(), "cameras": names,
-                "world": (f"the board at frame {int(frames[rig.world_view])} (origin on its first corner, z out of "
-                          "its face)") if rig.world_view >= 0 else f"camera {names[0]}",
-                "intrinsics": str(intrinsics) if intrinsics else "calibrated on the board",
-                "intrinsics_rms_px": [round(lens.rms_px, 4) if lens else -1.0 for lens in lenses],
-                "intrinsics_coverage": [round(lens.coverage, 3) if lens else -1.0 for lens in lenses],
-                "residual_px": [round(float(r), 4) for r in rig.rms_px]}
-    calibration = RigCalibration(rig.cameras, metadata)
+    calibration = RigCalibration(rig.cameras, _metadata(rig, board, names, frames, lenses, intrinsics))
     out = Path(out)
     write_calib_toml(out, calibration)
     return RigBoardCalibration(calibration, lenses, rig, frames, out)
