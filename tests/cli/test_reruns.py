@@ -137,6 +137,23 @@ def test_sfm_never_replaces_a_model_it_did_not_make(clip, tmp_path):
     assert fingerprint(scene / "sparse") == before
 
 
+def test_the_scene_s_own_model_adopted_again_is_read_again(clip, tmp_path):
+    """``mvm sfm SCENE --cameras SCENE/sparse`` after the user edited ``sparse/``: the report
+    follows the model as it is now (the scene's own model is no input the record could hold)."""
+    from mvm.video.sfm import read_sfm_report
+
+    root, truth = clip
+    scene = tmp_path / "scene"
+    assert invoke("frames", root / "tour.mp4", "-o", scene, "--blur-ratio", "0").exit_code == 0
+    write_colmap(scene / "sparse", truth.cameras)
+    assert invoke("sfm", scene, "--cameras", scene / "sparse").exit_code == 0
+    assert len(read_sfm_report(scene).registered) == len(truth.cameras)
+    write_colmap(scene / "sparse", truth.cameras.subset(list(range(len(truth.cameras) - 2))))
+    result = invoke("sfm", scene, "--cameras", scene / "sparse")
+    assert result.exit_code == 0, result.output
+    assert len(read_sfm_report(scene).registered) == len(truth.cameras) - 2
+
+
 def test_detect_never_replaces_poses_it_did_not_make(clip, scene):
     root, _ = clip
     (scene / "poses2d.inputs.json").unlink()                      # as if written by another tool

@@ -360,7 +360,8 @@ def read_sfm_report(scene: str | Path) -> SfmReport:
 def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> SfmReport:
     """Copy an existing COLMAP model (text or binary, ``model`` or ``model/0``) into
     ``scene/sparse`` and write the report. Kept when already imported from this model's
-    bytes (and the scene's ``frames.json``); a model in ``scene/sparse`` that mvm did not make is
+    bytes (and the scene's ``frames.json``); the scene's own ``sparse/`` is read again every time
+    (its bytes are the output's too); a model in ``scene/sparse`` that mvm did not make is
     not replaced without ``force``. With a ``frames.json``, the images of the model that are not
     among its frames (left out by the frame selection) are left out of the scene."""
     from mvm.io.colmap import find_model_dir
@@ -374,7 +375,7 @@ def import_colmap(model: str | Path, scene: str | Path, force: bool = False) -> 
     report_path = SceneLayout(scene).sfm_report
     report, _ = produce(report_path, SFM_STAGE, inputs, settings,
                         lambda why, hashed: _import_model(model_dir, scene, in_place, why),
-                        lambda: read_sfm_report(scene), force=force, exists=_model_made(scene))
+                        lambda: read_sfm_report(scene), force=force or in_place, exists=_model_made(scene))
     return report
 
 
