@@ -170,10 +170,6 @@ class SceneLayout:
         return self.out_dir / POSES3D
 
     @property
-    def timings(self) -> Path:
-        return self.out_dir / TIMINGS
-
-    @property
     def supervision(self) -> Path:
         return self.out_dir / SUPERVISION_DIR
 
@@ -238,7 +234,3 @@ class RigLayout:
     @property
     def recap(self) -> Path:
         return self.out_dir / RECAP
-
-    @property
-    def tracks(self) -> Path:
-        return self.out_dir / TRACKS_DIR

@@ -65,8 +65,8 @@ def _run(job: RigJob, force: bool) -> Done:
     if why is None:
         return Done(RigSet(*kept_set(job.rig_dir, job.calib, job.output)), None)
     config, options = _settings_of(job)
-    tick = (lambda done, total: job.progress("instants", done, total)) if job.progress else None
-    result = reconstruct_rig(job.rig_dir, config, options, job.calib, job.frames, job.output, progress=tick)
+    result = reconstruct_rig(job.rig_dir, config, options, job.calib, job.frames, job.output,
+                             progress=job.tick("instants"))
     return Done(RigSet(result.recap, result.outputs), why)
 
 

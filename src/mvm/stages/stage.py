@@ -44,9 +44,14 @@ class Job:
 
     def tick(self, stage: str) -> Callable[[int, int], None] | None:
         """``progress`` of ``stage`` as ``(done, total)``, or None."""
-        if self.progress is None:
-            return None
-        return lambda done, total: self.progress(stage, done, total)
+        return _tick(self.progress, stage)
+
+
+def _tick(progress: Callable[[str, int, int | None], None] | None, stage: str) -> Callable[[int, int], None] | None:
+    """``progress`` of ``stage`` as ``(done, total)``, or None."""
+    if progress is None:
+        return None
+    return lambda done, total: progress(stage, done, total)
 
 
 @dataclass
@@ -141,5 +146,10 @@ class RigJob:
 
     @property
     def layout(self) -> RigLayout:
-        """The paths of the rig folder (its output set: :func:`mvm.rig.output_set.check_rig_output`)."""
+        """The paths of the rig folder's inputs. Not of its output set, which ``output`` may put
+        anywhere: that folder is :func:`mvm.rig.output_set.check_rig_output`'s."""
         return RigLayout(self.rig_dir)
+
+    def tick(self, what: str) -> Callable[[int, int], None] | None:
+        """``progress`` of ``what`` as ``(done, total)``, or None."""
+        return _tick(self.progress, what)
