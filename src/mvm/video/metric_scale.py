@@ -65,13 +65,17 @@ class ScaleRecord:
 
 
 def _read_scale(scene: Path) -> float:
-    """Metres per unit of ``sparse/`` relative to SfM's units so far (1 when never scaled)."""
+    """Metres per unit of ``sparse/`` relative to SfM's units so far (1 when never scaled, and,
+    with a warning, when ``sfm/scale.json`` cannot be read as a positive number)."""
     path = SceneLayout(scene).scale_file
     if not path.is_file():
         return 1.0
     try:
         data = load_json_object(path, root=scene)
-        return number(data.get("sfm_units_per_model_unit"), path, "sfm_units_per_model_unit")
+        value = number(data.get("sfm_units_per_model_unit"), path, "sfm_units_per_model_unit")
+        if value <= 0:
+            raise InputError(path, "sfm_units_per_model_unit", f"expected a positive number, got {value:g}")
+        return value
     except InputError as e:
         log.warning("%s; assuming the model is in SfM units", e)
         return 1.0
