@@ -274,7 +274,8 @@ def test_report_is_never_written_over_or_among_the_scenes_inputs(scene_dir, tmp_
 
     for path, problem in ((scene_dir / "poses2d.json", "is an input of this run"),
                           (scene_dir / "sparse" / "report.html", "lies inside the input folder"),
-                          (scene_dir / "mvm" / "poses3d.json", "is an input of this run")):
+                          (scene_dir / "mvm" / "poses3d.json", "is an input of this run"),
+                          (scene_dir / "mvm" / "timings.json", "is an input of this run")):
         before = path.read_bytes() if path.is_file() else None
         with pytest.raises(OutputError, match=problem):
             write_report(scene_dir, path=path)

@@ -18,7 +18,7 @@ from mvm.io.checks import MAX_COORDINATE, inside_root, integer, load_json, numbe
 from mvm.io.coco import coco_keypoints_document, read_coco_keypoints
 from mvm.io.colmap import read_colmap, write_colmap
 from mvm.io.files import OutputError, atomic_write_json, json_number
-from mvm.io.layout import DEFAULT_OUTPUT, FRAMES, POSES2D, POSES3D, SPARSE
+from mvm.io.layout import DEFAULT_OUTPUT, FRAMES, POSES2D, POSES3D, SPARSE, TIMINGS
 from mvm.io.outputs import atomic_replace_dir, writing_into
 from mvm.io.paths import check_name, resolve_in
 
@@ -82,11 +82,11 @@ def scene_inputs(scene: str | Path, output: str = DEFAULT_OUTPUT) -> list[Path]:
     """What a command reading a reconstructed scene reads, for
     :func:`mvm.io.outputs.check_output_location`: every entry of the scene folder but the one
     holding its output folder (``frames/``, ``sparse/``, ``poses2d.json``, videos, ...), and the
-    output folder's ``poses3d.json``."""
+    output folder's ``poses3d.json`` and ``timings.json`` (the page reads both)."""
     scene = Path(scene)
     out = scene / output
     entries = sorted(p for p in scene.iterdir() if not (p == out or p in out.parents)) if scene.is_dir() else []
-    return [*entries, out / POSES3D]
+    return [*entries, out / POSES3D, out / TIMINGS]
 
 
 #: The reconstruction's name in the reasons of a rerun (:mod:`mvm.io.provenance`).
