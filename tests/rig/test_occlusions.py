@@ -252,7 +252,7 @@ def test_disputed_limb_joints():
     inliers[2, :3, n] = False                                 # not a limb joint
     inliers[2, 1:3, e] = False
     valid[2, 1:3, e] = False                                  # absent, not refused
-    out = disputed(inliers, valid)
+    out = disputed(valid & ~inliers)
     assert out[0, w] and out.sum() == 1
 
 

@@ -259,7 +259,7 @@ def calibrate_from_people(keypoints: np.ndarray, camera: np.ndarray, instant: np
             raise CalibrationError(c, "no 2D poses")
     keypoints, camera, instant = _spread_instants(keypoints, camera, instant)
     rng = np.random.default_rng(seed)
-    focal = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
+    focal = cameras.focal
     x = normalized_points(keypoints, K[camera])
     present = (keypoints[..., 2] > 0) & (keypoints[..., 2] >= MIN_JOINT_CONFIDENCE)
     pairs, counts = pair_poses(keypoints, x, present, camera, instant, focal, rng)

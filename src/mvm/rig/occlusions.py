@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.completion import INFERRED, INTERPOLATED, interpolate_series, track_rows
+from mvm.core.completion import INFERRED, INTERPOLATED, complete_tracks, track_rows
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
 from mvm.rig.tracking import runs
@@ -110,12 +110,12 @@ def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> t
     return np.where(ok, origin, np.nan), np.where(ok, d, np.nan)
 
 
-def disputed(inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def disputed(view_refused: np.ndarray) -> np.ndarray:
     """``(Q, 17)`` the limb joints (:data:`LIMB_JOINTS`) of ``Q`` persons whose views dispute
-    them: at least :data:`DISPUTED_VIEWS` of their keypoints ``valid: (Q, V, 17)`` left out of
-    the triangulation's ``inliers: (Q, V, 17)`` (reconstructed or not)."""
-    out = np.zeros(valid.shape[::2], bool)
-    refused = (valid & ~inliers).sum(1)                                            # (Q, 17)
+    them: at least :data:`DISPUTED_VIEWS` of their keypoints refused by the triangulation,
+    ``view_refused: (Q, V, 17)`` (valid, not among its inliers; reconstructed or not)."""
+    out = np.zeros(view_refused.shape[::2], bool)
+    refused = view_refused.sum(1)                                                  # (Q, 17)
     out[:, LIMB_JOINTS] = refused[:, LIMB_JOINTS] >= DISPUTED_VIEWS
     return out
 
@@ -174,23 +174,6 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
                     if b - a >= DISPUTE_STRETCH and edges and not settled[a:b].any():
                         out[index[a:b], j] = True
     return out
-
-
-def _bridge_roots(X: np.ndarray, series: list[np.ndarray], max_gap: int) -> tuple[np.ndarray, np.ndarray]:
-    """``X: (Q, 17, 3)`` with the :data:`ROOT_JOINTS` of each track (``series``, :func:`track_rows`)
-    interpolated over gaps of up to ``max_gap`` instants (:func:`mvm.core.completion.interpolate_series`,
-    as the completion after the fill would), and ``(Q, 17)`` where."""
-    bridged = np.zeros(X.shape[:2], bool)
-    if max_gap <= 0:
-        return X, bridged
-    for index in series:
-        seen = index >= 0
-        rows = index[seen]
-        filled, interpolated = interpolate_series(np.where(seen[:, None, None], X[np.maximum(index, 0)][:, ROOT_JOINTS],
-                                                           np.nan), max_gap)
-        X[rows[:, None], ROOT_JOINTS] = filled[seen]
-        bridged[rows[:, None], ROOT_JOINTS] = interpolated[seen]
-    return X, bridged
 
 
 def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
@@ -258,7 +241,7 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     hip-knee bone's length vary more, its standard deviation 18 -> 25 mm, where a leg crossing
     the other keeps one view refused). ``instant, track: (Q,)``."""
     view_refused = valid & ~inliers
-    disputes = disputed(inliers, valid) | bone_disputed(X, instant, track)
+    disputes = disputed(view_refused) | bone_disputed(X, instant, track)
     refused = close_disputes(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), instant, track)
     arms = np.zeros(refused.shape[1], bool)
     arms[ARM_JOINTS] = True
@@ -365,9 +348,10 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
     confidence = np.zeros(X.shape[:2])
     if not len(X):
         return X, flags, confidence
+    roots, root_flags = complete_tracks(X[:, ROOT_JOINTS], instant, track, root_gap)
+    X[:, ROOT_JOINTS] = roots
+    flags[:, ROOT_JOINTS] = np.where(root_flags == INTERPOLATED, INTERPOLATED, 0)
     series = track_rows(instant, track)
-    X, bridged = _bridge_roots(X, series, root_gap)
-    flags[bridged] = INTERPOLATED
     for joints in LIMB_PASSES:
         gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):
