@@ -207,24 +207,24 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
     return out
 
 
-def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.ndarray,
-                    track: np.ndarray) -> np.ndarray:
-    """``refused: (Q, 17)`` (:func:`close_disputes`) extended, along each track, over the runs of
-    consecutive instants where one view's keypoint of the joint is refused by the triangulation
-    (``view_refused: (Q, V, 17)``) that touch a refused instant: where most views agree on
-    another thing, the one view that sees the joint is refused all along the stretch, but the
-    bone betrays the other thing only where it lies off the bone's sphere. ``instant, track: (Q,)``."""
+def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.ndarray, track: np.ndarray,
+                    joints=ARM_JOINTS) -> np.ndarray:
+    """``refused: (Q, 17)`` (:func:`close_disputes`) extended, along each track, for ``joints``,
+    over the runs of consecutive instants where one view's keypoint of the joint is refused by
+    the triangulation (``view_refused: (Q, V, 17)``) that touch a refused instant: where most
+    views agree on another thing, the one view that sees the joint is refused all along the
+    stretch, but the bone betrays the other thing only where it lies off the bone's sphere.
+    ``instant, track: (Q,)``."""
     refused = np.asarray(refused, bool)
     out = refused.copy()
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         present = index >= 0
-        R = present[:, None] & refused[np.maximum(index, 0)]                       # (L, 17)
-        for v in range(view_refused.shape[1]):
-            chain = present[:, None] & view_refused[np.maximum(index, 0), v]       # (L, 17)
-            run = np.cumsum(np.vstack([np.ones((1, R.shape[1]), bool), ~chain[:-1] | ~chain[1:]]), 0)
-            hit = np.zeros((len(R) + 1, R.shape[1]), bool)
-            np.logical_or.at(hit, (run, np.broadcast_to(np.arange(R.shape[1]), R.shape)), R & chain)
-            out[index[present]] |= (chain & np.take_along_axis(hit, run, 0))[present]
+        for j in joints:
+            R = present & refused[np.maximum(index, 0), j]                          # (L,)
+            for v in range(view_refused.shape[1]):
+                for a, b in zip(*runs(present & view_refused[np.maximum(index, 0), v, j])):
+                    if R[a:b].any():
+                        out[index[a:b], j] = True
     return out
 
 
@@ -243,9 +243,7 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     view_refused = valid & ~inliers
     disputes = disputed(view_refused) | bone_disputed(X, instant, track)
     refused = close_disputes(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), instant, track)
-    arms = np.zeros(refused.shape[1], bool)
-    arms[ARM_JOINTS] = True
-    return extend_disputes(refused, view_refused & arms, instant, track)
+    return extend_disputes(refused, view_refused, instant, track)
 
 
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
