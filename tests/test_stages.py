@@ -72,3 +72,23 @@ def test_a_new_stage_is_made_kept_and_redone_by_the_runner(tmp_path, monkeypatch
 
     forced = run_stages(job, stages, force=("reconstruct",))      # a forced stage forces the ones after it
     assert forced["reconstruct"].why == forced["csv"].why == "forced"
+
+
+def test_each_stage_s_title_is_the_one_its_records_are_written_with():
+    """``mvm status`` words a reason with the stage's declared title, the run with the library's
+    constant; the declarations import no library (``mvm --help`` stays light), so this test holds
+    the two alike."""
+    from mvm.io.scene_dir import RECONSTRUCT_STAGE
+    from mvm.net.supervision import EXPORT_STAGE
+    from mvm.rig.reconstruct_rig import RIG_STAGE
+    from mvm.stages import RIG_STAGES, SCENE_STAGES
+    from mvm.video.detect import DETECT_STAGE
+    from mvm.video.frames import FRAMES_STAGE
+    from mvm.video.rig_videos import RIG_DETECT_STAGE
+    from mvm.video.sfm import SFM_STAGE
+
+    scene = {stage.name: stage.title for stage in SCENE_STAGES}
+    rig = {stage.name: stage.title for stage in RIG_STAGES}
+    assert scene == {"frames": FRAMES_STAGE, "sfm": SFM_STAGE, "detect": DETECT_STAGE,
+                     "reconstruct": RECONSTRUCT_STAGE, "export": EXPORT_STAGE}
+    assert rig["detect"] == RIG_DETECT_STAGE and rig["reconstruct"] == RIG_STAGE
