@@ -41,7 +41,7 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
     with np.errstate(invalid="ignore", divide="ignore"):                    # all-NaN rows: NaN
         bones = X[:, [LEFT_SHOULDER, RIGHT_SHOULDER]] - X[:, [LEFT_HIP, RIGHT_HIP]]
         torso = _nanmean(np.sqrt((bones * bones).sum(-1)).T, axis=0)          # (P,)
-        for i, j in _block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
+        for i, j in block_pairs(np.asarray(block), DUPLICATE_PAIRS_CHUNK):
             diff = X[i][None] - np.stack([X[j], X[j][:, FLIP_PERMUTATION]])   # as is, mirrored: (2, K, J, 3)
             apart = row_nanquantile(np.sqrt((diff * diff).sum(-1)), quantile)            # (2, K)
             close[i, j] = np.fmin(apart[0], apart[1]) < max_relative_distance * np.fmax(torso[i], torso[j])
@@ -52,8 +52,8 @@ def duplicate_pairs(X: np.ndarray, block: np.ndarray, max_relative_distance: flo
 DUPLICATE_PAIRS_CHUNK = 2**14
 
 
-def _block_pairs(block: np.ndarray, max_pairs: int):
-    """Yield ``(i, j)``: every ordered pair of different persons of one block (``block: (P,)``),
+def block_pairs(block: np.ndarray, max_pairs: int):
+    """Yield ``(i, j)``: every ordered pair of different persons of the same block (``block: (P,)``),
     in chunks of about ``max_pairs`` pairs (a person's pairs are never split)."""
     order = np.argsort(block, kind="stable")
     _, start, count = np.unique(block[order], return_index=True, return_counts=True)

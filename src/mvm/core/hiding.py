@@ -11,6 +11,7 @@ import warnings
 
 import numpy as np
 
+from mvm.core.duplicates import block_pairs
 from mvm.core.pose_distance import PAIRS_CHUNK, person_chunks, project_in_views
 
 
@@ -65,16 +66,13 @@ def hidden_views(box: np.ndarray, depth: np.ndarray, extent: np.ndarray, scene: 
     """
     Q, F = depth.shape
     hidden = np.zeros((Q, F), dtype=bool)
-    order = np.argsort(scene, kind="stable")
-    bounds = np.searchsorted(scene[order], scene[order], side="left")           # (Q,) first of each scene
-    counts = np.searchsorted(scene[order], scene[order], side="right") - bounds
-    person = np.repeat(order, counts)                                            # every (person, other) pair
-    other = order[np.repeat(bounds, counts) + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)]
-    mine = (person != other) if among is None else (person != other) & np.asarray(among)[person]
-    person, other = person[mine], other[mine]
     step = max(1, 8 * PAIRS_CHUNK // max(F, 1))                                 # boxes of 4 MB
-    for s in range(0, len(person), step):
-        q, r = person[s:s + step], other[s:s + step]
+    chosen = None if among is None else np.asarray(among)
+    for q, r in block_pairs(np.asarray(scene), step):                           # a person's pairs together
+        if chosen is not None:
+            q, r = q[chosen[q]], r[chosen[q]]
+        if not len(q):
+            continue
         a, b = box[q], box[r]                                                   # (k, F, 4)
         with np.errstate(invalid="ignore"):
             width = np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0])
