@@ -81,17 +81,13 @@ def _inputs(job: RigJob) -> dict:
     return named_inputs(rig_dir, [*intrinsic.values(), *extrinsic.values(), *([c.intrinsics] if c.intrinsics else [])])
 
 
-def _read(job: RigJob) -> list[Path]:
-    """Every file and folder the calibration reads: a board's ``calibration/`` folder and
-    ``intrinsics`` (listed before anything else is looked at), its inputs, the rig's videos and
-    pose sources (a conversion matches their names)."""
-    from mvm.io.outputs import check_output_location
+def _read(job: RigJob, inputs: dict) -> list[Path]:
+    """Every file and folder the calibration reads besides a board's ``calibration/`` folder and
+    ``intrinsics`` (checked in :func:`_run` before anything is listed): its ``inputs``
+    (:func:`_inputs`), the rig's videos and pose sources (a conversion matches their names)."""
 
     c, rig_dir = job.calibration, Path(job.rig_dir)
-    if c.method in ("checkerboard", "charuco", "intrinsics"):
-        check_output_location(c.output, [job.layout.calibration_dir, *([c.intrinsics] if c.intrinsics else [])],
-                              replaced=False)
-    read = [p for p in _inputs(job).values() if isinstance(p, Path)]
+    read = [p for p in inputs.values() if isinstance(p, Path)]
     if c.method == "convert":
         from mvm.rig.convert import rig_camera_sources
 
@@ -133,9 +129,14 @@ def _run(job: RigJob, force: bool) -> Done:
 
     if job.calibration.method not in METHODS:
         raise ValueError(f"unknown calibration method {job.calibration.method!r}: expected one of {METHODS}")
-    check_output_location(_output(job), _read(job), replaced=False)   # before its record is removed
     output = _output(job)
-    result, why = produce(output, TITLE, _inputs(job), _settings(job), lambda why, hashed: _make(job), None,
+    if job.calibration.method in ("checkerboard", "charuco", "intrinsics"):   # before any input is listed
+        check_output_location(output, [job.layout.calibration_dir, *([job.calibration.intrinsics]
+                                                                     if job.calibration.intrinsics else [])],
+                              replaced=False)
+    inputs = _inputs(job)
+    check_output_location(output, _read(job, inputs), replaced=False)   # before its record is removed
+    result, why = produce(output, TITLE, inputs, _settings(job), lambda why, hashed: _make(job), None,
                           force=force, lock=output if output.parent.is_dir() else None)
     return Done(result, why)
 
