@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 from mvm.io.layout import (
@@ -44,9 +45,10 @@ class ViewJob:
     fps: float = 10.0
     image_format: str = ".jpg"
 
-    @property
+    @cached_property
     def rig(self) -> bool:
-        """Whether ``folder`` is a rig folder (:func:`mvm.report.rig_load.is_rig_dir`)."""
+        """Whether ``folder`` is a rig folder (:func:`mvm.report.rig_load.is_rig_dir`), looked at
+        once per job: a stage's steps agree, and the folder is not listed at each."""
         from mvm.report.rig_load import is_rig_dir
 
         return is_rig_dir(self.folder, self.output)
