@@ -47,6 +47,12 @@ class Distributed:
         """Whether this process writes (rank 0)."""
         return self.rank == 0
 
+    def wait_for_all(self) -> None:
+        """Wait until every process got here (a run's end: none tears its connections down while
+        another still writes, which aborted gloo's processes now and then)."""
+        if self.world > 1 and torch.distributed.is_initialized():
+            torch.distributed.barrier()
+
     def close(self) -> None:
         if self.world > 1 and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()

@@ -49,7 +49,9 @@ def train(config: TrainConfig, resume: str | Path | None = None, progress=None) 
         torch.set_num_threads(config.threads)
     dist = Distributed.from_environment(config.device)
     try:
-        return _train(config, resume, progress, dist)
+        run = _train(config, resume, progress, dist)
+        dist.wait_for_all()
+        return run
     finally:
         dist.close()
         torch.set_num_threads(threads)
