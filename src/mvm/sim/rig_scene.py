@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ, check_settings, setting
-from mvm.core.keypoints import NUM_JOINTS
+from mvm.core.keypoints import INDEX, NUM_JOINTS
 from mvm.core.posebank import load_pose_bank
 from mvm.io.calib_toml import RigCalibration
 from mvm.sim.detector import DetectorErrors, pose_scores
@@ -136,13 +136,37 @@ def bank_motions(min_poses: int = MIN_MOTION_POSES) -> list[tuple[np.ndarray, np
 
 def play_motion(frames: np.ndarray, poses: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     """A bank motion at ``times_s: (T,)`` seconds from its first pose, bouncing back and forth
-    over its length, linearly interpolated between its poses. -> ``(T, 17, 3)``."""
+    over its length, interpolated between its poses: linearly, then each arm bone turned back
+    to its length (:func:`keep_arm_lengths`; a forearm swinging between two samples a tenth of
+    a second apart would otherwise shrink by a third). -> ``(T, 17, 3)``."""
     seconds = (frames - frames[0]) / BANK_RATE_HZ
     length = seconds[-1]
     t = length - np.abs(np.mod(times_s, 2 * length) - length)                     # reflect into [0, length]
-    flat = poses.reshape(len(poses), -1)
-    columns = [np.interp(t, seconds, flat[:, k]) for k in range(flat.shape[1])]
-    return np.stack(columns, -1).reshape(len(t), NUM_JOINTS, 3)
+    bones = np.linalg.norm(poses[:, ARM_BONES[:, 1]] - poses[:, ARM_BONES[:, 0]], axis=-1)     # (M, 4)
+    X = _interpolate(t, seconds, poses).reshape(len(t), NUM_JOINTS, 3)
+    return keep_arm_lengths(X, _interpolate(t, seconds, bones))
+
+
+def _interpolate(t: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values: (M, ...)`` at ``times: (M,)`` linearly interpolated at ``t: (T,)`` -> ``(T, K)`` (flattened)."""
+    flat = values.reshape(len(values), -1)
+    return np.stack([np.interp(t, times, flat[:, k]) for k in range(flat.shape[1])], -1)
+
+
+#: The arm bones, (parent, joint), each parent before its joint: upper arms, forearms. (The legs
+#: are left as interpolated: a foot planted on the floor at two poses stays there between them.)
+ARM_BONES = np.array([(INDEX[f"{side}_{a}"], INDEX[f"{side}_{b}"]) for a, b in
+                      (("shoulder", "elbow"), ("elbow", "wrist")) for side in ("left", "right")])
+
+
+def keep_arm_lengths(X: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """``X: (T, 17, 3)`` with each arm bone (:data:`ARM_BONES`) set to ``lengths: (T, 4)`` along
+    its direction, from the shoulders outwards (an elbow's bone is set before its wrist's)."""
+    X = X.copy()
+    for k, (parent, joint) in enumerate(ARM_BONES):
+        bone = X[:, joint] - X[:, parent]
+        X[:, joint] = X[:, parent] + bone * (lengths[:, k] / np.linalg.norm(bone, axis=-1))[:, None]
+    return X
 
 
 def moving_people(people: int, instants: int, rng: np.random.Generator, rate: float = DEFAULT_FRAME_RATE_HZ,
