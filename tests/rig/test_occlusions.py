@@ -316,3 +316,46 @@ def test_a_run_of_one_view_refused_where_the_wrist_jumps_is_refused():
     settled[12, w] = True
     assert not jump_disputed(X, view_refused, settled, instant, track).any()
     assert np.flatnonzero(jump_disputed(1000 * X, view_refused, none, instant, track, unit=1000.0)[:, w]).size == 10
+
+
+def test_one_views_refused_run_goes_on_over_short_breaks_but_takes_no_lone_refusal():
+    """View 0 refused from 2 to 11 but at 6-7 (its keypoint missing there, or agreeing with the
+    others' by chance) beside a wrist refused at 9-10: the refusal extends over 2-11, the break
+    included. A lone refusal of view 0 at 13, two instants after the run, is not joined to it
+    (one stray keypoint is not the stretch)."""
+    from mvm.rig.occlusions import extend_disputes
+
+    w = INDEX["left_wrist"]
+    refused = np.zeros((30, 17), bool)
+    refused[9:11, w] = True
+    view_refused = np.zeros((30, 3, 17), bool)
+    view_refused[2:12, 0, w] = True
+    view_refused[6:8, 0, w] = False
+    view_refused[13, 0, w] = True
+    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
+    assert np.flatnonzero(out[:, w]).tolist() == list(range(2, 12))
+    view_refused[5:9, 0, w] = False                                        # a break of 4: too long
+    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
+    assert np.flatnonzero(out[:, w]).tolist() == list(range(9, 12))
+
+
+def test_a_jump_shortly_before_one_views_refused_run_refuses_it():
+    """The wrist sits 30 cm off from 10 to 19, but its one view is refused only from 12 on, with
+    a break at 15 (the thing the others report lay along its line of sight there): the run
+    12-19 is refused, the break included. With the wrist off from 10 to 29, a run from 15 to 19
+    is not: no jump where it begins or ends."""
+    from mvm.rig.occlusions import jump_disputed
+
+    truth, instant, track = _arm_track(40)
+    w = INDEX["right_wrist"]
+    X = truth.copy()
+    X[10:20, w] += [0.3, 0.0, 0.0]
+    view_refused = np.zeros((40, 4, 17), bool)
+    view_refused[12:20, 2, w] = True
+    view_refused[15, 2, w] = False
+    none = np.zeros((40, 17), bool)
+    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, w]).tolist() == list(range(12, 20))
+    X[20:30, w] += [0.3, 0.0, 0.0]                                          # off from 10 to 29 now
+    late = np.zeros_like(view_refused)
+    late[15:20, 2, w] = True
+    assert not jump_disputed(X, late, none, instant, track).any()

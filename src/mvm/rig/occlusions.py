@@ -87,6 +87,11 @@ BONE_DISPUTE = 0.15
 JUMP_M = 0.12
 #: Instants either side within which two refused joints close the stretch between them. [1]
 DISPUTE_SPAN = 3
+#: A view's run of refused keypoints of a joint goes on over a break of up to this many
+#: instants (where its keypoint is missing, or happens to agree with the other views', as where
+#: the thing they report lies along its line of sight): the one view that sees a hand is refused
+#: all along the stretch where the others report another thing, but not at every instant. [1]
+VIEW_BREAK = 2
 #: Instants either side of a refused joint refused with it: the edges of a disputed stretch,
 #: where the wrong views may still agree, and which the smoothing would carry outwards. [1]
 DISPUTE_GROW = 1
@@ -152,11 +157,12 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
                   track: np.ndarray, unit: float = 1.0) -> np.ndarray:
     """``(Q, 17)`` the elbows and wrists of ``X: (Q, 17, 3)`` over the runs of
     :data:`DISPUTE_STRETCH` or more instants where one view's keypoint of them is refused
-    (``view_refused: (Q, V, 17)``), none of them among ``disputes: (Q, 17)``, and their offset
-    from the parent jumps by :data:`JUMP_M` or more (its second difference) at the run's first
-    or last instant: the views that do not see a hand took it to another thing as the run began
-    or ended, and outvoted the one that sees it. ``instant, track: (Q,)``; ``unit``: world units
-    per metre."""
+    (``view_refused: (Q, V, 17)``; short breaks bridged, :data:`VIEW_BREAK`), none of them among
+    ``disputes: (Q, 17)``, and their offset from the parent jumps by :data:`JUMP_M` or more (its
+    second difference) within :data:`DISPUTE_SPAN` instants of where the run begins or ends: the
+    views that do not see a hand took it to another thing as the run began or ended, and
+    outvoted the one that sees it (which may agree with them for an instant or two first).
+    ``instant, track: (Q,)``; ``unit``: world units per metre."""
     out = np.zeros(X.shape[:2], bool)
     parent = {j: p for passes in LIMB_PASSES for j, p in passes}
     for index in track_rows(np.asarray(instant), np.asarray(track)):
@@ -169,8 +175,8 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
             jump[1:-1] = np.nan_to_num(acc) >= JUMP_M * unit
             settled = present & disputes[np.maximum(index, 0), j]                  # refused already
             for v in range(view_refused.shape[1]):
-                for a, b in zip(*runs(present & view_refused[np.maximum(index, 0), v, j])):
-                    edges = jump[max(a - 1, 0):a + 1].any() or jump[b - 1:b + 1].any()
+                for a, b in zip(*runs(present & _bridged(present & view_refused[np.maximum(index, 0), v, j]))):
+                    edges = jump[max(a - DISPUTE_SPAN, 0):a + 1].any() or jump[b - 1:b + DISPUTE_SPAN].any()
                     if b - a >= DISPUTE_STRETCH and edges and not settled[a:b].any():
                         out[index[a:b], j] = True
     return out
@@ -182,6 +188,21 @@ def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
     c = np.concatenate([np.zeros((1,) + mask.shape[1:], int), np.cumsum(mask, 0)])    # (L + 1, K)
     t = np.arange(L)
     return c[np.clip(t + hi + 1, 0, L)] - c[np.clip(t + lo, 0, L)]
+
+
+def _bridged(mask: np.ndarray, k: int = VIEW_BREAK) -> np.ndarray:
+    """``(L,)``: ``mask: (L,)`` with its breaks of up to ``k`` false instants between two runs of
+    two or more true ones made true (a lone true one is not joined: one stray keypoint is not a
+    stretch).
+
+    >>> _bridged(np.array([1, 1, 0, 0, 1, 1, 0, 0, 0, 1, 1, 0, 1], bool)).astype(int).tolist()
+    [1, 1, 1, 1, 1, 1, 0, 0, 0, 1, 1, 0, 1]
+    """
+    out = mask.copy()
+    for a, b in zip(*runs(~_stretches(mask, 2))):
+        if 0 < a and b < len(mask) and b - a <= k:
+            out[a:b] = True
+    return out
 
 
 def _stretches(mask: np.ndarray, m: int = DISPUTE_STRETCH) -> np.ndarray:
@@ -211,7 +232,8 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
                     joints=ARM_JOINTS) -> np.ndarray:
     """``refused: (Q, 17)`` (:func:`close_disputes`) extended, along each track, for ``joints``,
     over the runs of consecutive instants where one view's keypoint of the joint is refused by
-    the triangulation (``view_refused: (Q, V, 17)``) that touch a refused instant: where most
+    the triangulation (``view_refused: (Q, V, 17)``; breaks of up to :data:`VIEW_BREAK`
+    instants bridged) that touch a refused instant: where most
     views agree on another thing, the one view that sees the joint is refused all along the
     stretch, but the bone betrays the other thing only where it lies off the bone's sphere.
     ``instant, track: (Q,)``."""
@@ -222,7 +244,7 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
         for j in joints:
             R = present & refused[np.maximum(index, 0), j]                          # (L,)
             for v in range(view_refused.shape[1]):
-                for a, b in zip(*runs(present & view_refused[np.maximum(index, 0), v, j])):
+                for a, b in zip(*runs(present & _bridged(present & view_refused[np.maximum(index, 0), v, j]))):
                     if R[a:b].any():
                         out[index[a:b], j] = True
     return out
