@@ -134,11 +134,17 @@ def bank_motions(min_poses: int = MIN_MOTION_POSES) -> list[tuple[np.ndarray, np
     return out
 
 
+#: The arm bones, (parent, joint), each parent before its joint: upper arms, forearms. (The legs
+#: are left as interpolated: a foot planted on the floor at two poses stays there between them.)
+ARM_BONES = np.array([(INDEX[f"{side}_{a}"], INDEX[f"{side}_{b}"]) for a, b in
+                      (("shoulder", "elbow"), ("elbow", "wrist")) for side in ("left", "right")])
+
+
 def play_motion(frames: np.ndarray, poses: np.ndarray, times_s: np.ndarray) -> np.ndarray:
     """A bank motion at ``times_s: (T,)`` seconds from its first pose, bouncing back and forth
     over its length, interpolated between its poses: linearly, then each arm bone turned back
-    to its length (:func:`keep_arm_lengths`; a forearm swinging between two samples a tenth of
-    a second apart would otherwise shrink by a third). -> ``(T, 17, 3)``."""
+    to its length (:func:`keep_arm_lengths`; a forearm swinging between two samples would
+    otherwise shrink, by up to a third). -> ``(T, 17, 3)``."""
     seconds = (frames - frames[0]) / BANK_RATE_HZ
     length = seconds[-1]
     t = length - np.abs(np.mod(times_s, 2 * length) - length)                     # reflect into [0, length]
@@ -151,12 +157,6 @@ def _interpolate(t: np.ndarray, times: np.ndarray, values: np.ndarray) -> np.nda
     """``values: (M, ...)`` at ``times: (M,)`` linearly interpolated at ``t: (T,)`` -> ``(T, K)`` (flattened)."""
     flat = values.reshape(len(values), -1)
     return np.stack([np.interp(t, times, flat[:, k]) for k in range(flat.shape[1])], -1)
-
-
-#: The arm bones, (parent, joint), each parent before its joint: upper arms, forearms. (The legs
-#: are left as interpolated: a foot planted on the floor at two poses stays there between them.)
-ARM_BONES = np.array([(INDEX[f"{side}_{a}"], INDEX[f"{side}_{b}"]) for a, b in
-                      (("shoulder", "elbow"), ("elbow", "wrist")) for side in ("left", "right")])
 
 
 def keep_arm_lengths(X: np.ndarray, lengths: np.ndarray) -> np.ndarray:
