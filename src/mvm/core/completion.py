@@ -222,6 +222,17 @@ def track_rows(instant: np.ndarray, track: np.ndarray) -> list[np.ndarray]:
     return out
 
 
+def take_rows(A: np.ndarray, index: np.ndarray, fill=np.nan) -> np.ndarray:
+    """``A: (Q, ...)`` at the rows ``index: (L,)`` of one track (:func:`track_rows`), ``fill``
+    where it was not seen (-1) -> ``(L, ...)``.
+
+    >>> take_rows(np.array([[1.0], [2.0]]), np.array([1, -1, 0])).ravel().tolist()
+    [2.0, nan, 1.0]
+    """
+    seen = (index >= 0).reshape((-1,) + (1,) * (np.ndim(A) - 1))
+    return np.where(seen, A[np.maximum(index, 0)], fill)
+
+
 def complete_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, max_gap: int,
                     prior=None, min_joints: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """Complete the persons of a tracked sequence: time first, then the prior.
@@ -241,8 +252,7 @@ def complete_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, max_g
     if len(X) and max_gap > 0:
         for index in track_rows(instant, track):
             seen = index >= 0
-            filled, interpolated = interpolate_series(np.where(seen[:, None, None], X[np.maximum(index, 0)], np.nan),
-                                                      max_gap)
+            filled, interpolated = interpolate_series(take_rows(X, index), max_gap)
             rows = index[seen]
             out[rows] = filled[seen]
             flags[rows] = np.where(interpolated[seen], INTERPOLATED, flags[rows])

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mvm.core.completion import INFERRED, INTERPOLATED, complete_tracks, track_rows
+from mvm.core.completion import INFERRED, INTERPOLATED, complete_tracks, take_rows, track_rows
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
 from mvm.rig.tracking import runs
@@ -166,18 +166,17 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
     out = np.zeros(X.shape[:2], bool)
     parent = {j: p for passes in LIMB_PASSES for j, p in passes}
     for index in track_rows(np.asarray(instant), np.asarray(track)):
-        present = index >= 0
-        S = np.where(present[:, None, None], X[np.maximum(index, 0)], np.nan)     # (L, 17, 3)
-        for j in ARM_JOINTS:
+        S, settled = take_rows(X, index), take_rows(disputes, index, False)          # (L, 17, 3), (L, 17)
+        views = _bridged(take_rows(view_refused[..., ARM_JOINTS], index, False))    # (L, V, 4)
+        for k, j in enumerate(ARM_JOINTS):
             offset = S[:, j] - S[:, parent[j]]                                     # (L, 3)
             acc = np.linalg.norm(offset[2:] - 2 * offset[1:-1] + offset[:-2], axis=-1)
             jump = np.zeros(len(S), bool)                                          # at the middle instant
             jump[1:-1] = np.nan_to_num(acc) >= JUMP_M * unit
-            settled = present & disputes[np.maximum(index, 0), j]                  # refused already
-            for v in range(view_refused.shape[1]):
-                for a, b in zip(*runs(present & _bridged(present & view_refused[np.maximum(index, 0), v, j]))):
+            for v in range(views.shape[1]):
+                for a, b in zip(*_refused_runs(views[:, v, k], index)):
                     edges = jump[max(a - DISPUTE_SPAN, 0):a + 1].any() or jump[b - 1:b + DISPUTE_SPAN].any()
-                    if b - a >= DISPUTE_STRETCH and edges and not settled[a:b].any():
+                    if b - a >= DISPUTE_STRETCH and edges and not settled[a:b, j].any():
                         out[index[a:b], j] = True
     return out
 
@@ -191,18 +190,25 @@ def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
 
 
 def _bridged(mask: np.ndarray, k: int = VIEW_BREAK) -> np.ndarray:
-    """``(L,)``: ``mask: (L,)`` with its breaks of up to ``k`` false instants between two runs of
-    two or more true ones made true (a lone true one is not joined: one stray keypoint is not a
-    stretch).
+    """``(L, ...)``: ``mask: (L, ...)`` with its breaks along the first axis of up to ``k`` false
+    instants between two runs of two or more true ones made true (a lone true one is not joined:
+    one stray keypoint is not a stretch).
 
     >>> _bridged(np.array([1, 1, 0, 0, 1, 1, 0, 0, 0, 1, 1, 0, 1], bool)).astype(int).tolist()
     [1, 1, 1, 1, 1, 1, 0, 0, 0, 1, 1, 0, 1]
     """
-    out = mask.copy()
-    for a, b in zip(*runs(~_stretches(mask, 2))):
-        if 0 < a and b < len(mask) and b - a <= k:
-            out[a:b] = True
-    return out
+    core = _stretches(mask, 2)
+    t = np.arange(len(mask)).reshape((-1,) + (1,) * (mask.ndim - 1))
+    before = np.maximum.accumulate(np.where(core, t, -1), axis=0)                    # the last core instant so far
+    after = np.flip(np.minimum.accumulate(np.flip(np.where(core, t, len(mask)), 0), axis=0), 0)   # the next one
+    return mask | ((before >= 0) & (after < len(mask)) & (after - before - 1 <= k))
+
+
+def _refused_runs(refused: np.ndarray, index: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The runs (:func:`~mvm.rig.tracking.runs`) of one view's refused keypoints of a joint along
+    a track, ``refused: (L,)`` at its rows ``index: (L,)`` (bridged: :func:`_bridged`), never
+    over an instant the track was not seen."""
+    return runs((index >= 0) & refused)
 
 
 def _stretches(mask: np.ndarray, m: int = DISPUTE_STRETCH) -> np.ndarray:
@@ -220,7 +226,7 @@ def close_disputes(refused: np.ndarray, instant: np.ndarray, track: np.ndarray, 
     refused = np.asarray(refused, bool)
     out = refused.copy()
     for index in track_rows(np.asarray(instant), np.asarray(track)):
-        D = (index >= 0)[:, None] & refused[np.maximum(index, 0)]                # (L, 17)
+        D = take_rows(refused, index, False)                                       # (L, 17)
         closed = (_window_count(D, -span, 0) > 0) & (_window_count(D, 0, span) > 0)
         closed |= _window_count(_stretches(closed), -grow, grow) > 0
         present = index >= 0
@@ -240,12 +246,12 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
     refused = np.asarray(refused, bool)
     out = refused.copy()
     for index in track_rows(np.asarray(instant), np.asarray(track)):
-        present = index >= 0
-        for j in joints:
-            R = present & refused[np.maximum(index, 0), j]                          # (L,)
-            for v in range(view_refused.shape[1]):
-                for a, b in zip(*runs(present & _bridged(present & view_refused[np.maximum(index, 0), v, j]))):
-                    if R[a:b].any():
+        R = take_rows(refused, index, False)                                       # (L, 17)
+        views = _bridged(take_rows(view_refused[..., joints], index, False))       # (L, V, K)
+        for k, j in enumerate(joints):
+            for v in range(views.shape[1]):
+                for a, b in zip(*_refused_runs(views[:, v, k], index)):
+                    if R[a:b, j].any():
                         out[index[a:b], j] = True
     return out
 
@@ -287,9 +293,9 @@ def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, l
     """The runs of one track (``index``, :func:`~mvm.core.completion.track_rows`) its limb ``joints`` ((joint, parent)
     pairs) can be filled over: ``(rows (n,), [the rows of the two instants before], [after] (-1:
     unknown), joint, parent, bone length, sigma_acc, flag, gate_sigmas)``."""
-    S = np.where((index >= 0)[:, None, None], X[np.maximum(index, 0)], np.nan)  # (L, 17, 3)
+    S = take_rows(X, index)                                                        # (L, 17, 3)
     seen = np.isfinite(S).all(-1)
-    disputes = (index >= 0)[:, None] & refused[np.maximum(index, 0)]            # (L, 17)
+    disputes = take_rows(refused, index, False)                                    # (L, 17)
     gaps = []
     for j, p in joints:
         offsets = S[:, j] - S[:, p]

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvm.core.assignment import min_cost_assignment
-from mvm.core.completion import track_rows
+from mvm.core.completion import take_rows, track_rows
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.rig.filters import butter_lowpass, filtfilt_many
 
@@ -227,7 +227,7 @@ def smooth_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, method:
     if not len(out):
         return out
     index = track_rows(np.asarray(instant), np.asarray(track))
-    series = [np.where((rows >= 0)[:, None, None], out[np.maximum(rows, 0)], np.nan) for rows in index]
+    series = [take_rows(out, rows) for rows in index]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         smoothed = _smooth_many(series, method, **kwargs)
