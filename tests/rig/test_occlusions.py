@@ -274,26 +274,32 @@ def test_close_disputes_fills_short_breaks_of_one_track():
     assert out[36, w] and out[30:, w].sum() == 1 and out.sum() == 9
 
 
+def _extended(refused_at, refused_views: dict, track=None) -> list[int]:
+    """The instants of 30 (one track, or ``track``) at which a left wrist refused at
+    ``refused_at`` is refused after :func:`extend_disputes`, with its keypoints refused in
+    ``refused_views`` ``{view: instants}`` of 3 views; no other joint is touched."""
+    from mvm.rig.occlusions import extend_disputes
+
+    w = INDEX["left_wrist"]
+    refused = np.zeros((30, 17), bool)
+    refused[refused_at, w] = True
+    view_refused = np.zeros((30, 3, 17), bool)
+    for view, instants in refused_views.items():
+        view_refused[instants, view, w] = True
+    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int) if track is None else track)
+    assert not np.delete(out, w, axis=1).any()
+    return np.flatnonzero(out[:, w]).tolist()
+
+
 def test_a_dispute_extends_over_one_view_refused_next_to_it_but_not_over_others():
     """A wrist refused at instants 5-7 (its bone off there) whose view 0 was refused from 2 to 11:
     the one view that sees it where the others agree on another thing. The refusal extends over
     2-11; over view 1's refusals at 12-13 (another view, after view 0's run ended) and over
     view 2's lone refusal at 20 (touching no refused instant) it does not."""
-    from mvm.rig.occlusions import extend_disputes
-
-    w = INDEX["left_wrist"]
-    refused = np.zeros((30, 17), bool)
-    refused[5:8, w] = True
-    view_refused = np.zeros((30, 3, 17), bool)
-    view_refused[2:12, 0, w] = True
-    view_refused[12:14, 1, w] = True
-    view_refused[20, 2, w] = True
-    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
-    assert np.flatnonzero(out[:, w]).tolist() == list(range(2, 12))
-    assert out.sum() == 10
+    views = {0: list(range(2, 12)), 1: [12, 13], 2: [20]}
+    assert _extended(list(range(5, 8)), views) == list(range(2, 12))
     two_tracks = np.r_[np.zeros(9, int), np.ones(21, int)]                 # 0-8 and 9-29: the run is cut at 9
-    other = extend_disputes(refused, view_refused, np.arange(30), two_tracks)
-    assert np.flatnonzero(other[:, w]).tolist() == list(range(2, 9))
+    assert _extended(list(range(5, 8)), views, two_tracks) == list(range(2, 9))
 
 
 def test_a_run_of_one_view_refused_where_the_wrist_jumps_is_refused():
@@ -322,21 +328,9 @@ def test_one_views_refused_run_goes_on_over_short_breaks_but_takes_no_lone_refus
     """View 0 refused from 2 to 11 but at 6-7 (its keypoint missing there, or agreeing with the
     others' by chance) beside a wrist refused at 9-10: the refusal extends over 2-11, the break
     included. A lone refusal of view 0 at 13, two instants after the run, is not joined to it
-    (one stray keypoint is not the stretch)."""
-    from mvm.rig.occlusions import extend_disputes
-
-    w = INDEX["left_wrist"]
-    refused = np.zeros((30, 17), bool)
-    refused[9:11, w] = True
-    view_refused = np.zeros((30, 3, 17), bool)
-    view_refused[2:12, 0, w] = True
-    view_refused[6:8, 0, w] = False
-    view_refused[13, 0, w] = True
-    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
-    assert np.flatnonzero(out[:, w]).tolist() == list(range(2, 12))
-    view_refused[5:9, 0, w] = False                                        # a break of 4: too long
-    out = extend_disputes(refused, view_refused, np.arange(30), np.zeros(30, int))
-    assert np.flatnonzero(out[:, w]).tolist() == list(range(9, 12))
+    (one stray keypoint is not the stretch); nor is a run across a break of 4."""
+    assert _extended([9, 10], {0: [2, 3, 4, 5, 8, 9, 10, 11, 13]}) == list(range(2, 12))
+    assert _extended([9, 10], {0: [2, 3, 4, 9, 10, 11, 13]}) == [9, 10, 11]
 
 
 def test_a_jump_shortly_before_one_views_refused_run_refuses_it():
