@@ -127,7 +127,8 @@ TOLERANCE = 1e-5
 
 def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2D, cameras: Cameras,
                   config, prior=None, bone_weight: float = 0.32, outer_iterations: int = OUTER_ITERATIONS,
-                  tolerance: float = TOLERANCE, noise: float = 1.0) -> InstantPersons:
+                  tolerance: float = TOLERANCE, noise: float = 1.0,
+                  lengths: np.ndarray | None = None) -> InstantPersons:
     """Refine every person against its 2D keypoints, the pose prior and its track's bone lengths
     (:func:`track_bone_lengths` of the triangulated joints, a soft term of weight
     ``bone_weight``, squared person sizes per squared relative length error: the reprojection
@@ -145,12 +146,13 @@ def refine_tracks(persons: InstantPersons, track: np.ndarray, detections: Poses2
     three and 4.105 with two on the rig benchmark). ``noise``: the capture's
     :func:`capture_noise_factor`; the residuals are in person sizes times it, so that the robust
     scale grows with the noise and the prior and the bones weigh against the keypoints as the
-    noise's variance, as in a scene's refinement."""
+    noise's variance, as in a scene's refinement. ``lengths: (Q, B)``: the bone lengths to hold
+    (None: :func:`track_bone_lengths` of ``persons``)."""
     from mvm.core.refine import refine_poses
 
     if not len(persons):
         return persons
-    lengths = track_bone_lengths(persons.X, track)                                # (Q, B)
+    lengths = track_bone_lengths(persons.X, track) if lengths is None else lengths  # (Q, B)
     xy, conf, P, used = observations(persons, detections, cameras, config.keypoint_threshold)
     xy, P = in_person_sizes(xy, P, detection_sizes(persons, detections, config.keypoint_threshold) * noise)
     centers = np.broadcast_to(cameras.centers, (len(persons.X), *cameras.centers.shape))
