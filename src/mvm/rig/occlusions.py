@@ -274,6 +274,21 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     return extend_disputes(refused, view_refused, instant, track)
 
 
+def agreed_on_refused(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``(Q, V, 17)`` the keypoints that made the ``refused: (Q, 17)`` joints their views do not
+    dispute (:func:`disputed`; ``inliers``, ``valid``: ``(Q, V, 17)`` as there): the views agreed
+    on the point, and its bone or its jump refused it, so they agreed on another thing (the
+    other hand, a prop) and are left out of the fill. Where two views dispute a refused joint,
+    its inliers may be the views that see it, and they are kept.
+
+    On the simulated rig of ``benchmarks/rig_occlusion.py``, a wrist seen at its place by one
+    view of five while the four others agree on a point 20-40 cm off was filled 45-58 mm
+    from the truth with their rays, and is 30-42 mm without them (the oracle given the true ends
+    and the one view: 10-30 mm)."""
+    agreed = np.asarray(refused, bool) & ~disputed(valid & ~inliers)
+    return agreed[:, None, :] & inliers
+
+
 def refused_parents(refused: np.ndarray) -> np.ndarray:
     """``(Q, 17)`` the elbows and knees of the wrists and ankles ``refused: (Q, 17)``, where not
     refused themselves: the refinement's bone term pulled them towards the refused joint.
