@@ -282,9 +282,9 @@ def agreed_on_refused(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarra
     its inliers may be the views that see it, and they are kept.
 
     On the simulated rig of ``benchmarks/rig_occlusion.py``, a wrist seen at its place by one
-    view of five while the four others agree on a point 20-40 cm off was filled 45-58 mm
-    from the truth with their rays, and is 30-42 mm without them (the oracle given the true ends
-    and the one view: 10-30 mm)."""
+    view of five while the four others agree on a point 20-40 cm off was 48-63 mm from the
+    truth with their rays, and is 33-46 mm without them (the oracle given the true ends and the
+    one view: 10-30 mm)."""
     agreed = np.asarray(refused, bool) & ~disputed(valid & ~inliers)
     return agreed[:, None, :] & inliers
 

@@ -277,8 +277,8 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
     person's members, less those that agreed on a refused joint
-    (:func:`mvm.rig.occlusions.agreed_on_refused`), and the prior's guess. Returns ``(X, flags: (Q, 17), confidence: (Q, 17))``
-    (flags 0 where not filled)."""
+    (:func:`mvm.rig.occlusions.agreed_on_refused`), and the prior's guess. Returns
+    ``(X, flags: (Q, 17), confidence: (Q, 17))`` (flags 0 where not filled)."""
     xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
     lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
     conf = np.where(lacking[:, None, None], conf, 0.0)
