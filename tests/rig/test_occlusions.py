@@ -9,7 +9,7 @@ from mvm.core.completion import INFERRED, OBSERVED
 from mvm.core.keypoints import INDEX
 from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
-from mvm.rig.occlusions import rays
+from mvm.rig.occlusions import jump_disputed, rays
 from mvm.rig.options import RigOptions
 from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.sim.rig import ring_cameras
@@ -337,26 +337,32 @@ def test_a_dispute_extends_over_one_view_refused_next_to_it_but_not_over_others(
     assert _extended(list(range(5, 8)), views, two_tracks) == list(range(2, 9))
 
 
+W = INDEX["right_wrist"]
+
+
+def _wrist_off_from_10_to_19():
+    """An arm's track of 40 instants whose right wrist (:data:`W`) sits 30 cm off from 10 to 19:
+    ``(truth, X: (40, 17, 3), instant, track, view_refused: (40, 4, 17), refused: (40, 17))``,
+    the last two all False."""
+    truth, instant, track = _arm_track(40)
+    X = truth.copy()
+    X[10:20, W] += [0.3, 0.0, 0.0]
+    return truth, X, instant, track, np.zeros((40, 4, 17), bool), np.zeros((40, 17), bool)
+
+
 def test_a_run_of_one_view_refused_where_the_wrist_jumps_is_refused():
     """A wrist whose one view is refused from 10 to 19 while the joint sits 30 cm off from 10 on
     (the other views agree on another thing): the run is refused. The same run without the jump
     (the one view simply wrong), a jump with no view refused, and a run already disputed are not."""
-    from mvm.rig.occlusions import jump_disputed
-
-    truth, instant, track = _arm_track(40)
-    w = INDEX["right_wrist"]
-    X = truth.copy()
-    X[10:20, w] += [0.3, 0.0, 0.0]
-    view_refused = np.zeros((40, 4, 17), bool)
-    view_refused[10:20, 2, w] = True
-    none = np.zeros((40, 17), bool)
-    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, w]).tolist() == list(range(10, 20))
+    truth, X, instant, track, view_refused, none = _wrist_off_from_10_to_19()
+    view_refused[10:20, 2, W] = True
+    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, W]).tolist() == list(range(10, 20))
     assert not jump_disputed(truth, view_refused, none, instant, track).any()
     assert not jump_disputed(X, np.zeros_like(view_refused), none, instant, track).any()
     settled = none.copy()
-    settled[12, w] = True
+    settled[12, W] = True
     assert not jump_disputed(X, view_refused, settled, instant, track).any()
-    assert np.flatnonzero(jump_disputed(1000 * X, view_refused, none, instant, track, unit=1000.0)[:, w]).size == 10
+    assert np.flatnonzero(jump_disputed(1000 * X, view_refused, none, instant, track, unit=1000.0)[:, W]).size == 10
 
 
 def test_one_views_refused_run_goes_on_over_short_breaks_but_takes_no_lone_refusal():
@@ -373,18 +379,11 @@ def test_a_jump_shortly_before_one_views_refused_run_refuses_it():
     a break at 15 (the thing the others report lay along its line of sight there): the run
     12-19 is refused, the break included. With the wrist off from 10 to 29, a run from 15 to 19
     is not: no jump where it begins or ends."""
-    from mvm.rig.occlusions import jump_disputed
-
-    truth, instant, track = _arm_track(40)
-    w = INDEX["right_wrist"]
-    X = truth.copy()
-    X[10:20, w] += [0.3, 0.0, 0.0]
-    view_refused = np.zeros((40, 4, 17), bool)
-    view_refused[12:20, 2, w] = True
-    view_refused[15, 2, w] = False
-    none = np.zeros((40, 17), bool)
-    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, w]).tolist() == list(range(12, 20))
-    X[20:30, w] += [0.3, 0.0, 0.0]                                          # off from 10 to 29 now
+    _, X, instant, track, view_refused, none = _wrist_off_from_10_to_19()
+    view_refused[12:20, 2, W] = True
+    view_refused[15, 2, W] = False
+    assert np.flatnonzero(jump_disputed(X, view_refused, none, instant, track)[:, W]).tolist() == list(range(12, 20))
+    X[20:30, W] += [0.3, 0.0, 0.0]                                          # off from 10 to 29 now
     late = np.zeros_like(view_refused)
-    late[15:20, 2, w] = True
+    late[15:20, 2, W] = True
     assert not jump_disputed(X, late, none, instant, track).any()
