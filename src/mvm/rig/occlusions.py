@@ -34,8 +34,9 @@ from mvm.rig.tracking import runs
 #: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
 LIMB_PASSES = tuple(tuple((INDEX[f"{s}_{j}"], INDEX[f"{s}_{p}"]) for s in ("left", "right") for j, p in pairs)
                     for pairs in ((("elbow", "shoulder"), ("knee", "hip")), (("wrist", "elbow"), ("ankle", "knee"))))
-#: The joints filled.
+#: The joints filled, and their parents.
 LIMB_JOINTS = [j for joints in LIMB_PASSES for j, _ in joints]
+LIMB_PARENTS = [p for joints in LIMB_PASSES for _, p in joints]
 #: The elbows and wrists.
 ARM_JOINTS = [INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("elbow", "wrist")]
 #: The joints the limb chains hang from (shoulders, hips): interpolated over their own short gaps
@@ -138,8 +139,7 @@ def bone_disputed(X: np.ndarray, instant: np.ndarray, track: np.ndarray) -> np.n
     """
     out = np.zeros(X.shape[:2], bool)
     joints = np.array(LIMB_JOINTS)
-    parents = np.array([p for passes in LIMB_PASSES for _, p in passes])
-    length = np.linalg.norm(X[:, joints] - X[:, parents], axis=-1)                 # (Q, K), NaN: unknown
+    length = np.linalg.norm(X[:, joints] - X[:, LIMB_PARENTS], axis=-1)            # (Q, K), NaN: unknown
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         rows = index[index >= 0]
         known = np.isfinite(length[rows])
@@ -164,7 +164,7 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
     outvoted the one that sees it (which may agree with them for an instant or two first).
     ``instant, track: (Q,)``; ``unit``: world units per metre."""
     out = np.zeros(X.shape[:2], bool)
-    parent = {j: p for passes in LIMB_PASSES for j, p in passes}
+    parent = dict(zip(LIMB_JOINTS, LIMB_PARENTS))
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         S, settled = take_rows(X, index), take_rows(disputes, index, False)          # (L, 17, 3), (L, 17)
         views = _bridged(take_rows(view_refused[..., ARM_JOINTS], index, False))    # (L, V, 4)

@@ -205,12 +205,13 @@ def refine_parents_again(triangulated: InstantPersons, refined: InstantPersons, 
     ``refused: (Q, 17)`` joints (:func:`mvm.rig.occlusions.refused_parents`) refined again
     without those joints, against their track's bone lengths as before: a wrist that the views
     got wrong pulls its elbow towards it through the forearm's bone term. Only the persons with
-    a refused joint are refined again; their other joints are kept.
+    such a parent are refined again; their other joints are kept.
 
     On the simulated rig of ``benchmarks/rig_occlusion.py``, where most views agree on a wrist
     that is not there, the elbows and shoulders around it were 12-13 mm off, and are 6.3-6.5 mm
     off with this, as where the wrist is only missing."""
-    rows = np.flatnonzero(refused.any(1))
+    parents = refused_parents(refused)                                           # (Q, 17)
+    rows = np.flatnonzero(parents.any(1))
     if not len(rows):
         return refined
     lengths = track_bone_lengths(triangulated.X, track)[rows]                     # as the first refinement's
@@ -219,7 +220,7 @@ def refine_parents_again(triangulated: InstantPersons, refined: InstantPersons, 
     again = refine_tracks(without, track[rows], detections, cameras, config, prior, bone_weight, noise=noise,
                           lengths=lengths)
     X = refined.X.copy()
-    X[rows] = np.where(refused_parents(refused[rows])[..., None], again.X, X[rows])
+    X[rows] = np.where(parents[rows, :, None], again.X, X[rows])
     return refit(refined, X, detections, cameras)
 
 
