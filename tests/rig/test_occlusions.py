@@ -9,7 +9,7 @@ from mvm.core.completion import INFERRED, OBSERVED
 from mvm.core.keypoints import INDEX
 from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
-from mvm.rig.occlusions import jump_disputed, rays
+from mvm.rig.occlusions import jump_disputed, rays, widen_to_steps
 from mvm.rig.options import RigOptions
 from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
 from mvm.sim.rig import ring_cameras
@@ -387,3 +387,35 @@ def test_a_jump_shortly_before_one_views_refused_run_refuses_it():
     late = np.zeros_like(view_refused)
     late[15:20, 2, W] = True
     assert not jump_disputed(X, late, none, instant, track).any()
+
+
+def test_a_refusal_is_widened_to_the_steps_of_the_wrist_around_it():
+    """The wrist sits 30 cm off from 10 to 19 and is refused from 12 to 17 (its one view was
+    missing at 10-11 and 18-19): the refusal widens to 10-19, where the wrist stepped off and
+    back, and no farther (where it flickers back and forth as it steps back, through the
+    flicker). Refused at 12-14 only (fewer than half the instants between the
+    steps), or with the wrist off from 10 to the track's end (no step back), it is not widened;
+    with the wrist lost at 20-21 instead of stepping back, it is where the refusal reaches 19, and
+    not where it stops at 17. Off to the end and refused from 12 to 29, most of the instants
+    after the step, it is not: the refusal stops short of the track's end."""
+    truth, X, instant, track, _, refused = _wrist_off_from_10_to_19()
+    refused[12:18, W] = True
+    assert np.flatnonzero(widen_to_steps(refused, X, instant, track)[:, W]).tolist() == list(range(10, 20))
+    assert np.flatnonzero(widen_to_steps(refused, 1000 * X, instant, track, 1000.0)[:, W]).size == 10
+    assert np.array_equal(widen_to_steps(refused, truth, instant, track), refused)
+    flicker = X.copy()
+    flicker[21, W] += [0.3, 0.0, 0.0]                                       # back at 20, off again at 21, back at 22
+    assert np.flatnonzero(widen_to_steps(refused, flicker, instant, track)[:, W]).tolist() == list(range(10, 22))
+    few = np.zeros_like(refused)
+    few[12:15, W] = True
+    assert np.array_equal(widen_to_steps(few, X, instant, track), few)
+    X[20:, W] += [0.3, 0.0, 0.0]                                            # off from 10 to the end
+    assert np.array_equal(widen_to_steps(refused, X, instant, track), refused)
+    X[20:22, W] = np.nan                                                    # lost at 20-21 instead of a step back
+    assert np.array_equal(widen_to_steps(refused, X, instant, track), refused)
+    refused[18:20, W] = True                                                # refused up to where it is lost
+    assert np.flatnonzero(widen_to_steps(refused, X, instant, track)[:, W]).tolist() == list(range(10, 20))
+    X[20:22, W] = X[22, W]
+    most = np.zeros_like(refused)
+    most[12:30, W] = True                                                   # 18 of the 30 after the step
+    assert np.array_equal(widen_to_steps(most, X, instant, track), most)

@@ -164,19 +164,82 @@ def jump_disputed(X: np.ndarray, view_refused: np.ndarray, disputes: np.ndarray,
     outvoted the one that sees it (which may agree with them for an instant or two first).
     ``instant, track: (Q,)``; ``unit``: world units per metre."""
     out = np.zeros(X.shape[:2], bool)
-    parent = dict(zip(LIMB_JOINTS, LIMB_PARENTS))
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         S, settled = take_rows(X, index), take_rows(disputes, index, False)          # (L, 17, 3), (L, 17)
         views = _bridged(take_rows(view_refused[..., ARM_JOINTS], index, False))    # (L, V, 4)
         for k, j in enumerate(ARM_JOINTS):
-            offset = S[:, j] - S[:, parent[j]]                                     # (L, 3)
-            acc = np.linalg.norm(offset[2:] - 2 * offset[1:-1] + offset[:-2], axis=-1)
-            jump = np.zeros(len(S), bool)                                          # at the middle instant
-            jump[1:-1] = np.nan_to_num(acc) >= JUMP_M * unit
+            jump = _jumps(_offset(S, j), unit)
             for v in range(views.shape[1]):
                 for a, b in zip(*_refused_runs(views[:, v, k], index)):
                     edges = jump[max(a - DISPUTE_SPAN, 0):a + 1].any() or jump[b - 1:b + DISPUTE_SPAN].any()
                     if b - a >= DISPUTE_STRETCH and edges and not settled[a:b, j].any():
+                        out[index[a:b], j] = True
+    return out
+
+
+def _offset(S: np.ndarray, joint: int) -> np.ndarray:
+    """``(L, 3)`` the offset of a limb ``joint`` from its parent along a track ``S: (L, 17, 3)``."""
+    return S[:, joint] - S[:, LIMB_PARENTS[LIMB_JOINTS.index(joint)]]
+
+
+def _jumps(offset: np.ndarray, unit: float) -> np.ndarray:
+    """``(L,)`` the instants where a joint's ``offset: (L, 3)`` from its parent (NaN: unknown)
+    jumps: its second difference there (the middle instant) is :data:`JUMP_M` or more (``unit``:
+    world units per metre)."""
+    jump = np.zeros(len(offset), bool)
+    jump[1:-1] = np.nan_to_num(np.linalg.norm(offset[2:] - 2 * offset[1:-1] + offset[:-2], axis=-1)) >= JUMP_M * unit
+    return jump
+
+
+def _steps(jump: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """The instants ``t`` of a track where a joint's offset from its parent steps between
+    ``t - 1`` and ``t``: ``jump: (L,)`` (:func:`_jumps`) at both, or at one where the other is
+    next to where the offset is not known (``known: (L,)``), and no second difference there.
+
+    >>> jump = np.zeros(12, bool); jump[[3, 4, 8]] = True; known = np.arange(12) != 10
+    >>> _steps(jump, known).tolist()                  # between 3 and 4; between 8 and 9 (10 unknown)
+    [4, 9]
+    """
+    edge = known & ~(np.r_[False, known[:-1]] & np.r_[known[1:], False])            # no second difference there
+    at = jump | edge
+    return np.flatnonzero(at[:-1] & at[1:] & (jump[:-1] | jump[1:])) + 1
+
+
+def widen_to_steps(refused: np.ndarray, X: np.ndarray, instant: np.ndarray, track: np.ndarray, unit: float = 1.0,
+                   joints=ARM_JOINTS) -> np.ndarray:
+    """``refused: (Q, 17)`` (:func:`extend_disputes`) widened, along each track, for ``joints``,
+    over the pieces of the joint's known series in ``X: (Q, 17, 3)`` between two steps of its
+    offset from its parent (two jumps in a row, :func:`_jumps`, at ``t - 1`` and ``t``: a step
+    between them), or between one and where the joint is not known (the instant next to it
+    refused), of which at least half are refused: the views
+    that do not see a hand take it to the other thing they agree on at once, and leave it at once
+    (or lose it), but the one view that sees it is refused only where it has a keypoint (it may
+    be missing as the stretch begins or ends, or agree for an instant). ``instant, track:
+    (Q,)``; ``unit``: world units per metre.
+
+    On the simulated rig of ``benchmarks/rig_occlusion.py``, a wrist seen at its place by one
+    view of five while the four others agree on a point 20-40 cm off was left as triangulated at
+    a few of the stretches' first or last instants, 240-260 mm off, and the fill through the
+    stretch started from there."""
+    refused = np.asarray(refused, bool)
+    out = refused.copy()
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
+        S, R = take_rows(X, index), take_rows(refused, index, False)              # (L, 17, 3), (L, 17)
+        for j in joints:
+            offset = _offset(S, j)
+            known = np.isfinite(offset).all(-1)
+            steps = _steps(_jumps(offset, unit), known)
+            is_step = np.zeros(len(S) + 1, bool)
+            is_step[steps] = True
+            for first, stop in zip(*runs(known)):
+                cuts = np.r_[first, steps[(steps > first) & (steps < stop)], stop]
+                for a, b in zip(cuts[:-1], cuts[1:]):
+                    ends = (is_step[a] or R[a, j]) and (is_step[b] or R[b - 1, j]) and (is_step[a] or is_step[b])
+                    if ends and 2 * R[a:b, j].sum() >= b - a:
+                        while a - 1 > first and is_step[a - 1]:                    # into steps in a row
+                            a -= 1
+                        while b + 1 < stop and is_step[b + 1]:
+                            b += 1
                         out[index[a:b], j] = True
     return out
 
@@ -271,7 +334,7 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     view_refused = valid & ~inliers
     disputes = disputed(view_refused) | bone_disputed(X, instant, track)
     refused = close_disputes(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), instant, track)
-    return extend_disputes(refused, view_refused, instant, track)
+    return widen_to_steps(extend_disputes(refused, view_refused, instant, track), X, instant, track, unit)
 
 
 def agreed_on_refused(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
