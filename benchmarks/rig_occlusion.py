@@ -5,7 +5,7 @@
 
 A simulated 5-camera ring rig (:mod:`mvm.sim.rig_scene`: people playing real motions, the
 default detector errors, no lens distortion). Every person loses one arm's wrist (``--joints
-arm``: its elbow and wrist) for a stretch of each of ``--lengths`` instants. Two cases:
+arm``: its elbow and wrist) for a stretch of each of ``--lengths`` instants. Four cases:
 
 - ``missing``: the joint's keypoints are dropped in all the views but 0 or 1 of them (drawn
   per stretch), as a body or a table hides a limb from most of a rig;
@@ -16,6 +16,8 @@ arm``: its elbow and wrist) for a stretch of each of ``--lengths`` instants. Two
 - ``ghost``: as ``wrong``, but the views that do not see the joint all report one point 20 to
   40 cm from it (one direction per stretch): they agree on a thing that is not the joint (the
   other hand, a prop), and outnumber the views that see it.
+- ``other-arm``: as ``ghost``, with one displacement for the elbow and the wrist (``--joints
+  arm``): the views agree on another arm, whose forearm is as long.
 
 The rig's time steps run as ``mvm rig reconstruct`` runs them
 (:func:`mvm.rig.reconstruct_rig.track_and_complete`).
@@ -51,7 +53,7 @@ from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 MATCH_M = 0.5
 SIDES = ("left", "right")
 #: The views left seeing the joint at its place, drawn per stretch, in each case.
-SEEN = {"missing": (0, 1), "wrong": (1, 2), "ghost": (1, 2)}
+SEEN = {"missing": (0, 1), "wrong": (1, 2), "ghost": (1, 2), "other-arm": (1, 2)}
 PARENT = {j: p for joints in LIMB_PASSES for j, p in joints}
 COLUMNS = ("filled", "kept observed", "all hidden", "oracle: right views", "oracle: motion only", "around")
 
@@ -75,7 +77,8 @@ def _report_off(sim, rows: np.ndarray, v: int, g: int, j: int, offset: np.ndarra
 def occlude(sim, rng: np.random.Generator, joints: str, length: int, case: str = "missing") -> list[tuple]:
     """Hide one arm of every person of ``sim`` (in place, in ``sim.keypoints``) for ``length``
     instants from all the views but those still seeing it (:data:`SEEN`): dropped (``missing``)
-    or reported 20 to 40 cm off (``wrong``: each view elsewhere; ``ghost``: all at one point).
+    or reported 20 to 40 cm off (``wrong``: each view elsewhere; ``ghost``: all at one point;
+    ``other-arm``: all at one point, moved alike for the elbow and the wrist).
 
     Returns the stretches: ``(person, joints, first instant, views seeing them)``."""
     S, G = sim.poses3d.shape[:2]
@@ -87,11 +90,12 @@ def occlude(sim, rng: np.random.Generator, joints: str, length: int, case: str =
         t0 = int(rng.integers(10, S - length - 10))
         keep = rng.permutation(V)[:rng.choice(SEEN[case])]
         rows = (sim.person == g) & (sim.frame >= t0) & (sim.frame < t0 + length) & ~np.isin(sim.camera, keep)
+        arm = _offset(rng) if case == "other-arm" else None
         for j in js:
             if case == "missing":
                 sim.keypoints[rows, j] = 0.0
             else:
-                shared = _offset(rng) if case == "ghost" else None
+                shared = arm if arm is not None else _offset(rng) if case == "ghost" else None
                 for v in np.setdiff1d(np.arange(V), keep):
                     _report_off(sim, rows, v, g, j, _offset(rng) if shared is None else shared)
         stretches.append((g, js, t0, keep))
@@ -177,11 +181,13 @@ def main() -> int:
     parser.add_argument("--frames", type=int, default=150)
     parser.add_argument("--joints", choices=("wrist", "arm"), default="wrist")
     parser.add_argument("--lengths", type=int, nargs="+", default=[10, 20, 30, 40])
-    parser.add_argument("--cases", nargs="+", choices=tuple(SEEN), default=list(SEEN))
+    parser.add_argument("--cases", nargs="+", choices=tuple(SEEN), default=None,
+                        help="Default: all (other-arm only with --joints arm, where it differs from ghost).")
     parser.add_argument("--no-fill", action="store_true", help="Without the occlusion fill (occlusion_max_gap = 0).")
     args = parser.parse_args()
     if min(args.lengths) < 1 or max(args.lengths) > args.frames - 22:
         parser.error(f"--lengths: from 1 to {args.frames - 22} instants for {args.frames} frames")
+    args.cases = args.cases or [case for case in SEEN if args.joints == "arm" or case != "other-arm"]
     config = rig_config()
     options = RigOptions(frame_rate=30.0, occlusion_max_gap=0 if args.no_fill else RigOptions().occlusion_max_gap)
     print(f"5 cameras, 3 people, {args.frames} instants, {args.seeds} seeds, hidden: {args.joints}, "

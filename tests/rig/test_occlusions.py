@@ -72,11 +72,12 @@ def test_hidden_wrists_are_inferred_near_the_truth(runs):
 REPORTED_OFF = ((0, INDEX["right_wrist"], 2), (1, INDEX["left_wrist"], 1))
 
 
-def _report_off(sim, shared: bool = False):
-    """Move the keypoints of :data:`REPORTED_OFF`'s joints in all views but the first ``seen``
-    to the projection of a point off the truth, one offset per view (as a detector reports a
-    hidden hand at something near it), or one for all of them (``shared``: the views agree on
-    another thing, the other hand or a prop)."""
+def _report_off(sim, shared: bool = False, arm: bool = False):
+    """Move the keypoints of :data:`REPORTED_OFF`'s joints (``arm``: and their elbows, by the
+    same offset) in all views but the first ``seen`` to the projection of a point off the
+    truth, one offset per view (as a detector reports a hidden hand at something near it), or
+    one for all of them (``shared``: the views agree on another thing, the other hand or a
+    prop)."""
     rng = np.random.default_rng(8)
     cameras = sim.calibration.cameras
     for g, j, seen in REPORTED_OFF:
@@ -85,14 +86,15 @@ def _report_off(sim, shared: bool = False):
             offset = common.copy() if shared else rng.normal(size=3)
             offset *= rng.uniform(0.2, 0.3) / np.linalg.norm(offset)
             rows = np.flatnonzero((sim.person == g) & np.isin(sim.frame, HIDDEN) & (sim.camera == v))
-            uv, _ = project_views(cameras.subset([v]), sim.poses3d[sim.frame[rows], g, j] + offset)
-            sim.keypoints[rows, j, :2] = uv[0]
-            sim.keypoints[rows, j, 2] = np.maximum(sim.keypoints[rows, j, 2], 0.5)
+            for k in (j, j - 2) if arm else (j,):
+                uv, _ = project_views(cameras.subset([v]), sim.poses3d[sim.frame[rows], g, k] + offset)
+                sim.keypoints[rows, k, :2] = uv[0]
+                sim.keypoints[rows, k, 2] = np.maximum(sim.keypoints[rows, k, 2], 0.5)
 
 
 def _errors_with_and_without_fill(sim) -> dict:
     """``{("fill" | "none", person): [errors of its REPORTED_OFF joint over HIDDEN]}``, and
-    ``("elbow", person)``: those of the joint's elbow with the fill."""
+    ``("elbow" | "shoulder", person)``: those of the joint's elbow and shoulder with the fill."""
     errors = {}
     for name, gap in (("fill", RigOptions().occlusion_max_gap), ("none", 0)):
         config = rig_config()
@@ -110,6 +112,7 @@ def _errors_with_and_without_fill(sim) -> dict:
                 errors.setdefault((name, g), []).append(d[j])
                 if name == "fill":
                     errors.setdefault(("elbow", g), []).append(d[j - 2])
+                    errors.setdefault(("shoulder", g), []).append(d[j - 4])
     return errors
 
 
@@ -142,6 +145,23 @@ def test_a_wrist_the_other_views_agree_is_elsewhere_is_refused_and_filled():
         assert len(errors["fill", g]) >= 0.9 * len(HIDDEN)
         assert after < (0.02 if seen == 2 else 0.025) and after < 0.4 * before, (g, after, before)
         assert np.mean(errors["elbow", g]) < 0.01, (g, np.mean(errors["elbow", g]))
+
+
+def test_an_arm_the_other_views_agree_is_elsewhere_leaves_its_shoulder_in_place():
+    """As above, with the elbow moved with the wrist in the views that do not see them (they
+    agree on another arm, whose forearm is as long): the elbow's upper arm refuses it, and the
+    wrist, which those views alone made, goes with it (218 mm off without that); both are filled
+    within a few centimetres. The shoulder, which the refinement's upper-arm term had pulled
+    37 mm towards the other elbow, is refined again without it: within 1 cm."""
+    sim = simulate_rig(RigSimConfig(cameras=5, people=2, frames=90, distortion=0.0, seed=4))
+    _report_off(sim, shared=True, arm=True)
+    errors = _errors_with_and_without_fill(sim)
+    for g, _, _ in REPORTED_OFF:
+        after, before = np.mean(errors["fill", g]), np.mean(errors["none", g])
+        assert len(errors["fill", g]) >= 0.9 * len(HIDDEN)
+        assert after < 0.03 and after < 0.2 * before, (g, after, before)
+        assert np.mean(errors["elbow", g]) < 0.02, (g, np.mean(errors["elbow", g]))
+        assert np.mean(errors["shoulder", g]) < 0.01, (g, np.mean(errors["shoulder", g]))
 
 
 def test_confidence_falls_towards_the_middle_of_an_unseen_gap(runs):
@@ -246,16 +266,36 @@ def test_a_shoulder_missing_briefly_is_bridged_so_its_arm_can_be_filled():
     assert (flags[np.isfinite(X).all(-1)] == 0).all()
 
 
-def test_refused_parents_are_the_elbows_and_knees_of_refused_wrists_and_ankles():
+def test_refused_parents_are_the_elbows_knees_and_shoulders_of_refused_limb_joints_but_not_the_hips():
     from mvm.rig.occlusions import refused_parents
 
-    refused = np.zeros((4, 17), bool)
+    refused = np.zeros((5, 17), bool)
     refused[0, INDEX["left_wrist"]] = True
     refused[1, [INDEX["right_ankle"], INDEX["right_knee"]]] = True         # the knee is refused itself
-    refused[2, INDEX["left_elbow"]] = True                                # a shoulder is not refined again
-    expected = np.zeros((4, 17), bool)
+    refused[2, INDEX["left_elbow"]] = True
+    refused[3, INDEX["left_knee"]] = True                                 # a hip is not refined again
+    refused[4, [INDEX["right_wrist"], INDEX["right_elbow"]]] = True
+    expected = np.zeros((5, 17), bool)
     expected[0, INDEX["left_elbow"]] = True
+    expected[2, INDEX["left_shoulder"]] = True
+    expected[4, INDEX["right_shoulder"]] = True
     assert (refused_parents(refused) == expected).all()
+
+
+def test_a_wrist_made_only_by_the_views_that_agreed_on_its_refused_elbow_is_refused_with_it():
+    from mvm.rig.occlusions import with_refused_elbows
+
+    e, w = INDEX["left_elbow"], INDEX["left_wrist"]
+    valid = np.ones((4, 5, 17), bool)
+    inliers = valid.copy()
+    inliers[:, 0, [e, w]] = False                              # view 0 sees the arm, the others another
+    refused = np.zeros((4, 17), bool)
+    refused[:3, e] = True
+    inliers[1, 0, w] = True                                    # view 0 agrees on the wrist: not only theirs
+    inliers[2, 1, e] = False                                   # two views dispute the elbow: its inliers kept
+    out = with_refused_elbows(refused, inliers, valid)
+    assert out[:, w].tolist() == [True, False, False, False]   # the elbow of person 3 is not refused
+    assert (out[:, e] == refused[:, e]).all() and out.sum() == 4
 
 
 def test_the_views_that_agreed_on_a_refused_joint_are_left_out_unless_two_disputed_it():
