@@ -1,6 +1,7 @@
-"""Limb joints through long occlusions of a rig's tracks (mvm.rig.occlusions), against a simulated
-capture whose occlusions the test makes: a wrist hidden from every view but one, another from
-every view, for 25 instants."""
+"""Limb joints through long occlusions of a rig's tracks (mvm.rig.occlusions, and the refusals of
+mvm.rig.refusals), against simulated captures whose occlusions the tests make (a wrist hidden
+from every view but one, another from every view, for 25 instants; wrists and arms reported
+elsewhere) and tracks they build."""
 import numpy as np
 import pytest
 
@@ -9,9 +10,10 @@ from mvm.core.completion import INFERRED, OBSERVED
 from mvm.core.keypoints import INDEX
 from mvm.metrics.poses import match_persons
 from mvm.rig.instants import reconstruct_instants, rig_poses
-from mvm.rig.occlusions import jump_disputed, rays, widen_to_steps
+from mvm.rig.occlusions import rays
 from mvm.rig.options import RigOptions
 from mvm.rig.reconstruct_rig import completion_prior, instants_config, rig_config, track_and_complete
+from mvm.rig.refusals import jump_disputed, widen_to_steps
 from mvm.sim.rig import ring_cameras
 from mvm.sim.rig_scene import RigSimConfig, simulate_rig
 
@@ -267,7 +269,7 @@ def test_a_shoulder_missing_briefly_is_bridged_so_its_arm_can_be_filled():
 
 
 def test_refused_parents_are_the_elbows_knees_and_shoulders_of_refused_limb_joints_but_not_the_hips():
-    from mvm.rig.occlusions import refused_parents
+    from mvm.rig.refusals import refused_parents
 
     refused = np.zeros((5, 17), bool)
     refused[0, INDEX["left_wrist"]] = True
@@ -283,7 +285,7 @@ def test_refused_parents_are_the_elbows_knees_and_shoulders_of_refused_limb_join
 
 
 def test_a_wrist_made_only_by_the_views_that_agreed_on_its_refused_elbow_is_refused_with_it():
-    from mvm.rig.occlusions import with_refused_elbows
+    from mvm.rig.refusals import with_refused_elbows
 
     e, w = INDEX["left_elbow"], INDEX["left_wrist"]
     valid = np.ones((4, 5, 17), bool)
@@ -299,7 +301,7 @@ def test_a_wrist_made_only_by_the_views_that_agreed_on_its_refused_elbow_is_refu
 
 
 def test_the_views_that_agreed_on_a_refused_joint_are_left_out_unless_two_disputed_it():
-    from mvm.rig.occlusions import agreed_on_refused
+    from mvm.rig.refusals import agreed_on_refused
 
     w = INDEX["left_wrist"]
     valid = np.ones((3, 5, 17), bool)
@@ -317,7 +319,7 @@ def test_the_views_that_agreed_on_a_refused_joint_are_left_out_unless_two_disput
 def test_disputed_limb_joints():
     """A limb joint is disputed where two of its views' keypoints were refused; a head or torso
     joint never; one refused keypoint is a detector's slip, not a dispute."""
-    from mvm.rig.occlusions import disputed
+    from mvm.rig.refusals import disputed
 
     valid = np.ones((3, 5, 17), bool)
     inliers = valid.copy()
@@ -335,7 +337,7 @@ def test_close_disputes_fills_short_breaks_of_one_track():
     """An instant with a refused one at most three instants before it and another at most
     three after is refused, and the instant either side of a stretch of three or more so
     closed (not of a lone one), in its own track and joint only."""
-    from mvm.rig.occlusions import close_disputes
+    from mvm.rig.refusals import close_disputes
 
     w = INDEX["left_wrist"]
     instant = np.concatenate([np.arange(30), np.arange(30)])
@@ -353,7 +355,7 @@ def _extended(refused_at, refused_views: dict, track=None) -> list[int]:
     """The instants of 30 (one track, or ``track``) at which a left wrist refused at
     ``refused_at`` is refused after :func:`extend_disputes`, with its keypoints refused in
     ``refused_views`` ``{view: instants}`` of 3 views; no other joint is touched."""
-    from mvm.rig.occlusions import extend_disputes
+    from mvm.rig.refusals import extend_disputes
 
     w = INDEX["left_wrist"]
     refused = np.zeros((30, 17), bool)

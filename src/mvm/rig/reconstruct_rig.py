@@ -31,17 +31,11 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import (
-    LIMB_JOINTS,
-    agreed_on_refused,
-    fill_occlusions,
-    rays,
-    refused_limb_joints,
-    refused_parents,
-)
+from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
 from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, named_inputs, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
+from mvm.rig.refusals import agreed_on_refused, refused_limb_joints, refused_parents
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
 from mvm.rig.skeleton import capture_noise_factor, observations, refine_tracks, refit, track_bone_lengths
 from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
@@ -202,7 +196,7 @@ def refine_parents_again(triangulated: InstantPersons, refined: InstantPersons, 
                          track: np.ndarray, detections, cameras, config: Config, prior, bone_weight: float,
                          noise: float) -> InstantPersons:
     """``refined`` (:func:`refine_by_tracks` of ``triangulated``) with the parents of its
-    ``refused: (Q, 17)`` joints (:func:`mvm.rig.occlusions.refused_parents`) refined again
+    ``refused: (Q, 17)`` joints (:func:`mvm.rig.refusals.refused_parents`) refined again
     without those joints, against their track's bone lengths as before: a wrist that the views
     got wrong pulls its elbow towards it through the forearm's bone term. Only the persons with
     such a parent are refined again; their other joints are kept.
@@ -278,7 +272,7 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
     person's members, less those that agreed on a refused joint
-    (:func:`mvm.rig.occlusions.agreed_on_refused`), and the prior's guess. Returns
+    (:func:`mvm.rig.refusals.agreed_on_refused`), and the prior's guess. Returns
     ``(X, flags: (Q, 17), confidence: (Q, 17))`` (flags 0 where not filled)."""
     xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
     lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
