@@ -284,18 +284,17 @@ def test_refused_parents_are_the_elbows_knees_and_shoulders_of_refused_limb_join
     assert (refused_parents(refused) == expected).all()
 
 
-def test_a_wrist_made_only_by_the_views_that_agreed_on_its_refused_elbow_is_refused_with_it():
+def test_a_wrist_made_only_by_the_views_that_made_its_refused_elbow_is_refused_with_it():
     from mvm.rig.refusals import with_refused_elbows
 
     e, w = INDEX["left_elbow"], INDEX["left_wrist"]
-    valid = np.ones((4, 5, 17), bool)
-    inliers = valid.copy()
+    inliers = np.ones((4, 5, 17), bool)
     inliers[:, 0, [e, w]] = False                              # view 0 sees the arm, the others another
     refused = np.zeros((4, 17), bool)
     refused[:3, e] = True
     inliers[1, 0, w] = True                                    # view 0 agrees on the wrist: not only theirs
-    inliers[2, 1, e] = False                                   # two views dispute the elbow: its inliers kept
-    out = with_refused_elbows(refused, inliers, valid)
+    inliers[2, :, w] = False                                   # no wrist: nothing to refuse
+    out = with_refused_elbows(refused, inliers)
     assert out[:, w].tolist() == [True, False, False, False]   # the elbow of person 3 is not refused
     assert (out[:, e] == refused[:, e]).all() and out.sum() == 4
 

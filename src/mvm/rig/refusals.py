@@ -6,8 +6,8 @@ A limb joint whose views dispute it (:func:`disputed`: the triangulation refused
 most views), or whose bone does (:func:`bone_disputed`: off its track's length for a stretch, as
 where the views that do not see a hand all report one other thing), or whose one view's refused
 run begins or ends where it jumps (:func:`jump_disputed`), is refused
-(:func:`refused_limb_joints`), with a wrist made only by the views that agreed on its refused
-elbow (:func:`with_refused_elbows`), the instants between two such of a track and the edges of
+(:func:`refused_limb_joints`), with a wrist made only by the views that made its refused elbow
+(:func:`with_refused_elbows`), the instants between two such of a track and the edges of
 a stretch of them (:func:`close_disputes`), the runs of the one view refused next to them
 (:func:`extend_disputes`), and out to where the joint stepped off and back
 (:func:`widen_to_steps`). The views that agreed on a refused joint no two views dispute are left
@@ -253,16 +253,15 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
     return out
 
 
-def with_refused_elbows(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
+def with_refused_elbows(refused: np.ndarray, inliers: np.ndarray) -> np.ndarray:
     """``refused: (Q, 17)`` (the disputes, before they are closed into stretches) with the wrists
-    triangulated from none but the views that agreed on their refused elbow
-    (:func:`agreed_on_refused`; ``inliers``, ``valid``: ``(Q, V, 17)``): those views took the arm
-    to another thing, the other arm, whose forearm is as long."""
+    triangulated from none but the views that made their refused elbow (its ``inliers: (Q, V,
+    17)``, the triangulation's): those views took the arm to another thing, the other arm, whose
+    forearm is as long, so that nothing betrays the wrist."""
     out = np.array(refused, bool)
-    agreed = agreed_on_refused(out, inliers, valid)                                 # (Q, V, 17)
     for joint, parent in LIMB_PASSES[1]:
         if joint in ARM_JOINTS:
-            made, suspect = inliers[:, :, joint], agreed[:, :, parent]
+            made, suspect = inliers[:, :, joint], inliers[:, :, parent] & out[:, None, parent]
             out[:, joint] |= made.any(1) & suspect.any(1) & ~(made & ~suspect).any(1)
     return out
 
@@ -282,8 +281,7 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     (:func:`widen_to_steps`). ``instant, track: (Q,)``."""
     view_refused = valid & ~inliers
     disputes = disputed(view_refused) | bone_disputed(X, instant, track)
-    disputes = with_refused_elbows(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), inliers,
-                                   valid)
+    disputes = with_refused_elbows(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), inliers)
     refused = close_disputes(disputes, instant, track)
     return widen_to_steps(extend_disputes(refused, view_refused, instant, track), X, instant, track, unit)
 
