@@ -140,7 +140,7 @@ def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction
     known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
     known[ends < 0] = np.nan
     parent = X[rows, p[:, None]]                                                   # (N, n, 3)
-    prior = None if prior_X is None else prior_X[rows, j[:, None]] - parent
+    prior = None if prior_X is None else prior_X[rows, j[:, None]] - prior_X[rows, p[:, None]]
     o = origin[rows, :, j[:, None]] - parent[:, :, None]                           # (N, n, V, 3)
     d = direction[rows, :, j[:, None]]
     bone = np.array([g[5] for g in group])
@@ -160,7 +160,9 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
         X: ``(Q, 17, 3)`` persons, NaN where a joint is missing; instant, track: ``(Q,)``.
         origin, direction: ``(Q, V, 17, 3)`` the rays of each person's 2D keypoints
             (:func:`rays`), NaN where a view has none.
-        prior_X: ``(Q, 17, 3)`` the pose prior's guess of the missing joints (None: no prior).
+        prior_X: ``(Q, 17, 3)`` the pose prior's guess of the missing joints (None: no prior);
+            the fill follows its offset of a joint from the joint's parent, as guessed with it
+            (a filled elbow is not where the prior put its own).
         long_gap: runs from this long, and those at a track's end, are flagged inferred;
             shorter ones interpolated. [instants]
         max_gap: the longest run filled. [instants]
