@@ -123,6 +123,28 @@ def test_a_view_that_reports_another_thing_through_the_gap_is_refused():
     assert error.mean() < 0.02 and error.mean() < 0.6 * np.linalg.norm(plain[0] - truth, axis=-1).mean()
 
 
+def test_a_gate_that_refuses_every_view_is_widened(monkeypatch):
+    """The joint, still before and after a gap of 10 instants, swings 1.2 radians out and back
+    through it, faster than the motion's deviation allows: where the gap begins the one view's
+    rays lie beyond ``gate_sigmas`` of the motion's guess, and refused whole they left the fill
+    to that guess (200 mm off). The gate is widened where it refuses every view: the view is kept
+    and the fill follows it."""
+    import mvm.core.gap_fit as gap_fit
+
+    n = 10
+    t = np.arange(n + 4) - 2.0
+    a = np.where((t >= 0) & (t < n), 1.2 * np.sin(np.pi * (t + 1) / (n + 1)), 0.0)
+    path = L * np.stack([np.cos(a), np.sin(a) * 0.8, np.sin(a) * 0.6], -1)
+    before, after, truth = path[None, :2], path[None, -2:], path[2:-2]
+    o, d = camera_rays(truth, np.array([4.0, 0.0, 0.0]), 0.005, np.random.default_rng(4))
+    args = (before, after, np.array([L]), np.array([0.02]), 0.005, no_prior(n), np.inf, o, d, 0.01, 0.25)
+    r, _, weight = fit_gaps(*args, gate_sigmas=3.0)
+    assert (weight > 0).all() and np.linalg.norm(r[0] - truth, axis=-1).mean() < 0.02
+    monkeypatch.setattr(gap_fit, "GATE_DOUBLINGS", 0)
+    r, _, weight = fit_gaps(*args, gate_sigmas=3.0)
+    assert (weight == 0).all() and np.linalg.norm(r[0] - truth, axis=-1).mean() > 0.15
+
+
 def test_the_uncertainty_grows_with_the_gap():
     stds = []
     for n in (10, 20, 40):

@@ -33,6 +33,8 @@ ITERATIONS = 6
 END_INSTANTS = 3
 #: A ray's Cauchy weight halves at this many ``sigma_ray`` from the fit. [1]
 RAY_CAUCHY = 3.0
+#: Times the gate of ``fit_gaps``' ``gate_sigmas`` is doubled for a gap whose rays it refuses all. [1]
+GATE_DOUBLINGS = 3
 
 
 def second_differences(n: int) -> np.ndarray:
@@ -197,6 +199,21 @@ def _agreeing(gaps: _Gaps, start: np.ndarray, H: np.ndarray, gate_sigmas: np.nda
     return np.where((tried > 0)[:, None], gaps.present & trusted[:, None], agree)
 
 
+def _gated(gaps: _Gaps, start: np.ndarray, H: np.ndarray, gate_sigmas: np.ndarray) -> np.ndarray:
+    """``(N, n, R)`` the rays :func:`_agreeing` keeps, the gate doubled up to
+    :data:`GATE_DOUBLINGS` times for the gaps where it keeps none of them: the motion's guess
+    understates its own error where the limb moved faster than the track's seen joints (a swing
+    of 10 cm an instant), and a gate that refuses every view leaves the fill to that guess."""
+    kept = _agreeing(gaps, start, H, gate_sigmas)
+    for _ in range(GATE_DOUBLINGS):
+        none = gaps.present.any((1, 2)) & ~kept.any((1, 2))                         # (N,)
+        if not none.any():
+            break
+        gate_sigmas = np.where(none, 2 * gate_sigmas, gate_sigmas)
+        kept = np.where(none[:, None, None], _agreeing(gaps, start, H, gate_sigmas), kept)
+    return kept
+
+
 def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc: np.ndarray,
              sigma_bone: np.ndarray, prior: np.ndarray | None = None, sigma_prior: float = np.inf,
              ray_origin: np.ndarray | None = None, ray_direction: np.ndarray | None = None,
@@ -241,7 +258,7 @@ def fit_gaps(before: np.ndarray, after: np.ndarray, bone: np.ndarray, sigma_acc:
                  sigma_ray, gate, n)
     H0, start = _solve(gaps, gaps.fixed + 1e-9 * np.eye(3), gaps.rhs)             # motion and prior only
     if gaps.rays and np.isfinite(gate_sigmas).any():
-        gaps.present = _agreeing(gaps, start, H0, np.broadcast_to(np.asarray(gate_sigmas, float), (N,)))
+        gaps.present = _gated(gaps, start, H0, np.broadcast_to(np.asarray(gate_sigmas, float), (N,)))
     r, H, weight = _descend(gaps, start)
     if gaps.rays:
         r2, H2, weight2 = _descend(gaps, _other_meeting(gaps, start))
