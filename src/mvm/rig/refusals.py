@@ -10,7 +10,8 @@ run begins or ends where it jumps (:func:`jump_disputed`), is refused
 (:func:`with_refused_elbows`), the instants between two such of a track and the edges of
 a stretch of them (:func:`close_disputes`), the runs of the one view refused next to them
 (:func:`extend_disputes`), and out to where the joint stepped off and back
-(:func:`widen_to_steps`). The views that agreed on a refused joint no two views dispute are left
+(:func:`widen_to_steps`). A limb joint off its track for an instant or two and back is refused
+too (:func:`spikes`). The views that agreed on a refused joint no two views dispute are left
 out of its fill (:func:`agreed_on_refused`), and the parents the refinement's bone term pulled
 towards it are refined again (:func:`refused_parents`). Pure numpy; no I/O.
 """
@@ -47,6 +48,11 @@ DISPUTE_GROW = 1
 #: Refused instants in a row that make a stretch (isolated refusals, a swap's or an outlier's,
 #: are not grown). [1]
 DISPUTE_STRETCH = 3
+#: The longest piece of a track where a limb joint off its track and back is refused
+#: (:func:`spikes`). [instants]
+SPIKE_INSTANTS = 2
+#: ... off by this much (its offset from its parent, from those at the instants either side). [m]
+SPIKE_M = 0.2
 
 
 def disputed(view_refused: np.ndarray) -> np.ndarray:
@@ -178,6 +184,43 @@ def widen_to_steps(refused: np.ndarray, X: np.ndarray, instant: np.ndarray, trac
     return out
 
 
+def spikes(X: np.ndarray, instant: np.ndarray, track: np.ndarray, unit: float = 1.0) -> np.ndarray:
+    """``(Q, 17)`` the limb joints of ``X: (Q, 17, 3)`` (NaN: unknown) over the pieces of their
+    track of at most :data:`SPIKE_INSTANTS` where their offset from the parent is
+    :data:`SPIKE_M` or more from its offsets at the instants either side, which are less than
+    that from each other: the joint left its track and came back, as where a view's keypoint
+    was another person's and the triangulation kept it. Left in, the smoothing spreads such a
+    point over the instants around it, and the fill of a hidden joint starts from it.
+    ``instant, track: (Q,)``; ``unit``: world units per metre.
+
+    >>> X = np.zeros((9, 17, 3)); X[:, 7] = [0.0, 0.3, 0.0]; X[:, 9] = [0.25, 0.3, 0.0]
+    >>> X[2, 9, 2] = 0.4                               # the left wrist, 40 cm off once...
+    >>> X[6:, 9, 2] = 0.3                              # ...and 30 cm off from 6 on (a step, not a spike)
+    >>> spikes(X, np.arange(9), np.zeros(9, int))[:, 9].astype(int).tolist()
+    [0, 0, 1, 0, 0, 0, 0, 0, 0]
+    """
+    out = np.zeros(X.shape[:2], bool)
+    limit = SPIKE_M * unit
+    for index in track_rows(np.asarray(instant), np.asarray(track)):
+        S = take_rows(X, index)                                                    # (L, 17, 3)
+        offset = S[:, LIMB_JOINTS] - S[:, LIMB_PARENTS]                            # (L, K, 3), NaN: unknown
+        L = len(S)
+        off = np.zeros(offset.shape[:2], bool)
+        with np.errstate(invalid="ignore"):
+            for k in range(1, min(SPIKE_INSTANTS, L - 2) + 1):                     # pieces t + 1 .. t + k
+                before, after = offset[:L - k - 1], offset[k + 1:]                 # (L - k - 1, K, 3)
+                spike = np.linalg.norm(after - before, axis=-1) < limit
+                for i in range(1, k + 1):
+                    piece = offset[i:L - k - 1 + i]
+                    spike &= np.minimum(np.linalg.norm(piece - before, axis=-1),
+                                        np.linalg.norm(piece - after, axis=-1)) >= limit
+                for i in range(1, k + 1):
+                    off[i:L - k - 1 + i] |= spike
+        present = index >= 0
+        out[np.ix_(index[present], LIMB_JOINTS)] = off[present]
+    return out
+
+
 def _window_count(mask: np.ndarray, lo: int, hi: int) -> np.ndarray:
     """``(L, K)`` how many of ``mask: (L, K)`` are true from ``t + lo`` to ``t + hi`` (clipped)."""
     L = len(mask)
@@ -278,12 +321,14 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     on the real 4-camera capture of ``benchmarks/real_footage.py`` extending the legs too made a
     hip-knee bone's length vary more, its standard deviation 18 -> 25 mm, where a leg crossing
     the other keeps one view refused) and widened to the steps of their offset around them
-    (:func:`widen_to_steps`). ``instant, track: (Q,)``."""
+    (:func:`widen_to_steps`); with the limb joints off their track for an instant or two and back
+    (:func:`spikes`). ``instant, track: (Q,)``."""
     view_refused = valid & ~inliers
     disputes = disputed(view_refused) | bone_disputed(X, instant, track)
     disputes = with_refused_elbows(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), inliers)
     refused = close_disputes(disputes, instant, track)
-    return widen_to_steps(extend_disputes(refused, view_refused, instant, track), X, instant, track, unit)
+    refused = widen_to_steps(extend_disputes(refused, view_refused, instant, track), X, instant, track, unit)
+    return refused | spikes(X, instant, track, unit)
 
 
 def agreed_on_refused(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
