@@ -145,6 +145,28 @@ def test_a_gate_that_refuses_every_view_is_widened(monkeypatch):
     assert (weight == 0).all() and np.linalg.norm(r[0] - truth, axis=-1).mean() > 0.15
 
 
+def test_the_prior_weighs_less_where_a_view_kept_by_the_gate_sees_the_joint():
+    """A prior 12 cm off along the one view's rays at every instant of a gap (its guess is one
+    for the pose, off alike throughout). Where the rays were tried against the motion
+    (``gate_sigmas``) and kept, ``prior_where_seen`` scales its weight: at 0 the fill is the fill
+    without a prior, at 1 the prior draws it along the rays, and a quarter lies between. Rays not
+    so tried keep the prior's full weight."""
+    n = 20
+    before, after, truth = gap(n)
+    o, d = camera_rays(truth, np.array([3.0, -2.0, 1.0]), 0.005, np.random.default_rng(5))
+    prior = (truth + 0.12 * d[0, :, 0])[None]
+    args = (before, after, np.array([np.nan]), np.array([0.004]), 0.005)
+    rays = (o, d, 0.02, 0.25)
+    alone, _, _ = fit_gaps(*args, no_prior(n), np.inf, *rays, gate_sigmas=3.0)
+    fills = {w: fit_gaps(*args, prior, 0.1, *rays, gate_sigmas=3.0, prior_where_seen=w) for w in (0.0, 0.25, 1.0)}
+    assert all((weight > 0).all() for _, _, weight in fills.values())
+    assert np.abs(fills[0.0][0] - alone).max() < 1e-6
+    pull = {w: np.abs(((r - alone) * d[:, :, 0]).sum(-1)).mean() for w, (r, _, _) in fills.items()}   # along the rays
+    assert pull[0.0] < 1e-6 < pull[0.25] < 0.5 * pull[1.0]
+    untried, _, _ = fit_gaps(*args, prior, 0.1, *rays, prior_where_seen=0.25)
+    assert np.abs(untried - fit_gaps(*args, prior, 0.1, *rays)[0]).max() < 1e-12
+
+
 def test_the_uncertainty_grows_with_the_gap():
     stds = []
     for n in (10, 20, 40):
