@@ -15,7 +15,8 @@ length):
   standard deviation ``sigma_ray``, Cauchy-weighted and gated (a keypoint far from the fit is
   another person's or an outlier). One view fixes the joint to a line; the bone fixes it to a
   sphere; their meeting nearest the motion's guess is the fill, which interpolation cannot find;
-- **prior**: the offset the pose prior expects from the rest of the body, ``sigma_prior``.
+- **prior**: the offset the pose prior expects from the rest of the body, ``sigma_prior``
+  (weighed less, ``prior_where_seen``, where a view the motion agrees with sees the joint).
 
 The posterior standard deviation of each filled instant (the inverse of the normal matrix)
 grows towards the middle of a gap and with its length, and shrinks where a ray sees the joint.
@@ -284,8 +285,8 @@ def _weigh_prior(gaps: _Gaps, where: np.ndarray, factor: float) -> None:
     the two descents (:func:`_objective`) keeps them whole: the prior's guess tells well which of
     the ray's two meetings with the bone's sphere is the joint, even where, off alike at every
     instant, it would draw the fill along the ray (on the simulated stretches of
-    ``benchmarks/rig_occlusion.py``, wrists seen by one view over 40 instants were 28-31 mm off
-    with it weighed less there too, 23-28 mm without)."""
+    ``benchmarks/rig_occlusion.py``, wrists seen by one view over 40 instants were 30.6-30.7 mm
+    off with it weighed less there too, 23.5-28.1 mm without)."""
     delta = gaps.w_prior * where * (factor - 1.0)                                  # (N, n)
     gaps.fixed = gaps.fixed + delta[..., None, None] * np.eye(3)
     gaps.rhs = gaps.rhs + delta[..., None] * gaps.prior

@@ -59,9 +59,9 @@ PRIOR_SIGMA_M = 0.1
 #: along that view's ray, and, off alike at every instant of a stretch, drew the fill along it (on
 #: a sample 80 mm off where the motion alone gave 13). On the simulated stretches of
 #: benchmarks/rig_occlusion.py, 1 -> 0.25 took a ghost arm seen by one view over 40 instants from
-#: 56.5 to 40.4 mm; 0 made the long stretches worse (a ghost wrist, 40 instants, 22.6 -> 32.3 mm);
-#: runs of a joint only missing keep the full weight (0.25 made three of their four one-view rows
-#: 0.9-1.2 mm worse). [1]
+#: 56.5 to 40.4 mm; 0 made the long stretches worse (a ghost wrist, 40 instants, 22.6 -> 32.3 mm).
+#: Runs of a joint only missing keep the full weight (0.25 there: a wrist seen by one view over
+#: 20 and 30 instants 12.2 -> 13.1 and 16.3 -> 17.5 mm, over 40 instants 18.2 -> 17.2). [1]
 PRIOR_SEEN_WEIGHT = 0.25
 #: The smoothed track's accelerations understate a hidden limb's (the low-pass filter takes the
 #: peaks off, and a limb is hidden when it does what the seen ones do not): its motion term's
