@@ -483,21 +483,23 @@ def test_a_refusal_is_widened_to_the_steps_of_the_wrist_around_it():
 
 
 def test_a_limb_joint_off_its_track_for_an_instant_or_two_and_back_is_a_spike():
-    """The wrist 30 cm off at 5, and at 12-13; the elbow 30 cm off at 20 (its wrist's offset
-    from it jumps there too): spikes. The wrist off from 30 to the end (a step), three instants
-    off (a stretch), a wrist flickering by 15 cm (less than ``SPIKE_M``) and the true track are
-    not."""
+    """The wrist 30 cm off at 5, and at 12-13; the elbow alone 30 cm off at 20 (its wrist, in
+    place, is not: it is measured from the shoulder); the whole arm 30 cm off at 28: spikes. The
+    wrist off from 32 to the end (a step), three instants off (a stretch), a wrist flickering by
+    15 cm (less than ``SPIKE_M``) and the true track are not."""
     truth, instant, track = _arm_track(40)
+    E = INDEX["right_elbow"]
     X = truth.copy()
     X[5, W] += [0.3, 0.0, 0.0]
     X[12:14, W] += [0.0, 0.3, 0.0]
-    X[20, INDEX["right_elbow"]] += [0.0, 0.0, 0.3]
+    X[20, E] += [0.0, 0.0, 0.3]
     X[24:27, W] += [0.3, 0.0, 0.0]
-    X[30:, W] += [0.0, 0.0, 0.3]
+    X[28, [E, W]] += [0.0, 0.3, 0.0]
+    X[32:, W] += [0.0, 0.0, 0.3]
     out = spikes(X, instant, track)
-    assert np.flatnonzero(out[:, W]).tolist() == [5, 12, 13, 20]
-    assert np.flatnonzero(out[:, INDEX["right_elbow"]]).tolist() == [20]
-    assert out.sum() == 5
+    assert np.flatnonzero(out[:, W]).tolist() == [5, 12, 13, 28]
+    assert np.flatnonzero(out[:, E]).tolist() == [20, 28]
+    assert out.sum() == 6
     assert np.array_equal(spikes(1000 * X, instant, track, unit=1000.0), out)
     assert not spikes(truth, instant, track).any()
     flicker = truth.copy()

@@ -51,8 +51,11 @@ DISPUTE_STRETCH = 3
 #: The longest piece of a track where a limb joint off its track and back is refused
 #: (:func:`spikes`). [instants]
 SPIKE_INSTANTS = 2
-#: ... off by this much (its offset from its parent, from those at the instants either side). [m]
+#: ... off by this much (its offset from its limb's root, from those at the instants either side). [m]
 SPIKE_M = 0.2
+#: The joint each limb joint's chain hangs from (the shoulder of an elbow and of a wrist, the hip
+#: of a knee and of an ankle), in the order of ``LIMB_JOINTS``.
+LIMB_ROOTS = [LIMB_PARENTS[LIMB_JOINTS.index(p)] if p in LIMB_JOINTS else p for p in LIMB_PARENTS]
 
 
 def disputed(view_refused: np.ndarray) -> np.ndarray:
@@ -186,8 +189,9 @@ def widen_to_steps(refused: np.ndarray, X: np.ndarray, instant: np.ndarray, trac
 
 def spikes(X: np.ndarray, instant: np.ndarray, track: np.ndarray, unit: float = 1.0) -> np.ndarray:
     """``(Q, 17)`` the limb joints of ``X: (Q, 17, 3)`` (NaN: unknown) over the pieces of their
-    track of at most :data:`SPIKE_INSTANTS` where their offset from the parent is
-    :data:`SPIKE_M` or more from its offsets at the instants either side, which are less than
+    track of at most :data:`SPIKE_INSTANTS` where their offset from their limb's root
+    (:data:`LIMB_ROOTS`: a wrist's from the shoulder, not from an elbow that may be the one off)
+    is :data:`SPIKE_M` or more from its offsets at the instants either side, which are less than
     that from each other: the joint left its track and came back, as where a view's keypoint
     was another person's and the triangulation kept it. Left in, the smoothing spreads such a
     point over the instants around it, and the fill of a hidden joint starts from it.
@@ -209,7 +213,7 @@ def spikes(X: np.ndarray, instant: np.ndarray, track: np.ndarray, unit: float = 
     limit = SPIKE_M * unit
     for index in track_rows(np.asarray(instant), np.asarray(track)):
         S = take_rows(X, index)                                                    # (L, 17, 3)
-        offset = S[:, LIMB_JOINTS] - S[:, LIMB_PARENTS]                            # (L, K, 3), NaN: unknown
+        offset = S[:, LIMB_JOINTS] - S[:, LIMB_ROOTS]                              # (L, K, 3), NaN: unknown
         L = len(S)
         off = np.zeros(offset.shape[:2], bool)
         with np.errstate(invalid="ignore"):
