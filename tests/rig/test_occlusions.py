@@ -288,6 +288,27 @@ def test_a_shoulder_missing_briefly_is_bridged_so_its_arm_can_be_filled():
     assert (flags[np.isfinite(X).all(-1)] == 0).all()
 
 
+
+def test_an_arm_is_filled_through_instants_its_track_missed_whole():
+    """An elbow and a wrist hidden for 20 instants, the person not reconstructed at all at two
+    of them (no row): the arm is filled at every row of the run, carried through the missed
+    instants by its motion, as when every instant has a row; nothing is written for the missed
+    ones."""
+    from mvm.rig.occlusions import fill_occlusions
+
+    truth, instant, track = _arm_track()
+    e, w = INDEX["right_elbow"], INDEX["right_wrist"]
+    X = truth.copy()
+    X[20:40, [e, w]] = np.nan
+    no_rays = np.full((len(X), 3, 17, 3), np.nan)
+    whole, whole_flags, _ = fill_occlusions(X, instant, track, no_rays, no_rays)
+    kept = np.setdiff1d(np.arange(len(X)), [27, 33])
+    out, flags, _ = fill_occlusions(X[kept], instant[kept], track[kept], no_rays[kept], no_rays[kept])
+    run = (instant[kept] >= 20) & (instant[kept] < 40)
+    assert (flags[run][:, [e, w]] == INFERRED).all() and run.sum() == 18
+    assert np.allclose(out[run][:, [e, w]], whole[kept][run][:, [e, w]], atol=1e-6)
+    error = np.linalg.norm(out[run][:, [e, w]] - truth[kept][run][:, [e, w]], axis=-1).mean(0)
+    assert error[0] < 0.01 and error[1] < 0.06, error                   # no view: the motion's own limit
 def test_refused_parents_are_the_elbows_knees_and_shoulders_of_refused_limb_joints_but_not_the_hips():
     from mvm.rig.refusals import refused_parents
 

@@ -14,8 +14,9 @@ A joint is filled over a run of missing instants when its parent joint (the shou
 elbow, the elbow of a wrist, the hip of a knee, the knee of an ankle) is known over the whole
 run and both are seen on at least one side of it (a run at a track's end is continued from the
 side it has); elbows and knees first, so a wrist hidden with its elbow is filled from the
-filled elbow. Long runs and those at a track's end are flagged ``inferred``, brief ones
-``interpolated``. Pure numpy; no I/O.
+filled elbow. The instants a track missed whole (the person was not found there) are carried
+through by the motion, nothing written at them. Long runs and those at a track's end are
+flagged ``inferred``, brief ones ``interpolated``. Pure numpy; no I/O.
 """
 from __future__ import annotations
 
@@ -128,7 +129,8 @@ def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, l
         for a, b in zip(*runs(~seen[:, j])):
             at_start = a > 0 and both[a - 1]
             at_end = b < len(S) and both[b]
-            if not (b - a <= max_gap and (at_start or at_end) and seen[a:b, p].all()):
+            # instants the track missed whole (no row) are carried by the motion, not written
+            if not (b - a <= max_gap and (at_start or at_end) and seen[a:b, p][index[a:b] >= 0].all()):
                 continue
             before = [index[a - 2] if a >= 2 and both[a - 2] else -1, index[a - 1] if at_start else -1]
             after = [index[b] if at_end else -1, index[b + 1] if b + 1 < len(S) and both[b + 1] else -1]
@@ -141,17 +143,20 @@ def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, l
 def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction: np.ndarray,
                 prior_X: np.ndarray | None, unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``group``'s gaps (of one length, :func:`_track_gaps`): ``(rows (N, n), joints (N,),
-    joint positions (N, n, 3), posterior deviations (N, n))``."""
+    joint positions (N, n, 3), posterior deviations (N, n))``; rows -1 (and their positions NaN)
+    at the instants the track missed whole."""
     rows = np.array([g[0] for g in group])                                         # (N, n)
     j = np.array([g[3] for g in group])
     p = np.array([g[4] for g in group])
     ends = np.array([g[1] + g[2] for g in group])                                  # (N, 4)
     known = X[np.maximum(ends, 0), j[:, None]] - X[np.maximum(ends, 0), p[:, None]]
     known[ends < 0] = np.nan
-    parent = X[rows, p[:, None]]                                                   # (N, n, 3)
-    prior = None if prior_X is None else prior_X[rows, j[:, None]] - prior_X[rows, p[:, None]]
-    o = origin[rows, :, j[:, None]] - parent[:, :, None]                           # (N, n, V, 3)
-    d = direction[rows, :, j[:, None]]
+    absent = (rows < 0)[..., None]                                                 # (N, n, 1)
+    at = np.maximum(rows, 0)
+    parent = np.where(absent, np.nan, X[at, p[:, None]])                           # (N, n, 3)
+    prior = None if prior_X is None else np.where(absent, np.nan, prior_X[at, j[:, None]] - prior_X[at, p[:, None]])
+    o = origin[at, :, j[:, None]] - parent[:, :, None]                             # (N, n, V, 3)
+    d = np.where(absent[..., None], np.nan, direction[at, :, j[:, None]])
     bone = np.array([g[5] for g in group])
     r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
                          prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
@@ -206,7 +211,9 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
             rows, j, filled, std = _fill_group(X, group, origin, direction, prior_X, unit)
-            X[rows, j[:, None]] = filled
-            flags[rows, j[:, None]] = np.array([g[7] for g in group])[:, None]
-            confidence[rows, j[:, None]] = 1.0 / (1.0 + (std / (CONFIDENCE_SCALE_M * unit)) ** 2)
+            at = rows >= 0                                                         # a row at the instant
+            k = np.nonzero(at)[0]                                                  # its gap
+            X[rows[at], j[k]] = filled[at]
+            flags[rows[at], j[k]] = np.array([g[7] for g in group])[k]
+            confidence[rows[at], j[k]] = 1.0 / (1.0 + (std[at] / (CONFIDENCE_SCALE_M * unit)) ** 2)
     return X, flags, confidence
