@@ -190,6 +190,37 @@ def test_rays_pass_through_the_points_they_see():
     assert np.isnan(origin[0, 1, 3]).all() and np.isfinite(origin).sum() == (conf > 0).sum() * 3
 
 
+def test_the_rays_deviation_is_measured_on_the_capture():
+    """Rays through points 3 cm (per axis) from the joints they see: ``ray_sigma`` gives 3 cm; too
+    few rays, or joints of two kept keypoints only, give the default; it never goes below the floor."""
+    from mvm.rig.occlusions import MIN_RAY_SIGMA_M, RAY_SIGMA_M, ray_sigma
+
+    rng = np.random.default_rng(1)
+    centres = ring_cameras(4).centers                                            # (V, 3)
+    X = rng.uniform(-0.5, 0.5, (40, 17, 3)) + [0.0, 0.0, 1.0]
+
+    def rays_through(sigma):
+        seen = X[:, None] + rng.normal(0.0, sigma, (40, 4, 17, 3))              # (Q, V, 17, 3)
+        direction = seen - centres[None, :, None]
+        origin = np.broadcast_to(centres[None, :, None], direction.shape)
+        return origin, direction / np.linalg.norm(direction, axis=-1, keepdims=True)
+
+    origin, direction = rays_through(0.03)
+    used = np.ones((40, 4, 17), bool)
+    assert ray_sigma(X, origin, direction, used) == pytest.approx(0.03, rel=0.05)
+    assert ray_sigma(X * 1000, origin * 1000, direction, used, unit=1000) == pytest.approx(30, rel=0.05)
+    two = used.copy()
+    two[:, 2:] = False                                                           # two rays meet wherever
+    assert ray_sigma(X, origin, direction, two) == RAY_SIGMA_M
+    few = np.zeros_like(used)
+    few[:3, :, 0] = True                                                         # 12 rays
+    assert ray_sigma(X, origin, direction, few) == RAY_SIGMA_M
+    assert ray_sigma(X, *rays_through(1e-4), used) == MIN_RAY_SIGMA_M
+    X_missing = X.copy()
+    X_missing[:, :16] = np.nan                                                   # 160 rays left
+    assert ray_sigma(X_missing, origin, direction, used) == pytest.approx(0.03, rel=0.2)
+
+
 def _arm_track(T=80):
     """One track: a body standing still, its right forearm swinging about the elbow at a fixed
     length (0.25 m), its upper arm about the shoulder (0.3 m)."""

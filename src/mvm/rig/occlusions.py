@@ -25,6 +25,7 @@ import numpy as np
 from mvm.core.completion import INFERRED, INTERPOLATED, complete_tracks, take_rows, track_rows
 from mvm.core.gap_fit import fit_gaps
 from mvm.core.keypoints import INDEX
+from mvm.core.triangulate import RAYLEIGH_MEDIAN
 from mvm.rig.tracking import runs
 
 #: (joint, parent) pairs filled in two passes: the parents of the second are in the first.
@@ -40,9 +41,13 @@ ARM_JOINTS = [INDEX[f"{s}_{j}"] for s in ("left", "right") for j in ("elbow", "w
 ROOT_JOINTS = sorted({p for _, p in LIMB_PASSES[0]})
 #: Standard deviation of a bone's length about its track's median, relative to it. [1]
 BONE_SIGMA = 0.03
-#: Standard deviation of a joint's distance to the ray of a view's keypoint of it: the
-#: detector's noise at a rig's distances. [m]
+#: Standard deviation of a joint's distance to the ray of a view's keypoint of it, where the
+#: capture does not measure its own (:func:`ray_sigma`). [m]
 RAY_SIGMA_M = 0.02
+#: The smallest such deviation measured on a capture. [m]
+MIN_RAY_SIGMA_M = 0.005
+#: Fewest rays of inlier keypoints that measure a capture's deviation (:func:`ray_sigma`). [1]
+MIN_NOISE_RAYS = 50
 #: Rays farther than this from the fill are another person's keypoint or an outlier. [m]
 RAY_GATE_M = 0.25
 #: Through a run with refused instants (its views disagree: some report another thing), rays
@@ -96,6 +101,24 @@ def rays(xy: np.ndarray, conf: np.ndarray, cameras, threshold: float = 0.0) -> t
     return np.where(ok, origin, np.nan), np.where(ok, d, np.nan)
 
 
+def ray_sigma(X: np.ndarray, origin: np.ndarray, direction: np.ndarray, used: np.ndarray,
+              unit: float = 1.0) -> float:
+    """The standard deviation of a joint's distance to the rays of its keypoints (per axis of a
+    ray's normal plane), measured on the capture: the median distance of the observed joints
+    ``X: (Q, 17, 3)`` (NaN elsewhere) to the rays ``origin, direction: (Q, V, 17, 3)``
+    (:func:`rays`) of the keypoints their triangulation kept, ``used: (Q, V, 17)``, over the median
+    of a two-dimensional normal error's length; joints of three such keypoints or more (two rays
+    meet wherever they point). At least :data:`MIN_RAY_SIGMA_M`; :data:`RAY_SIGMA_M` where fewer
+    than :data:`MIN_NOISE_RAYS` rays measure it. World units (``unit`` per metre)."""
+    used = used & (used.sum(1) >= 3)[:, None]
+    P = X[:, None] - origin                                                        # (Q, V, 17, 3)
+    distance = np.linalg.norm(P - (P * direction).sum(-1, keepdims=True) * direction, axis=-1)
+    distance = distance[used & np.isfinite(distance)]
+    if len(distance) < MIN_NOISE_RAYS:
+        return RAY_SIGMA_M * unit
+    return max(float(np.median(distance)) / RAYLEIGH_MEDIAN, MIN_RAY_SIGMA_M * unit)
+
+
 def _acc_sigma(offsets: np.ndarray, unit: float) -> float:
     """The standard deviation of a hidden offset's second differences, from those of the seen
     ``offsets: (L, 3)`` (NaN: unseen) of its track: :data:`ACC_SIGMA_FACTOR` times their root
@@ -141,7 +164,8 @@ def _track_gaps(X: np.ndarray, index: np.ndarray, refused: np.ndarray, joints, l
 
 
 def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction: np.ndarray,
-                prior_X: np.ndarray | None, unit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                prior_X: np.ndarray | None, unit: float,
+                sigma_ray: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Fit ``group``'s gaps (of one length, :func:`_track_gaps`): ``(rows (N, n), joints (N,),
     joint positions (N, n, 3), posterior deviations (N, n))``; rows -1 (and their positions NaN)
     at the instants the track missed whole."""
@@ -159,7 +183,7 @@ def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction
     d = np.where(absent[..., None], np.nan, direction[at, :, j[:, None]])
     bone = np.array([g[5] for g in group])
     r, std, _ = fit_gaps(known[:, :2], known[:, 2:], bone, np.array([g[6] for g in group]), BONE_SIGMA * bone,
-                         prior, PRIOR_SIGMA_M * unit, o, d, RAY_SIGMA_M * unit, RAY_GATE_M * unit,
+                         prior, PRIOR_SIGMA_M * unit, o, d, sigma_ray, RAY_GATE_M * unit,
                          np.array([g[8] for g in group]), PRIOR_SEEN_WEIGHT)
     return rows, j, parent + r, std
 
@@ -167,7 +191,7 @@ def _fill_group(X: np.ndarray, group: list[tuple], origin: np.ndarray, direction
 def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origin: np.ndarray,
                     direction: np.ndarray, prior_X: np.ndarray | None = None, long_gap: int = 5,
                     max_gap: int = 90, unit: float = 1.0, refused: np.ndarray | None = None,
-                    root_gap: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    root_gap: int = 0, sigma_ray: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fill the limb joints of tracked persons through runs of missing instants.
 
     Args:
@@ -189,6 +213,8 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
             instants are interpolated first (flagged interpolated, confidence 0, as the
             completion after the fill would leave them), so that the limbs hanging from them
             can be filled through the gap. [instants]
+        sigma_ray: the standard deviation of a joint's distance to its rays (:func:`ray_sigma`);
+            None: :data:`RAY_SIGMA_M`. [world units]
     Returns:
         ``(X: (Q, 17, 3), flags: (Q, 17) int8, confidence: (Q, 17))``: the flags of the filled
         joints (:data:`mvm.core.completion.INTERPOLATED` or ``INFERRED``; 0 elsewhere), their
@@ -206,11 +232,12 @@ def fill_occlusions(X: np.ndarray, instant: np.ndarray, track: np.ndarray, origi
     X[:, ROOT_JOINTS] = roots
     flags[:, ROOT_JOINTS] = np.where(root_flags == INTERPOLATED, INTERPOLATED, 0)
     series = track_rows(instant, track)
+    sigma_ray = RAY_SIGMA_M * unit if sigma_ray is None else sigma_ray
     for joints in LIMB_PASSES:
         gaps = [g for index in series for g in _track_gaps(X, index, refused, joints, long_gap, max_gap, unit)]
         for n in sorted({len(g[0]) for g in gaps}):
             group = [g for g in gaps if len(g[0]) == n]
-            rows, j, filled, std = _fill_group(X, group, origin, direction, prior_X, unit)
+            rows, j, filled, std = _fill_group(X, group, origin, direction, prior_X, unit, sigma_ray)
             at = rows >= 0                                                         # a row at the instant
             k = np.nonzero(at)[0]                                                  # its gap
             X[rows[at], j[k]] = filled[at]

@@ -31,7 +31,7 @@ from mvm.io.trc import to_opensim, write_trc
 from mvm.parallel import available_workers, fork_map, fork_map_ranges
 from mvm.rig.filters import min_cutoff
 from mvm.rig.instants import InstantPersons, reconstruct_instants
-from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, rays
+from mvm.rig.occlusions import LIMB_JOINTS, fill_occlusions, ray_sigma, rays
 from mvm.rig.options import RigOptions
 from mvm.rig.output_set import check_rig_output, named_inputs, replace_output_set, rig_inputs
 from mvm.rig.recap import recap
@@ -274,18 +274,21 @@ def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndar
     """The limb joints of ``X: (Q, 17, 3)`` (smoothed tracks) filled through their occlusions
     (:func:`mvm.rig.occlusions.fill_occlusions`) from the rays of the 2D keypoints of each
     person's members, less those that agreed on a refused joint
-    (:func:`mvm.rig.refusals.agreed_on_refused`), and the prior's guess. Returns
+    (:func:`mvm.rig.refusals.agreed_on_refused`), and the prior's guess; the rays' deviation
+    measured on the capture's observed joints (:func:`mvm.rig.occlusions.ray_sigma`). Returns
     ``(X, flags: (Q, 17), confidence: (Q, 17))`` (flags 0 where not filled)."""
-    xy, conf, _, _ = observations(persons, detections, cameras, config.keypoint_threshold)
-    lacking = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))                          # rays only where needed
-    conf = np.where(lacking[:, None, None], conf, 0.0)
-    if refused is not None:
-        conf = np.where(agreed_on_refused(refused, persons.inliers, persons.valid), 0.0, conf)
+    xy, conf, _, used = observations(persons, detections, cameras, config.keypoint_threshold)
+    unit = 1.0 / options.metres_per_unit
     origin, direction = rays(xy, conf, cameras)
+    seen = X if refused is None else np.where(refused[..., None], np.nan, X)
+    sigma = ray_sigma(seen, origin, direction, used, unit)
+    keep = ~np.isfinite(X[:, LIMB_JOINTS]).all((1, 2))[:, None, None]               # rays only where needed
+    if refused is not None:
+        keep = keep & ~agreed_on_refused(refused, persons.inliers, persons.valid)
+    origin, direction = (np.where(keep[..., None], a, np.nan) for a in (origin, direction))
     guess = infer_missing(X, prior)[0] if prior is not None else None
     return fill_occlusions(X, persons.instant, track, origin, direction, guess, options.occlusion_inferred_gap,
-                           options.occlusion_max_gap, 1.0 / options.metres_per_unit, refused,
-                           options.max_interpolation_gap)
+                           options.occlusion_max_gap, unit, refused, options.max_interpolation_gap, sigma)
 
 
 def check_smoothing(options: RigOptions) -> None:
