@@ -534,6 +534,26 @@ def test_a_refusal_is_widened_to_the_steps_of_the_wrist_around_it():
     assert np.array_equal(widen_to_steps(most, X, instant, track), most)
 
 
+def test_an_instant_between_refusals_of_a_limb_joint_is_refused_with_them():
+    """Two views dispute the elbow at 10-12 (refused, and the stretch grown to 9-13), and it is off
+    its track at 15 (a spike): 14, between them, is refused with them, as the instants between two
+    disputes are. Without the spike nothing is refused past 13; with every view agreeing, nothing."""
+    from mvm.rig.refusals import refused_limb_joints
+
+    truth, instant, track = _arm_track(40)
+    e = INDEX["right_elbow"]
+    X = truth.copy()
+    X[15, e] += [0.3, 0.0, 0.0]
+    valid = np.ones((40, 4, 17), bool)
+    inliers = valid.copy()
+    inliers[10:13, :2, e] = False
+    refused = refused_limb_joints(X, inliers, valid, instant, track)[:, e]
+    assert np.flatnonzero(refused).tolist() == list(range(9, 16))
+    refused = refused_limb_joints(truth, inliers, valid, instant, track)[:, e]
+    assert np.flatnonzero(refused).tolist() == list(range(9, 14))
+    assert not refused_limb_joints(truth, valid, valid, instant, track).any()
+
+
 def test_a_limb_joint_off_its_track_for_an_instant_or_two_and_back_is_a_spike():
     """The wrist 30 cm off at 5, and at 12-13; the elbow alone 30 cm off at 20 (its wrist, in
     place, is not: it is measured from the shoulder); the whole arm 30 cm off at 28: spikes. The
