@@ -307,10 +307,12 @@ def extend_disputes(refused: np.ndarray, view_refused: np.ndarray, instant: np.n
 
 
 def with_refused_elbows(refused: np.ndarray, inliers: np.ndarray) -> np.ndarray:
-    """``refused: (Q, 17)`` (the disputes, before they are closed into stretches) with the wrists
-    triangulated from none but the views that made their refused elbow (its ``inliers: (Q, V,
-    17)``, the triangulation's): those views took the arm to another thing, the other arm, whose
-    forearm is as long, so that nothing betrays the wrist."""
+    """``refused: (Q, 17)`` with the wrists triangulated from none but the views that made their
+    refused elbow (its ``inliers: (Q, V, 17)``, the triangulation's): those views took the arm to
+    another thing, the other arm, whose forearm is as long, so that nothing betrays the wrist.
+    :func:`refused_limb_joints` applies it to the disputes, and again to the refusals once grown,
+    widened and extended: where an elbow's refusal reaches the instants at a stretch's edges,
+    where the views switch to the other arm and agree on it."""
     out = np.array(refused, bool)
     for joint, parent in LIMB_PASSES[1]:
         if joint in ARM_JOINTS:
@@ -332,17 +334,19 @@ def refused_limb_joints(X: np.ndarray, inliers: np.ndarray, valid: np.ndarray, i
     hip-knee bone's length vary more, its standard deviation 18 -> 25 mm, where a leg crossing
     the other keeps one view refused) and widened to the steps of their offset around them
     (:func:`widen_to_steps`); with the limb joints off their track for an instant or two and back
-    (:func:`spikes`); and all of them closed once more (no growing): an instant left between two
-    refusals of these later kinds is as suspect (on the simulated rig of
-    ``benchmarks/rig_occlusion.py``, an elbow that most views took to another thing, kept at one
-    instant of a 40-instant stretch, held the fills either side of it up to 310 mm off).
-    ``instant, track: (Q,)``."""
+    (:func:`spikes`) and the wrists of the elbows so refused (:func:`with_refused_elbows` again:
+    on the simulated rig of ``benchmarks/rig_occlusion.py``, the other arm's wrist was kept where
+    its stretch began, 272 mm off, and the fill went on from it); and all of them closed once
+    more (no growing): an instant left between two refusals of these later kinds is as suspect
+    (there, an elbow that most views took to another thing, kept at one instant of a 40-instant
+    stretch, held the fills either side of it up to 310 mm off). ``instant, track: (Q,)``."""
     view_refused = valid & ~inliers
     disputes = disputed(view_refused) | bone_disputed(X, instant, track)
     disputes = with_refused_elbows(disputes | jump_disputed(X, view_refused, disputes, instant, track, unit), inliers)
     refused = close_disputes(disputes, instant, track)
     refused = widen_to_steps(extend_disputes(refused, view_refused, instant, track), X, instant, track, unit)
-    return close_disputes(refused | spikes(X, instant, track, unit), instant, track, grow=0)
+    refused = with_refused_elbows(refused | spikes(X, instant, track, unit), inliers)
+    return close_disputes(refused, instant, track, grow=0)
 
 
 def agreed_on_refused(refused: np.ndarray, inliers: np.ndarray, valid: np.ndarray) -> np.ndarray:
