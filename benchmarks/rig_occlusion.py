@@ -60,8 +60,8 @@ SIDES = ("left", "right")
 SEEN = {"missing": (0, 1), "wrong": (1, 2), "ghost": (1, 2), "other-arm": (1, 2)}
 PARENT = {j: p for joints in LIMB_PASSES for j, p in joints}
 COLUMNS = ("filled", "kept observed", "all hidden", "oracle: right views", "oracle: motion only", "around")
-#: A hidden joint this far off counts in the last column: the failures a limb's PCP counts
-#: (its ends within half its length, 12-15 cm for a forearm, on average). [m]
+#: A hidden joint this far off counts in the last column: about the failures a limb's PCP
+#: counts (the mean error of its two ends within half its length: 12-15 cm for an arm's bones). [m]
 FAR_M = 0.1
 
 

@@ -332,7 +332,7 @@ def test_an_arm_is_filled_through_instants_its_track_missed_whole():
     X = truth.copy()
     X[20:40, [e, w]] = np.nan
     no_rays = np.full((len(X), 3, 17, 3), np.nan)
-    whole, whole_flags, _ = fill_occlusions(X, instant, track, no_rays, no_rays)
+    whole, _, _ = fill_occlusions(X, instant, track, no_rays, no_rays)
     kept = np.setdiff1d(np.arange(len(X)), [27, 33])
     out, flags, _ = fill_occlusions(X[kept], instant[kept], track[kept], no_rays[kept], no_rays[kept])
     run = (instant[kept] >= 20) & (instant[kept] < 40)
