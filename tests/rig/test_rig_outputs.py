@@ -56,6 +56,7 @@ def test_complete_people_are_flagged(rig_dir, tmp_path):
     recap = json.loads((tmp_path / "out" / "recap.json").read_text())
     assert recap["joint_flags"]["interpolated"] > 0 and recap["joint_flags"]["missing"] == 0
     assert recap["tracks"] == 2 and result.flags.shape == (len(result.persons), 17)
+    assert recap["persons_filled_whole"] == 0                              # no instant missed a person
     for path in sorted((tmp_path / "out" / "tracks").glob("*.trc")):
         trc = read_trc(path)
         assert "interpolated" in trc.comment and "30 frames" in trc.comment

@@ -106,3 +106,58 @@ def test_assignment_is_the_hungarian_one_with_or_without_conflicts():
         conflicts += not distinct
     assert shortcut > 50 and conflicts > 50                                     # both paths tested
 
+
+
+def test_instants_a_track_missed_whole_get_a_row_filled_by_the_completion(tmp_path):
+    """A person none of whose keypoints any camera has at instants 20-22 (two others about): the
+    track resumes after them, and the completion gives it a row at each, every joint interpolated
+    within 3 cm of the truth, no member, no view; written to ``poses3d.jsonl`` and read back so.
+    Without completion no row is made."""
+    from mvm.core.completion import FLAG_NAMES, INTERPOLATED, OBSERVED
+    from mvm.core.config import Config
+    from mvm.io.rig_poses3d import read_rig_poses3d
+    from mvm.metrics.poses import match_persons
+    from mvm.rig.instants import reconstruct_instants, rig_poses
+    from mvm.rig.options import RigOptions
+    from mvm.rig.reconstruct_rig import (
+        completion_prior,
+        instants_config,
+        poses3d_lines,
+        rig_config,
+        track_and_complete,
+    )
+    from mvm.sim.rig_scene import RigSimConfig, simulate_rig
+
+    sim = simulate_rig(RigSimConfig(cameras=5, people=3, frames=40, distortion=0.0, seed=2))
+    gone = (sim.person == 0) & np.isin(sim.frame, [20, 21, 22])
+    sim.keypoints[gone] = 0.0
+    det = rig_poses(sim.keypoints, sim.frame, sim.camera, sim.score)
+    cameras = sim.calibration.cameras
+    runs = {}
+    for complete in (True, False):
+        config = rig_config(Config(complete=complete))
+        prior = completion_prior(config)
+        persons = reconstruct_instants(cameras, det, instants_config(config), prior)
+        runs[complete] = track_and_complete(persons, RigOptions(frame_rate=30.0), prior, config, det, cameras)
+    tracking, persons, X, flags = runs[True]
+    assert len(tracking.track) == len(persons) == len(X)
+    assert np.all(np.diff(persons.instant) >= 0)
+    for t in (20, 21, 22):
+        rows = np.flatnonzero(persons.instant == t)
+        pairs = dict((g, rows[p]) for p, g in match_persons(X[rows], sim.poses3d[t], 0.5))
+        assert len(rows) == 3 and 0 in pairs
+        q = pairs[0]
+        assert (flags[q] == INTERPOLATED).all() and (persons.members[q] < 0).all() and not persons.inliers[q].any()
+        assert np.linalg.norm(X[q] - sim.poses3d[t, 0], axis=-1).max() < 0.03
+        assert (flags[rows[rows != q]] == OBSERVED).mean() > 0.9
+        before = tracking.track[(persons.instant == 19) & (tracking.track == tracking.track[q])]
+        assert len(before) == 1                                          # the same track either side
+    _, plain, _, _ = runs[False]
+    assert [int((plain.instant == t).sum()) for t in (19, 20, 21, 22, 23)] == [3, 2, 2, 2, 3]
+    frames = np.arange(sim.poses3d.shape[0])
+    path = tmp_path / "poses3d.jsonl"
+    path.write_bytes(poses3d_lines(frames, persons, X, tracking.track, cameras.names, flags, workers=1))
+    back = read_rig_poses3d(path)
+    q = pairs[0]
+    assert back.flags[q].tolist() == [FLAG_NAMES.index("interpolated")] * 17
+    assert (back.members[q] < 0).all() and (back.views[q] == 0).all() and np.isnan(back.reprojection_error_px[q])

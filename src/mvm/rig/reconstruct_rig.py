@@ -38,7 +38,7 @@ from mvm.rig.recap import recap
 from mvm.rig.refusals import agreed_on_refused, refused_limb_joints, refused_parents
 from mvm.rig.rigdir import RigData, read_rig, recorded_frame_rate
 from mvm.rig.skeleton import capture_noise_factor, observations, refine_tracks, refit, track_bone_lengths
-from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series
+from mvm.rig.tracking import butterworth_order, smooth_tracks, track_persons, track_series, with_missed_instants
 
 log = logging.getLogger(__name__)
 
@@ -232,7 +232,10 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     :func:`reconstruct_instants` with :func:`instants_config` (unrefined). Smoothing runs over
     each track's observed joints, then completion fills what is missing (time, then ``prior``)
     unless the rig's ``config.complete`` is off (``config``: the rig's settings,
-    :func:`rig_config`; none: its defaults).
+    :func:`rig_config`; none: its defaults). With completion, a track has a row at each instant
+    it missed whole between its first and last (:func:`mvm.rig.tracking.with_missed_instants`;
+    no member, no keypoint), kept where the completion fills ``min_person_joints`` of its joints
+    or more: the ``.trc`` and ``poses3d.jsonl`` carry the same instants.
     Returns ``(tracking, persons, X: (Q, 17, 3), flags: (Q, 17))``."""
     assert config is None or config.resolved, "track_and_complete takes the rig's settings (rig_config)"
     settings = config or rig_config()
@@ -253,20 +256,31 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
         if refine:
             persons = refine_parents_again(triangulated, persons, refused, tracking.track, detections, cameras,
                                            config, prior, options.bone_weight, noise)
+    if complete:
+        persons, track, added = with_missed_instants(persons, tracking.track)
+        tracking, refused = dataclasses.replace(tracking, track=track), _rows_of(refused, added)
     X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
                       options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
                       window=options.savgol_window)
-    if complete:
-        filled = np.zeros(X.shape[:2], np.int8)
-        if fill and len(persons):
-            X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
-                                                          options, settings, refused)
-            persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
-        X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
-        flags = np.where(filled > 0, filled, flags).astype(np.int8)
-    else:
-        flags = np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
-    return tracking, persons, X, flags
+    if not complete:
+        return tracking, persons, X, np.where(np.isfinite(X).all(-1), OBSERVED, MISSING).astype(np.int8)
+    filled = np.zeros(X.shape[:2], np.int8)
+    if fill and len(persons):
+        X, filled, confidence = fill_track_occlusions(persons, X, tracking.track, detections, cameras, prior,
+                                                      options, settings, refused)
+        persons = dataclasses.replace(persons, scores=np.where(filled > 0, confidence, persons.scores))
+    X, flags = complete_tracks(X, persons.instant, tracking.track, options.max_interpolation_gap, prior)
+    flags = np.where(filled > 0, filled, flags).astype(np.int8)
+    kept = ~added | (np.isfinite(X).all(-1).sum(1) >= settings.min_person_joints)      # a missed instant, filled
+    return dataclasses.replace(tracking, track=tracking.track[kept]), persons.take(kept), X[kept], flags[kept]
+
+
+def _rows_of(values: np.ndarray, added: np.ndarray) -> np.ndarray:
+    """``values: (Q, ...)`` of the rows before :func:`mvm.rig.tracking.with_missed_instants`
+    laid out on its rows (``added: (Q',)``), False (zero) at the rows it added."""
+    out = np.zeros((len(added),) + values.shape[1:], dtype=values.dtype)
+    out[~added] = values
+    return out
 
 
 def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndarray, detections, cameras, prior,
@@ -412,6 +426,7 @@ def reconstruct_rig(rig_dir: str | Path, config: Config | None = None, options: 
     summary["tracks"] = tracking.tracks
     summary["tracks_resumed"] = tracking.resumed
     summary["persons_not_linked_few_joints"] = tracking.unlinked
+    summary["persons_filled_whole"] = int((persons.members < 0).all(1).sum())     # instants a track missed
     summary["sync_offsets"] = rig.offsets
     summary["frame_rate"] = {"hz": options.rate, "source": rate_source}
     counts = np.bincount(np.asarray(flags, dtype=int).ravel(), minlength=len(FLAG_NAMES))

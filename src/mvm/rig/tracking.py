@@ -12,6 +12,7 @@ from mvm.core.assignment import min_cost_assignment
 from mvm.core.completion import take_rows, track_rows
 from mvm.core.config import DEFAULT_FRAME_RATE_HZ
 from mvm.rig.filters import butter_lowpass, filtfilt_many
+from mvm.rig.instants import InstantPersons
 
 
 def pose_distance(a: np.ndarray, b: np.ndarray, min_joints: int | np.ndarray = 1) -> np.ndarray:
@@ -234,3 +235,36 @@ def smooth_tracks(X: np.ndarray, instant: np.ndarray, track: np.ndarray, method:
     for rows, points in zip(index, smoothed):
         out[rows[rows >= 0]] = points[rows >= 0]
     return out
+
+
+def with_missed_instants(persons: InstantPersons, track: np.ndarray) -> tuple[InstantPersons, np.ndarray, np.ndarray]:
+    """``persons`` with a row for every instant between a track's first and last where the
+    track has none (a person the instant's reconstruction missed whole, whom the track resumed
+    after): no joint, no member, no keypoint, for the completion to fill. Rows stay sorted by
+    instant (the new ones after those of their instant). ``track: (Q,)`` -> ``(persons, track:
+    (Q',), added: (Q',) bool)``.
+
+    >>> p = InstantPersons(np.zeros((3, 17, 3)), np.array([0, 0, 2]), np.ones((3, 17)), np.zeros((3, 1), int),
+    ...                    np.ones((3, 1, 17), bool), np.ones((3, 1, 17), bool), np.zeros((3, 1, 17)), np.zeros(3))
+    >>> out, track, added = with_missed_instants(p, np.array([0, 1, 0]))
+    >>> out.instant.tolist(), track.tolist(), added.tolist(), bool(np.isnan(out.X[added]).all())
+    ([0, 0, 1, 2], [0, 1, 0, 0], [False, False, True, False], True)
+    """
+    track = np.asarray(track)
+    if not len(persons):
+        return persons, track, np.zeros(0, dtype=bool)
+    index = track_rows(persons.instant, track)
+    missed = [(int(persons.instant[rows[rows >= 0][0]]) + np.flatnonzero(rows < 0), track[rows[rows >= 0][0]])
+              for rows in index if (rows < 0).any()]
+    if not missed:
+        return persons, track, np.zeros(len(persons), dtype=bool)
+    instant = np.concatenate([t for t, _ in missed])
+    new_track = np.concatenate([np.full(len(t), k) for t, k in missed])
+    K, (V, J) = len(instant), persons.inliers.shape[1:]
+    empty = InstantPersons(np.full((K, J, 3), np.nan), instant, np.zeros((K, J)), np.full((K, V), -1),
+                           np.zeros((K, V, J), bool), np.zeros((K, V, J), bool), np.full((K, V, J), np.nan),
+                           np.full(K, np.nan))
+    order = np.argsort(np.concatenate([persons.instant, instant]), kind="stable")
+    both = InstantPersons.concatenate([persons, empty], V).take(order)
+    added = np.concatenate([np.zeros(len(persons), dtype=bool), np.ones(K, dtype=bool)])[order]
+    return both, np.concatenate([track, new_track])[order], added
