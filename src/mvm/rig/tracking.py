@@ -254,7 +254,7 @@ def with_missed_instants(persons: InstantPersons, track: np.ndarray) -> tuple[In
     if not len(persons):
         return persons, track, np.zeros(0, dtype=bool)
     index = track_rows(persons.instant, track)
-    missed = [(int(persons.instant[rows[rows >= 0][0]]) + np.flatnonzero(rows < 0), track[rows[rows >= 0][0]])
+    missed = [(persons.instant[rows[0]] + np.flatnonzero(rows < 0), track[rows[0]])     # rows[0]: its first
               for rows in index if (rows < 0).any()]
     if not missed:
         return persons, track, np.zeros(len(persons), dtype=bool)
