@@ -374,7 +374,8 @@ def reconstruct_cmd(rig_dir, calib, frames, output, smoothing, no_complete, trc_
     r = recap_dict
     flags = r["joint_flags"]
     names = list(r["excluded_per_camera"])
-    print_rig_recap(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons, {r['tracks']} tracks "
+    filled = f" ({r['persons_filled_whole']} filled where a track missed them)" if r.get("persons_filled_whole") else ""
+    print_rig_recap(f"{rig_dir}: {r['instants']} instants, {r['persons']} persons{filled}, {r['tracks']} tracks "
                     f"({r['tracks_resumed']} resumed after a loss), {r['instants_per_s']} instants/s; joints "
                     + ", ".join(f"{k} {v:.1%}" for k, v in flags.items() if v), r)
     worst = max(names, key=lambda n: r["excluded_overall_per_camera"][n] or 0.0, default=None)
