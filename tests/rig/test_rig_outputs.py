@@ -11,8 +11,10 @@ from click.testing import CliRunner
 from test_rig_dir import _write_rig
 
 from mvm.cli.rig import rig
+from mvm.core.camera import project_views
 from mvm.core.config import Config
 from mvm.errors import InputError
+from mvm.io.openpose import BODY25_TO_COCO17
 from mvm.io.outputs import make_temporary_dir
 from mvm.io.trc import read_trc, to_opensim
 from mvm.rig.options import RigOptions
@@ -77,6 +79,38 @@ def test_no_complete_keeps_nulls(rig_dir, tmp_path):
     assert {p["flags"][9] for line in lines[7:10] for p in line["persons"]} == {"missing"}
     trc = read_trc(next((out / "tracks").glob("*.trc")))
     assert np.isnan(trc.points[7:10, 9]).all() and "left empty" in trc.comment
+
+
+def test_an_instant_no_camera_saw_a_person_at_is_filled_and_said_so(tmp_path):
+    """No camera has a pose of one of the two people at instant 5 of 12: its track resumes after
+    it and has a person there, every joint interpolated near the truth, no member, no view; the
+    recap counts it and the command says so. Without completion the instant holds the other
+    person only."""
+    root = tmp_path / "rig"
+    root.mkdir()
+    cameras, truth = _write_rig(root, T=12)
+    for path in (root / "pose").glob("*/*_000000000005_keypoints.json"):
+        data = json.loads(path.read_text())
+        view = next(v for v, n in enumerate(cameras.names) if path.parent.name == f"{n.replace('_', '')}_json")
+        uv = project_views(cameras.subset([view]), truth[5, 0])[0][0]             # (17, 2)
+        distance = [np.linalg.norm(np.reshape(p["pose_keypoints_2d"], (25, 3))[BODY25_TO_COCO17, :2] - uv,
+                                   axis=-1).mean() for p in data["people"]]
+        data["people"].pop(int(np.argmin(distance)))                              # person 0, from every camera
+        path.write_text(json.dumps(data))
+    result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "-o", str(tmp_path / "a")])
+    assert result.exit_code == 0, result.output
+    assert "24 persons (1 filled where a track missed them)" in " ".join(result.output.split())
+    filled = [p for p in _lines(tmp_path / "a")[5]["persons"] if not p["members"]]
+    assert len(_lines(tmp_path / "a")[5]["persons"]) == 2 and len(filled) == 1
+    assert filled[0]["views_per_joint"] == [0] * 17 and filled[0]["reprojection_error_px"] is None
+    assert set(filled[0]["flags"]) == {"interpolated"}
+    x = np.array([k[:3] for k in filled[0]["keypoints3d"]])
+    assert np.linalg.norm(truth[5, 0] - x, axis=-1).mean() < 0.03
+    assert json.loads((tmp_path / "a" / "recap.json").read_text())["persons_filled_whole"] == 1
+    result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "--no-complete", "-o",
+                                      str(tmp_path / "b")])
+    assert result.exit_code == 0, result.output
+    assert [p["members"] != {} for p in _lines(tmp_path / "b")[5]["persons"]] == [True]
 
 
 def test_inferred_joints_stay_out_of_trc_unless_asked(tmp_path):
