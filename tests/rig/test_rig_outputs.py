@@ -107,6 +107,11 @@ def test_an_instant_no_camera_saw_a_person_at_is_filled_and_said_so(tmp_path):
     x = np.array([k[:3] for k in filled[0]["keypoints3d"]])
     assert np.linalg.norm(truth[5, 0] - x, axis=-1).mean() < 0.03
     assert json.loads((tmp_path / "a" / "recap.json").read_text())["persons_filled_whole"] == 1
+    # the filled instant does not count towards a track's length: seen at 11 instants, not 12
+    result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "--rig-set", "min_track_length=12",
+                                      "-o", str(tmp_path / "c")])
+    assert result.exit_code == 0, result.output
+    assert len(list((tmp_path / "c" / "tracks").glob("*.trc"))) == 1
     result = CliRunner().invoke(rig, ["reconstruct", str(root), "--no-refine", "--no-complete", "-o",
                                       str(tmp_path / "b")])
     assert result.exit_code == 0, result.output

@@ -26,7 +26,8 @@ class RigOptions:
     #: A person joins a track only when their distance is measured over at least this many shared
     #: joints (fewer if the person has fewer); lower lets sparse persons jump between tracks. [joints]
     min_link_joints: int = setting(4, ge=1, le=17)
-    #: Tracks shorter than this are dropped from the .trc output (they stay in the JSON Lines). [instants]
+    #: Tracks seen at fewer instants than this (the instants a track was filled at do not count)
+    #: are dropped from the .trc output (they stay in the JSON Lines). [instants]
     min_track_length: int = setting(1, ge=1)
     #: Temporal smoothing of each track: "none", "butterworth" (zero-phase low-pass) or "savgol". [-]
     smoothing: str = setting("butterworth", choices=("none", "butterworth", "savgol"))

@@ -118,7 +118,8 @@ def gap_policy(options: RigOptions, complete: bool) -> str:
 def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np.ndarray,
                  track: np.ndarray, options: RigOptions, flags: np.ndarray | None = None,
                  complete: bool = True) -> list[Path]:
-    """One ``track_<id>.trc`` per track of at least ``min_track_length`` instants (Y up, metres).
+    """One ``track_<id>.trc`` per track seen at ``min_track_length`` instants or more (Y up,
+    metres; the instants it was filled at, with no joint observed, do not count).
 
     ``flags: (Q, 17)``: inferred joints are left out unless ``options.trc_inferred``; with
     ``complete`` (the rig's :attr:`Config.complete`), instants where the track was unseen are
@@ -128,8 +129,9 @@ def write_tracks(directory: Path, frames: np.ndarray, X: np.ndarray, instant: np
     if flags is not None and not options.trc_inferred:
         X = np.where((np.asarray(flags) == INFERRED)[..., None], np.nan, X)
     comment = gap_policy(options, complete)
+    seen = np.ones(len(track), bool) if flags is None else (np.asarray(flags) == OBSERVED).any(1)
     for k in np.unique(track):
-        if (track == k).sum() < options.min_track_length:
+        if ((track == k) & seen).sum() < options.min_track_length:
             continue
         times, series = track_series(X, instant, track, k)
         if complete:
