@@ -260,7 +260,9 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
                                            config, prior, options.bone_weight, noise)
     if complete:
         persons, track, added = with_missed_instants(persons, tracking.track)
-        tracking, refused = dataclasses.replace(tracking, track=track), _rows_of(refused, added)
+        tracking, before = dataclasses.replace(tracking, track=track), refused
+        refused = np.zeros((len(added), before.shape[1]), bool)
+        refused[~added] = before                                               # none at the added rows
     X = smooth_tracks(np.where(refused[..., None], np.nan, persons.X), persons.instant, tracking.track,
                       options.smoothing, rate=options.rate, cutoff_hz=options.cutoff, order=options.filter_order,
                       window=options.savgol_window)
@@ -275,14 +277,6 @@ def track_and_complete(persons: InstantPersons, options: RigOptions, prior=None,
     flags = np.where(filled > 0, filled, flags).astype(np.int8)
     kept = ~added | (np.isfinite(X).all(-1).sum(1) >= settings.min_person_joints)      # a missed instant, filled
     return dataclasses.replace(tracking, track=tracking.track[kept]), persons.take(kept), X[kept], flags[kept]
-
-
-def _rows_of(values: np.ndarray, added: np.ndarray) -> np.ndarray:
-    """``values: (Q, ...)`` of the rows before :func:`mvm.rig.tracking.with_missed_instants`
-    laid out on its rows (``added: (Q',)``), False (zero) at the rows it added."""
-    out = np.zeros((len(added),) + values.shape[1:], dtype=values.dtype)
-    out[~added] = values
-    return out
 
 
 def fill_track_occlusions(persons: InstantPersons, X: np.ndarray, track: np.ndarray, detections, cameras, prior,
